@@ -1,0 +1,456 @@
+//! The desktop app: an egui window with the 3D viewport, orbit camera, HUD, menus, WASD
+//! input and the recorder. The only module that knows about windows.
+
+pub mod recorder;
+pub mod viewport;
+
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use eframe::egui;
+use glam::Vec3;
+
+use crate::action::{Action, HeldKeys, KeyScript};
+use crate::avatar::{Character, Mesh, load_character};
+use crate::gpu::timing::StageTiming;
+use crate::gpu::{self, GpuContext, GpuOptions};
+use crate::render::GpuMesh;
+use recorder::{DEFAULT_FPS, Recorder};
+use viewport::Viewport;
+
+/// How the app was started (see `unica --help`).
+#[derive(Clone, Debug, Default)]
+pub struct AppOptions {
+    /// Character file shown in the viewport; `None` shows the placeholder.
+    pub character: Option<PathBuf>,
+    /// Drive the action from this script instead of the keyboard.
+    pub keys: Option<KeyScript>,
+    /// Render this many frames, then exit.
+    pub exit_after: Option<u64>,
+    /// Save a screenshot of the window when exiting after `exit_after` frames.
+    pub screenshot: Option<PathBuf>,
+    /// Folder that F9 records into.
+    pub record_dir: PathBuf,
+    pub gpu: GpuOptions,
+}
+
+/// Opens the window and runs until it is closed.
+pub fn run(options: AppOptions) -> anyhow::Result<()> {
+    let selector_options = options.gpu.clone();
+    let device_options = options.gpu.clone();
+    let setup = eframe::egui_wgpu::WgpuSetupCreateNew {
+        instance_descriptor: wgpu::InstanceDescriptor {
+            backends: gpu::backends(),
+            ..wgpu::InstanceDescriptor::new_without_display_handle()
+        },
+        native_adapter_selector: Some(Arc::new(move |adapters, surface| {
+            gpu::select_adapter(adapters, surface, &selector_options).map_err(|e| e.to_string())
+        })),
+        device_descriptor: Arc::new(move |adapter| gpu::device_descriptor(adapter, &device_options)),
+        ..eframe::egui_wgpu::WgpuSetupCreateNew::without_display_handle()
+    };
+    let native = eframe::NativeOptions {
+        viewport: egui::ViewportBuilder::default()
+            .with_title("unica")
+            .with_inner_size([1280.0, 800.0])
+            .with_min_inner_size([480.0, 320.0])
+            .with_drag_and_drop(true),
+        renderer: eframe::Renderer::Wgpu,
+        wgpu_options: eframe::egui_wgpu::WgpuConfiguration {
+            wgpu_setup: eframe::egui_wgpu::WgpuSetup::CreateNew(setup),
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let outcome: Arc<Mutex<Option<anyhow::Error>>> = Arc::default();
+    let app_outcome = outcome.clone();
+    eframe::run_native(
+        "unica",
+        native,
+        Box::new(move |cc| {
+            let state = cc
+                .wgpu_render_state
+                .as_ref()
+                .ok_or("the window has no wgpu renderer")?;
+            let gpu = GpuContext::from_parts(
+                state.adapter.clone(),
+                state.device.clone(),
+                state.queue.clone(),
+            );
+            Ok(Box::new(UnicaApp::new(gpu, options, app_outcome)))
+        }),
+    )
+    .map_err(|e| anyhow::anyhow!("could not open the window: {e}"))?;
+    match outcome.lock().expect("outcome lock").take() {
+        Some(err) => Err(err),
+        None => Ok(()),
+    }
+}
+
+/// What the viewport shows: the loaded character, or a placeholder and why.
+struct Shown {
+    name: String,
+    mesh: GpuMesh,
+    bounds: (Vec3, Vec3),
+    problem: Option<String>,
+}
+
+struct UnicaApp {
+    gpu: GpuContext,
+    viewport: Viewport,
+    shown: Shown,
+    options: AppOptions,
+    keys: HeldKeys,
+    action: Action,
+    frame: u64,
+    last_frame: Instant,
+    frame_ms: f64,
+    timings: Vec<StageTiming>,
+    recording: Option<(Recorder, Instant)>,
+    record_dir: String,
+    open_path: String,
+    message: Option<String>,
+    show_help: bool,
+    screenshot_requested: bool,
+    /// Where the screenshot callback leaves its result for the exit path.
+    outcome: Arc<Mutex<Option<anyhow::Error>>>,
+}
+
+impl UnicaApp {
+    fn new(gpu: GpuContext, options: AppOptions, outcome: Arc<Mutex<Option<anyhow::Error>>>) -> Self {
+        let mut viewport = Viewport::new(&gpu);
+        let shown = load_shown(&gpu, &viewport, options.character.as_ref());
+        viewport.camera.frame(shown.bounds.0, shown.bounds.1);
+        log::info!("adapter: {}; {:?}", gpu.adapter_label(), gpu.caps);
+        Self {
+            record_dir: options.record_dir.display().to_string(),
+            open_path: options
+                .character
+                .as_ref()
+                .map(|p| p.display().to_string())
+                .unwrap_or_default(),
+            gpu,
+            viewport,
+            shown,
+            options,
+            keys: HeldKeys::default(),
+            action: Action::Idle,
+            frame: 0,
+            last_frame: Instant::now(),
+            frame_ms: 0.0,
+            timings: Vec::new(),
+            recording: None,
+            message: None,
+            show_help: false,
+            screenshot_requested: false,
+            outcome,
+        }
+    }
+
+    fn open(&mut self, path: PathBuf) {
+        self.shown = load_shown(&self.gpu, &self.viewport, Some(&path));
+        self.message = self.shown.problem.clone();
+        self.viewport.camera.frame(self.shown.bounds.0, self.shown.bounds.1);
+        self.open_path = path.display().to_string();
+    }
+
+    fn toggle_recording(&mut self) {
+        match self.recording.take() {
+            Some((recorder, _)) => {
+                let dir = recorder.dir.clone();
+                self.message = Some(match recorder.stop() {
+                    Ok(n) => format!("Recorded {n} frames to {}", dir.display()),
+                    Err(e) => format!("Recording stopped: {e}"),
+                });
+            }
+            None => match Recorder::start(&PathBuf::from(&self.record_dir), DEFAULT_FPS) {
+                Ok(recorder) => {
+                    self.message = None;
+                    self.recording = Some((recorder, Instant::now()));
+                }
+                Err(e) => self.message = Some(format!("Cannot record: {e}")),
+            },
+        }
+    }
+
+    /// Keyboard: movement keys into held state, F/R/F9 commands, dropped files.
+    fn handle_input(&mut self, ctx: &egui::Context) {
+        let typing = ctx.egui_wants_keyboard_input();
+        let (events, focused, dropped) = ctx.input(|i| {
+            (i.events.clone(), i.focused, i.raw.dropped_files.clone())
+        });
+        if !focused {
+            self.keys.clear();
+        }
+        for event in events {
+            let egui::Event::Key { key, pressed, repeat, .. } = event else {
+                continue;
+            };
+            if let Some(action) = movement(key) {
+                // Releases always count, so a key let go while typing does not stick.
+                if !pressed {
+                    self.keys.release(action);
+                } else if !typing && !repeat {
+                    self.keys.press(action);
+                }
+                continue;
+            }
+            if !pressed || repeat || typing {
+                continue;
+            }
+            match key {
+                egui::Key::F => self.viewport.camera.frame(self.shown.bounds.0, self.shown.bounds.1),
+                egui::Key::R => {
+                    self.viewport.camera = Default::default();
+                    self.viewport.camera.frame(self.shown.bounds.0, self.shown.bounds.1);
+                }
+                egui::Key::F9 => self.toggle_recording(),
+                _ => {}
+            }
+        }
+        if let Some(path) = dropped.first().map(|f| f.path().to_path_buf()) {
+            self.open(path);
+        }
+    }
+
+    fn menu_bar(&mut self, ui: &mut egui::Ui) {
+        egui::MenuBar::new().ui(ui, |ui| {
+            ui.menu_button("File", |ui| {
+                ui.label("Character file (.gltf, .glb, .obj), or drop one on the window:");
+                ui.text_edit_singleline(&mut self.open_path);
+                if ui.button("Open").clicked() {
+                    self.open(PathBuf::from(self.open_path.trim()));
+                    ui.close();
+                }
+                ui.separator();
+                if ui.button("Quit").clicked() {
+                    ui.ctx().send_viewport_cmd(egui::ViewportCommand::Close);
+                }
+            });
+            ui.menu_button("Record", |ui| {
+                ui.label("Folder for numbered PNG frames and manifest.json:");
+                ui.add_enabled(
+                    self.recording.is_none(),
+                    egui::TextEdit::singleline(&mut self.record_dir),
+                );
+                let label = if self.recording.is_some() {
+                    "Stop recording (F9)"
+                } else {
+                    "Start recording (F9)"
+                };
+                if ui.button(label).clicked() {
+                    self.toggle_recording();
+                    ui.close();
+                }
+            });
+            ui.menu_button("Help", |ui| {
+                if ui.button("Key map").clicked() {
+                    self.show_help = true;
+                    ui.close();
+                }
+            });
+        });
+    }
+
+    fn hud(&self, ui: &mut egui::Ui) {
+        ui.heading(&self.shown.name);
+        if let Some(problem) = &self.shown.problem {
+            ui.colored_label(egui::Color32::YELLOW, problem);
+        }
+        ui.separator();
+        ui.label(egui::RichText::new(format!("Action: {}", self.action)).size(20.0).strong());
+        ui.horizontal(|ui| {
+            for action in [Action::Left, Action::Forward, Action::Backward, Action::Right] {
+                let text = egui::RichText::new(action.letter().to_string()).monospace().size(18.0);
+                let text = if action == self.action {
+                    text.color(egui::Color32::BLACK).background_color(egui::Color32::LIGHT_GREEN)
+                } else {
+                    text
+                };
+                ui.label(text);
+            }
+        });
+        if self.options.keys.is_some() {
+            ui.label(format!("Key script, frame {}", self.frame));
+        }
+        ui.separator();
+        let fps = if self.frame_ms > 0.0 { 1000.0 / self.frame_ms } else { 0.0 };
+        ui.label(format!("{fps:.1} fps   {:.2} ms/frame", self.frame_ms));
+        for t in &self.timings {
+            ui.label(format!("{}: {:.3} ms ({})", t.name, t.ms, t.clock));
+        }
+        ui.separator();
+        ui.label(format!("Adapter: {}", self.gpu.adapter_label()));
+        let caps = self.gpu.caps;
+        ui.label(format!(
+            "f16: {}  subgroups: {}  timestamps: {}",
+            yes_no(caps.shader_f16),
+            yes_no(caps.subgroups),
+            yes_no(caps.timestamps)
+        ));
+        if let Some((recorder, _)) = &self.recording {
+            ui.separator();
+            ui.colored_label(egui::Color32::RED, format!("● REC → {}", recorder.dir.display()));
+        }
+        if let Some(message) = &self.message {
+            ui.separator();
+            ui.label(message);
+        }
+    }
+
+    fn record_frame(&mut self) {
+        let Some((recorder, started)) = &mut self.recording else {
+            return;
+        };
+        if let Some(err) = recorder.poll_error() {
+            let (recorder, _) = self.recording.take().expect("recording is on");
+            let written = recorder.stop().map(|n| n.to_string()).unwrap_or_else(|_| "earlier".into());
+            self.message = Some(format!("Recording stopped: {err} (frames {written} kept)"));
+            return;
+        }
+        let due = recorder.frames_due(started.elapsed().as_secs_f64());
+        if due == 0 {
+            return;
+        }
+        let Some(target) = self.viewport.target() else {
+            return;
+        };
+        match gpu::readback::rgba_texture(&self.gpu, &target.color) {
+            Ok(image) => recorder.push(image, self.action, self.viewport.camera, due),
+            Err(e) => self.message = Some(format!("Recording: {e}")),
+        }
+    }
+
+    /// `--exit-after N`: after N frames take the screenshot (if asked) and close.
+    fn scripted_exit(&mut self, ctx: &egui::Context) {
+        let Some(limit) = self.options.exit_after else {
+            return;
+        };
+        if self.frame < limit || self.screenshot_requested {
+            return;
+        }
+        self.screenshot_requested = true;
+        println!(
+            "unica: {} frames rendered; action {}; character {}",
+            self.frame, self.action, self.shown.name
+        );
+        let Some(path) = self.options.screenshot.clone() else {
+            ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+            return;
+        };
+        let outcome = self.outcome.clone();
+        let close_ctx = ctx.clone();
+        ctx.request_screenshot(move |image| {
+            let rgba = image::RgbaImage::from_raw(
+                image.size[0] as u32,
+                image.size[1] as u32,
+                image.pixels.iter().flat_map(|c| c.to_array()).collect(),
+            );
+            let result = match rgba {
+                Some(rgba) => crate::files::write_png_atomic(&path, &rgba).map_err(anyhow::Error::from),
+                None => Err(anyhow::anyhow!("the screenshot had the wrong size")),
+            };
+            if let Err(e) = result {
+                *outcome.lock().expect("outcome lock") = Some(e);
+            }
+            close_ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+        });
+    }
+}
+
+impl eframe::App for UnicaApp {
+    fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
+        let ctx = ui.ctx().clone();
+        let now = Instant::now();
+        let dt = now.duration_since(self.last_frame).as_secs_f64() * 1e3;
+        self.last_frame = now;
+        self.frame_ms = if self.frame == 0 { dt } else { 0.9 * self.frame_ms + 0.1 * dt };
+
+        self.handle_input(&ctx);
+        self.action = match &self.options.keys {
+            Some(script) => script.action_at(self.frame as usize),
+            None => self.keys.current(),
+        };
+
+        egui::Panel::top("menu").show(ui, |ui| self.menu_bar(ui));
+        egui::Panel::right("hud")
+            .resizable(true)
+            .default_size(260.0)
+            .show(ui, |ui| self.hud(ui));
+        egui::Window::new("Key map")
+            .open(&mut self.show_help)
+            .resizable(false)
+            .show(&ctx, |ui| {
+                egui::Grid::new("keys").striped(true).show(ui, |ui| {
+                    for (key, what) in KEY_MAP {
+                        ui.monospace(*key);
+                        ui.label(*what);
+                        ui.end_row();
+                    }
+                });
+            });
+        let state = frame.wgpu_render_state().expect("wgpu renderer").clone();
+        egui::CentralPanel::default()
+            .frame(egui::Frame::NONE)
+            .show(ui, |ui| {
+                self.timings = self.viewport.show(ui, &self.gpu, &state.renderer, &[&self.shown.mesh]);
+            });
+        self.record_frame();
+        self.frame += 1;
+        self.scripted_exit(&ctx);
+        ctx.request_repaint();
+    }
+}
+
+/// The key map shown in Help and the README.
+pub const KEY_MAP: &[(&str, &str)] = &[
+    ("W / Up", "Forward"),
+    ("S / Down", "Backward"),
+    ("A / Left", "Left"),
+    ("D / Right", "Right"),
+    ("no key held", "Idle"),
+    ("left drag", "orbit the camera"),
+    ("right / middle drag", "pan"),
+    ("wheel", "zoom"),
+    ("F", "frame the avatar"),
+    ("R", "reset the camera"),
+    ("F9", "start / stop recording"),
+];
+
+fn movement(key: egui::Key) -> Option<Action> {
+    Some(match key {
+        egui::Key::W | egui::Key::ArrowUp => Action::Forward,
+        egui::Key::S | egui::Key::ArrowDown => Action::Backward,
+        egui::Key::A | egui::Key::ArrowLeft => Action::Left,
+        egui::Key::D | egui::Key::ArrowRight => Action::Right,
+        _ => return None,
+    })
+}
+
+fn yes_no(b: bool) -> &'static str {
+    if b { "yes" } else { "no" }
+}
+
+/// Loads the character for display; any failure shows the placeholder with the reason.
+fn load_shown(gpu: &GpuContext, viewport: &Viewport, path: Option<&PathBuf>) -> Shown {
+    let loaded: Result<Character, String> = match path {
+        Some(path) => load_character(path).map_err(|e| e.to_string()),
+        None => Err("no character file given (--character)".into()),
+    };
+    let (name, mesh, problem) = match loaded {
+        Ok(character) => (character.name, character.mesh, None),
+        Err(problem) => {
+            log::warn!("{problem}");
+            let mesh = Mesh::cuboid(Vec3::new(-0.25, 0.0, -0.15), Vec3::new(0.25, 1.8, 0.15), Vec3::splat(0.5));
+            ("placeholder".to_string(), mesh, Some(format!("Showing a placeholder: {problem}")))
+        }
+    };
+    let bounds = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ONE));
+    Shown {
+        name,
+        mesh: viewport.renderer.upload(gpu, &mesh),
+        bounds,
+        problem,
+    }
+}

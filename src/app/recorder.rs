@@ -1,0 +1,246 @@
+//! The recorder: viewport frames at a fixed rate as numbered PNGs, each written atomically
+//! on a background thread, plus manifest.json (frame, time, action, camera).
+
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{self, Receiver, Sender};
+use std::thread::JoinHandle;
+
+use crate::action::Action;
+use crate::files::{WriteError, write_atomic, write_png_atomic};
+use crate::render::OrbitCamera;
+
+/// Default recording rate: the avatar's animation rate.
+pub const DEFAULT_FPS: f64 = 30.0;
+/// Most frames written for one viewport frame when the app falls behind (one second).
+const MAX_CATCH_UP: u64 = 30;
+/// The manifest is rewritten after this many frames (and when the recording stops).
+const MANIFEST_EVERY: u64 = 30;
+
+/// What the manifest says about one frame.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct FrameRecord {
+    pub index: u64,
+    pub file: String,
+    pub time_s: f64,
+    pub action: Action,
+    pub camera: OrbitCamera,
+}
+
+#[derive(serde::Serialize)]
+struct Manifest<'a> {
+    unica_version: &'a str,
+    fps: f64,
+    frames: &'a [FrameRecord],
+}
+
+/// Writes numbered frames and the manifest into one folder, synchronously.
+pub struct FrameWriter {
+    dir: PathBuf,
+    fps: f64,
+    frames: Vec<FrameRecord>,
+}
+
+impl FrameWriter {
+    pub fn create(dir: &Path, fps: f64) -> Result<Self, WriteError> {
+        std::fs::create_dir_all(dir).map_err(|source| WriteError {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            fps,
+            frames: Vec::new(),
+        })
+    }
+
+    pub fn frames_written(&self) -> u64 {
+        self.frames.len() as u64
+    }
+
+    /// Writes the next frame; the manifest follows every [`MANIFEST_EVERY`] frames.
+    pub fn write(
+        &mut self,
+        image: &image::RgbaImage,
+        action: Action,
+        camera: OrbitCamera,
+    ) -> Result<(), WriteError> {
+        let index = self.frames_written();
+        let file = format!("frame_{index:06}.png");
+        write_png_atomic(&self.dir.join(&file), image)?;
+        self.frames.push(FrameRecord {
+            index,
+            file,
+            time_s: index as f64 / self.fps,
+            action,
+            camera,
+        });
+        if self.frames_written().is_multiple_of(MANIFEST_EVERY) {
+            self.write_manifest()?;
+        }
+        Ok(())
+    }
+
+    /// Writes manifest.json listing every frame written so far.
+    pub fn write_manifest(&self) -> Result<(), WriteError> {
+        let manifest = Manifest {
+            unica_version: env!("CARGO_PKG_VERSION"),
+            fps: self.fps,
+            frames: &self.frames,
+        };
+        let json = serde_json::to_vec_pretty(&manifest).expect("manifest serialises");
+        write_atomic(&self.dir.join("manifest.json"), &json)
+    }
+}
+
+struct Job {
+    image: image::RgbaImage,
+    action: Action,
+    camera: OrbitCamera,
+    copies: u64,
+}
+
+/// A recording in progress: paces frames to the fixed rate and hands them to a writer
+/// thread, so the window never waits on the disk.
+pub struct Recorder {
+    pub dir: PathBuf,
+    fps: f64,
+    queued: u64,
+    jobs: Option<Sender<Job>>,
+    errors: Receiver<WriteError>,
+    thread: Option<JoinHandle<Result<u64, WriteError>>>,
+}
+
+impl Recorder {
+    pub fn start(dir: &Path, fps: f64) -> Result<Self, WriteError> {
+        let mut writer = FrameWriter::create(dir, fps)?;
+        let (jobs, job_rx) = mpsc::channel::<Job>();
+        let (err_tx, errors) = mpsc::channel();
+        let thread = std::thread::spawn(move || {
+            let run = |writer: &mut FrameWriter| -> Result<(), WriteError> {
+                for job in job_rx {
+                    for _ in 0..job.copies {
+                        writer.write(&job.image, job.action, job.camera)?;
+                    }
+                }
+                writer.write_manifest()
+            };
+            let result = run(&mut writer);
+            if let Err(e) = &result {
+                // Keep what was written listed; the failing frame itself is not.
+                let _ = writer.write_manifest();
+                let _ = err_tx.send(WriteError {
+                    path: e.path.clone(),
+                    source: std::io::Error::new(e.source.kind(), e.source.to_string()),
+                });
+            }
+            result.map(|()| writer.frames_written())
+        });
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            fps,
+            queued: 0,
+            jobs: Some(jobs),
+            errors,
+            thread: Some(thread),
+        })
+    }
+
+    /// How many frames are due at `elapsed_s` seconds into the recording (0 when the
+    /// viewport runs faster than the recording rate, more than 1 when it fell behind).
+    pub fn frames_due(&self, elapsed_s: f64) -> u64 {
+        let target = (elapsed_s * self.fps).floor() as u64 + 1;
+        target.saturating_sub(self.queued).min(MAX_CATCH_UP)
+    }
+
+    /// Queues the current viewport image `copies` times (see [`Self::frames_due`]).
+    pub fn push(&mut self, image: image::RgbaImage, action: Action, camera: OrbitCamera, copies: u64) {
+        if copies == 0 {
+            return;
+        }
+        self.queued += copies;
+        if let Some(jobs) = &self.jobs {
+            // A send error means the writer stopped on an error, reported by `poll_error`.
+            let _ = jobs.send(Job {
+                image,
+                action,
+                camera,
+                copies,
+            });
+        }
+    }
+
+    /// The write error that stopped the writer, if any.
+    pub fn poll_error(&self) -> Option<WriteError> {
+        self.errors.try_recv().ok()
+    }
+
+    /// Stops, waits for the queue to drain, and returns the number of frames written.
+    pub fn stop(mut self) -> Result<u64, WriteError> {
+        self.jobs = None;
+        match self.thread.take().map(JoinHandle::join) {
+            Some(Ok(result)) => result,
+            _ => Err(WriteError {
+                path: self.dir.clone(),
+                source: std::io::Error::other("the recording thread crashed"),
+            }),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn image(v: u8) -> image::RgbaImage {
+        image::RgbaImage::from_pixel(4, 3, image::Rgba([v, 0, 0, 255]))
+    }
+
+    #[test]
+    fn frames_are_paced_to_the_rate() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut rec = Recorder::start(dir.path(), 30.0).unwrap();
+        assert_eq!(rec.frames_due(0.0), 1);
+        rec.push(image(1), Action::Idle, OrbitCamera::default(), 1);
+        assert_eq!(rec.frames_due(0.01), 0, "faster than 30 fps: nothing due");
+        assert_eq!(rec.frames_due(0.1), 3, "frames 1, 2 and 3 are due at 0.1 s");
+        assert_eq!(rec.frames_due(100.0), MAX_CATCH_UP);
+        rec.push(image(2), Action::Forward, OrbitCamera::default(), 3);
+        assert_eq!(rec.stop().unwrap(), 4);
+        let manifest: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.path().join("manifest.json")).unwrap()).unwrap();
+        let frames = manifest["frames"].as_array().unwrap();
+        assert_eq!(frames.len(), 4);
+        assert_eq!(frames[3]["file"], "frame_000003.png");
+        assert_eq!(frames[3]["action"], "Forward");
+        assert!((frames[3]["time_s"].as_f64().unwrap() - 0.1).abs() < 1e-9);
+        let png = image::open(dir.path().join("frame_000003.png")).unwrap();
+        assert_eq!(png.to_rgba8().get_pixel(0, 0).0, [2, 0, 0, 255]);
+    }
+
+    #[test]
+    fn a_failing_write_stops_the_recording_and_keeps_earlier_frames() {
+        let dir = tempfile::tempdir().unwrap();
+        // The temporary name of frame 2 is taken by a directory: that write fails.
+        std::fs::create_dir(dir.path().join("frame_000002.png.tmp")).unwrap();
+        let mut rec = Recorder::start(dir.path(), 30.0).unwrap();
+        rec.push(image(7), Action::Left, OrbitCamera::default(), 3);
+        let err = rec.stop().unwrap_err();
+        assert!(err.to_string().contains("frame_000002.png"), "{err}");
+        for i in 0..2 {
+            let png = image::open(dir.path().join(format!("frame_{i:06}.png"))).unwrap();
+            assert_eq!(png.to_rgba8().get_pixel(3, 2).0, [7, 0, 0, 255]);
+        }
+        let manifest: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.path().join("manifest.json")).unwrap()).unwrap();
+        assert_eq!(manifest["frames"].as_array().unwrap().len(), 2);
+    }
+
+    #[test]
+    fn an_unusable_folder_is_refused_up_front() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("not_a_folder");
+        std::fs::write(&file, b"x").unwrap();
+        let err = Recorder::start(&file, 30.0).err().unwrap();
+        assert!(err.to_string().contains("not_a_folder"), "{err}");
+    }
+}

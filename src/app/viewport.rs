@@ -1,0 +1,112 @@
+//! The 3D viewport: the scene rendered into an off-screen texture that egui shows, and the
+//! mouse mapped onto the orbit camera (left orbit, right/middle pan, wheel zoom).
+//! Render-to-texture rather than a paint callback: the recorder, screenshots and headless
+//! renders read exactly the same pixels, and our passes can carry timestamp queries.
+
+use eframe::egui;
+
+use crate::gpu::GpuContext;
+use crate::gpu::timing::{Profiler, StageTiming};
+use crate::render::{GpuMesh, OrbitCamera, RenderTarget, SceneRenderer};
+
+/// Radians of orbit per point dragged.
+const ORBIT_SPEED: f32 = 0.008;
+/// Zoom factor per point scrolled (exponential).
+const ZOOM_SPEED: f32 = 0.002;
+
+pub struct Viewport {
+    pub renderer: SceneRenderer,
+    pub camera: OrbitCamera,
+    target: Option<RenderTarget>,
+    texture: Option<egui::TextureId>,
+}
+
+impl Viewport {
+    pub fn new(gpu: &GpuContext) -> Self {
+        Self {
+            renderer: SceneRenderer::new(gpu),
+            camera: OrbitCamera::default(),
+            target: None,
+            texture: None,
+        }
+    }
+
+    /// The last rendered image (what the recorder saves).
+    pub fn target(&self) -> Option<&RenderTarget> {
+        self.target.as_ref()
+    }
+
+    /// Renders `meshes` at the size of the available area, shows it, and applies mouse
+    /// input to the camera. Returns the stage timings of the render.
+    pub fn show(
+        &mut self,
+        ui: &mut egui::Ui,
+        gpu: &GpuContext,
+        egui_renderer: &egui::mutex::RwLock<eframe::egui_wgpu::Renderer>,
+        meshes: &[&GpuMesh],
+    ) -> Vec<StageTiming> {
+        let size = ui.available_size();
+        let ppp = ui.ctx().pixels_per_point();
+        let (w, h) = (
+            (size.x * ppp).round().max(1.0) as u32,
+            (size.y * ppp).round().max(1.0) as u32,
+        );
+        if self.target.as_ref().map(RenderTarget::size) != Some((w, h)) {
+            let target = RenderTarget::new(gpu, w, h);
+            let mut renderer = egui_renderer.write();
+            let filter = wgpu::FilterMode::Linear;
+            match self.texture {
+                Some(id) => renderer.update_egui_texture_from_wgpu_texture(
+                    &gpu.device,
+                    &target.color_view,
+                    filter,
+                    id,
+                ),
+                None => {
+                    self.texture = Some(renderer.register_native_texture(
+                        &gpu.device,
+                        &target.color_view,
+                        filter,
+                    ))
+                }
+            }
+            self.target = Some(target);
+        }
+        let (Some(target), Some(texture)) = (&self.target, self.texture) else {
+            return Vec::new();
+        };
+
+        let mut profiler = Profiler::new(gpu);
+        profiler.stage(gpu, "viewport", |encoder, timer| {
+            self.renderer
+                .draw(gpu, encoder, target, &self.camera, meshes, timer)
+        });
+        let response = ui.add(
+            egui::Image::new(egui::load::SizedTexture::new(texture, size))
+                .sense(egui::Sense::click_and_drag()),
+        );
+        self.handle_mouse(ui, &response);
+        profiler.finish(gpu).unwrap_or_else(|e| {
+            log::warn!("{e}");
+            Vec::new()
+        })
+    }
+
+    fn handle_mouse(&mut self, ui: &egui::Ui, response: &egui::Response) {
+        let delta = response.drag_delta();
+        if response.dragged_by(egui::PointerButton::Primary) {
+            self.camera.orbit(-delta.x * ORBIT_SPEED, delta.y * ORBIT_SPEED);
+        } else if response.dragged_by(egui::PointerButton::Secondary)
+            || response.dragged_by(egui::PointerButton::Middle)
+        {
+            let height = response.rect.height().max(1.0);
+            self.camera.pan(delta.x / height, delta.y / height);
+        }
+        if response.hovered() {
+            let scroll = ui.input(|i| i.smooth_scroll_delta.y);
+            if scroll != 0.0 {
+                self.camera.zoom((scroll * ZOOM_SPEED).exp());
+            }
+        }
+    }
+}

@@ -1,0 +1,188 @@
+//! The command-line contract (DESIGN §11): the app by default, and the subcommands.
+//! Subcommands of later milestones are listed and refuse to run until they exist.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use clap::{Parser, Subcommand};
+
+use crate::action::KeyScript;
+use crate::app::{self, AppOptions};
+use crate::gpu::{self, GpuContext, GpuOptions};
+
+/// Environment variable naming the character file the app shows by default.
+pub const CHARACTER_ENV: &str = "UNICA_CHARACTER";
+/// The default avatar's source, relative to the repository (DESIGN: ../shared/assets).
+const DEFAULT_CHARACTER: &str = "../shared/assets/witch/Witch.gltf";
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "unica",
+    version,
+    about = "Drive a 3D avatar with W/A/S/D: action-conditioned diffusion geometry on the GPU, drawn free-view",
+    long_about = "Drive a 3D avatar with W/A/S/D. Without a subcommand unica opens the app: \
+        an egui window with the 3D viewport (left-drag orbits, right/middle-drag pans, wheel \
+        zooms, F frames the avatar, R resets the camera, F9 records frames).\n\n\
+        GPU selection: WGPU_BACKEND=vulkan|metal|dx12|gl picks the backend, \
+        WGPU_ADAPTER_NAME=<substring> picks the adapter, UNICA_FORCE_FALLBACK=1 (or \
+        --gpu-fallback) uses only the f32 / no-subgroup / CPU-timer paths. Without a GPU, \
+        install Mesa's CPU Vulkan driver (apt-get install mesa-vulkan-drivers libvulkan1)."
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+
+    /// Character file (.gltf, .glb, .obj) to show [default: $UNICA_CHARACTER, else
+    /// ../shared/assets/witch/Witch.gltf]
+    #[arg(long, value_name = "FILE")]
+    character: Option<PathBuf>,
+
+    /// Neural avatar bundle to play (arrives with the live model; refused until then)
+    #[arg(long, value_name = "PATH")]
+    bundle: Option<PathBuf>,
+
+    /// Drive the avatar from a key script instead of the keyboard, e.g. "60W 60S 60A 20I"
+    /// (one action per rendered frame; keys W A S D, I = idle)
+    #[arg(long, value_name = "SCRIPT")]
+    keys: Option<String>,
+
+    /// Render this many frames, then exit (for tests and scripted captures)
+    #[arg(long, value_name = "N")]
+    exit_after: Option<u64>,
+
+    /// Save a PNG of the whole window when exiting (needs --exit-after)
+    #[arg(long, value_name = "PNG", requires = "exit_after")]
+    screenshot: Option<PathBuf>,
+
+    /// Folder that recordings (F9) go to [default: recordings/session-<unix time>]
+    #[arg(long, value_name = "DIR")]
+    record_dir: Option<PathBuf>,
+
+    /// Use only the portable GPU paths: f32 kernels, no subgroups, CPU timers
+    #[arg(long, global = true)]
+    gpu_fallback: bool,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// List the GPU adapters and what unica would use on each
+    Adapters,
+    /// Print timings of the GPU kernels on the present adapter
+    Bench,
+    /// Bake a teacher dataset from a character file (not built yet)
+    #[command(disable_help_flag = false)]
+    Bake(Later),
+    /// Headless scripted session to numbered PNGs (not built yet)
+    Render(Later),
+    /// Evaluate a bundle against the teacher (not built yet)
+    Eval(Later),
+    /// Export splats as a 3DGS PLY (not built yet)
+    Export(Later),
+    /// Open a 3DGS PLY file in the viewer (not built yet)
+    View(Later),
+}
+
+/// Arguments of a subcommand that later milestones build.
+#[derive(clap::Args, Debug)]
+struct Later {
+    #[arg(trailing_var_arg = true, allow_hyphen_values = true, hide = true)]
+    args: Vec<String>,
+}
+
+/// Parses the process arguments and runs the command.
+pub fn run() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    let mut gpu_options = GpuOptions::from_env();
+    gpu_options.force_fallback |= cli.gpu_fallback;
+    match cli.command {
+        None => play(cli, gpu_options),
+        Some(Command::Adapters) => adapters(&gpu_options),
+        Some(Command::Bench) => {
+            let gpu = GpuContext::headless(&gpu_options)?;
+            crate::bench::run(&gpu, &mut std::io::stdout())
+        }
+        Some(Command::Bake(_)) => not_built("bake"),
+        Some(Command::Render(_)) => not_built("render"),
+        Some(Command::Eval(_)) => not_built("eval"),
+        Some(Command::Export(_)) => not_built("export"),
+        Some(Command::View(_)) => not_built("view"),
+    }
+}
+
+fn not_built(name: &str) -> anyhow::Result<()> {
+    bail!("`unica {name}` is not built yet (see README.md, 'Status')")
+}
+
+fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
+    if let Some(bundle) = cli.bundle {
+        bail!(
+            "{}: neural avatar bundles are not supported yet; run without --bundle to see the character",
+            bundle.display()
+        );
+    }
+    let keys = cli
+        .keys
+        .as_deref()
+        .map(KeyScript::parse)
+        .transpose()
+        .context("--keys")?;
+    if cli.exit_after == Some(0) {
+        bail!("--exit-after must be at least 1");
+    }
+    let record_dir = cli.record_dir.unwrap_or_else(|| {
+        let secs = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs())
+            .unwrap_or(0);
+        PathBuf::from(format!("recordings/session-{secs}"))
+    });
+    app::run(AppOptions {
+        character: cli.character.or_else(default_character),
+        keys,
+        exit_after: cli.exit_after,
+        screenshot: cli.screenshot,
+        record_dir,
+        gpu,
+    })
+}
+
+/// `$UNICA_CHARACTER`, else the shared Witch beside the working directory or beside the
+/// source tree; `None` if none of them exists.
+pub fn default_character() -> Option<PathBuf> {
+    if let Some(path) = std::env::var_os(CHARACTER_ENV) {
+        return Some(PathBuf::from(path));
+    }
+    [
+        PathBuf::from(DEFAULT_CHARACTER),
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_CHARACTER),
+    ]
+    .into_iter()
+    .find(|p| p.is_file())
+}
+
+fn adapters(options: &GpuOptions) -> anyhow::Result<()> {
+    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
+        backends: gpu::backends(),
+        ..wgpu::InstanceDescriptor::new_without_display_handle()
+    });
+    let adapters = pollster::block_on(instance.enumerate_adapters(gpu::backends()));
+    let chosen = gpu::select_adapter(&adapters, None, options)?;
+    for adapter in &adapters {
+        let info = adapter.get_info();
+        let caps = gpu::Capabilities::for_adapter(adapter, options);
+        let mark = if info == chosen.get_info() { "*" } else { " " };
+        println!(
+            "{mark} {} ({:?}, {:?}, driver {}): f16 {}, subgroups {}, timestamps {}, max storage binding {} MiB",
+            info.name,
+            info.backend,
+            info.device_type,
+            info.driver,
+            caps.shader_f16,
+            caps.subgroups,
+            caps.timestamps,
+            adapter.limits().max_storage_buffer_binding_size >> 20
+        );
+    }
+    println!("* = used by unica");
+    Ok(())
+}

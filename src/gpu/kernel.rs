@@ -1,0 +1,302 @@
+//! Compute kernel runner: a pipeline cache, dispatches that split past the per-dimension
+//! workgroup limit, and the foundation's example kernels (scale-add, sum) with their fallbacks.
+
+use std::collections::HashMap;
+
+use super::shaders::{self, Shader};
+use super::timing::PassTimer;
+use super::{GpuContext, GpuError, readback};
+use crate::gpu_struct;
+
+/// Threads per workgroup of the 1-D kernels (`@workgroup_size(64)` in their WGSL).
+pub const WORKGROUP_SIZE: u32 = 64;
+
+gpu_struct! {
+    /// Parameters of element-wise kernels: `y = scale * x + bias` over `len` elements.
+    pub struct ElementwiseParams {
+        pub len: u32,
+        pub scale: f32,
+        pub bias: f32,
+        pub pad: u32,
+    }
+}
+
+gpu_struct! {
+    /// Parameters of the sum reduction over `len` elements.
+    pub struct ReduceParams {
+        pub len: u32,
+        pub pad0: u32,
+        pub pad1: u32,
+        pub pad2: u32,
+    }
+}
+
+/// A 2-D dispatch covering `workgroups` linear workgroups with at most `max_per_dim` per
+/// dimension; kernels recover the linear index as `id.x + id.y * num_workgroups.x` and
+/// skip the few past the end.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Grid {
+    pub x: u32,
+    pub y: u32,
+}
+
+impl Grid {
+    pub fn for_workgroups(workgroups: u32, max_per_dim: u32) -> Self {
+        if workgroups <= max_per_dim {
+            return Self { x: workgroups, y: 1 };
+        }
+        let y = workgroups.div_ceil(max_per_dim);
+        let x = workgroups.div_ceil(y);
+        Self { x, y }
+    }
+
+    /// The grid for one thread per element at [`WORKGROUP_SIZE`] threads per workgroup.
+    pub fn for_elements(elements: u32, max_per_dim: u32) -> Self {
+        Self::for_workgroups(elements.div_ceil(WORKGROUP_SIZE), max_per_dim)
+    }
+}
+
+/// Compute pipelines by (shader file, entry point), built once on first use.
+#[derive(Default)]
+pub struct PipelineCache {
+    pipelines: HashMap<(&'static str, &'static str), wgpu::ComputePipeline>,
+}
+
+impl PipelineCache {
+    pub fn get(
+        &mut self,
+        device: &wgpu::Device,
+        shader: &Shader,
+        entry: &'static str,
+    ) -> &wgpu::ComputePipeline {
+        self.pipelines.entry((shader.file, entry)).or_insert_with(|| {
+            let module = shader.module(device);
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(shader.file),
+                layout: None,
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.pipelines.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.pipelines.is_empty()
+    }
+}
+
+/// Records one compute dispatch: binds `buffers` in order to group 0 and covers `grid`.
+pub fn dispatch(
+    device: &wgpu::Device,
+    encoder: &mut wgpu::CommandEncoder,
+    pipeline: &wgpu::ComputePipeline,
+    buffers: &[&wgpu::Buffer],
+    grid: Grid,
+    timestamp_writes: Option<wgpu::ComputePassTimestampWrites<'_>>,
+) {
+    let entries: Vec<wgpu::BindGroupEntry> = buffers
+        .iter()
+        .enumerate()
+        .map(|(i, b)| wgpu::BindGroupEntry {
+            binding: i as u32,
+            resource: b.as_entire_binding(),
+        })
+        .collect();
+    let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: None,
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &entries,
+    });
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: None,
+        timestamp_writes,
+    });
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, &bind_group, &[]);
+    pass.dispatch_workgroups(grid.x, grid.y, 1);
+}
+
+/// Which element type the example kernels store: f16 where the device has SHADER_F16.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Precision {
+    F32,
+    F16,
+}
+
+impl Precision {
+    /// The best precision path the device supports (f16 storage halves bandwidth).
+    pub fn preferred(gpu: &GpuContext) -> Self {
+        if gpu.caps.shader_f16 { Self::F16 } else { Self::F32 }
+    }
+}
+
+fn uniform<T: bytemuck::Pod>(device: &wgpu::Device, value: &T) -> wgpu::Buffer {
+    use wgpu::util::DeviceExt;
+    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("params"),
+        contents: bytemuck::bytes_of(value),
+        usage: wgpu::BufferUsages::UNIFORM,
+    })
+}
+
+/// The example element-wise kernel, `y = scale * x + bias`, prepared on the device in
+/// `precision` so it can be recorded repeatedly (tests, benchmarks).
+pub struct ScaleAdd {
+    pipeline: wgpu::ComputePipeline,
+    params: wgpu::Buffer,
+    input: wgpu::Buffer,
+    output: wgpu::Buffer,
+    grid: Grid,
+    len: usize,
+    precision: Precision,
+}
+
+impl ScaleAdd {
+    pub fn new(
+        gpu: &GpuContext,
+        cache: &mut PipelineCache,
+        x: &[f32],
+        scale: f32,
+        bias: f32,
+        precision: Precision,
+    ) -> Result<Self, GpuError> {
+        let (shader, bytes) = match precision {
+            Precision::F32 => (&shaders::SCALE_ADD_F32, bytemuck::cast_slice(x).to_vec()),
+            Precision::F16 => {
+                let halves: Vec<half::f16> = x.iter().map(|&v| half::f16::from_f32(v)).collect();
+                (&shaders::SCALE_ADD_F16, bytemuck::cast_slice(&halves).to_vec())
+            }
+        };
+        // f16 arrays are padded to 4 bytes so odd lengths still bind.
+        let padded = bytes.len().next_multiple_of(4) as u64;
+        let input = gpu.storage_buffer("scale_add.x", padded, wgpu::BufferUsages::COPY_DST)?;
+        gpu.queue.write_buffer(&input, 0, &bytes);
+        let output = gpu.storage_buffer("scale_add.y", padded, wgpu::BufferUsages::COPY_SRC)?;
+        let len = x.len() as u32;
+        let params = ElementwiseParams {
+            len,
+            scale,
+            bias,
+            pad: 0,
+        };
+        Ok(Self {
+            pipeline: cache.get(&gpu.device, shader, "main").clone(),
+            params: uniform(&gpu.device, &params),
+            input,
+            output,
+            grid: Grid::for_elements(len, gpu.device.limits().max_compute_workgroups_per_dimension),
+            len: x.len(),
+            precision,
+        })
+    }
+
+    /// Bytes read and written by one run.
+    pub fn bytes_moved(&self) -> u64 {
+        2 * self.len as u64 * self.element_size() as u64
+    }
+
+    fn element_size(&self) -> usize {
+        match self.precision {
+            Precision::F32 => 4,
+            Precision::F16 => 2,
+        }
+    }
+
+    pub fn record(&self, gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, timer: Option<PassTimer<'_>>) {
+        let buffers = [&self.params, &self.input, &self.output];
+        dispatch(&gpu.device, encoder, &self.pipeline, &buffers, self.grid, timer.as_ref().map(PassTimer::compute));
+    }
+
+    /// The output as f32.
+    pub fn read(&self, gpu: &GpuContext) -> Result<Vec<f32>, GpuError> {
+        let raw = readback::buffer(gpu, &self.output, "scale_add.y")?;
+        let raw = &raw[..self.len * self.element_size()];
+        Ok(match self.precision {
+            Precision::F32 => bytemuck::cast_slice(raw).to_vec(),
+            Precision::F16 => bytemuck::cast_slice::<u8, half::f16>(raw)
+                .iter()
+                .map(|v| v.to_f32())
+                .collect(),
+        })
+    }
+}
+
+/// Runs [`ScaleAdd`] once and reads the result back.
+pub fn scale_add(
+    gpu: &GpuContext,
+    cache: &mut PipelineCache,
+    x: &[f32],
+    scale: f32,
+    bias: f32,
+    precision: Precision,
+) -> Result<Vec<f32>, GpuError> {
+    let kernel = ScaleAdd::new(gpu, cache, x, scale, bias, precision)?;
+    let mut encoder = gpu.device.create_command_encoder(&Default::default());
+    kernel.record(gpu, &mut encoder, None);
+    gpu.queue.submit([encoder.finish()]);
+    kernel.read(gpu)
+}
+
+/// The example reduction: the sum of `x`, with subgroup operations where available and
+/// workgroup shared memory otherwise.
+pub fn sum(gpu: &GpuContext, cache: &mut PipelineCache, x: &[f32]) -> Result<f32, GpuError> {
+    let shader = if gpu.caps.subgroups {
+        &shaders::SUM_SUBGROUP
+    } else {
+        &shaders::SUM_SHARED
+    };
+    let input = gpu.storage_buffer_init("sum.x", bytemuck::cast_slice(x), wgpu::BufferUsages::empty())?;
+    let output = gpu.storage_buffer("sum.out", 4, wgpu::BufferUsages::COPY_SRC)?;
+    let params = uniform(
+        &gpu.device,
+        &ReduceParams {
+            len: x.len() as u32,
+            pad0: 0,
+            pad1: 0,
+            pad2: 0,
+        },
+    );
+    let pipeline = cache.get(&gpu.device, shader, "main");
+    let mut encoder = gpu.device.create_command_encoder(&Default::default());
+    dispatch(&gpu.device, &mut encoder, pipeline, &[&params, &input, &output], Grid { x: 1, y: 1 }, None);
+    gpu.queue.submit([encoder.finish()]);
+    let raw = readback::buffer(gpu, &output, "sum.out")?;
+    Ok(bytemuck::pod_read_unaligned(&raw[..4]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grid_fits_in_one_dimension_when_it_can() {
+        assert_eq!(Grid::for_workgroups(10, 65_535), Grid { x: 10, y: 1 });
+        assert_eq!(Grid::for_workgroups(65_535, 65_535), Grid { x: 65_535, y: 1 });
+    }
+
+    #[test]
+    fn grid_splits_past_the_limit_and_covers_every_workgroup() {
+        for (n, max) in [(65_536, 65_535), (1_000_000, 65_535), (13, 4), (16, 4), (5, 3)] {
+            let g = Grid::for_workgroups(n, max);
+            assert!(g.x <= max && g.y <= max, "{n} {max} -> {g:?}");
+            assert!(g.x as u64 * g.y as u64 >= n as u64, "{n} {max} -> {g:?}");
+            // No whole row is wasted.
+            assert!((g.x as u64) * (g.y as u64 - 1) < n as u64, "{n} {max} -> {g:?}");
+        }
+        assert_eq!(Grid::for_workgroups(13, 4), Grid { x: 4, y: 4 });
+        assert_eq!(Grid::for_workgroups(5, 3), Grid { x: 3, y: 2 });
+    }
+
+    #[test]
+    fn elements_round_up_to_whole_workgroups() {
+        assert_eq!(Grid::for_elements(1, 65_535), Grid { x: 1, y: 1 });
+        assert_eq!(Grid::for_elements(64, 65_535), Grid { x: 1, y: 1 });
+        assert_eq!(Grid::for_elements(65, 65_535), Grid { x: 2, y: 1 });
+    }
+}

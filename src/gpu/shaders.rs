@@ -1,0 +1,143 @@
+//! The WGSL sources embedded in the binary, and host/shader structs from one definition.
+//! `gpu_struct!` declares a struct once; Rust gets a `Pod` type and WGSL gets its text.
+
+use std::borrow::Cow;
+
+/// A Rust type with a WGSL spelling of the same size and alignment.
+pub trait WgslType {
+    const WGSL: &'static str;
+}
+
+macro_rules! wgsl_type {
+    ($($rust:ty => $wgsl:literal),* $(,)?) => {
+        $(impl WgslType for $rust { const WGSL: &'static str = $wgsl; })*
+    };
+}
+
+wgsl_type! {
+    u32 => "u32",
+    i32 => "i32",
+    f32 => "f32",
+    [f32; 4] => "vec4<f32>",
+    [u32; 4] => "vec4<u32>",
+    glam::Vec4 => "vec4<f32>",
+    glam::Mat4 => "mat4x4<f32>",
+}
+
+/// Declares a `#[repr(C)]` struct shared with WGSL. Use only 4- and 16-byte-aligned
+/// field types in an order without implicit padding; a test checks every shared struct's
+/// size and field offsets against naga's layout of the generated WGSL.
+#[macro_export]
+macro_rules! gpu_struct {
+    ($(#[$meta:meta])* pub struct $name:ident { $($(#[$fmeta:meta])* pub $field:ident : $ty:ty),* $(,)? }) => {
+        $(#[$meta])*
+        #[repr(C)]
+        #[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+        pub struct $name { $($(#[$fmeta])* pub $field: $ty),* }
+
+        impl $crate::gpu::shaders::GpuStruct for $name {
+            const NAME: &'static str = stringify!($name);
+            fn wgsl() -> String {
+                let mut out = format!("struct {} {{\n", stringify!($name));
+                $(out.push_str(&format!(
+                    "    {}: {},\n",
+                    stringify!($field),
+                    <$ty as $crate::gpu::shaders::WgslType>::WGSL
+                ));)*
+                out.push_str("}\n");
+                out
+            }
+            fn field_offsets() -> Vec<(&'static str, usize)> {
+                vec![$((stringify!($field), std::mem::offset_of!($name, $field))),*]
+            }
+        }
+    };
+}
+
+/// A struct declared by [`gpu_struct!`].
+pub trait GpuStruct: bytemuck::Pod {
+    const NAME: &'static str;
+    /// The WGSL declaration of this struct.
+    fn wgsl() -> String;
+    /// Each field's name and byte offset on the host.
+    fn field_offsets() -> Vec<(&'static str, usize)>;
+}
+
+/// Host-side description of a shared struct, for the shader registry and its tests.
+#[derive(Clone, Copy)]
+pub struct SharedStruct {
+    pub name: &'static str,
+    pub wgsl: fn() -> String,
+    pub size: usize,
+    pub field_offsets: fn() -> Vec<(&'static str, usize)>,
+}
+
+impl SharedStruct {
+    pub const fn of<T: GpuStruct>() -> Self {
+        Self {
+            name: T::NAME,
+            wgsl: T::wgsl,
+            size: std::mem::size_of::<T>(),
+            field_offsets: T::field_offsets,
+        }
+    }
+}
+
+/// One WGSL file of `shaders/`, with the shared structs it uses (prepended on load).
+#[derive(Clone, Copy)]
+pub struct Shader {
+    pub file: &'static str,
+    pub body: &'static str,
+    pub structs: &'static [SharedStruct],
+    /// Needs `enable f16;` support (SHADER_F16).
+    pub needs_f16: bool,
+    /// Needs subgroup operations (SUBGROUP).
+    pub needs_subgroups: bool,
+}
+
+impl Shader {
+    /// The full WGSL source: `enable f16;` where needed, shared struct declarations, then
+    /// the file. (naga takes subgroup builtins without a directive.)
+    pub fn source(&self) -> String {
+        let mut out = String::new();
+        if self.needs_f16 {
+            out.push_str("enable f16;\n");
+        }
+        for s in self.structs {
+            out.push_str(&(s.wgsl)());
+        }
+        out.push_str(self.body);
+        out
+    }
+
+    pub fn module(&self, device: &wgpu::Device) -> wgpu::ShaderModule {
+        device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(self.file),
+            source: wgpu::ShaderSource::Wgsl(Cow::Owned(self.source())),
+        })
+    }
+}
+
+macro_rules! shader {
+    ($file:literal, [$($s:ty),*], f16: $f16:expr, subgroups: $sg:expr) => {
+        Shader {
+            file: $file,
+            body: include_str!(concat!("../../shaders/", $file)),
+            structs: &[$(SharedStruct::of::<$s>()),*],
+            needs_f16: $f16,
+            needs_subgroups: $sg,
+        }
+    };
+}
+
+use super::kernel::{ElementwiseParams, ReduceParams};
+use crate::render::SceneUniforms;
+
+pub const SCALE_ADD_F32: Shader = shader!("scale_add_f32.wgsl", [ElementwiseParams], f16: false, subgroups: false);
+pub const SCALE_ADD_F16: Shader = shader!("scale_add_f16.wgsl", [ElementwiseParams], f16: true, subgroups: false);
+pub const SUM_SHARED: Shader = shader!("sum_shared.wgsl", [ReduceParams], f16: false, subgroups: false);
+pub const SUM_SUBGROUP: Shader = shader!("sum_subgroup.wgsl", [ReduceParams], f16: false, subgroups: true);
+pub const SCENE: Shader = shader!("scene.wgsl", [SceneUniforms], f16: false, subgroups: false);
+
+/// Every shader of the crate; a test checks this covers every file in `shaders/`.
+pub const ALL: &[Shader] = &[SCALE_ADD_F32, SCALE_ADD_F16, SUM_SHARED, SUM_SUBGROUP, SCENE];

@@ -1,0 +1,11 @@
+//! unica: a WASD-driven 3D avatar whose geometry comes from an action-conditioned latent
+//! diffusion model run as wgpu compute shaders, drawn free-view (see README.md).
+
+pub mod action;
+pub mod app;
+pub mod avatar;
+pub mod bench;
+pub mod cli;
+pub mod files;
+pub mod gpu;
+pub mod render;

@@ -1,0 +1,96 @@
+//! Every WGSL file is registered, parses and validates with naga (no device needed), and
+//! every shared struct has the same size and field offsets in WGSL as in Rust.
+
+use std::collections::BTreeSet;
+
+use unica::gpu::shaders::{ALL, Shader};
+use wgpu::naga;
+
+fn parse(shader: &Shader) -> naga::Module {
+    let source = shader.source();
+    naga::front::wgsl::parse_str(&source)
+        .unwrap_or_else(|e| panic!("{}: {}", shader.file, e.emit_to_string(&source)))
+}
+
+fn capabilities(shader: &Shader) -> naga::valid::Capabilities {
+    use naga::valid::Capabilities as C;
+    let mut caps = C::empty();
+    caps.set(C::SHADER_FLOAT16, shader.needs_f16);
+    caps.set(C::SUBGROUP, shader.needs_subgroups);
+    caps
+}
+
+#[test]
+fn every_shader_parses_and_validates_with_only_the_features_it_declares() {
+    for shader in ALL {
+        let module = parse(shader);
+        let source = shader.source();
+        naga::valid::Validator::new(naga::valid::ValidationFlags::all(), capabilities(shader))
+            .subgroup_stages(naga::valid::ShaderStages::all())
+            .subgroup_operations(naga::valid::SubgroupOperationSet::all())
+            .validate(&module)
+            .unwrap_or_else(|e| panic!("{}: {}", shader.file, e.emit_to_string(&source)));
+    }
+}
+
+#[test]
+fn every_file_in_shaders_is_registered_once() {
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/shaders");
+    let on_disk: BTreeSet<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".wgsl"))
+        .collect();
+    let registered: Vec<String> = ALL.iter().map(|s| s.file.to_string()).collect();
+    let unique: BTreeSet<String> = registered.iter().cloned().collect();
+    assert_eq!(unique.len(), registered.len(), "a shader is registered twice");
+    assert_eq!(on_disk, unique);
+}
+
+#[test]
+fn shared_structs_have_the_host_layout() {
+    let mut checked = 0;
+    for shader in ALL {
+        let module = parse(shader);
+        for shared in shader.structs {
+            let (span, members) = module
+                .types
+                .iter()
+                .find_map(|(_, ty)| match &ty.inner {
+                    naga::TypeInner::Struct { members, span } if ty.name.as_deref() == Some(shared.name) => {
+                        Some((*span, members.clone()))
+                    }
+                    _ => None,
+                })
+                .unwrap_or_else(|| panic!("{}: struct {} not found", shader.file, shared.name));
+            assert_eq!(span as usize, shared.size, "{}: size of {}", shader.file, shared.name);
+            let wgsl: Vec<(String, usize)> = members
+                .iter()
+                .map(|m| (m.name.clone().unwrap(), m.offset as usize))
+                .collect();
+            let host: Vec<(String, usize)> = (shared.field_offsets)()
+                .into_iter()
+                .map(|(n, o)| (n.to_string(), o))
+                .collect();
+            assert_eq!(wgsl, host, "{}: field offsets of {}", shader.file, shared.name);
+            checked += 1;
+        }
+    }
+    assert!(checked >= 3, "only {checked} shared structs checked");
+}
+
+#[test]
+fn a_misaligned_struct_would_be_caught() {
+    // The layout check above is only useful if naga disagrees with a naive Rust layout;
+    // a vec4 after one u32 is padded to offset 16 in WGSL (and would be 4 in packed Rust).
+    let module = naga::front::wgsl::parse_str("struct S { a: u32, b: vec4<f32> }").unwrap();
+    let offsets: Vec<u32> = module
+        .types
+        .iter()
+        .find_map(|(_, ty)| match &ty.inner {
+            naga::TypeInner::Struct { members, .. } => Some(members.iter().map(|m| m.offset).collect()),
+            _ => None,
+        })
+        .unwrap();
+    assert_eq!(offsets, [0, 16]);
+}
