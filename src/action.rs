@@ -3,7 +3,9 @@
 
 use std::fmt;
 
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize,
+)]
 pub enum Action {
     #[default]
     Idle = 0,
@@ -57,7 +59,9 @@ pub struct KeyScript {
 }
 
 #[derive(Debug, PartialEq, Eq, thiserror::Error)]
-#[error("key script token {index} ('{token}'): {problem}; expected <count><key> with keys W A S D I, e.g. \"30I 60W\"")]
+#[error(
+    "key script token {index} ('{token}'): {problem}; expected <count><key> with keys W A S D I, e.g. \"30I 60W\""
+)]
 pub struct ScriptError {
     pub index: usize,
     pub token: String,
@@ -162,10 +166,22 @@ mod tests {
     #[test]
     fn bad_scripts_name_the_token() {
         let e = KeyScript::parse("30W 10X").unwrap_err();
-        assert_eq!((e.index, e.token.as_str(), e.problem), (2, "10X", "unknown key"));
-        assert_eq!(KeyScript::parse("W").unwrap_err().problem, "the count is not a whole number");
-        assert_eq!(KeyScript::parse("0W").unwrap_err().problem, "the count must be at least 1");
-        assert_eq!(KeyScript::parse(" ").unwrap_err().problem, "the script is empty");
+        assert_eq!(
+            (e.index, e.token.as_str(), e.problem),
+            (2, "10X", "unknown key")
+        );
+        assert_eq!(
+            KeyScript::parse("W").unwrap_err().problem,
+            "the count is not a whole number"
+        );
+        assert_eq!(
+            KeyScript::parse("0W").unwrap_err().problem,
+            "the count must be at least 1"
+        );
+        assert_eq!(
+            KeyScript::parse(" ").unwrap_err().problem,
+            "the script is empty"
+        );
         assert!(KeyScript::parse("-3W").is_err());
         assert!(KeyScript::parse("3é").is_err());
         assert!(e.to_string().contains("'10X'"));

@@ -19,7 +19,11 @@ pub fn run(gpu: &GpuContext, out: &mut impl Write) -> anyhow::Result<()> {
         "capabilities: f16 {}, subgroups {}, timestamps {}",
         gpu.caps.shader_f16, gpu.caps.subgroups, gpu.caps.timestamps
     )?;
-    writeln!(out, "{:<28} {:>10} {:>10} {:>10}", "kernel", "median ms", "min ms", "GB/s")?;
+    writeln!(
+        out,
+        "{:<28} {:>10} {:>10} {:>10}",
+        "kernel", "median ms", "min ms", "GB/s"
+    )?;
     let mut cache = PipelineCache::default();
     let x: Vec<f32> = (0..ELEMENTS).map(|i| (i % 1000) as f32 * 1e-3).collect();
     let mut precisions = vec![Precision::F32];
@@ -30,15 +34,26 @@ pub fn run(gpu: &GpuContext, out: &mut impl Write) -> anyhow::Result<()> {
         let kernel = ScaleAdd::new(gpu, &mut cache, &x, 2.0, 1.0, precision)?;
         let mut profiler = Profiler::new(gpu);
         for _ in 0..REPEATS + 1 {
-            profiler.stage(gpu, "scale_add", |encoder, timer| kernel.record(gpu, encoder, timer));
+            profiler.stage(gpu, "scale_add", |encoder, timer| {
+                kernel.record(gpu, encoder, timer)
+            });
         }
         // The first run includes pipeline warm-up; drop it.
-        let mut ms: Vec<f64> = profiler.finish(gpu)?.into_iter().skip(1).map(|t| t.ms).collect();
+        let mut ms: Vec<f64> = profiler
+            .finish(gpu)?
+            .into_iter()
+            .skip(1)
+            .map(|t| t.ms)
+            .collect();
         ms.sort_by(f64::total_cmp);
         let median = ms[ms.len() / 2];
         let gbps = kernel.bytes_moved() as f64 / (median * 1e-3) / 1e9;
         let name = format!("scale_add {precision:?} x{ELEMENTS}");
-        writeln!(out, "{name:<28} {median:>10.3} {:>10.3} {gbps:>10.2}", ms[0])?;
+        writeln!(
+            out,
+            "{name:<28} {median:>10.3} {:>10.3} {gbps:>10.2}",
+            ms[0]
+        )?;
     }
     Ok(())
 }

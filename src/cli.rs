@@ -58,6 +58,10 @@ pub struct Cli {
     #[arg(long, value_name = "DIR")]
     record_dir: Option<PathBuf>,
 
+    /// Start recording (as F9 does) when the window opens
+    #[arg(long)]
+    record: bool,
+
     /// Use only the portable GPU paths: f32 kernels, no subgroups, CPU timers
     #[arg(long, global = true)]
     gpu_fallback: bool,
@@ -142,6 +146,7 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
         exit_after: cli.exit_after,
         screenshot: cli.screenshot,
         record_dir,
+        record: cli.record,
         gpu,
     })
 }
@@ -161,11 +166,7 @@ pub fn default_character() -> Option<PathBuf> {
 }
 
 fn adapters(options: &GpuOptions) -> anyhow::Result<()> {
-    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
-        backends: gpu::backends(),
-        ..wgpu::InstanceDescriptor::new_without_display_handle()
-    });
-    let adapters = pollster::block_on(instance.enumerate_adapters(gpu::backends()));
+    let adapters = pollster::block_on(gpu::enumerate_adapters());
     let chosen = gpu::select_adapter(&adapters, None, options)?;
     for adapter in &adapters {
         let info = adapter.get_info();

@@ -43,7 +43,11 @@ fn every_file_in_shaders_is_registered_once() {
         .collect();
     let registered: Vec<String> = ALL.iter().map(|s| s.file.to_string()).collect();
     let unique: BTreeSet<String> = registered.iter().cloned().collect();
-    assert_eq!(unique.len(), registered.len(), "a shader is registered twice");
+    assert_eq!(
+        unique.len(),
+        registered.len(),
+        "a shader is registered twice"
+    );
     assert_eq!(on_disk, unique);
 }
 
@@ -57,13 +61,19 @@ fn shared_structs_have_the_host_layout() {
                 .types
                 .iter()
                 .find_map(|(_, ty)| match &ty.inner {
-                    naga::TypeInner::Struct { members, span } if ty.name.as_deref() == Some(shared.name) => {
+                    naga::TypeInner::Struct { members, span }
+                        if ty.name.as_deref() == Some(shared.name) =>
+                    {
                         Some((*span, members.clone()))
                     }
                     _ => None,
                 })
                 .unwrap_or_else(|| panic!("{}: struct {} not found", shader.file, shared.name));
-            assert_eq!(span as usize, shared.size, "{}: size of {}", shader.file, shared.name);
+            assert_eq!(
+                span as usize, shared.size,
+                "{}: size of {}",
+                shader.file, shared.name
+            );
             let wgsl: Vec<(String, usize)> = members
                 .iter()
                 .map(|m| (m.name.clone().unwrap(), m.offset as usize))
@@ -72,7 +82,11 @@ fn shared_structs_have_the_host_layout() {
                 .into_iter()
                 .map(|(n, o)| (n.to_string(), o))
                 .collect();
-            assert_eq!(wgsl, host, "{}: field offsets of {}", shader.file, shared.name);
+            assert_eq!(
+                wgsl, host,
+                "{}: field offsets of {}",
+                shader.file, shared.name
+            );
             checked += 1;
         }
     }
@@ -88,7 +102,9 @@ fn a_misaligned_struct_would_be_caught() {
         .types
         .iter()
         .find_map(|(_, ty)| match &ty.inner {
-            naga::TypeInner::Struct { members, .. } => Some(members.iter().map(|m| m.offset).collect()),
+            naga::TypeInner::Struct { members, .. } => {
+                Some(members.iter().map(|m| m.offset).collect())
+            }
             _ => None,
         })
         .unwrap();

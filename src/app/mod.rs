@@ -32,11 +32,20 @@ pub struct AppOptions {
     pub screenshot: Option<PathBuf>,
     /// Folder that F9 records into.
     pub record_dir: PathBuf,
+    /// Start recording as the window opens.
+    pub record: bool,
     pub gpu: GpuOptions,
 }
 
 /// Opens the window and runs until it is closed.
 pub fn run(options: AppOptions) -> anyhow::Result<()> {
+    // Fail with the same one-line advice as the headless tools when there is no adapter
+    // at all (eframe would only say that no surface could be created).
+    gpu::select_adapter(
+        &pollster::block_on(gpu::enumerate_adapters()),
+        None,
+        &options.gpu,
+    )?;
     let selector_options = options.gpu.clone();
     let device_options = options.gpu.clone();
     let setup = eframe::egui_wgpu::WgpuSetupCreateNew {
@@ -47,7 +56,9 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
         native_adapter_selector: Some(Arc::new(move |adapters, surface| {
             gpu::select_adapter(adapters, surface, &selector_options).map_err(|e| e.to_string())
         })),
-        device_descriptor: Arc::new(move |adapter| gpu::device_descriptor(adapter, &device_options)),
+        device_descriptor: Arc::new(move |adapter| {
+            gpu::device_descriptor(adapter, &device_options)
+        }),
         ..eframe::egui_wgpu::WgpuSetupCreateNew::without_display_handle()
     };
     let native = eframe::NativeOptions {
@@ -118,12 +129,17 @@ struct UnicaApp {
 }
 
 impl UnicaApp {
-    fn new(gpu: GpuContext, options: AppOptions, outcome: Arc<Mutex<Option<anyhow::Error>>>) -> Self {
+    fn new(
+        gpu: GpuContext,
+        options: AppOptions,
+        outcome: Arc<Mutex<Option<anyhow::Error>>>,
+    ) -> Self {
         let mut viewport = Viewport::new(&gpu);
         let shown = load_shown(&gpu, &viewport, options.character.as_ref());
         viewport.camera.frame(shown.bounds.0, shown.bounds.1);
         log::info!("adapter: {}; {:?}", gpu.adapter_label(), gpu.caps);
-        Self {
+        let record = options.record;
+        let mut app = Self {
             record_dir: options.record_dir.display().to_string(),
             open_path: options
                 .character
@@ -145,13 +161,19 @@ impl UnicaApp {
             show_help: false,
             screenshot_requested: false,
             outcome,
+        };
+        if record {
+            app.toggle_recording();
         }
+        app
     }
 
     fn open(&mut self, path: PathBuf) {
         self.shown = load_shown(&self.gpu, &self.viewport, Some(&path));
         self.message = self.shown.problem.clone();
-        self.viewport.camera.frame(self.shown.bounds.0, self.shown.bounds.1);
+        self.viewport
+            .camera
+            .frame(self.shown.bounds.0, self.shown.bounds.1);
         self.open_path = path.display().to_string();
     }
 
@@ -177,14 +199,19 @@ impl UnicaApp {
     /// Keyboard: movement keys into held state, F/R/F9 commands, dropped files.
     fn handle_input(&mut self, ctx: &egui::Context) {
         let typing = ctx.egui_wants_keyboard_input();
-        let (events, focused, dropped) = ctx.input(|i| {
-            (i.events.clone(), i.focused, i.raw.dropped_files.clone())
-        });
+        let (events, focused, dropped) =
+            ctx.input(|i| (i.events.clone(), i.focused, i.raw.dropped_files.clone()));
         if !focused {
             self.keys.clear();
         }
         for event in events {
-            let egui::Event::Key { key, pressed, repeat, .. } = event else {
+            let egui::Event::Key {
+                key,
+                pressed,
+                repeat,
+                ..
+            } = event
+            else {
                 continue;
             };
             if let Some(action) = movement(key) {
@@ -200,10 +227,15 @@ impl UnicaApp {
                 continue;
             }
             match key {
-                egui::Key::F => self.viewport.camera.frame(self.shown.bounds.0, self.shown.bounds.1),
+                egui::Key::F => self
+                    .viewport
+                    .camera
+                    .frame(self.shown.bounds.0, self.shown.bounds.1),
                 egui::Key::R => {
                     self.viewport.camera = Default::default();
-                    self.viewport.camera.frame(self.shown.bounds.0, self.shown.bounds.1);
+                    self.viewport
+                        .camera
+                        .frame(self.shown.bounds.0, self.shown.bounds.1);
                 }
                 egui::Key::F9 => self.toggle_recording(),
                 _ => {}
@@ -259,12 +291,24 @@ impl UnicaApp {
             ui.colored_label(egui::Color32::YELLOW, problem);
         }
         ui.separator();
-        ui.label(egui::RichText::new(format!("Action: {}", self.action)).size(20.0).strong());
+        ui.label(
+            egui::RichText::new(format!("Action: {}", self.action))
+                .size(20.0)
+                .strong(),
+        );
         ui.horizontal(|ui| {
-            for action in [Action::Left, Action::Forward, Action::Backward, Action::Right] {
-                let text = egui::RichText::new(action.letter().to_string()).monospace().size(18.0);
+            for action in [
+                Action::Left,
+                Action::Forward,
+                Action::Backward,
+                Action::Right,
+            ] {
+                let text = egui::RichText::new(action.letter().to_string())
+                    .monospace()
+                    .size(18.0);
                 let text = if action == self.action {
-                    text.color(egui::Color32::BLACK).background_color(egui::Color32::LIGHT_GREEN)
+                    text.color(egui::Color32::BLACK)
+                        .background_color(egui::Color32::LIGHT_GREEN)
                 } else {
                     text
                 };
@@ -275,7 +319,11 @@ impl UnicaApp {
             ui.label(format!("Key script, frame {}", self.frame));
         }
         ui.separator();
-        let fps = if self.frame_ms > 0.0 { 1000.0 / self.frame_ms } else { 0.0 };
+        let fps = if self.frame_ms > 0.0 {
+            1000.0 / self.frame_ms
+        } else {
+            0.0
+        };
         ui.label(format!("{fps:.1} fps   {:.2} ms/frame", self.frame_ms));
         for t in &self.timings {
             ui.label(format!("{}: {:.3} ms ({})", t.name, t.ms, t.clock));
@@ -291,7 +339,10 @@ impl UnicaApp {
         ));
         if let Some((recorder, _)) = &self.recording {
             ui.separator();
-            ui.colored_label(egui::Color32::RED, format!("● REC → {}", recorder.dir.display()));
+            ui.colored_label(
+                egui::Color32::RED,
+                format!("● REC → {}", recorder.dir.display()),
+            );
         }
         if let Some(message) = &self.message {
             ui.separator();
@@ -305,7 +356,10 @@ impl UnicaApp {
         };
         if let Some(err) = recorder.poll_error() {
             let (recorder, _) = self.recording.take().expect("recording is on");
-            let written = recorder.stop().map(|n| n.to_string()).unwrap_or_else(|_| "earlier".into());
+            let written = recorder
+                .stop()
+                .map(|n| n.to_string())
+                .unwrap_or_else(|_| "earlier".into());
             self.message = Some(format!("Recording stopped: {err} (frames {written} kept)"));
             return;
         }
@@ -348,7 +402,9 @@ impl UnicaApp {
                 image.pixels.iter().flat_map(|c| c.to_array()).collect(),
             );
             let result = match rgba {
-                Some(rgba) => crate::files::write_png_atomic(&path, &rgba).map_err(anyhow::Error::from),
+                Some(rgba) => {
+                    crate::files::write_png_atomic(&path, &rgba).map_err(anyhow::Error::from)
+                }
                 None => Err(anyhow::anyhow!("the screenshot had the wrong size")),
             };
             if let Err(e) = result {
@@ -365,7 +421,11 @@ impl eframe::App for UnicaApp {
         let now = Instant::now();
         let dt = now.duration_since(self.last_frame).as_secs_f64() * 1e3;
         self.last_frame = now;
-        self.frame_ms = if self.frame == 0 { dt } else { 0.9 * self.frame_ms + 0.1 * dt };
+        self.frame_ms = if self.frame == 0 {
+            dt
+        } else {
+            0.9 * self.frame_ms + 0.1 * dt
+        };
 
         self.handle_input(&ctx);
         self.action = match &self.options.keys {
@@ -394,12 +454,24 @@ impl eframe::App for UnicaApp {
         egui::CentralPanel::default()
             .frame(egui::Frame::NONE)
             .show(ui, |ui| {
-                self.timings = self.viewport.show(ui, &self.gpu, &state.renderer, &[&self.shown.mesh]);
+                self.timings =
+                    self.viewport
+                        .show(ui, &self.gpu, &state.renderer, &[&self.shown.mesh]);
             });
         self.record_frame();
         self.frame += 1;
         self.scripted_exit(&ctx);
         ctx.request_repaint();
+    }
+
+    /// Closing the window finishes a recording in progress (manifest included).
+    fn on_exit(&mut self) {
+        if self.recording.is_some() {
+            self.toggle_recording();
+            if let Some(message) = &self.message {
+                println!("unica: {message}");
+            }
+        }
     }
 }
 
@@ -442,8 +514,16 @@ fn load_shown(gpu: &GpuContext, viewport: &Viewport, path: Option<&PathBuf>) -> 
         Ok(character) => (character.name, character.mesh, None),
         Err(problem) => {
             log::warn!("{problem}");
-            let mesh = Mesh::cuboid(Vec3::new(-0.25, 0.0, -0.15), Vec3::new(0.25, 1.8, 0.15), Vec3::splat(0.5));
-            ("placeholder".to_string(), mesh, Some(format!("Showing a placeholder: {problem}")))
+            let mesh = Mesh::cuboid(
+                Vec3::new(-0.25, 0.0, -0.15),
+                Vec3::new(0.25, 1.8, 0.15),
+                Vec3::splat(0.5),
+            );
+            (
+                "placeholder".to_string(),
+                mesh,
+                Some(format!("Showing a placeholder: {problem}")),
+            )
         }
     };
     let bounds = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ONE));

@@ -153,7 +153,13 @@ impl Recorder {
     }
 
     /// Queues the current viewport image `copies` times (see [`Self::frames_due`]).
-    pub fn push(&mut self, image: image::RgbaImage, action: Action, camera: OrbitCamera, copies: u64) {
+    pub fn push(
+        &mut self,
+        image: image::RgbaImage,
+        action: Action,
+        camera: OrbitCamera,
+        copies: u64,
+    ) {
         if copies == 0 {
             return;
         }
@@ -207,7 +213,8 @@ mod tests {
         rec.push(image(2), Action::Forward, OrbitCamera::default(), 3);
         assert_eq!(rec.stop().unwrap(), 4);
         let manifest: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(dir.path().join("manifest.json")).unwrap()).unwrap();
+            serde_json::from_slice(&std::fs::read(dir.path().join("manifest.json")).unwrap())
+                .unwrap();
         let frames = manifest["frames"].as_array().unwrap();
         assert_eq!(frames.len(), 4);
         assert_eq!(frames[3]["file"], "frame_000003.png");
@@ -231,7 +238,8 @@ mod tests {
             assert_eq!(png.to_rgba8().get_pixel(3, 2).0, [7, 0, 0, 255]);
         }
         let manifest: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(dir.path().join("manifest.json")).unwrap()).unwrap();
+            serde_json::from_slice(&std::fs::read(dir.path().join("manifest.json")).unwrap())
+                .unwrap();
         assert_eq!(manifest["frames"].as_array().unwrap().len(), 2);
     }
 

@@ -95,7 +95,8 @@ impl Viewport {
     fn handle_mouse(&mut self, ui: &egui::Ui, response: &egui::Response) {
         let delta = response.drag_delta();
         if response.dragged_by(egui::PointerButton::Primary) {
-            self.camera.orbit(-delta.x * ORBIT_SPEED, delta.y * ORBIT_SPEED);
+            self.camera
+                .orbit(-delta.x * ORBIT_SPEED, delta.y * ORBIT_SPEED);
         } else if response.dragged_by(egui::PointerButton::Secondary)
             || response.dragged_by(egui::PointerButton::Middle)
         {

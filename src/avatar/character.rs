@@ -87,7 +87,11 @@ fn load_gltf(path: &Path) -> Result<Mesh, LoadError> {
             Some(skin) => Some(rest_skin_matrices(path, &skin, &buffers, &world)?),
             None => None,
         };
-        for primitive in node.mesh().into_iter().flat_map(|m| m.primitives().collect::<Vec<_>>()) {
+        for primitive in node
+            .mesh()
+            .into_iter()
+            .flat_map(|m| m.primitives().collect::<Vec<_>>())
+        {
             if primitive.mode() != gltf::mesh::Mode::Triangles {
                 continue;
             }
@@ -102,7 +106,10 @@ fn load_gltf(path: &Path) -> Result<Mesh, LoadError> {
                 None => (0..positions.len() as u32).collect(),
             };
             if let Some(&bad) = indices.iter().find(|&&i| i as usize >= positions.len()) {
-                return Err(fail(path, format!("index {bad} is past the {} vertices", positions.len())));
+                return Err(fail(
+                    path,
+                    format!("index {bad} is past the {} vertices", positions.len()),
+                ));
             }
             let transforms: Vec<Mat4> = match &skin_matrices {
                 Some(joints) => {
@@ -122,9 +129,15 @@ fn load_gltf(path: &Path) -> Result<Mesh, LoadError> {
                 None => vec![world[node.index()]; positions.len()],
             };
             if transforms.len() != positions.len() {
-                return Err(fail(path, "JOINTS_0/WEIGHTS_0 count differs from POSITION count"));
+                return Err(fail(
+                    path,
+                    "JOINTS_0/WEIGHTS_0 count differs from POSITION count",
+                ));
             }
-            let base = primitive.material().pbr_metallic_roughness().base_color_factor();
+            let base = primitive
+                .material()
+                .pbr_metallic_roughness()
+                .base_color_factor();
             let color = Vec3::new(base[0], base[1], base[2]);
             let mut part = Mesh {
                 positions: positions
@@ -159,22 +172,37 @@ fn rest_skin_matrices(
     world: &[Mat4],
 ) -> Result<Vec<Mat4>, LoadError> {
     let joints: Vec<usize> = skin.joints().map(|j| j.index()).collect();
-    let inverse_bind: Vec<Mat4> = match skin.reader(|b| Some(&buffers[b.index()])).read_inverse_bind_matrices() {
+    let inverse_bind: Vec<Mat4> = match skin
+        .reader(|b| Some(&buffers[b.index()]))
+        .read_inverse_bind_matrices()
+    {
         Some(m) => m.map(|m| Mat4::from_cols_array_2d(&m)).collect(),
         None => vec![Mat4::IDENTITY; joints.len()],
     };
     if inverse_bind.len() != joints.len() {
-        return Err(fail(path, format!(
-            "skin '{}' has {} joints but {} inverse bind matrices",
-            skin.name().unwrap_or("?"),
-            joints.len(),
-            inverse_bind.len()
-        )));
+        return Err(fail(
+            path,
+            format!(
+                "skin '{}' has {} joints but {} inverse bind matrices",
+                skin.name().unwrap_or("?"),
+                joints.len(),
+                inverse_bind.len()
+            ),
+        ));
     }
-    Ok(joints.iter().zip(inverse_bind).map(|(&j, ib)| world[j] * ib).collect())
+    Ok(joints
+        .iter()
+        .zip(inverse_bind)
+        .map(|(&j, ib)| world[j] * ib)
+        .collect())
 }
 
-fn blend(path: &Path, joints: &[Mat4], ids: [u16; 4], weights: [f32; 4]) -> Result<Mat4, LoadError> {
+fn blend(
+    path: &Path,
+    joints: &[Mat4],
+    ids: [u16; 4],
+    weights: [f32; 4],
+) -> Result<Mat4, LoadError> {
     let total: f32 = weights.iter().sum();
     if total <= 0.0 {
         return Ok(Mat4::IDENTITY);
@@ -184,9 +212,15 @@ fn blend(path: &Path, joints: &[Mat4], ids: [u16; 4], weights: [f32; 4]) -> Resu
         if w == 0.0 {
             continue;
         }
-        let joint = joints
-            .get(id as usize)
-            .ok_or_else(|| fail(path, format!("joint index {id} is past the skin's {} joints", joints.len())))?;
+        let joint = joints.get(id as usize).ok_or_else(|| {
+            fail(
+                path,
+                format!(
+                    "joint index {id} is past the skin's {} joints",
+                    joints.len()
+                ),
+            )
+        })?;
         m += *joint * (w / total);
     }
     Ok(m)
@@ -198,7 +232,8 @@ fn load_obj(path: &Path) -> Result<Mesh, LoadError> {
         single_index: true,
         ..Default::default()
     };
-    let (models, materials) = tobj::load_obj(path, &options).map_err(|e| fail(path, e.to_string()))?;
+    let (models, materials) =
+        tobj::load_obj(path, &options).map_err(|e| fail(path, e.to_string()))?;
     // A missing or broken MTL file leaves the mesh grey rather than failing the load.
     let materials = materials.unwrap_or_else(|e| {
         log::warn!("{}: materials not loaded ({e}); using grey", path.display());

@@ -20,7 +20,8 @@ impl Mesh {
         self.positions.extend(other.positions);
         self.normals.extend(other.normals);
         self.colors.extend(other.colors);
-        self.indices.extend(other.indices.into_iter().map(|i| i + base));
+        self.indices
+            .extend(other.indices.into_iter().map(|i| i + base));
     }
 
     /// Axis-aligned bounds (min, max); `None` for an empty mesh.
@@ -43,7 +44,10 @@ impl Mesh {
                 normals[i as usize] += n;
             }
         }
-        self.normals = normals.into_iter().map(|n| n.normalize_or(Vec3::Y)).collect();
+        self.normals = normals
+            .into_iter()
+            .map(|n| n.normalize_or(Vec3::Y))
+            .collect();
     }
 
     /// An axis-aligned box with flat-shaded faces, for placeholders.
@@ -57,12 +61,60 @@ impl Mesh {
         };
         // Each face: outward normal and its 4 corners counter-clockwise seen from outside.
         let faces = [
-            (Vec3::X, [(true, false, true), (true, false, false), (true, true, false), (true, true, true)]),
-            (Vec3::NEG_X, [(false, false, false), (false, false, true), (false, true, true), (false, true, false)]),
-            (Vec3::Y, [(false, true, true), (true, true, true), (true, true, false), (false, true, false)]),
-            (Vec3::NEG_Y, [(false, false, false), (true, false, false), (true, false, true), (false, false, true)]),
-            (Vec3::Z, [(false, false, true), (true, false, true), (true, true, true), (false, true, true)]),
-            (Vec3::NEG_Z, [(true, false, false), (false, false, false), (false, true, false), (true, true, false)]),
+            (
+                Vec3::X,
+                [
+                    (true, false, true),
+                    (true, false, false),
+                    (true, true, false),
+                    (true, true, true),
+                ],
+            ),
+            (
+                Vec3::NEG_X,
+                [
+                    (false, false, false),
+                    (false, false, true),
+                    (false, true, true),
+                    (false, true, false),
+                ],
+            ),
+            (
+                Vec3::Y,
+                [
+                    (false, true, true),
+                    (true, true, true),
+                    (true, true, false),
+                    (false, true, false),
+                ],
+            ),
+            (
+                Vec3::NEG_Y,
+                [
+                    (false, false, false),
+                    (true, false, false),
+                    (true, false, true),
+                    (false, false, true),
+                ],
+            ),
+            (
+                Vec3::Z,
+                [
+                    (false, false, true),
+                    (true, false, true),
+                    (true, true, true),
+                    (false, true, true),
+                ],
+            ),
+            (
+                Vec3::NEG_Z,
+                [
+                    (true, false, false),
+                    (false, false, false),
+                    (false, true, false),
+                    (true, true, false),
+                ],
+            ),
         ];
         let mut mesh = Mesh::default();
         for (normal, corners) in faces {
@@ -72,7 +124,8 @@ impl Mesh {
                 mesh.normals.push(normal);
                 mesh.colors.push(color);
             }
-            mesh.indices.extend([base, base + 1, base + 2, base, base + 2, base + 3]);
+            mesh.indices
+                .extend([base, base + 1, base + 2, base, base + 2, base + 3]);
         }
         mesh
     }

@@ -43,7 +43,10 @@ pub struct Grid {
 impl Grid {
     pub fn for_workgroups(workgroups: u32, max_per_dim: u32) -> Self {
         if workgroups <= max_per_dim {
-            return Self { x: workgroups, y: 1 };
+            return Self {
+                x: workgroups,
+                y: 1,
+            };
         }
         let y = workgroups.div_ceil(max_per_dim);
         let x = workgroups.div_ceil(y);
@@ -69,17 +72,19 @@ impl PipelineCache {
         shader: &Shader,
         entry: &'static str,
     ) -> &wgpu::ComputePipeline {
-        self.pipelines.entry((shader.file, entry)).or_insert_with(|| {
-            let module = shader.module(device);
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(shader.file),
-                layout: None,
-                module: &module,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
+        self.pipelines
+            .entry((shader.file, entry))
+            .or_insert_with(|| {
+                let module = shader.module(device);
+                device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(shader.file),
+                    layout: None,
+                    module: &module,
+                    entry_point: Some(entry),
+                    compilation_options: Default::default(),
+                    cache: None,
+                })
             })
-        })
     }
 
     pub fn len(&self) -> usize {
@@ -132,7 +137,11 @@ pub enum Precision {
 impl Precision {
     /// The best precision path the device supports (f16 storage halves bandwidth).
     pub fn preferred(gpu: &GpuContext) -> Self {
-        if gpu.caps.shader_f16 { Self::F16 } else { Self::F32 }
+        if gpu.caps.shader_f16 {
+            Self::F16
+        } else {
+            Self::F32
+        }
     }
 }
 
@@ -170,11 +179,16 @@ impl ScaleAdd {
             Precision::F32 => (&shaders::SCALE_ADD_F32, bytemuck::cast_slice(x).to_vec()),
             Precision::F16 => {
                 let halves: Vec<half::f16> = x.iter().map(|&v| half::f16::from_f32(v)).collect();
-                (&shaders::SCALE_ADD_F16, bytemuck::cast_slice(&halves).to_vec())
+                (
+                    &shaders::SCALE_ADD_F16,
+                    bytemuck::cast_slice(&halves).to_vec(),
+                )
             }
         };
-        // f16 arrays are padded to 4 bytes so odd lengths still bind.
-        let padded = bytes.len().next_multiple_of(4) as u64;
+        // f16 arrays are padded to 4 bytes so odd lengths still bind and copy.
+        let mut bytes = bytes;
+        bytes.resize(bytes.len().next_multiple_of(4), 0);
+        let padded = bytes.len() as u64;
         let input = gpu.storage_buffer("scale_add.x", padded, wgpu::BufferUsages::COPY_DST)?;
         gpu.queue.write_buffer(&input, 0, &bytes);
         let output = gpu.storage_buffer("scale_add.y", padded, wgpu::BufferUsages::COPY_SRC)?;
@@ -190,7 +204,10 @@ impl ScaleAdd {
             params: uniform(&gpu.device, &params),
             input,
             output,
-            grid: Grid::for_elements(len, gpu.device.limits().max_compute_workgroups_per_dimension),
+            grid: Grid::for_elements(
+                len,
+                gpu.device.limits().max_compute_workgroups_per_dimension,
+            ),
             len: x.len(),
             precision,
         })
@@ -208,9 +225,21 @@ impl ScaleAdd {
         }
     }
 
-    pub fn record(&self, gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, timer: Option<PassTimer<'_>>) {
+    pub fn record(
+        &self,
+        gpu: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        timer: Option<PassTimer<'_>>,
+    ) {
         let buffers = [&self.params, &self.input, &self.output];
-        dispatch(&gpu.device, encoder, &self.pipeline, &buffers, self.grid, timer.as_ref().map(PassTimer::compute));
+        dispatch(
+            &gpu.device,
+            encoder,
+            &self.pipeline,
+            &buffers,
+            self.grid,
+            timer.as_ref().map(PassTimer::compute),
+        );
     }
 
     /// The output as f32.
@@ -251,7 +280,11 @@ pub fn sum(gpu: &GpuContext, cache: &mut PipelineCache, x: &[f32]) -> Result<f32
     } else {
         &shaders::SUM_SHARED
     };
-    let input = gpu.storage_buffer_init("sum.x", bytemuck::cast_slice(x), wgpu::BufferUsages::empty())?;
+    let input = gpu.storage_buffer_init(
+        "sum.x",
+        bytemuck::cast_slice(x),
+        wgpu::BufferUsages::empty(),
+    )?;
     let output = gpu.storage_buffer("sum.out", 4, wgpu::BufferUsages::COPY_SRC)?;
     let params = uniform(
         &gpu.device,
@@ -264,7 +297,14 @@ pub fn sum(gpu: &GpuContext, cache: &mut PipelineCache, x: &[f32]) -> Result<f32
     );
     let pipeline = cache.get(&gpu.device, shader, "main");
     let mut encoder = gpu.device.create_command_encoder(&Default::default());
-    dispatch(&gpu.device, &mut encoder, pipeline, &[&params, &input, &output], Grid { x: 1, y: 1 }, None);
+    dispatch(
+        &gpu.device,
+        &mut encoder,
+        pipeline,
+        &[&params, &input, &output],
+        Grid { x: 1, y: 1 },
+        None,
+    );
     gpu.queue.submit([encoder.finish()]);
     let raw = readback::buffer(gpu, &output, "sum.out")?;
     Ok(bytemuck::pod_read_unaligned(&raw[..4]))
@@ -277,17 +317,29 @@ mod tests {
     #[test]
     fn grid_fits_in_one_dimension_when_it_can() {
         assert_eq!(Grid::for_workgroups(10, 65_535), Grid { x: 10, y: 1 });
-        assert_eq!(Grid::for_workgroups(65_535, 65_535), Grid { x: 65_535, y: 1 });
+        assert_eq!(
+            Grid::for_workgroups(65_535, 65_535),
+            Grid { x: 65_535, y: 1 }
+        );
     }
 
     #[test]
     fn grid_splits_past_the_limit_and_covers_every_workgroup() {
-        for (n, max) in [(65_536, 65_535), (1_000_000, 65_535), (13, 4), (16, 4), (5, 3)] {
+        for (n, max) in [
+            (65_536, 65_535),
+            (1_000_000, 65_535),
+            (13, 4),
+            (16, 4),
+            (5, 3),
+        ] {
             let g = Grid::for_workgroups(n, max);
             assert!(g.x <= max && g.y <= max, "{n} {max} -> {g:?}");
             assert!(g.x as u64 * g.y as u64 >= n as u64, "{n} {max} -> {g:?}");
             // No whole row is wasted.
-            assert!((g.x as u64) * (g.y as u64 - 1) < n as u64, "{n} {max} -> {g:?}");
+            assert!(
+                (g.x as u64) * (g.y as u64 - 1) < n as u64,
+                "{n} {max} -> {g:?}"
+            );
         }
         assert_eq!(Grid::for_workgroups(13, 4), Grid { x: 4, y: 4 });
         assert_eq!(Grid::for_workgroups(5, 3), Grid { x: 3, y: 2 });

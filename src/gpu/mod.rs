@@ -76,7 +76,9 @@ pub enum GpuError {
          driver (Debian/Ubuntu: `apt-get install mesa-vulkan-drivers libvulkan1`)"
     )]
     NoAdapter { backends: String },
-    #[error("no GPU adapter name contains '{wanted}' (set by {ADAPTER_ENV}); available: {available}")]
+    #[error(
+        "no GPU adapter name contains '{wanted}' (set by {ADAPTER_ENV}); available: {available}"
+    )]
     NoMatchingAdapter { wanted: String, available: String },
     #[error("could not create a device on '{adapter}': {source}")]
     Device {
@@ -92,9 +94,29 @@ pub enum GpuError {
     Readback { label: String, reason: String },
 }
 
-/// The backends to try: `WGPU_BACKEND` if set, else all that this build supports.
+/// The backends to try: `WGPU_BACKEND` if set, else the native APIs (Vulkan, Metal,
+/// DX12). OpenGL is only a fallback (no f16, no subgroups) and its drivers are noisy.
 pub fn backends() -> wgpu::Backends {
-    wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY | wgpu::Backends::GL)
+    wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY)
+}
+
+/// All adapters on [`backends`]; without a `WGPU_BACKEND` choice, OpenGL ones are looked
+/// for only when no native adapter exists.
+pub async fn enumerate_adapters() -> Vec<wgpu::Adapter> {
+    let adapters = instance(backends()).enumerate_adapters(backends()).await;
+    if adapters.is_empty() && wgpu::Backends::from_env().is_none() {
+        return instance(wgpu::Backends::GL)
+            .enumerate_adapters(wgpu::Backends::GL)
+            .await;
+    }
+    adapters
+}
+
+fn instance(backends: wgpu::Backends) -> wgpu::Instance {
+    wgpu::Instance::new(wgpu::InstanceDescriptor {
+        backends,
+        ..wgpu::InstanceDescriptor::new_without_display_handle()
+    })
 }
 
 fn adapter_label(adapter: &wgpu::Adapter) -> String {
@@ -139,7 +161,11 @@ pub fn select_adapter(
                 available: if usable.is_empty() {
                     "none".into()
                 } else {
-                    usable.iter().map(|a| adapter_label(a)).collect::<Vec<_>>().join(", ")
+                    usable
+                        .iter()
+                        .map(|a| adapter_label(a))
+                        .collect::<Vec<_>>()
+                        .join(", ")
                 },
             });
     }
@@ -191,11 +217,7 @@ impl GpuContext {
     }
 
     async fn headless_async(options: &GpuOptions) -> Result<Self, GpuError> {
-        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
-            backends: backends(),
-            ..wgpu::InstanceDescriptor::new_without_display_handle()
-        });
-        let adapters = instance.enumerate_adapters(backends()).await;
+        let adapters = enumerate_adapters().await;
         let adapter = select_adapter(&adapters, None, options)?;
         let (device, queue) = adapter
             .request_device(&device_descriptor(&adapter, options))

@@ -42,7 +42,10 @@ fn map(gpu: &GpuContext, staging: &wgpu::Buffer, label: &str) -> Result<Vec<u8>,
 }
 
 /// An RGBA8 texture's pixels, tightly packed rows (needs COPY_SRC, format Rgba8Unorm[Srgb]).
-pub fn rgba_texture(gpu: &GpuContext, texture: &wgpu::Texture) -> Result<image::RgbaImage, GpuError> {
+pub fn rgba_texture(
+    gpu: &GpuContext,
+    texture: &wgpu::Texture,
+) -> Result<image::RgbaImage, GpuError> {
     let (width, height) = (texture.width(), texture.height());
     let row = width * 4;
     let padded_row = row.next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);

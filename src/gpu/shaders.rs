@@ -133,11 +133,21 @@ macro_rules! shader {
 use super::kernel::{ElementwiseParams, ReduceParams};
 use crate::render::SceneUniforms;
 
-pub const SCALE_ADD_F32: Shader = shader!("scale_add_f32.wgsl", [ElementwiseParams], f16: false, subgroups: false);
-pub const SCALE_ADD_F16: Shader = shader!("scale_add_f16.wgsl", [ElementwiseParams], f16: true, subgroups: false);
-pub const SUM_SHARED: Shader = shader!("sum_shared.wgsl", [ReduceParams], f16: false, subgroups: false);
-pub const SUM_SUBGROUP: Shader = shader!("sum_subgroup.wgsl", [ReduceParams], f16: false, subgroups: true);
+pub const SCALE_ADD_F32: Shader =
+    shader!("scale_add_f32.wgsl", [ElementwiseParams], f16: false, subgroups: false);
+pub const SCALE_ADD_F16: Shader =
+    shader!("scale_add_f16.wgsl", [ElementwiseParams], f16: true, subgroups: false);
+pub const SUM_SHARED: Shader =
+    shader!("sum_shared.wgsl", [ReduceParams], f16: false, subgroups: false);
+pub const SUM_SUBGROUP: Shader =
+    shader!("sum_subgroup.wgsl", [ReduceParams], f16: false, subgroups: true);
 pub const SCENE: Shader = shader!("scene.wgsl", [SceneUniforms], f16: false, subgroups: false);
 
 /// Every shader of the crate; a test checks this covers every file in `shaders/`.
-pub const ALL: &[Shader] = &[SCALE_ADD_F32, SCALE_ADD_F16, SUM_SHARED, SUM_SUBGROUP, SCENE];
+pub const ALL: &[Shader] = &[
+    SCALE_ADD_F32,
+    SCALE_ADD_F16,
+    SUM_SHARED,
+    SUM_SUBGROUP,
+    SCENE,
+];

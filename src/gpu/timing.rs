@@ -89,16 +89,22 @@ impl Profiler {
         name: &str,
         record: impl FnOnce(&mut wgpu::CommandEncoder, Option<PassTimer<'_>>),
     ) {
-        let mut encoder = gpu.device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some(name),
-        });
+        let mut encoder = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(name) });
         let slot = self
             .queries
             .as_ref()
             .filter(|_| self.next_query < MAX_TIMESTAMP_STAGES * 2);
         if let Some(queries) = slot {
             let begin = self.next_query;
-            record(&mut encoder, Some(PassTimer { set: &queries.set, begin }));
+            record(
+                &mut encoder,
+                Some(PassTimer {
+                    set: &queries.set,
+                    begin,
+                }),
+            );
             gpu.queue.submit([encoder.finish()]);
             self.next_query += 2;
             self.stages.push((name.into(), Measured::Gpu(begin)));

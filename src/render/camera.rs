@@ -154,7 +154,10 @@ mod tests {
                 if corner & 4 == 0 { -0.5 } else { 0.5 },
             );
             let clip = vp * p.extend(1.0);
-            assert!((clip.x / clip.w).abs() <= 1.0 && (clip.y / clip.w).abs() <= 1.0, "{p}");
+            assert!(
+                (clip.x / clip.w).abs() <= 1.0 && (clip.y / clip.w).abs() <= 1.0,
+                "{p}"
+            );
         }
     }
 }

@@ -211,7 +211,8 @@ impl SceneRenderer {
             sky_ambient: Vec4::new(0.45, 0.47, 0.52, 0.0),
             ground_ambient: Vec4::new(0.18, 0.16, 0.15, 0.0),
         };
-        gpu.queue.write_buffer(&self.uniforms, 0, bytemuck::bytes_of(&uniforms));
+        gpu.queue
+            .write_buffer(&self.uniforms, 0, bytemuck::bytes_of(&uniforms));
         let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
             label: Some("scene"),
             color_attachments: &[Some(wgpu::RenderPassColorAttachment {
@@ -258,15 +259,19 @@ fn upload(gpu: &GpuContext, mesh: &Mesh, label: &str) -> GpuMesh {
         })
         .collect();
     let buffer = |contents: &[u8], usage| {
-        gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents,
-            usage,
-        })
+        gpu.device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage,
+            })
     };
     GpuMesh {
         vertices: buffer(bytemuck::cast_slice(&vertices), wgpu::BufferUsages::VERTEX),
-        indices: buffer(bytemuck::cast_slice(&mesh.indices), wgpu::BufferUsages::INDEX),
+        indices: buffer(
+            bytemuck::cast_slice(&mesh.indices),
+            wgpu::BufferUsages::INDEX,
+        ),
         index_count: mesh.indices.len() as u32,
     }
 }

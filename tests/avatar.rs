@@ -1,0 +1,102 @@
+//! Character loading: the shared Witch loads with the counts its SOURCE.md states, and bad
+//! files fail with errors that name the file and the problem.
+
+use std::path::{Path, PathBuf};
+
+use unica::avatar::load_character;
+
+fn witch() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets/witch/Witch.gltf")
+}
+
+#[test]
+fn the_witch_loads_in_its_rest_pose() {
+    let character = load_character(&witch()).expect("the shared Witch (../shared/assets) loads");
+    assert_eq!(character.name, "Witch");
+    let mesh = &character.mesh;
+    // SOURCE.md: 4 skinned meshes, 13,884 vertices, about 6.9k triangles.
+    assert_eq!(mesh.positions.len(), 13_884);
+    let triangles = mesh.indices.len() / 3;
+    assert!((6_500..7_500).contains(&triangles), "{triangles} triangles");
+    let (lo, hi) = mesh.bounds().unwrap();
+    let height = hi.y - lo.y;
+    assert!(
+        (1.8..2.2).contains(&height),
+        "height {height} (about 2.0 with the hat)"
+    );
+    assert!(lo.y.abs() < 0.05, "feet on the ground: min y {}", lo.y);
+    // Six flat materials: a handful of distinct colours, none black-and-missing.
+    let mut colours: Vec<[u32; 3]> = mesh
+        .colors
+        .iter()
+        .map(|c| (*c * 1000.0).as_uvec3().to_array())
+        .collect();
+    colours.sort();
+    colours.dedup();
+    assert!((4..=6).contains(&colours.len()), "{colours:?}");
+    assert!(mesh.normals.iter().all(|n| (n.length() - 1.0).abs() < 1e-3));
+}
+
+#[test]
+fn missing_and_unsupported_files_are_named() {
+    let err = load_character(Path::new("/nonexistent/hero.glb")).unwrap_err();
+    assert!(
+        err.to_string().contains("/nonexistent/hero.glb")
+            && err.to_string().contains("no such file"),
+        "{err}"
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let fbx = dir.path().join("hero.fbx");
+    std::fs::write(&fbx, b"x").unwrap();
+    let err = load_character(&fbx).unwrap_err().to_string();
+    assert!(
+        err.contains("hero.fbx") && err.contains("unsupported file type"),
+        "{err}"
+    );
+}
+
+#[test]
+fn corrupt_files_fail_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let gltf = dir.path().join("broken.gltf");
+    std::fs::write(&gltf, b"{ \"asset\": ").unwrap();
+    let err = load_character(&gltf).unwrap_err().to_string();
+    assert!(err.contains("broken.gltf"), "{err}");
+    // A truncated copy of the Witch (buffers cut off mid data URI).
+    let bytes = std::fs::read(witch()).unwrap();
+    let truncated = dir.path().join("truncated.gltf");
+    std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();
+    assert!(
+        load_character(&truncated)
+            .unwrap_err()
+            .to_string()
+            .contains("truncated.gltf")
+    );
+    let obj = dir.path().join("empty.obj");
+    std::fs::write(&obj, b"# nothing\n").unwrap();
+    let err = load_character(&obj).unwrap_err().to_string();
+    assert!(err.contains("empty.obj"), "{err}");
+}
+
+#[test]
+fn an_obj_without_materials_loads_grey_with_normals() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("quad.obj");
+    std::fs::write(
+        &obj,
+        "mtllib missing.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n",
+    )
+    .unwrap();
+    let character = load_character(&obj).unwrap();
+    assert_eq!(character.mesh.indices.len(), 6, "the quad is triangulated");
+    for n in &character.mesh.normals {
+        assert!(n.abs_diff_eq(glam::Vec3::Z, 1e-6), "{n}");
+    }
+    assert!(
+        character
+            .mesh
+            .colors
+            .iter()
+            .all(|c| c.abs_diff_eq(glam::Vec3::splat(0.7), 1e-6))
+    );
+}

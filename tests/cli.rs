@@ -1,0 +1,137 @@
+//! The binary's contract: help and version, one-line errors with non-zero exit for bad
+//! input and for a machine without any GPU adapter, and the subcommands not built yet.
+
+use std::process::{Command, Output};
+
+fn unica(args: &[&str], env: &[(&str, &str)]) -> Output {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_unica"));
+    cmd.args(args)
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY");
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    cmd.output().expect("the unica binary runs")
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// A failure: exit status non-zero, no panic, and a single `unica: error:` line.
+fn assert_one_line_error(out: &Output, needle: &str) {
+    let err = stderr(out);
+    assert!(!out.status.success(), "should fail: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    let ours: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("unica: error:"))
+        .collect();
+    assert_eq!(ours.len(), 1, "{err}");
+    assert!(
+        ours[0].contains(needle),
+        "expected '{needle}' in: {}",
+        ours[0]
+    );
+}
+
+#[test]
+fn help_explains_the_commands_and_the_gpu_choice() {
+    let out = unica(&["--help"], &[]);
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    for needle in [
+        "bake",
+        "render",
+        "eval",
+        "export",
+        "view",
+        "bench",
+        "adapters",
+        "--keys",
+        "--screenshot",
+        "--exit-after",
+        "WGPU_BACKEND",
+        "mesa-vulkan-drivers",
+    ] {
+        assert!(text.contains(needle), "--help lacks {needle}:\n{text}");
+    }
+    let out = unica(&["--version"], &[]);
+    assert_eq!(
+        String::from_utf8_lossy(&out.stdout).trim(),
+        format!("unica {}", env!("CARGO_PKG_VERSION"))
+    );
+}
+
+#[test]
+fn later_subcommands_say_not_built_yet() {
+    for sub in ["bake", "render", "eval", "export", "view"] {
+        assert_one_line_error(
+            &unica(&[sub, "whatever", "--out", "x"], &[]),
+            "not built yet",
+        );
+    }
+}
+
+#[test]
+fn no_adapter_means_one_line_on_how_to_get_one() {
+    // A Vulkan loader with no driver: the machine has no adapter at all.
+    let no_driver = [
+        ("WGPU_BACKEND", "vulkan"),
+        ("VK_ICD_FILENAMES", "/nonexistent/icd.json"),
+        ("VK_DRIVER_FILES", "/nonexistent/icd.json"),
+    ];
+    assert_one_line_error(&unica(&["adapters"], &no_driver), "mesa-vulkan-drivers");
+    assert_one_line_error(&unica(&["bench"], &no_driver), "mesa-vulkan-drivers");
+}
+
+#[test]
+fn an_unknown_adapter_name_lists_the_available_ones() {
+    assert_one_line_error(
+        &unica(&["adapters"], &[("WGPU_ADAPTER_NAME", "no-such-gpu-9000")]),
+        "no-such-gpu-9000",
+    );
+}
+
+#[test]
+fn bad_arguments_fail_before_any_window_opens() {
+    assert_one_line_error(&unica(&["--keys", "30W 5Q"], &[]), "'5Q'");
+    assert_one_line_error(&unica(&["--exit-after", "0"], &[]), "at least 1");
+    assert_one_line_error(
+        &unica(&["--bundle", "nowhere.bundle"], &[]),
+        "nowhere.bundle",
+    );
+    let out = unica(&["--screenshot", "x.png"], &[]);
+    assert!(
+        !out.status.success() && stderr(&out).contains("--exit-after"),
+        "{}",
+        stderr(&out)
+    );
+}
+
+#[test]
+fn adapters_lists_the_one_in_use() {
+    let out = unica(&["adapters"], &[]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(
+        text.lines().filter(|l| l.starts_with('*')).count(),
+        2,
+        "{text}"
+    ); // the adapter + legend
+}
+
+#[test]
+fn bench_prints_its_table() {
+    let out = unica(&["bench"], &[("UNICA_FORCE_FALLBACK", "1")]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("adapter:") && text.contains("scale_add F32"),
+        "{text}"
+    );
+    assert!(
+        text.contains("f16 false"),
+        "forced fallback shows no f16: {text}"
+    );
+}
