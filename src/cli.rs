@@ -62,6 +62,11 @@ pub struct Cli {
     #[arg(long)]
     record: bool,
 
+    /// Recording rate in frames per second
+    #[arg(long, value_name = "FPS", default_value_t = crate::app::recorder::DEFAULT_FPS,
+          value_parser = parse_fps)]
+    record_fps: f64,
+
     /// Use only the portable GPU paths: f32 kernels, no subgroups, CPU timers
     #[arg(long, global = true)]
     gpu_fallback: bool,
@@ -113,6 +118,15 @@ pub fn run() -> anyhow::Result<()> {
     }
 }
 
+fn parse_fps(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(fps) if (1.0..=120.0).contains(&fps) => Ok(fps),
+        _ => Err(format!(
+            "'{text}' is not a rate between 1 and 120 frames per second"
+        )),
+    }
+}
+
 fn not_built(name: &str) -> anyhow::Result<()> {
     bail!("`unica {name}` is not built yet (see README.md, 'Status')")
 }
@@ -147,6 +161,7 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
         screenshot: cli.screenshot,
         record_dir,
         record: cli.record,
+        record_fps: cli.record_fps,
         gpu,
     })
 }

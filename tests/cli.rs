@@ -101,6 +101,12 @@ fn bad_arguments_fail_before_any_window_opens() {
         &unica(&["--bundle", "nowhere.bundle"], &[]),
         "nowhere.bundle",
     );
+    let out = unica(&["--record-fps", "0"], &[]);
+    assert!(
+        !out.status.success() && stderr(&out).contains("between 1 and 120"),
+        "{}",
+        stderr(&out)
+    );
     let out = unica(&["--screenshot", "x.png"], &[]);
     assert!(
         !out.status.success() && stderr(&out).contains("--exit-after"),

@@ -16,7 +16,7 @@ use crate::avatar::{Character, Mesh, load_character};
 use crate::gpu::timing::StageTiming;
 use crate::gpu::{self, GpuContext, GpuOptions};
 use crate::render::GpuMesh;
-use recorder::{DEFAULT_FPS, Recorder};
+use recorder::Recorder;
 use viewport::Viewport;
 
 /// How the app was started (see `unica --help`).
@@ -34,6 +34,8 @@ pub struct AppOptions {
     pub record_dir: PathBuf,
     /// Start recording as the window opens.
     pub record: bool,
+    /// Recording rate in frames per second.
+    pub record_fps: f64,
     pub gpu: GpuOptions,
 }
 
@@ -186,13 +188,15 @@ impl UnicaApp {
                     Err(e) => format!("Recording stopped: {e}"),
                 });
             }
-            None => match Recorder::start(&PathBuf::from(&self.record_dir), DEFAULT_FPS) {
-                Ok(recorder) => {
-                    self.message = None;
-                    self.recording = Some((recorder, Instant::now()));
+            None => {
+                match Recorder::start(&PathBuf::from(&self.record_dir), self.options.record_fps) {
+                    Ok(recorder) => {
+                        self.message = None;
+                        self.recording = Some((recorder, Instant::now()));
+                    }
+                    Err(e) => self.message = Some(format!("Cannot record: {e}")),
                 }
-                Err(e) => self.message = Some(format!("Cannot record: {e}")),
-            },
+            }
         }
     }
 
@@ -265,6 +269,12 @@ impl UnicaApp {
                 ui.add_enabled(
                     self.recording.is_none(),
                     egui::TextEdit::singleline(&mut self.record_dir),
+                );
+                ui.add_enabled(
+                    self.recording.is_none(),
+                    egui::DragValue::new(&mut self.options.record_fps)
+                        .range(1.0..=120.0)
+                        .suffix(" fps"),
                 );
                 let label = if self.recording.is_some() {
                     "Stop recording (F9)"
