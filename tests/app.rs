@@ -9,6 +9,8 @@ use std::process::{Child, Command, Output, Stdio};
 struct Display {
     name: String,
     server: Option<Child>,
+    /// Xvfb's stdout stays open while it runs: a write to a closed pipe would kill it.
+    _report: Option<BufReader<std::process::ChildStdout>>,
 }
 
 impl Display {
@@ -16,7 +18,11 @@ impl Display {
     /// and reports it once it accepts connections (`-displayfd`).
     fn open() -> Self {
         if let Ok(name) = std::env::var("DISPLAY") {
-            return Self { name, server: None };
+            return Self {
+                name,
+                server: None,
+                _report: None,
+            };
         }
         let mut server = Command::new("Xvfb")
             .args([
@@ -33,9 +39,8 @@ impl Display {
             .spawn()
             .expect("Xvfb runs (Debian package xvfb; .ci/run installs it)");
         let mut line = String::new();
-        BufReader::new(server.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
+        let mut report = BufReader::new(server.stdout.take().unwrap());
+        report.read_line(&mut line).unwrap();
         let number: u32 = line
             .trim()
             .parse()
@@ -43,6 +48,7 @@ impl Display {
         Self {
             name: format!(":{number}"),
             server: Some(server),
+            _report: Some(report),
         }
     }
 }

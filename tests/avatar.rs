@@ -13,7 +13,7 @@ fn witch() -> PathBuf {
 fn the_witch_loads_in_its_rest_pose() {
     let character = load_character(&witch()).expect("the shared Witch (../shared/assets) loads");
     assert_eq!(character.name, "Witch");
-    let mesh = &character.mesh;
+    let mesh = &character.rest_mesh();
     // SOURCE.md: 4 skinned meshes, 13,884 vertices, about 6.9k triangles.
     assert_eq!(mesh.positions.len(), 13_884);
     let triangles = mesh.indices.len() / 3;
@@ -35,6 +35,29 @@ fn the_witch_loads_in_its_rest_pose() {
     colours.dedup();
     assert!((4..=6).contains(&colours.len()), "{colours:?}");
     assert!(mesh.normals.iter().all(|n| (n.length() - 1.0).abs() < 1e-3));
+    // One skin of 62 joints (SOURCE.md), the locomotion clips with their durations.
+    assert_eq!(character.rig.bones.len(), 62);
+    for (name, seconds) in [
+        ("Idle", 2.083),
+        ("Walk", 1.667),
+        ("Run", 1.0),
+        ("Run_Back", 1.042),
+    ] {
+        let clip = character.clip(name).unwrap();
+        assert!(
+            (clip.duration - seconds).abs() < 1e-3,
+            "{name}: {}",
+            clip.duration
+        );
+    }
+    assert_eq!(character.clips.len(), 24);
+    let err = character.clip("Moonwalk").unwrap_err().to_string();
+    assert!(
+        err.contains("Witch.gltf")
+            && err.contains("'Moonwalk' not found")
+            && err.contains("Run_Left"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -87,16 +110,11 @@ fn an_obj_without_materials_loads_grey_with_normals() {
         "mtllib missing.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n",
     )
     .unwrap();
-    let character = load_character(&obj).unwrap();
-    assert_eq!(character.mesh.indices.len(), 6, "the quad is triangulated");
-    for n in &character.mesh.normals {
+    let mesh = load_character(&obj).unwrap().rest_mesh();
+    assert_eq!(mesh.indices.len(), 6, "the quad is triangulated");
+    for n in &mesh.normals {
         assert!(n.abs_diff_eq(glam::Vec3::Z, 1e-6), "{n}");
     }
-    assert!(
-        character
-            .mesh
-            .colors
-            .iter()
-            .all(|c| c.abs_diff_eq(glam::Vec3::splat(0.7), 1e-6))
-    );
+    let grey = glam::Vec3::splat(0.7);
+    assert!(mesh.colors.iter().all(|c| c.abs_diff_eq(grey, 1e-6)));
 }

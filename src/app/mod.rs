@@ -521,7 +521,7 @@ fn load_shown(gpu: &GpuContext, viewport: &Viewport, path: Option<&PathBuf>) -> 
         None => Err("no character file given (--character)".into()),
     };
     let (name, mesh, problem) = match loaded {
-        Ok(character) => (character.name, character.mesh, None),
+        Ok(character) => (character.name.clone(), character.rest_mesh(), None),
         Err(problem) => {
             log::warn!("{problem}");
             let mesh = Mesh::cuboid(

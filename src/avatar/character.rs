@@ -1,18 +1,47 @@
-//! Loading a character file (glTF 2.0 .gltf/.glb, or OBJ+MTL) into its rest-pose mesh.
-//! Skinned glTF meshes are posed by their joints' rest transforms, as the spec defines.
+//! Loading a character file (glTF 2.0 .gltf/.glb, or OBJ+MTL) into one skinned mesh, its
+//! rig and its animation clips. A static mesh becomes a one-bone rig, so every character
+//! is posed the same way.
 
 use std::path::{Path, PathBuf};
 
-use glam::{Mat4, Vec3};
+use glam::{Mat4, Quat, Vec2, Vec3, Vec4};
 
 use super::Mesh;
+use super::clip::{Channel, Clip, Interpolation, Values};
+use super::rig::{Bone, Node, Part, Rig, SkinnedMesh, Transform};
 
-/// A loaded character: its name (the file stem) and rest-pose mesh.
+/// A loaded character: the mesh in bind space, its rig and clips.
 #[derive(Clone, Debug)]
 pub struct Character {
+    /// The file stem.
     pub name: String,
     pub path: PathBuf,
-    pub mesh: Mesh,
+    pub rig: Rig,
+    pub skinned: SkinnedMesh,
+    pub clips: Vec<Clip>,
+}
+
+impl Character {
+    /// The mesh posed by local node transforms `local`, with `root` above the rig.
+    pub fn pose_mesh(&self, local: &[Transform], root: Mat4) -> Mesh {
+        let world = self.rig.world(local, root);
+        self.skinned.pose(&self.rig.skin_matrices(&world))
+    }
+
+    /// The mesh in the rig's rest pose (the scene as the file shows it).
+    pub fn rest_mesh(&self) -> Mesh {
+        self.pose_mesh(&self.rig.rest_pose(), Mat4::IDENTITY)
+    }
+
+    pub fn clip(&self, name: &str) -> Result<&Clip, LoadError> {
+        self.clips.iter().find(|c| c.name == name).ok_or_else(|| {
+            let names: Vec<&str> = self.clips.iter().map(|c| c.name.as_str()).collect();
+            fail(
+                &self.path,
+                format!("clip '{name}' not found (clips: {})", names.join(", ")),
+            )
+        })
+    }
 }
 
 /// A character file that could not be used, and why.
@@ -23,7 +52,7 @@ pub struct LoadError {
     pub problem: String,
 }
 
-fn fail(path: &Path, problem: impl Into<String>) -> LoadError {
+pub(crate) fn fail(path: &Path, problem: impl Into<String>) -> LoadError {
     LoadError {
         path: path.to_path_buf(),
         problem: problem.into(),
@@ -40,7 +69,7 @@ pub fn load_character(path: &Path) -> Result<Character, LoadError> {
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
-    let mesh = match ext.as_str() {
+    let (rig, skinned, clips) = match ext.as_str() {
         "gltf" | "glb" => load_gltf(path)?,
         "obj" => load_obj(path)?,
         other => {
@@ -50,7 +79,7 @@ pub fn load_character(path: &Path) -> Result<Character, LoadError> {
             ));
         }
     };
-    if mesh.indices.is_empty() {
+    if skinned.bind.indices.is_empty() {
         return Err(fail(path, "the file contains no triangles"));
     }
     let name = path
@@ -60,32 +89,57 @@ pub fn load_character(path: &Path) -> Result<Character, LoadError> {
     Ok(Character {
         name,
         path: path.to_path_buf(),
-        mesh,
+        rig,
+        skinned,
+        clips,
     })
 }
 
-fn load_gltf(path: &Path) -> Result<Mesh, LoadError> {
-    let (doc, buffers, _images) = gltf::import(path).map_err(|e| fail(path, e.to_string()))?;
+type Loaded = (Rig, SkinnedMesh, Vec<Clip>);
+
+fn load_gltf(path: &Path) -> Result<Loaded, LoadError> {
+    let (doc, buffers, images) = gltf::import(path).map_err(|e| fail(path, e.to_string()))?;
     let scene = doc
         .default_scene()
         .or_else(|| doc.scenes().next())
         .ok_or_else(|| fail(path, "no scene"))?;
-    let mut world = vec![Mat4::IDENTITY; doc.nodes().len()];
-    let mut stack: Vec<(gltf::Node, Mat4)> = scene.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
+
+    // Nodes of the scene in breadth-first order, so parents come before children.
+    let mut rig = Rig::default();
+    let mut index_of = vec![None; doc.nodes().len()];
+    let mut queue: std::collections::VecDeque<(gltf::Node, Option<usize>)> =
+        scene.nodes().map(|n| (n, None)).collect();
     let mut mesh_nodes = Vec::new();
-    while let Some((node, parent)) = stack.pop() {
-        let global = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
-        world[node.index()] = global;
+    while let Some((node, parent)) = queue.pop_front() {
+        let ours = rig.nodes.len();
+        index_of[node.index()] = Some(ours);
+        let (t, r, s) = node.transform().decomposed();
+        rig.nodes.push(Node {
+            name: node
+                .name()
+                .map(str::to_string)
+                .unwrap_or_else(|| format!("node{}", node.index())),
+            parent,
+            rest: Transform {
+                translation: Vec3::from(t),
+                rotation: Quat::from_array(r).normalize(),
+                scale: Vec3::from(s),
+            },
+        });
         if node.mesh().is_some() {
             mesh_nodes.push(node.clone());
         }
-        stack.extend(node.children().map(|c| (c, global)));
+        queue.extend(node.children().map(|c| (c, Some(ours))));
     }
-    let mut out = Mesh::default();
+
+    let mut skinned = SkinnedMesh::default();
     for node in mesh_nodes {
-        let skin_matrices = match node.skin() {
-            Some(skin) => Some(rest_skin_matrices(path, &skin, &buffers, &world)?),
-            None => None,
+        let bones: Vec<usize> = match node.skin() {
+            Some(skin) => skin_bones(path, &skin, &buffers, &index_of, &mut rig)?,
+            None => vec![rig.bone(Bone {
+                node: index_of[node.index()].expect("mesh node is in the scene"),
+                inverse_bind: Mat4::IDENTITY,
+            })],
         };
         for primitive in node
             .mesh()
@@ -93,85 +147,42 @@ fn load_gltf(path: &Path) -> Result<Mesh, LoadError> {
             .flat_map(|m| m.primitives().collect::<Vec<_>>())
         {
             if primitive.mode() != gltf::mesh::Mode::Triangles {
+                log::warn!("{}: skipping a non-triangle primitive", path.display());
                 continue;
             }
-            let reader = primitive.reader(|b| Some(&buffers[b.index()]));
-            let positions: Vec<Vec3> = reader
-                .read_positions()
-                .ok_or_else(|| fail(path, "a mesh primitive has no POSITION attribute"))?
-                .map(Vec3::from)
-                .collect();
-            let indices: Vec<u32> = match reader.read_indices() {
-                Some(i) => i.into_u32().collect(),
-                None => (0..positions.len() as u32).collect(),
-            };
-            if let Some(&bad) = indices.iter().find(|&&i| i as usize >= positions.len()) {
-                return Err(fail(
-                    path,
-                    format!("index {bad} is past the {} vertices", positions.len()),
-                ));
-            }
-            let transforms: Vec<Mat4> = match &skin_matrices {
-                Some(joints) => {
-                    let joint_ids = reader
-                        .read_joints(0)
-                        .ok_or_else(|| fail(path, "a skinned primitive has no JOINTS_0"))?
-                        .into_u16();
-                    let weights = reader
-                        .read_weights(0)
-                        .ok_or_else(|| fail(path, "a skinned primitive has no WEIGHTS_0"))?
-                        .into_f32();
-                    joint_ids
-                        .zip(weights)
-                        .map(|(j, w)| blend(path, joints, j, w))
-                        .collect::<Result<_, _>>()?
-                }
-                None => vec![world[node.index()]; positions.len()],
-            };
-            if transforms.len() != positions.len() {
-                return Err(fail(
-                    path,
-                    "JOINTS_0/WEIGHTS_0 count differs from POSITION count",
-                ));
-            }
-            let base = primitive
-                .material()
-                .pbr_metallic_roughness()
-                .base_color_factor();
-            let color = Vec3::new(base[0], base[1], base[2]);
-            let mut part = Mesh {
-                positions: positions
-                    .iter()
-                    .zip(&transforms)
-                    .map(|(p, m)| m.transform_point3(*p))
-                    .collect(),
-                colors: vec![color; positions.len()],
-                indices,
-                normals: Vec::new(),
-            };
-            match reader.read_normals() {
-                Some(normals) => {
-                    part.normals = normals
-                        .zip(&transforms)
-                        .map(|(n, m)| m.transform_vector3(Vec3::from(n)).normalize_or(Vec3::Y))
-                        .collect()
-                }
-                None => part.compute_normals(),
-            }
-            out.append(part);
+            let mut part = read_primitive(
+                path,
+                &primitive,
+                &buffers,
+                &images,
+                &bones,
+                node.skin().is_some(),
+            )?;
+            part.part = vec![0; part.bind.positions.len()];
+            part.parts = vec![Part {
+                mesh: node.name().unwrap_or_default().to_string(),
+                material: primitive.material().name().unwrap_or_default().to_string(),
+            }];
+            skinned.append(part);
         }
     }
-    Ok(out)
+
+    let clips = doc
+        .animations()
+        .map(|a| read_clip(path, &a, &buffers, &index_of))
+        .collect::<Result<_, _>>()?;
+    Ok((rig, skinned, clips))
 }
 
-/// Joint matrices of the rest pose: joint world transform times inverse bind matrix.
-fn rest_skin_matrices(
+/// The rig bones of a skin's joints, in joint order.
+fn skin_bones(
     path: &Path,
     skin: &gltf::Skin,
     buffers: &[gltf::buffer::Data],
-    world: &[Mat4],
-) -> Result<Vec<Mat4>, LoadError> {
-    let joints: Vec<usize> = skin.joints().map(|j| j.index()).collect();
+    index_of: &[Option<usize>],
+    rig: &mut Rig,
+) -> Result<Vec<usize>, LoadError> {
+    let joints: Vec<gltf::Node> = skin.joints().collect();
     let inverse_bind: Vec<Mat4> = match skin
         .reader(|b| Some(&buffers[b.index()]))
         .read_inverse_bind_matrices()
@@ -190,43 +201,250 @@ fn rest_skin_matrices(
             ),
         ));
     }
-    Ok(joints
+    joints
         .iter()
         .zip(inverse_bind)
-        .map(|(&j, ib)| world[j] * ib)
-        .collect())
+        .map(|(joint, inverse_bind)| {
+            let node = index_of[joint.index()].ok_or_else(|| {
+                fail(
+                    path,
+                    format!(
+                        "skin joint '{}' is not in the scene",
+                        joint.name().unwrap_or("?")
+                    ),
+                )
+            })?;
+            Ok(rig.bone(Bone { node, inverse_bind }))
+        })
+        .collect()
 }
 
-fn blend(
+fn read_primitive(
     path: &Path,
-    joints: &[Mat4],
-    ids: [u16; 4],
-    weights: [f32; 4],
-) -> Result<Mat4, LoadError> {
-    let total: f32 = weights.iter().sum();
-    if total <= 0.0 {
-        return Ok(Mat4::IDENTITY);
+    primitive: &gltf::Primitive,
+    buffers: &[gltf::buffer::Data],
+    images: &[gltf::image::Data],
+    bones: &[usize],
+    skinned: bool,
+) -> Result<SkinnedMesh, LoadError> {
+    let reader = primitive.reader(|b| Some(&buffers[b.index()]));
+    let positions: Vec<Vec3> = reader
+        .read_positions()
+        .ok_or_else(|| fail(path, "a mesh primitive has no POSITION attribute"))?
+        .map(Vec3::from)
+        .collect();
+    let n = positions.len();
+    let indices: Vec<u32> = match reader.read_indices() {
+        Some(i) => i.into_u32().collect(),
+        None => (0..n as u32).collect(),
+    };
+    if let Some(&bad) = indices.iter().find(|&&i| i as usize >= n) {
+        return Err(fail(path, format!("index {bad} is past the {n} vertices")));
     }
-    let mut m = Mat4::ZERO;
-    for (&id, &w) in ids.iter().zip(&weights) {
-        if w == 0.0 {
-            continue;
+    let (joints, weights): (Vec<[u16; 4]>, Vec<[f32; 4]>) = if skinned {
+        let joints: Vec<[u16; 4]> = reader
+            .read_joints(0)
+            .ok_or_else(|| fail(path, "a skinned primitive has no JOINTS_0"))?
+            .into_u16()
+            .collect();
+        let weights: Vec<[f32; 4]> = reader
+            .read_weights(0)
+            .ok_or_else(|| fail(path, "a skinned primitive has no WEIGHTS_0"))?
+            .into_f32()
+            .collect();
+        if joints.len() != n || weights.len() != n {
+            return Err(fail(
+                path,
+                "JOINTS_0/WEIGHTS_0 count differs from POSITION count",
+            ));
         }
-        let joint = joints.get(id as usize).ok_or_else(|| {
-            fail(
+        let mut remapped = Vec::with_capacity(n);
+        let mut normalised = Vec::with_capacity(n);
+        for (j, w) in joints.iter().zip(&weights) {
+            let mut out = [0u16; 4];
+            for k in 0..4 {
+                let bone = bones.get(j[k] as usize).ok_or_else(|| {
+                    fail(
+                        path,
+                        format!(
+                            "joint index {} is past the skin's {} joints",
+                            j[k],
+                            bones.len()
+                        ),
+                    )
+                })?;
+                out[k] = *bone as u16;
+            }
+            let total: f32 = w.iter().sum();
+            if total <= 0.0 {
+                return Err(fail(path, "a skinned vertex has all weights zero"));
+            }
+            remapped.push(out);
+            normalised.push(w.map(|x| x / total));
+        }
+        (remapped, normalised)
+    } else {
+        (
+            vec![[bones[0] as u16, 0, 0, 0]; n],
+            vec![[1.0, 0.0, 0.0, 0.0]; n],
+        )
+    };
+    let colors = vertex_colours(primitive, &reader, images, n);
+    let mut bind = Mesh {
+        positions,
+        normals: Vec::new(),
+        colors,
+        indices,
+    };
+    match reader.read_normals() {
+        Some(normals) => {
+            bind.normals = normals
+                .map(|v| Vec3::from(v).normalize_or(Vec3::Y))
+                .collect()
+        }
+        None => bind.compute_normals(),
+    }
+    Ok(SkinnedMesh {
+        bind,
+        joints,
+        weights,
+        ..Default::default()
+    })
+}
+
+/// Linear base colour per vertex: the material's factor times its texture at the vertex UV.
+fn vertex_colours<'a, 's, F>(
+    primitive: &gltf::Primitive,
+    reader: &gltf::mesh::Reader<'a, 's, F>,
+    images: &[gltf::image::Data],
+    n: usize,
+) -> Vec<Vec3>
+where
+    F: Clone + Fn(gltf::Buffer<'a>) -> Option<&'s [u8]>,
+{
+    let pbr = primitive.material().pbr_metallic_roughness();
+    let factor = Vec4::from(pbr.base_color_factor()).truncate();
+    let texture = pbr.base_color_texture().map(|info| {
+        let uvs: Vec<Vec2> = reader
+            .read_tex_coords(info.tex_coord())
+            .map(|t| t.into_f32().map(Vec2::from).collect())
+            .unwrap_or_default();
+        (&images[info.texture().source().index()], uvs)
+    });
+    match texture {
+        Some((image, uvs)) if uvs.len() == n => {
+            uvs.iter().map(|&uv| factor * texel(image, uv)).collect()
+        }
+        _ => vec![factor; n],
+    }
+}
+
+/// The linear colour of the texel nearest to `uv` (repeat wrapping), white if the
+/// image format is not 8-bit RGB(A).
+fn texel(image: &gltf::image::Data, uv: Vec2) -> Vec3 {
+    let channels = match image.format {
+        gltf::image::Format::R8G8B8 => 3,
+        gltf::image::Format::R8G8B8A8 => 4,
+        _ => return Vec3::ONE,
+    };
+    let x = ((uv.x.rem_euclid(1.0) * image.width as f32) as u32).min(image.width - 1);
+    let y = ((uv.y.rem_euclid(1.0) * image.height as f32) as u32).min(image.height - 1);
+    let i = ((y * image.width + x) * channels) as usize;
+    let srgb = |v: u8| {
+        let c = v as f32 / 255.0;
+        if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    Vec3::new(
+        srgb(image.pixels[i]),
+        srgb(image.pixels[i + 1]),
+        srgb(image.pixels[i + 2]),
+    )
+}
+
+fn read_clip(
+    path: &Path,
+    animation: &gltf::Animation,
+    buffers: &[gltf::buffer::Data],
+    index_of: &[Option<usize>],
+) -> Result<Clip, LoadError> {
+    let name = animation
+        .name()
+        .map(str::to_string)
+        .unwrap_or_else(|| format!("clip{}", animation.index()));
+    let mut channels = Vec::new();
+    for channel in animation.channels() {
+        let Some(node) = index_of[channel.target().node().index()] else {
+            continue;
+        };
+        let reader = channel.reader(|b| Some(&buffers[b.index()]));
+        let times: Vec<f32> = reader
+            .read_inputs()
+            .ok_or_else(|| fail(path, format!("clip '{name}': a channel has no key times")))?
+            .collect();
+        let values = match reader.read_outputs() {
+            Some(gltf::animation::util::ReadOutputs::Translations(v)) => {
+                Values::Translation(v.map(Vec3::from).collect())
+            }
+            Some(gltf::animation::util::ReadOutputs::Scales(v)) => {
+                Values::Scale(v.map(Vec3::from).collect())
+            }
+            Some(gltf::animation::util::ReadOutputs::Rotations(v)) => {
+                Values::Rotation(v.into_f32().map(Vec4::from).collect())
+            }
+            Some(gltf::animation::util::ReadOutputs::MorphTargetWeights(_)) => continue,
+            None => {
+                return Err(fail(
+                    path,
+                    format!("clip '{name}': a channel has no values"),
+                ));
+            }
+        };
+        let interpolation = match channel.sampler().interpolation() {
+            gltf::animation::Interpolation::Linear => Interpolation::Linear,
+            gltf::animation::Interpolation::Step => Interpolation::Step,
+            gltf::animation::Interpolation::CubicSpline => Interpolation::CubicSpline,
+        };
+        let per_key = if interpolation == Interpolation::CubicSpline {
+            3
+        } else {
+            1
+        };
+        let count = match &values {
+            Values::Translation(v) | Values::Scale(v) => v.len(),
+            Values::Rotation(v) => v.len(),
+        };
+        if times.is_empty() || count != times.len() * per_key {
+            return Err(fail(
                 path,
                 format!(
-                    "joint index {id} is past the skin's {} joints",
-                    joints.len()
+                    "clip '{name}': {} key times but {count} values",
+                    times.len()
                 ),
-            )
-        })?;
-        m += *joint * (w / total);
+            ));
+        }
+        channels.push(Channel {
+            node,
+            times,
+            interpolation,
+            values,
+        });
     }
-    Ok(m)
+    let duration = channels
+        .iter()
+        .filter_map(|c| c.times.last().copied())
+        .fold(0.0f32, f32::max);
+    Ok(Clip {
+        name,
+        duration,
+        channels,
+    })
 }
 
-fn load_obj(path: &Path) -> Result<Mesh, LoadError> {
+fn load_obj(path: &Path) -> Result<Loaded, LoadError> {
     let options = tobj::LoadOptions {
         triangulate: true,
         single_index: true,
@@ -239,7 +457,9 @@ fn load_obj(path: &Path) -> Result<Mesh, LoadError> {
         log::warn!("{}: materials not loaded ({e}); using grey", path.display());
         Vec::new()
     });
-    let mut out = Mesh::default();
+    let mut bind = Mesh::default();
+    let mut parts = Vec::new();
+    let mut part = Vec::new();
     for model in models {
         let m = &model.mesh;
         let positions: Vec<Vec3> = m
@@ -253,22 +473,53 @@ fn load_obj(path: &Path) -> Result<Mesh, LoadError> {
             .and_then(|mat| mat.diffuse)
             .map(Vec3::from)
             .unwrap_or(Vec3::splat(0.7));
-        let mut part = Mesh {
+        let mut piece = Mesh {
             colors: vec![color; positions.len()],
             positions,
             indices: m.indices.clone(),
             normals: Vec::new(),
         };
         if m.normals.len() == m.positions.len() {
-            part.normals = m
+            piece.normals = m
                 .normals
                 .chunks_exact(3)
                 .map(|n| Vec3::new(n[0], n[1], n[2]).normalize_or(Vec3::Y))
                 .collect();
         } else {
-            part.compute_normals();
+            piece.compute_normals();
         }
-        out.append(part);
+        part.extend(std::iter::repeat_n(
+            parts.len() as u16,
+            piece.positions.len(),
+        ));
+        parts.push(Part {
+            mesh: model.name.clone(),
+            material: m
+                .material_id
+                .and_then(|id| materials.get(id))
+                .map(|mat| mat.name.clone())
+                .unwrap_or_default(),
+        });
+        bind.append(piece);
     }
-    Ok(out)
+    let rig = Rig {
+        nodes: vec![Node {
+            name: "root".into(),
+            parent: None,
+            rest: Transform::default(),
+        }],
+        bones: vec![Bone {
+            node: 0,
+            inverse_bind: Mat4::IDENTITY,
+        }],
+    };
+    let n = bind.positions.len();
+    let skinned = SkinnedMesh {
+        bind,
+        joints: vec![[0; 4]; n],
+        weights: vec![[1.0, 0.0, 0.0, 0.0]; n],
+        part,
+        parts,
+    };
+    Ok((rig, skinned, Vec::new()))
 }

@@ -1,8 +1,12 @@
-//! The character side (the teacher): loading characters from glTF/GLB and OBJ files.
-//! The live neural path (engine, nn) never imports this module.
+//! The character side (the teacher): loading characters (glTF/GLB, OBJ), rigs, clips and
+//! skinning. The live neural path (engine, nn) never imports this module.
 
 pub mod character;
+pub mod clip;
+pub mod description;
+pub mod locomotion;
 pub mod mesh;
+pub mod rig;
 
-pub use character::{Character, load_character};
+pub use character::{Character, LoadError, load_character};
 pub use mesh::Mesh;
