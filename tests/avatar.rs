@@ -118,3 +118,45 @@ fn an_obj_without_materials_loads_grey_with_normals() {
     let grey = glam::Vec3::splat(0.7);
     assert!(mesh.colors.iter().all(|c| c.abs_diff_eq(grey, 1e-6)));
 }
+
+#[test]
+fn the_witch_teacher_runs_where_the_keys_say() {
+    use unica::action::Action;
+    use unica::avatar::description::Description;
+    use unica::avatar::teacher::Teacher;
+    let character = load_character(&witch()).unwrap();
+    let description = Description::find(&character, None).unwrap();
+    let mut teacher = Teacher::new(character, description).unwrap();
+    let p = teacher.locomotion.params;
+    eprintln!(
+        "measured walk {:.2} m/s, run {:.2} m/s",
+        p.walk_speed, p.run_speed
+    );
+    assert!((0.5..3.0).contains(&p.walk_speed), "walk {}", p.walk_speed);
+    assert!(
+        (1.5..8.0).contains(&p.run_speed) && p.run_speed > p.walk_speed,
+        "run {}",
+        p.run_speed
+    );
+    let start = teacher.root();
+    for _ in 0..60 {
+        teacher.step(Action::Forward);
+    }
+    let after_w = teacher.root();
+    assert!(
+        after_w.z - start.z > 1.0 && (after_w.x - start.x).abs() < 0.2,
+        "{start} -> {after_w}"
+    );
+    for _ in 0..60 {
+        teacher.step(Action::Left);
+    }
+    let after_a = teacher.root();
+    assert!(
+        after_a.x - after_w.x > 1.0,
+        "A goes +X: {after_w} -> {after_a}"
+    );
+    // The posed mesh follows the root.
+    let (lo, hi) = teacher.mesh().bounds().unwrap();
+    let centre = (lo + hi) * 0.5;
+    assert!((centre.x - after_a.x).abs() < 0.5 && (centre.z - after_a.z).abs() < 0.5);
+}

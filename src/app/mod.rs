@@ -2,6 +2,7 @@
 //! input and the recorder. The only module that knows about windows.
 
 pub mod recorder;
+pub mod shown;
 pub mod viewport;
 
 use std::path::PathBuf;
@@ -9,14 +10,15 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use eframe::egui;
-use glam::Vec3;
 
 use crate::action::{Action, HeldKeys, KeyScript};
-use crate::avatar::{Character, Mesh, load_character};
+use crate::avatar::locomotion::FRAME_RATE;
+use crate::avatar::teacher::Teacher;
 use crate::gpu::timing::StageTiming;
 use crate::gpu::{self, GpuContext, GpuOptions};
-use crate::render::GpuMesh;
+use crate::render::OrbitCamera;
 use recorder::Recorder;
+use shown::Shown;
 use viewport::Viewport;
 
 /// How the app was started (see `unica --help`).
@@ -101,14 +103,6 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
     }
 }
 
-/// What the viewport shows: the loaded character, or a placeholder and why.
-struct Shown {
-    name: String,
-    mesh: GpuMesh,
-    bounds: (Vec3, Vec3),
-    problem: Option<String>,
-}
-
 struct UnicaApp {
     gpu: GpuContext,
     viewport: Viewport,
@@ -121,6 +115,9 @@ struct UnicaApp {
     frame_ms: f64,
     timings: Vec<StageTiming>,
     recording: Option<(Recorder, Instant)>,
+    /// Teacher frames owed to the clock (interactive pacing).
+    step_clock: f64,
+    follow: bool,
     record_dir: String,
     open_path: String,
     message: Option<String>,
@@ -137,8 +134,8 @@ impl UnicaApp {
         outcome: Arc<Mutex<Option<anyhow::Error>>>,
     ) -> Self {
         let mut viewport = Viewport::new(&gpu);
-        let shown = load_shown(&gpu, &viewport, options.character.as_ref());
-        viewport.camera.frame(shown.bounds.0, shown.bounds.1);
+        let shown = Shown::load(&gpu, &viewport.renderer, options.character.as_deref());
+        viewport.camera = behind(&shown);
         log::info!("adapter: {}; {:?}", gpu.adapter_label(), gpu.caps);
         let record = options.record;
         let mut app = Self {
@@ -159,6 +156,8 @@ impl UnicaApp {
             frame_ms: 0.0,
             timings: Vec::new(),
             recording: None,
+            step_clock: 0.0,
+            follow: true,
             message: None,
             show_help: false,
             screenshot_requested: false,
@@ -171,11 +170,9 @@ impl UnicaApp {
     }
 
     fn open(&mut self, path: PathBuf) {
-        self.shown = load_shown(&self.gpu, &self.viewport, Some(&path));
+        self.shown = Shown::load(&self.gpu, &self.viewport.renderer, Some(&path));
         self.message = self.shown.problem.clone();
-        self.viewport
-            .camera
-            .frame(self.shown.bounds.0, self.shown.bounds.1);
+        self.viewport.camera = behind(&self.shown);
         self.open_path = path.display().to_string();
     }
 
@@ -231,22 +228,36 @@ impl UnicaApp {
                 continue;
             }
             match key {
-                egui::Key::F => self
-                    .viewport
-                    .camera
-                    .frame(self.shown.bounds.0, self.shown.bounds.1),
-                egui::Key::R => {
-                    self.viewport.camera = Default::default();
-                    self.viewport
-                        .camera
-                        .frame(self.shown.bounds.0, self.shown.bounds.1);
+                egui::Key::F => {
+                    let (lo, hi) = self.shown.bounds();
+                    self.viewport.camera.frame(lo, hi);
                 }
+                egui::Key::R => self.viewport.camera = behind(&self.shown),
                 egui::Key::F9 => self.toggle_recording(),
                 _ => {}
             }
         }
         if let Some(path) = dropped.first().map(|f| f.path().to_path_buf()) {
             self.open(path);
+        }
+    }
+
+    /// Steps the teacher at its frame rate (one step per rendered frame under a key
+    /// script, so scripted runs are deterministic) and keeps the camera following it.
+    fn animate(&mut self, seconds: f64) {
+        let steps = if self.options.keys.is_some() {
+            1
+        } else {
+            self.step_clock += seconds * f64::from(FRAME_RATE);
+            let steps = self.step_clock.floor().min(MAX_STEPS_PER_FRAME);
+            self.step_clock = (self.step_clock - steps).min(1.0);
+            steps as u32
+        };
+        let before = self.shown.teacher.as_ref().map(Teacher::root);
+        self.shown.advance(&self.gpu, self.action, steps);
+        let after = self.shown.teacher.as_ref().map(Teacher::root);
+        if let (true, Some(before), Some(after)) = (self.follow, before, after) {
+            self.viewport.camera.target += after - before;
         }
     }
 
@@ -283,6 +294,18 @@ impl UnicaApp {
                 };
                 if ui.button(label).clicked() {
                     self.toggle_recording();
+                    ui.close();
+                }
+            });
+            ui.menu_button("View", |ui| {
+                ui.checkbox(&mut self.follow, "Camera follows the avatar");
+                if ui.button("Frame the avatar (F)").clicked() {
+                    let (lo, hi) = self.shown.bounds();
+                    self.viewport.camera.frame(lo, hi);
+                    ui.close();
+                }
+                if ui.button("Reset the camera (R)").clicked() {
+                    self.viewport.camera = behind(&self.shown);
                     ui.close();
                 }
             });
@@ -327,6 +350,19 @@ impl UnicaApp {
         });
         if self.options.keys.is_some() {
             ui.label(format!("Key script, frame {}", self.frame));
+        }
+        if let Some(teacher) = &self.shown.teacher {
+            let loco = &teacher.locomotion;
+            let root = teacher.root();
+            ui.label(format!(
+                "Teacher: {:.2} m/s, heading {:.0}°",
+                loco.speed,
+                loco.yaw.to_degrees()
+            ));
+            ui.label(format!(
+                "Root: ({:.2}, {:.2}, {:.2})",
+                root.x, root.y, root.z
+            ));
         }
         ui.separator();
         let fps = if self.frame_ms > 0.0 {
@@ -442,6 +478,7 @@ impl eframe::App for UnicaApp {
             Some(script) => script.action_at(self.frame as usize),
             None => self.keys.current(),
         };
+        self.animate(dt * 1e-3);
 
         egui::Panel::top("menu").show(ui, |ui| self.menu_bar(ui));
         egui::Panel::right("hud")
@@ -466,7 +503,7 @@ impl eframe::App for UnicaApp {
             .show(ui, |ui| {
                 self.timings =
                     self.viewport
-                        .show(ui, &self.gpu, &state.renderer, &[&self.shown.mesh]);
+                        .show(ui, &self.gpu, &state.renderer, &[self.shown.gpu_mesh()]);
             });
         self.record_frame();
         self.frame += 1;
@@ -500,6 +537,22 @@ pub const KEY_MAP: &[(&str, &str)] = &[
     ("F9", "start / stop recording"),
 ];
 
+/// Most teacher frames run in one rendered frame when the window falls behind.
+const MAX_STEPS_PER_FRAME: f64 = 4.0;
+
+/// The default view: behind the avatar (which starts facing +Z), a little to its left,
+/// framing it.
+fn behind(shown: &Shown) -> OrbitCamera {
+    let mut camera = OrbitCamera {
+        yaw: std::f32::consts::PI - 0.45,
+        ..OrbitCamera::default()
+    };
+    let (lo, hi) = shown.bounds();
+    camera.frame(lo, hi);
+    camera.distance *= 1.4;
+    camera
+}
+
 fn movement(key: egui::Key) -> Option<Action> {
     Some(match key {
         egui::Key::W | egui::Key::ArrowUp => Action::Forward,
@@ -512,35 +565,4 @@ fn movement(key: egui::Key) -> Option<Action> {
 
 fn yes_no(b: bool) -> &'static str {
     if b { "yes" } else { "no" }
-}
-
-/// Loads the character for display; any failure shows the placeholder with the reason.
-fn load_shown(gpu: &GpuContext, viewport: &Viewport, path: Option<&PathBuf>) -> Shown {
-    let loaded: Result<Character, String> = match path {
-        Some(path) => load_character(path).map_err(|e| e.to_string()),
-        None => Err("no character file given (--character)".into()),
-    };
-    let (name, mesh, problem) = match loaded {
-        Ok(character) => (character.name.clone(), character.rest_mesh(), None),
-        Err(problem) => {
-            log::warn!("{problem}");
-            let mesh = Mesh::cuboid(
-                Vec3::new(-0.25, 0.0, -0.15),
-                Vec3::new(0.25, 1.8, 0.15),
-                Vec3::splat(0.5),
-            );
-            (
-                "placeholder".to_string(),
-                mesh,
-                Some(format!("Showing a placeholder: {problem}")),
-            )
-        }
-    };
-    let bounds = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ONE));
-    Shown {
-        name,
-        mesh: viewport.renderer.upload(gpu, &mesh),
-        bounds,
-        problem,
-    }
 }

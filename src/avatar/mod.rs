@@ -7,6 +7,7 @@ pub mod description;
 pub mod locomotion;
 pub mod mesh;
 pub mod rig;
+pub mod teacher;
 
 pub use character::{Character, LoadError, load_character};
 pub use mesh::Mesh;

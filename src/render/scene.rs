@@ -207,7 +207,8 @@ impl SceneRenderer {
         let (w, h) = target.size();
         let uniforms = SceneUniforms {
             view_proj: camera.view_projection(w as f32 / h as f32),
-            light_dir: Vec3::new(0.4, 0.8, 0.45).normalize().extend(0.75),
+            // A key light above and to the side of the camera, so what is seen is lit.
+            light_dir: light_direction(camera).extend(0.8),
             sky_ambient: Vec4::new(0.45, 0.47, 0.52, 0.0),
             ground_ambient: Vec4::new(0.18, 0.16, 0.15, 0.0),
         };
@@ -250,14 +251,37 @@ impl SceneRenderer {
     }
 }
 
-fn upload(gpu: &GpuContext, mesh: &Mesh, label: &str) -> GpuMesh {
-    let vertices: Vec<Vertex> = (0..mesh.positions.len())
+fn light_direction(camera: &OrbitCamera) -> Vec3 {
+    let toward_eye = (camera.eye() - camera.target).normalize_or(Vec3::Z);
+    let side = toward_eye.cross(Vec3::Y).normalize_or(Vec3::X);
+    (toward_eye + 1.2 * Vec3::Y + 0.5 * side).normalize()
+}
+
+impl GpuMesh {
+    /// Replaces the vertices of a mesh with the same topology (a new pose).
+    pub fn write_vertices(&self, gpu: &GpuContext, mesh: &Mesh) {
+        let vertices = vertices(mesh);
+        let bytes: &[u8] = bytemuck::cast_slice(&vertices);
+        if bytes.len() as u64 == self.vertices.size() {
+            gpu.queue.write_buffer(&self.vertices, 0, bytes);
+        } else {
+            log::error!("a posed mesh has a different vertex count; not drawn");
+        }
+    }
+}
+
+fn vertices(mesh: &Mesh) -> Vec<Vertex> {
+    (0..mesh.positions.len())
         .map(|i| Vertex {
             position: mesh.positions[i].into(),
             normal: mesh.normals[i].into(),
             color: mesh.colors[i].into(),
         })
-        .collect();
+        .collect()
+}
+
+fn upload(gpu: &GpuContext, mesh: &Mesh, label: &str) -> GpuMesh {
+    let vertices = vertices(mesh);
     let buffer = |contents: &[u8], usage| {
         gpu.device
             .create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -267,7 +291,10 @@ fn upload(gpu: &GpuContext, mesh: &Mesh, label: &str) -> GpuMesh {
             })
     };
     GpuMesh {
-        vertices: buffer(bytemuck::cast_slice(&vertices), wgpu::BufferUsages::VERTEX),
+        vertices: buffer(
+            bytemuck::cast_slice(&vertices),
+            wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+        ),
         indices: buffer(
             bytemuck::cast_slice(&mesh.indices),
             wgpu::BufferUsages::INDEX,

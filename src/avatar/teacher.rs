@@ -1,0 +1,186 @@
+//! The teacher: a character driven by actions through the locomotion controller, its
+//! clips blended by speed, spring bones for loose parts, and skinning — one deterministic
+//! frame per step at [`FRAME_RATE`]. The ground truth the neural avatar learns from.
+
+use glam::{Mat4, Vec3};
+
+use super::Mesh;
+use super::character::{Character, LoadError, fail};
+use super::clip::Clip;
+use super::description::Description;
+use super::locomotion::{FRAME_RATE, GaitParams, Locomotion};
+use super::rig::Transform;
+use crate::action::Action;
+
+pub struct Teacher {
+    pub character: Character,
+    pub description: Description,
+    /// Indices of the idle, walk and run clips.
+    clips: [usize; 3],
+    forward_heading: f32,
+    pub locomotion: Locomotion,
+    waist: Vec<usize>,
+    world: Vec<Mat4>,
+    pub frame: u64,
+}
+
+impl Teacher {
+    pub fn new(character: Character, description: Description) -> Result<Self, LoadError> {
+        let clip_index = |name: &str| {
+            character.clip(name)?;
+            Ok::<_, LoadError>(
+                character
+                    .clips
+                    .iter()
+                    .position(|c| c.name == name)
+                    .expect("found"),
+            )
+        };
+        let clips = [
+            clip_index(&description.clips.idle)?,
+            clip_index(&description.clips.walk)?,
+            clip_index(&description.clips.run)?,
+        ];
+        let node = |name: &String| {
+            character.rig.find(name).ok_or_else(|| {
+                fail(
+                    &character.path,
+                    format!("bone '{name}' (from the avatar description) not found"),
+                )
+            })
+        };
+        let waist: Vec<usize> = description
+            .waist_bones
+            .iter()
+            .map(node)
+            .collect::<Result<_, _>>()?;
+        let feet: Vec<usize> = description
+            .feet
+            .iter()
+            .map(node)
+            .collect::<Result<_, _>>()?;
+        if waist.is_empty() || feet.is_empty() {
+            return Err(fail(
+                &character.path,
+                "the avatar description names no waist or no feet bones",
+            ));
+        }
+        let forward_heading = match description.forward.as_str() {
+            "-z" => std::f32::consts::PI,
+            "+x" => std::f32::consts::FRAC_PI_2,
+            "-x" => -std::f32::consts::FRAC_PI_2,
+            _ => 0.0,
+        };
+        let forward = Vec3::new(forward_heading.sin(), 0.0, forward_heading.cos());
+        let [_, walk, run] = clips.map(|i| &character.clips[i]);
+        let walk_speed = description
+            .walk_speed
+            .unwrap_or_else(|| ground_speed(&character, walk, &feet, forward));
+        let run_speed = description
+            .run_speed
+            .unwrap_or_else(|| ground_speed(&character, run, &feet, forward));
+        if !(walk_speed > 0.0 && run_speed > walk_speed) {
+            return Err(fail(
+                &character.path,
+                format!(
+                    "walk speed {walk_speed:.2} m/s and run speed {run_speed:.2} m/s (measured from the feet) \
+                     must satisfy 0 < walk < run; set walk_speed/run_speed in the avatar description"
+                ),
+            ));
+        }
+        let params = GaitParams::new(walk_speed, run_speed, walk.duration, run.duration);
+        let mut teacher = Self {
+            world: Vec::new(),
+            character,
+            description,
+            clips,
+            forward_heading,
+            locomotion: Locomotion::new(params),
+            waist,
+            frame: 0,
+        };
+        teacher.pose();
+        Ok(teacher)
+    }
+
+    /// Advances one frame (1 / [`FRAME_RATE`] s) under `action`.
+    pub fn step(&mut self, action: Action) {
+        self.locomotion.step(action, 1.0 / FRAME_RATE);
+        self.pose();
+        self.frame += 1;
+    }
+
+    /// Blends the clips for the current locomotion state into world matrices.
+    fn pose(&mut self) {
+        let rig = &self.character.rig;
+        let sample = |clip: &Clip, t: f32| {
+            let mut pose = rig.rest_pose();
+            clip.sample_looped(t, &mut pose);
+            pose
+        };
+        let loco = &self.locomotion;
+        let [idle, walk, run] = self.clips.map(|i| &self.character.clips[i]);
+        let blend = loco.blend();
+        let moving = sample(walk, loco.phase * walk.duration);
+        let running = sample(run, loco.phase * run.duration);
+        let still = sample(idle, loco.idle_time);
+        let gait_share = blend.run / (blend.walk + blend.run).max(1e-6);
+        let local: Vec<Transform> = still
+            .iter()
+            .zip(moving.iter().zip(&running))
+            .map(|(i, (w, r))| i.blend(&w.blend(r, gait_share), 1.0 - blend.idle))
+            .collect();
+        self.world = rig.world(&local, self.locomotion.root_matrix(self.forward_heading));
+    }
+
+    /// The posed mesh in world space.
+    pub fn mesh(&self) -> Mesh {
+        self.character
+            .skinned
+            .pose(&self.character.rig.skin_matrices(&self.world))
+    }
+
+    /// World position of the root: the mean of the waist bones.
+    pub fn root(&self) -> Vec3 {
+        self.waist
+            .iter()
+            .map(|&n| self.world[n].w_axis.truncate())
+            .sum::<Vec3>()
+            / self.waist.len() as f32
+    }
+}
+
+/// A clip's ground speed: how fast the planted (lowest) foot slides backward along
+/// `forward` while the clip plays in place; the median over the cycle.
+pub fn ground_speed(character: &Character, clip: &Clip, feet: &[usize], forward: Vec3) -> f32 {
+    const SAMPLES: usize = 120;
+    let dt = clip.duration / SAMPLES as f32;
+    let feet_at = |k: usize| {
+        let mut pose = character.rig.rest_pose();
+        clip.sample_looped(k as f32 * dt, &mut pose);
+        let world = character.rig.world(&pose, Mat4::IDENTITY);
+        feet.iter()
+            .map(|&f| world[f].w_axis.truncate())
+            .collect::<Vec<Vec3>>()
+    };
+    let planted = |f: &[Vec3]| {
+        (0..f.len())
+            .min_by(|&a, &b| f[a].y.total_cmp(&f[b].y))
+            .expect("feet")
+    };
+    let mut speeds = Vec::new();
+    let mut previous = feet_at(0);
+    for k in 1..=SAMPLES {
+        let current = feet_at(k);
+        let foot = planted(&current);
+        if planted(&previous) == foot {
+            speeds.push(-(current[foot] - previous[foot]).dot(forward) / dt);
+        }
+        previous = current;
+    }
+    if speeds.is_empty() {
+        return 0.0;
+    }
+    speeds.sort_by(f32::total_cmp);
+    speeds[speeds.len() / 2]
+}
