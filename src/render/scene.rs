@@ -15,9 +15,9 @@ pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrg
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// Linear background colour.
 pub const BACKGROUND: wgpu::Color = wgpu::Color {
-    r: 0.05,
-    g: 0.055,
-    b: 0.07,
+    r: 0.13,
+    g: 0.135,
+    b: 0.15,
     a: 1.0,
 };
 
@@ -209,8 +209,8 @@ impl SceneRenderer {
             view_proj: camera.view_projection(w as f32 / h as f32),
             // A key light above and to the side of the camera, so what is seen is lit.
             light_dir: light_direction(camera).extend(0.8),
-            sky_ambient: Vec4::new(0.45, 0.47, 0.52, 0.0),
-            ground_ambient: Vec4::new(0.18, 0.16, 0.15, 0.0),
+            sky_ambient: Vec4::new(0.6, 0.62, 0.68, 0.0),
+            ground_ambient: Vec4::new(0.25, 0.22, 0.2, 0.0),
         };
         gpu.queue
             .write_buffer(&self.uniforms, 0, bytemuck::bytes_of(&uniforms));
@@ -321,7 +321,7 @@ fn grid_lines() -> Mesh {
         let (x_color, z_color) = if i == steps / 2 {
             (Vec3::new(0.1, 0.1, 0.6), Vec3::new(0.6, 0.1, 0.1))
         } else {
-            (Vec3::splat(0.12), Vec3::splat(0.12))
+            (Vec3::splat(0.24), Vec3::splat(0.24))
         };
         line(Vec3::new(t, 0.0, -half), Vec3::new(t, 0.0, half), x_color);
         line(Vec3::new(-half, 0.0, t), Vec3::new(half, 0.0, t), z_color);
