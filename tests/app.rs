@@ -31,6 +31,8 @@ fn display() -> &'static str {
         BufReader::new(shell.stdout.take().unwrap())
             .read_line(&mut line)
             .unwrap();
+        // The watchdog outlives every test; a thread reaps it should it end early.
+        std::thread::spawn(move || shell.wait());
         let number: u32 = line.trim().parse().unwrap_or_else(|_| {
             panic!("Xvfb did not start (Debian package xvfb; .ci/run installs it): '{line}'")
         });
