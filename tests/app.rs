@@ -28,11 +28,14 @@ fn display() -> &'static str {
             .spawn()
             .expect("sh runs");
         let mut line = String::new();
-        BufReader::new(shell.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
-        // The watchdog outlives every test; a thread reaps it should it end early.
-        std::thread::spawn(move || shell.wait());
+        let mut report = BufReader::new(shell.stdout.take().unwrap());
+        report.read_line(&mut line).unwrap();
+        // The watchdog outlives every test. A thread keeps Xvfb's stdout open (a write
+        // to a closed pipe would kill it) and reaps the shell should it end early.
+        std::thread::spawn(move || {
+            let _report = report;
+            shell.wait()
+        });
         let number: u32 = line.trim().parse().unwrap_or_else(|_| {
             panic!("Xvfb did not start (Debian package xvfb; .ci/run installs it): '{line}'")
         });
