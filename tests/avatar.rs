@@ -160,3 +160,59 @@ fn the_witch_teacher_runs_where_the_keys_say() {
     let centre = (lo + hi) * 0.5;
     assert!((centre.x - after_a.x).abs() < 0.5 && (centre.z - after_a.z).abs() < 0.5);
 }
+
+#[test]
+fn spring_chains_leave_the_rest_pose_alone_and_swing_in_motion() {
+    use unica::action::Action;
+    use unica::avatar::description::Description;
+    use unica::avatar::loose::add_spring_chains;
+    use unica::avatar::teacher::Teacher;
+    let plain = load_character(&witch()).unwrap();
+    let description = Description::find(&plain, None).unwrap();
+    let mut sprung = plain.clone();
+    let springs = add_spring_chains(&mut sprung, &description).unwrap();
+    assert_eq!(
+        springs.chains.len(),
+        10 + 4 + 1,
+        "skirt, hair and hat chains"
+    );
+    assert_eq!(sprung.rig.bones.len(), 62 + 10 * 3 + 4 * 3 + 3);
+    // At rest the new bones reproduce the old skinning exactly.
+    let (a, b) = (plain.rest_mesh(), sprung.rest_mesh());
+    let worst = a
+        .positions
+        .iter()
+        .zip(&b.positions)
+        .map(|(p, q)| p.distance(*q))
+        .fold(0.0f32, f32::max);
+    assert!(worst < 1e-4, "rest pose moved by {worst}");
+    // Running then stopping: the skirt and hair swing (differ from the same clip pose
+    // without springs) and nothing becomes NaN.
+    let mut with = Teacher::new(plain.clone(), description.clone()).unwrap();
+    let mut without = Teacher::new(
+        plain,
+        Description {
+            loose_parts: vec![],
+            ..description
+        },
+    )
+    .unwrap();
+    for action in
+        std::iter::repeat_n(Action::Forward, 30).chain(std::iter::repeat_n(Action::Idle, 4))
+    {
+        with.step(action);
+        without.step(action);
+    }
+    let (m1, m2) = (with.mesh(), without.mesh());
+    assert!(m1.positions.iter().all(|p| p.is_finite()));
+    let swing = m1
+        .positions
+        .iter()
+        .zip(&m2.positions)
+        .map(|(p, q)| p.distance(*q))
+        .fold(0.0f32, f32::max);
+    assert!(
+        (0.01..0.5).contains(&swing),
+        "largest spring displacement {swing} m"
+    );
+}

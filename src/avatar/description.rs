@@ -73,6 +73,25 @@ pub struct LoosePart {
     pub segments: usize,
     #[serde(default = "full_circle")]
     pub arc_degrees: f32,
+    /// Spring parameters (see `springs::SpringParams`).
+    #[serde(default = "default_stiffness")]
+    pub stiffness: f32,
+    #[serde(default = "default_drag")]
+    pub drag: f32,
+    #[serde(default = "default_gravity")]
+    pub gravity: f32,
+}
+
+fn default_stiffness() -> f32 {
+    1.0
+}
+
+fn default_drag() -> f32 {
+    0.4
+}
+
+fn default_gravity() -> f32 {
+    0.5
 }
 
 /// A collider around a bone: a sphere at `bone`, or a capsule from `bone` to `to`.

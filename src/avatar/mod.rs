@@ -5,8 +5,10 @@ pub mod character;
 pub mod clip;
 pub mod description;
 pub mod locomotion;
+pub mod loose;
 pub mod mesh;
 pub mod rig;
+pub mod springs;
 pub mod teacher;
 
 pub use character::{Character, LoadError, load_character};

@@ -9,7 +9,9 @@ use super::character::{Character, LoadError, fail};
 use super::clip::Clip;
 use super::description::Description;
 use super::locomotion::{FRAME_RATE, GaitParams, Locomotion};
+use super::loose::add_spring_chains;
 use super::rig::Transform;
+use super::springs::SpringSystem;
 use crate::action::Action;
 
 pub struct Teacher {
@@ -19,13 +21,15 @@ pub struct Teacher {
     clips: [usize; 3],
     forward_heading: f32,
     pub locomotion: Locomotion,
+    pub springs: SpringSystem,
     waist: Vec<usize>,
     world: Vec<Mat4>,
     pub frame: u64,
 }
 
 impl Teacher {
-    pub fn new(character: Character, description: Description) -> Result<Self, LoadError> {
+    pub fn new(mut character: Character, description: Description) -> Result<Self, LoadError> {
+        let springs = add_spring_chains(&mut character, &description)?;
         let clip_index = |name: &str| {
             character.clip(name)?;
             Ok::<_, LoadError>(
@@ -96,22 +100,29 @@ impl Teacher {
             clips,
             forward_heading,
             locomotion: Locomotion::new(params),
+            springs,
             waist,
             frame: 0,
         };
-        teacher.pose();
+        let mut local = teacher.animate();
+        let rig = &teacher.character.rig;
+        teacher.springs.reset(rig, &mut local, &mut teacher.world);
         Ok(teacher)
     }
 
     /// Advances one frame (1 / [`FRAME_RATE`] s) under `action`.
     pub fn step(&mut self, action: Action) {
         self.locomotion.step(action, 1.0 / FRAME_RATE);
-        self.pose();
+        let mut local = self.animate();
+        let rig = &self.character.rig;
+        self.springs
+            .advance(rig, &mut local, &mut self.world, 1.0 / FRAME_RATE);
         self.frame += 1;
     }
 
-    /// Blends the clips for the current locomotion state into world matrices.
-    fn pose(&mut self) {
+    /// Blends the clips for the current locomotion state into world matrices (spring
+    /// joints at rest) and returns the local pose.
+    fn animate(&mut self) -> Vec<Transform> {
         let rig = &self.character.rig;
         let sample = |clip: &Clip, t: f32| {
             let mut pose = rig.rest_pose();
@@ -131,6 +142,7 @@ impl Teacher {
             .map(|(i, (w, r))| i.blend(&w.blend(r, gait_share), 1.0 - blend.idle))
             .collect();
         self.world = rig.world(&local, self.locomotion.root_matrix(self.forward_heading));
+        local
     }
 
     /// The posed mesh in world space.
