@@ -8,4 +8,5 @@ pub mod bench;
 pub mod cli;
 pub mod files;
 pub mod gpu;
+pub mod posmap;
 pub mod render;

@@ -85,6 +85,14 @@ pub fn add_spring_chains(
                 )
             })?;
         let parent_skin = rest[parent] * character.rig.bones[parent_bone].inverse_bind;
+        // Bones that move vertices exactly as the parent does at rest (their weight can go
+        // to the chains without changing the rest pose).
+        let like_parent: Vec<bool> = character
+            .rig
+            .bones
+            .iter()
+            .map(|b| (world[b.node] * b.inverse_bind).abs_diff_eq(parent_skin, 1e-4))
+            .collect();
         let points: Vec<Vec3> = vertices.iter().map(|&v| rest_mesh.positions[v]).collect();
         let layout = match part.kind {
             ChainLayout::Ring => ring(&points, part, forward_heading + std::f32::consts::PI),
@@ -137,7 +145,7 @@ pub fn add_spring_chains(
             character,
             (&vertices, &points),
             &layout,
-            parent_bone,
+            &like_parent,
             &chain_bones,
             part.segments,
         );
@@ -268,12 +276,13 @@ fn smoothstep(edge: f32, x: f32) -> f32 {
 }
 
 /// Blends chain weights into the part's vertices: none at the part's top (it follows the
-/// parent), all of the parent bone's weight from a third of the way down.
+/// parent), from a third of the way down all the weight of bones that are at rest like
+/// the parent.
 fn reweight(
     character: &mut Character,
     part: (&[usize], &[Vec3]),
     layout: &Layout,
-    parent_bone: usize,
+    like_parent: &[bool],
     chain_bones: &[Vec<usize>],
     segments: usize,
 ) {
@@ -293,8 +302,9 @@ fn reweight(
             }
         };
         let (k0, k1, mix) = place.chains;
-        // The parent bone and the chain bones are all equal at rest, so weight moved among
-        // them (and folded together when there are too many) keeps the rest pose exact.
+        // The chain bones equal the parent bone at rest, as do the bones `like_parent`, so
+        // weight moved among them (and folded together when there are too many) keeps the
+        // rest pose exact.
         let mut others: Vec<(usize, f32)> = Vec::new();
         let mut group: Vec<(usize, f32)> = Vec::new();
         let add = |list: &mut Vec<(usize, f32)>, bone: usize, w: f32| match list
@@ -312,7 +322,7 @@ fn reweight(
             if w == 0.0 {
                 continue;
             }
-            if bone == parent_bone {
+            if like_parent[bone] {
                 add(&mut group, bone, w * (1.0 - share));
                 for (chain_bone, cw) in in_chain(&chain_bones[k0]) {
                     add(&mut group, chain_bone, cw * w * share * (1.0 - mix));

@@ -7,6 +7,7 @@ pub mod description;
 pub mod locomotion;
 pub mod loose;
 pub mod mesh;
+pub mod reference;
 pub mod rig;
 pub mod springs;
 pub mod teacher;

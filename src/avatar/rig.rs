@@ -152,6 +152,14 @@ impl SkinnedMesh {
         self.parts.extend(other.parts);
     }
 
+    /// The bone with the largest weight on vertex `v`.
+    pub fn dominant_bone(&self, v: usize) -> usize {
+        let k = (0..4)
+            .max_by(|&a, &b| self.weights[v][a].total_cmp(&self.weights[v][b]))
+            .expect("four weights");
+        self.joints[v][k] as usize
+    }
+
     /// Vertices whose part has mesh `mesh` (any if `None`) and a material in `materials`
     /// (any if empty).
     pub fn select(&self, mesh: Option<&str>, materials: &[String]) -> Vec<usize> {

@@ -152,6 +152,11 @@ impl Teacher {
             .pose(&self.character.rig.skin_matrices(&self.world))
     }
 
+    /// The rig nodes of the waist bones.
+    pub fn waist_nodes(&self) -> &[usize] {
+        &self.waist
+    }
+
     /// World position of the root: the mean of the waist bones.
     pub fn root(&self) -> Vec3 {
         self.waist

@@ -1,0 +1,111 @@
+//! The teacher's reference for position maps: the character's rest pose (spring chains
+//! included) drawn into the six-view surface table, its normalisation scale and the
+//! waist pixels whose mean is the root, plus the coverage report.
+
+use glam::Vec3;
+
+use super::character::{LoadError, fail};
+use super::teacher::Teacher;
+use crate::posmap::table::VIEWS;
+use crate::posmap::{GroupNorm, SurfaceTable};
+
+pub struct Reference {
+    pub table: SurfaceTable,
+    pub norm: GroupNorm,
+    /// Indices (into the table's foreground pixels) of the waist pixels.
+    pub waist: Vec<u32>,
+}
+
+/// What the six views see of the reference.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct CoverageReport {
+    pub foreground_pixels: usize,
+    pub foreground_share: f32,
+    /// Foreground pixels per view, in view order.
+    pub view_pixels: Vec<(String, usize)>,
+    /// Share of the surface area seen by at least one view.
+    pub surface_seen: f32,
+    /// Per mesh/material part: (name, area share seen, the part's share of all area).
+    pub parts: Vec<(String, f32, f32)>,
+}
+
+impl Reference {
+    pub fn new(teacher: &Teacher) -> Result<Self, LoadError> {
+        let character = &teacher.character;
+        let mesh = character.rest_mesh();
+        let (lo, hi) = mesh.bounds().expect("a character has vertices");
+        let table = SurfaceTable::build(&mesh.positions, &mesh.indices);
+        let waist_bones: Vec<usize> = (0..character.rig.bones.len())
+            .filter(|&b| teacher.waist_nodes().contains(&character.rig.bones[b].node))
+            .collect();
+        let on_waist = |v: u32| waist_bones.contains(&character.skinned.dominant_bone(v as usize));
+        let waist: Vec<u32> = (0..table.len() as u32)
+            .filter(|&i| {
+                let t = 3 * table.triangles[i as usize] as usize;
+                mesh.indices[t..t + 3].iter().all(|&v| on_waist(v))
+            })
+            .collect();
+        if waist.is_empty() {
+            return Err(fail(
+                &character.path,
+                "no pixel of the position map shows the waist bones' surface",
+            ));
+        }
+        Ok(Self {
+            norm: GroupNorm::for_extent((hi - lo).max_element()),
+            table,
+            waist,
+        })
+    }
+
+    pub fn report(&self, teacher: &Teacher) -> CoverageReport {
+        let character = &teacher.character;
+        let mesh = character.rest_mesh();
+        let seen = self.table.coverage(&mesh.positions, &mesh.indices);
+        let areas: Vec<f32> = mesh
+            .indices
+            .chunks_exact(3)
+            .map(|t| {
+                let [a, b, c] = [t[0], t[1], t[2]].map(|i| mesh.positions[i as usize]);
+                (b - a).cross(c - a).length() * 0.5
+            })
+            .collect();
+        let total: f32 = areas.iter().sum();
+        let skinned = &character.skinned;
+        let parts = (0..skinned.parts.len())
+            .map(|p| {
+                let (mut area, mut visible) = (0.0, 0.0);
+                for (t, tri) in mesh.indices.chunks_exact(3).enumerate() {
+                    if skinned.part[tri[0] as usize] as usize == p {
+                        area += areas[t];
+                        visible += areas[t] * seen[t];
+                    }
+                }
+                let part = &skinned.parts[p];
+                (
+                    format!("{}/{}", part.mesh, part.material),
+                    visible / area.max(1e-12),
+                    area / total,
+                )
+            })
+            .collect();
+        let mut view_pixels: Vec<(String, usize)> =
+            VIEWS.iter().map(|v| (v.name.to_string(), 0)).collect();
+        for &pixel in &self.table.pixels {
+            view_pixels[SurfaceTable::view_of(pixel)].1 += 1;
+        }
+        let n = crate::posmap::MAP_SIZE * crate::posmap::MAP_SIZE;
+        CoverageReport {
+            foreground_pixels: self.table.len(),
+            foreground_share: self.table.len() as f32 / n as f32,
+            view_pixels,
+            surface_seen: areas.iter().zip(&seen).map(|(a, s)| a * s).sum::<f32>() / total,
+            parts,
+        }
+    }
+
+    /// The foreground points of a posed mesh (world space).
+    pub fn gather(&self, positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
+        self.table.gather(positions, indices)
+    }
+}
