@@ -67,12 +67,12 @@ fn the_witch_map_covers_most_of_the_surface() {
         report.surface_seen
     );
     assert!(!reference.waist.is_empty());
-    // The root from the waist pixels is near the waist bone.
+    // The root from the waist pixels (the belt's surface) is near the waist bones' mean.
     let mesh = teacher.character.rest_mesh();
     let points = reference.gather(&mesh.positions, &mesh.indices);
     let root = unica::posmap::GroupNorm::root(&points, &reference.waist);
     assert!(
-        root.distance(teacher.root()) < 0.15,
+        root.distance(teacher.root()) < 0.25,
         "pixel root {root} vs bone root {}",
         teacher.root()
     );
