@@ -78,9 +78,14 @@ enum Command {
     Adapters,
     /// Print timings of the GPU kernels on the present adapter
     Bench,
-    /// Bake a teacher dataset from a character file (not built yet)
-    #[command(disable_help_flag = false)]
-    Bake(Later),
+    /// Bake a teacher dataset from a character file (.gltf, .glb): the transition table
+    /// of all action pairs, as skinning matrices + position-map table (see README)
+    Bake(BakeArgs),
+    /// Check a baked dataset: files, shapes, actions vs switch frames, normalised ranges
+    Validate {
+        /// The dataset folder written by `unica bake`
+        dir: PathBuf,
+    },
     /// Headless scripted session to numbered PNGs (not built yet)
     Render(Later),
     /// Evaluate a bundle against the teacher (not built yet)
@@ -89,6 +94,25 @@ enum Command {
     Export(Later),
     /// Open a 3DGS PLY file in the viewer (not built yet)
     View(Later),
+}
+
+#[derive(clap::Args, Debug)]
+struct BakeArgs {
+    /// The character file
+    character: PathBuf,
+    /// Output folder (created)
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Also write preview.png: position maps and posed point clouds of sampled frames
+    #[arg(long)]
+    preview: bool,
+    /// A few short clips instead of the full table (smoke tests)
+    #[arg(long)]
+    quick: bool,
+    /// Avatar description (JSON) [default: <character>.avatar.json beside it, a shipped
+    /// one for its name, or inferred from bone and clip names]
+    #[arg(long, value_name = "FILE")]
+    avatar: Option<PathBuf>,
 }
 
 /// Arguments of a subcommand that later milestones build.
@@ -110,12 +134,47 @@ pub fn run() -> anyhow::Result<()> {
             let gpu = GpuContext::headless(&gpu_options)?;
             crate::bench::run(&gpu, &mut std::io::stdout())
         }
-        Some(Command::Bake(_)) => not_built("bake"),
+        Some(Command::Bake(args)) => bake(args),
+        Some(Command::Validate { dir }) => {
+            let report = crate::dataset::validate(&dir)?;
+            println!("{}", serde_json::to_string_pretty(&report)?);
+            Ok(())
+        }
         Some(Command::Render(_)) => not_built("render"),
         Some(Command::Eval(_)) => not_built("eval"),
         Some(Command::Export(_)) => not_built("export"),
         Some(Command::View(_)) => not_built("view"),
     }
+}
+
+fn bake(args: BakeArgs) -> anyhow::Result<()> {
+    let bar = indicatif::ProgressBar::new(0).with_style(
+        indicatif::ProgressStyle::with_template("baking {bar:40} {pos}/{len} frames, {eta} left")
+            .expect("valid template"),
+    );
+    let options = crate::dataset::bake::BakeOptions {
+        description: args.avatar,
+        quick: args.quick,
+        preview: args.preview,
+    };
+    let start = std::time::Instant::now();
+    let manifest =
+        crate::dataset::bake::bake(&args.character, &args.out, &options, &|done, total| {
+            bar.set_length(total);
+            bar.set_position(done);
+        })?;
+    bar.finish_and_clear();
+    let frames: usize = manifest.clips.iter().map(|c| c.frames).sum();
+    println!(
+        "baked {} clips, {frames} frames of {} into {} in {:.1} s ({} foreground pixels, {:.1}% of the surface seen)",
+        manifest.clips.len(),
+        manifest.avatar,
+        args.out.display(),
+        start.elapsed().as_secs_f64(),
+        manifest.foreground_pixels,
+        manifest.coverage["surface_seen"].as_f64().unwrap_or(0.0) * 100.0
+    );
+    Ok(())
 }
 
 fn parse_fps(text: &str) -> Result<f64, String> {

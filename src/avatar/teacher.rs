@@ -14,6 +14,7 @@ use super::rig::Transform;
 use super::springs::SpringSystem;
 use crate::action::Action;
 
+#[derive(Clone)]
 pub struct Teacher {
     pub character: Character,
     pub description: Description,
@@ -143,6 +144,11 @@ impl Teacher {
             .collect();
         self.world = rig.world(&local, self.locomotion.root_matrix(self.forward_heading));
         local
+    }
+
+    /// The skinning matrices of the current frame (world × inverse bind, every bone).
+    pub fn skin_matrices(&self) -> Vec<Mat4> {
+        self.character.rig.skin_matrices(&self.world)
     }
 
     /// The posed mesh in world space.

@@ -1,0 +1,259 @@
+//! `unica bake`: drives the teacher through the transition table — a standing start, then
+//! every ordered pair of distinct actions (3-5 s of the first, 5 s of the second) — and
+//! writes the dataset. Deterministic: the same inputs give the same bytes.
+
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+
+use super::{ClipInfo, FORMAT, Manifest, VERSION};
+use crate::action::Action;
+use crate::avatar::description::Description;
+use crate::avatar::load_character;
+use crate::avatar::locomotion::FRAME_RATE;
+use crate::avatar::reference::Reference;
+use crate::avatar::teacher::Teacher;
+use crate::files::{write_atomic, write_png_atomic};
+use crate::posmap::{GroupNorm, MAP_SIZE};
+use crate::tensors::{self, Tensor};
+
+/// The preview shows the middle frame of every third clip.
+const PREVIEW_EVERY: usize = 3;
+
+#[derive(Clone, Debug, Default)]
+pub struct BakeOptions {
+    /// An explicit avatar description instead of the one found for the character.
+    pub description: Option<PathBuf>,
+    /// A few short clips (tests, smoke runs) instead of the full table.
+    pub quick: bool,
+    /// Also write preview.png: position maps and posed point clouds of sampled frames.
+    pub preview: bool,
+}
+
+/// One clip of the plan: (first action, second action, frames of each).
+type Planned = (Action, Action, usize, usize);
+
+/// The transition table: a standing start, then all 20 ordered pairs of distinct actions.
+pub fn plan(quick: bool) -> Vec<Planned> {
+    if quick {
+        return vec![
+            (Action::Idle, Action::Idle, 8, 0),
+            (Action::Idle, Action::Forward, 6, 12),
+            (Action::Forward, Action::Left, 12, 12),
+            (Action::Forward, Action::Backward, 12, 14),
+        ];
+    }
+    let second = 5 * FRAME_RATE as usize;
+    let mut clips = vec![(Action::Idle, Action::Idle, 3 * FRAME_RATE as usize, 0)];
+    for a in Action::ALL {
+        for b in Action::ALL {
+            if a != b {
+                let first = (3 + clips.len() % 3) * FRAME_RATE as usize;
+                clips.push((a, b, first, second));
+            }
+        }
+    }
+    clips
+}
+
+/// Bakes `character` into `out` (created if needed); `progress` is told each frame.
+pub fn bake(
+    character: &Path,
+    out: &Path,
+    options: &BakeOptions,
+    progress: &dyn Fn(u64, u64),
+) -> anyhow::Result<Manifest> {
+    let loaded = load_character(character)?;
+    let description = Description::find(&loaded, options.description.as_deref())?;
+    let start = Teacher::new(loaded, description)?;
+    let reference = Reference::new(&start)?;
+    let coverage = reference.report(&start);
+    let clips_dir = out.join("clips");
+    std::fs::create_dir_all(&clips_dir)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", clips_dir.display()))?;
+    write_reference(&start, &reference, &out.join("reference.safetensors"))?;
+
+    let plan = plan(options.quick);
+    let total: usize = plan.iter().map(|(_, _, a, b)| a + b).sum();
+    let mut done = 0;
+    let mut clips = Vec::new();
+    let mut previews = Vec::new();
+    let mesh_indices = &start.character.skinned.bind.indices;
+    for (index, &(first, second, first_frames, second_frames)) in plan.iter().enumerate() {
+        let mut teacher = start.clone();
+        let frames = first_frames + second_frames;
+        let (mut skin, mut actions, mut roots) = (Vec::new(), Vec::new(), Vec::new());
+        for f in 0..frames {
+            let action = if f < first_frames { first } else { second };
+            // Frame f is the pose before step f; its action moves it to frame f + 1.
+            let mesh = teacher.mesh();
+            let points = reference.gather(&mesh.positions, mesh_indices);
+            roots.push(GroupNorm::root(&points, &reference.waist));
+            for m in teacher.skin_matrices() {
+                skin.extend_from_slice(&m.transpose().to_cols_array()[..12]);
+            }
+            actions.push(action.id() as i32);
+            if options.preview && f == frames / 2 && index % PREVIEW_EVERY == 0 {
+                previews.push((mesh.positions, points, roots[f]));
+            }
+            teacher.step(action);
+            done += 1;
+            progress(done as u64, total as u64);
+        }
+        let file = format!("clips/clip_{index:03}.safetensors");
+        let bones = start.character.rig.bones.len();
+        let flat_roots: Vec<f32> = roots.iter().flat_map(|r| r.to_array()).collect();
+        tensors::write(
+            &out.join(&file),
+            &[
+                ("skin", Tensor::f32(&[frames, bones, 3, 4], &skin)),
+                ("actions", Tensor::i32(&[frames], &actions)),
+                ("root", Tensor::f32(&[frames, 3], &flat_roots)),
+            ],
+        )?;
+        clips.push(ClipInfo {
+            file,
+            frames,
+            first,
+            second,
+            switch_frame: first_frames,
+        });
+    }
+    let p = start.locomotion.params;
+    let manifest = Manifest {
+        format: FORMAT.into(),
+        version: VERSION,
+        avatar: start.character.name.clone(),
+        character: character.display().to_string(),
+        frame_rate: FRAME_RATE,
+        actions: Action::ALL.iter().map(|a| a.to_string()).collect(),
+        map_size: MAP_SIZE,
+        foreground_pixels: reference.table.len(),
+        vertices: start.character.skinned.bind.positions.len(),
+        bones: start.character.rig.bones.len(),
+        norm_scale: reference.norm.scale,
+        walk_speed: p.walk_speed,
+        run_speed: p.run_speed,
+        clips,
+        coverage: serde_json::to_value(&coverage)?,
+    };
+    write_atomic(
+        &out.join("manifest.json"),
+        serde_json::to_string_pretty(&manifest)?.as_bytes(),
+    )?;
+    if options.preview {
+        write_png_atomic(
+            &out.join("preview.png"),
+            &contact_sheet(&reference, &previews),
+        )?;
+    }
+    Ok(manifest)
+}
+
+fn write_reference(teacher: &Teacher, reference: &Reference, path: &Path) -> anyhow::Result<()> {
+    let s = &teacher.character.skinned;
+    let flat3 = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array()).collect::<Vec<f32>>();
+    let n = reference.table.len();
+    let v = s.bind.positions.len();
+    let as_i32 = |v: &[u32]| v.iter().map(|&x| x as i32).collect::<Vec<i32>>();
+    tensors::write(
+        path,
+        &[
+            (
+                "bind_positions",
+                Tensor::f32(&[v, 3], &flat3(&s.bind.positions)),
+            ),
+            ("colors", Tensor::f32(&[v, 3], &flat3(&s.bind.colors))),
+            (
+                "joints",
+                Tensor::i32(
+                    &[v, 4],
+                    &s.joints
+                        .iter()
+                        .flat_map(|j| j.map(i32::from))
+                        .collect::<Vec<_>>(),
+                ),
+            ),
+            (
+                "weights",
+                Tensor::f32(
+                    &[v, 4],
+                    &s.weights.iter().flatten().copied().collect::<Vec<_>>(),
+                ),
+            ),
+            (
+                "triangles",
+                Tensor::i32(&[s.bind.indices.len() / 3, 3], &as_i32(&s.bind.indices)),
+            ),
+            (
+                "pixels",
+                Tensor::i32(&[n], &as_i32(&reference.table.pixels)),
+            ),
+            (
+                "pixel_triangles",
+                Tensor::i32(&[n], &as_i32(&reference.table.triangles)),
+            ),
+            (
+                "barycentrics",
+                Tensor::f32(
+                    &[n, 3],
+                    &reference
+                        .table
+                        .barycentrics
+                        .iter()
+                        .flatten()
+                        .copied()
+                        .collect::<Vec<_>>(),
+                ),
+            ),
+            (
+                "waist",
+                Tensor::i32(&[reference.waist.len()], &as_i32(&reference.waist)),
+            ),
+        ],
+    )?;
+    Ok(())
+}
+
+/// One row per sampled frame: its position map (normalised around its own root, xyz as
+/// rgb) and the posed mesh's vertices seen from the front and from the side.
+fn contact_sheet(
+    reference: &Reference,
+    frames: &[(Vec<Vec3>, Vec<Vec3>, Vec3)],
+) -> image::RgbaImage {
+    const TILE: u32 = 256;
+    let mut sheet = image::RgbaImage::from_pixel(
+        3 * TILE,
+        TILE * frames.len().max(1) as u32,
+        image::Rgba([0, 0, 0, 255]),
+    );
+    for (row, (vertices, points, root)) in frames.iter().enumerate() {
+        let y0 = row as u32 * TILE;
+        let unit = reference.norm.to_unit(points, *root);
+        for (&pixel, p) in reference.table.pixels.iter().zip(&unit) {
+            let (r, c) = (pixel / MAP_SIZE as u32, pixel % MAP_SIZE as u32);
+            let rgb = p.clamp(Vec3::ZERO, Vec3::ONE) * 255.0;
+            for (dy, dx) in [(0, 0), (0, 1), (1, 0), (1, 1)] {
+                sheet.put_pixel(
+                    2 * c + dx,
+                    y0 + 2 * r + dy,
+                    image::Rgba([rgb.x as u8, rgb.y as u8, rgb.z as u8, 255]),
+                );
+            }
+        }
+        for (tile, axis) in [(1u32, Vec3::X), (2, Vec3::Z)] {
+            for v in vertices {
+                let q = reference.norm.to_unit(&[*v], *root)[0];
+                let (x, y) = (q.dot(axis), 1.0 - q.y);
+                if (0.0..1.0).contains(&x) && (0.0..1.0).contains(&y) {
+                    sheet.put_pixel(
+                        tile * TILE + (x * TILE as f32) as u32,
+                        y0 + (y * TILE as f32) as u32,
+                        image::Rgba([220, 220, 220, 255]),
+                    );
+                }
+            }
+        }
+    }
+    sheet
+}

@@ -1,0 +1,223 @@
+//! Named f32 and i32 tensors to and from safetensors files (datasets, bundles, fixtures);
+//! reading checks each tensor's dtype and shape and names the file and tensor when wrong.
+
+use std::path::{Path, PathBuf};
+
+use safetensors::{Dtype, SafeTensors};
+
+use crate::files::{WriteError, write_atomic};
+
+/// A tensor to write: dtype, shape and little-endian bytes.
+pub struct Tensor {
+    dtype: Dtype,
+    shape: Vec<usize>,
+    data: Vec<u8>,
+}
+
+impl Tensor {
+    pub fn f32(shape: &[usize], values: &[f32]) -> Self {
+        assert_eq!(
+            shape.iter().product::<usize>(),
+            values.len(),
+            "tensor shape and data disagree"
+        );
+        Self {
+            dtype: Dtype::F32,
+            shape: shape.to_vec(),
+            data: bytemuck::cast_slice(values).to_vec(),
+        }
+    }
+
+    pub fn i32(shape: &[usize], values: &[i32]) -> Self {
+        assert_eq!(
+            shape.iter().product::<usize>(),
+            values.len(),
+            "tensor shape and data disagree"
+        );
+        Self {
+            dtype: Dtype::I32,
+            shape: shape.to_vec(),
+            data: bytemuck::cast_slice(values).to_vec(),
+        }
+    }
+}
+
+impl safetensors::View for &Tensor {
+    fn dtype(&self) -> Dtype {
+        self.dtype
+    }
+    fn shape(&self) -> &[usize] {
+        &self.shape
+    }
+    fn data(&self) -> std::borrow::Cow<'_, [u8]> {
+        (&self.data).into()
+    }
+    fn data_len(&self) -> usize {
+        self.data.len()
+    }
+}
+
+/// Writes the tensors atomically (same tensors, same bytes: the format sorts them).
+pub fn write(path: &Path, tensors: &[(&str, Tensor)]) -> Result<(), WriteError> {
+    let bytes =
+        safetensors::serialize(tensors.iter().map(|(name, t)| (*name, t)), None).map_err(|e| {
+            WriteError {
+                path: path.to_path_buf(),
+                source: std::io::Error::other(e),
+            }
+        })?;
+    write_atomic(path, &bytes)
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {problem}", path.display())]
+pub struct TensorError {
+    pub path: PathBuf,
+    pub problem: String,
+}
+
+/// A safetensors file read into memory.
+pub struct TensorFile {
+    path: PathBuf,
+    bytes: Vec<u8>,
+}
+
+impl TensorFile {
+    pub fn open(path: &Path) -> Result<Self, TensorError> {
+        let bytes = std::fs::read(path).map_err(|e| TensorError {
+            path: path.to_path_buf(),
+            problem: e.to_string(),
+        })?;
+        let file = Self {
+            path: path.to_path_buf(),
+            bytes,
+        };
+        file.parsed()?;
+        Ok(file)
+    }
+
+    fn fail(&self, problem: String) -> TensorError {
+        TensorError {
+            path: self.path.clone(),
+            problem,
+        }
+    }
+
+    fn parsed(&self) -> Result<SafeTensors<'_>, TensorError> {
+        SafeTensors::deserialize(&self.bytes)
+            .map_err(|e| self.fail(format!("not a safetensors file: {e}")))
+    }
+
+    /// A tensor's values and shape; `shape` gives the expected size of each dimension
+    /// (`None` for any).
+    fn read<T: bytemuck::Pod>(
+        &self,
+        name: &str,
+        dtype: Dtype,
+        shape: &[Option<usize>],
+    ) -> Result<(Vec<T>, Vec<usize>), TensorError> {
+        let parsed = self.parsed()?;
+        let view = parsed
+            .tensor(name)
+            .map_err(|_| self.fail(format!("tensor '{name}' is missing")))?;
+        if view.dtype() != dtype {
+            return Err(self.fail(format!(
+                "tensor '{name}' is {:?}, expected {dtype:?}",
+                view.dtype()
+            )));
+        }
+        let found = view.shape();
+        let fits = found.len() == shape.len()
+            && found
+                .iter()
+                .zip(shape)
+                .all(|(f, s)| s.is_none_or(|s| s == *f));
+        if !fits {
+            let want: Vec<String> = shape
+                .iter()
+                .map(|s| s.map_or("*".into(), |s| s.to_string()))
+                .collect();
+            return Err(self.fail(format!(
+                "tensor '{name}' has shape {found:?}, expected [{}]",
+                want.join(", ")
+            )));
+        }
+        Ok((bytemuck::pod_collect_to_vec(view.data()), found.to_vec()))
+    }
+
+    pub fn f32(
+        &self,
+        name: &str,
+        shape: &[Option<usize>],
+    ) -> Result<(Vec<f32>, Vec<usize>), TensorError> {
+        self.read(name, Dtype::F32, shape)
+    }
+
+    pub fn i32(
+        &self,
+        name: &str,
+        shape: &[Option<usize>],
+    ) -> Result<(Vec<i32>, Vec<usize>), TensorError> {
+        self.read(name, Dtype::I32, shape)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_and_named_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.safetensors");
+        write(
+            &path,
+            &[
+                ("a", Tensor::f32(&[2, 2], &[1.0, 2.0, 3.0, 4.0])),
+                ("b", Tensor::i32(&[3], &[7, 8, 9])),
+            ],
+        )
+        .unwrap();
+        let first = std::fs::read(&path).unwrap();
+        write(
+            &path,
+            &[
+                ("b", Tensor::i32(&[3], &[7, 8, 9])),
+                ("a", Tensor::f32(&[2, 2], &[1.0, 2.0, 3.0, 4.0])),
+            ],
+        )
+        .unwrap();
+        assert_eq!(
+            std::fs::read(&path).unwrap(),
+            first,
+            "same tensors, same bytes"
+        );
+        let file = TensorFile::open(&path).unwrap();
+        assert_eq!(
+            file.f32("a", &[Some(2), None]).unwrap(),
+            (vec![1.0, 2.0, 3.0, 4.0], vec![2, 2])
+        );
+        assert_eq!(file.i32("b", &[Some(3)]).unwrap().0, vec![7, 8, 9]);
+        let e = file.f32("b", &[Some(3)]).unwrap_err().to_string();
+        assert!(
+            e.contains("t.safetensors") && e.contains("'b' is I32"),
+            "{e}"
+        );
+        let e = file.f32("a", &[Some(3), Some(2)]).unwrap_err().to_string();
+        assert!(e.contains("shape [2, 2], expected [3, 2]"), "{e}");
+        assert!(
+            file.f32("c", &[])
+                .unwrap_err()
+                .to_string()
+                .contains("'c' is missing")
+        );
+        std::fs::write(&path, b"junk").unwrap();
+        assert!(
+            TensorFile::open(&path)
+                .err()
+                .unwrap()
+                .to_string()
+                .contains("not a safetensors file")
+        );
+    }
+}

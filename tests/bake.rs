@@ -1,0 +1,119 @@
+//! `unica bake` on the Witch: the full transition table bakes, validates and is
+//! byte-for-byte reproducible; broken inputs and datasets fail with named errors.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn witch() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets/witch/Witch.gltf")
+}
+
+fn unica(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_unica"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn files(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            out.extend(files(&path));
+        } else {
+            out.push((
+                path.strip_prefix(dir).unwrap().to_path_buf(),
+                std::fs::read(&path).unwrap(),
+            ));
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn the_witch_bakes_validates_and_rebakes_identically() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+    let witch = witch();
+    for out in [&a, &b] {
+        let run = unica(&[
+            "bake",
+            witch.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        assert!(
+            String::from_utf8_lossy(&run.stdout).contains("baked 21 clips, 5520 frames of Witch")
+        );
+    }
+    assert_eq!(files(&a), files(&b), "the same inputs give the same bytes");
+    let report = unica::dataset::validate(&a).unwrap();
+    assert_eq!(
+        (report.clips, report.frames, report.switches),
+        (21, 5520, 20)
+    );
+    assert!(report.min > 0.0 && report.max < 1.0, "{report:?}");
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(a.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["clips"][1]["switch_frame"], 120);
+    assert_eq!(manifest["bones"], 107);
+}
+
+#[test]
+fn bad_inputs_and_broken_datasets_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = unica(&[
+        "bake",
+        "/nonexistent/hero.glb",
+        "--out",
+        dir.path().join("x").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        !run.status.success() && err.contains("hero.glb") && err.contains("no such file"),
+        "{err}"
+    );
+
+    let out = dir.path().join("quick");
+    let witch = witch();
+    assert!(
+        unica(&[
+            "bake",
+            witch.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--quick"
+        ])
+        .status
+        .success()
+    );
+    assert!(unica(&["validate", out.to_str().unwrap()]).status.success());
+    // A clip file that lost its bytes: validation names it.
+    std::fs::write(out.join("clips/clip_002.safetensors"), b"truncated").unwrap();
+    let run = unica(&["validate", out.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        !run.status.success() && err.contains("clip_002.safetensors"),
+        "{err}"
+    );
+    // A manifest that disagrees with the clip's actions.
+    let manifest_path = out.join("manifest.json");
+    let text = std::fs::read_to_string(&manifest_path)
+        .unwrap()
+        .replace("\"switch_frame\": 6", "\"switch_frame\": 5");
+    std::fs::write(&manifest_path, text).unwrap();
+    std::fs::remove_file(out.join("clips/clip_002.safetensors")).unwrap();
+    let run = unica(&["validate", out.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        !run.status.success() && err.contains("clip_001.safetensors") && err.contains("frame 5"),
+        "{err}"
+    );
+}
