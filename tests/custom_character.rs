@@ -12,11 +12,11 @@ use unica::dataset::bake::{BakeOptions, bake};
 /// A GLB file: JSON chunk and binary chunk.
 fn glb(json: &serde_json::Value, bin: &[u8]) -> Vec<u8> {
     let mut text = serde_json::to_vec(json).unwrap();
-    while text.len() % 4 != 0 {
+    while !text.len().is_multiple_of(4) {
         text.push(b' ');
     }
     let mut data = bin.to_vec();
-    while data.len() % 4 != 0 {
+    while !data.len().is_multiple_of(4) {
         data.push(0);
     }
     let total = 12 + 8 + text.len() + 8 + data.len();
@@ -50,7 +50,7 @@ impl Buffer {
         count: usize,
         extra: serde_json::Value,
     ) -> usize {
-        while self.bin.len() % 4 != 0 {
+        while !self.bin.len().is_multiple_of(4) {
             self.bin.push(0);
         }
         self.views.push(serde_json::json!({"buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len()}));
@@ -74,11 +74,13 @@ impl Buffer {
     }
 }
 
+/// (name, parent, rest translation, box half size, colour)
+type Bone = (&'static str, Option<usize>, [f32; 3], [f32; 3], [f32; 3]);
+
 /// A little robot: pelvis, two legs with feet, a chest with an antenna; clips named
 /// Stand / Stroll / Sprint that swing the legs (lifting each foot as it swings forward).
 fn write_robot(path: &Path) {
-    // (name, parent, rest translation, box half size, colour)
-    let bones: [(&str, Option<usize>, [f32; 3], [f32; 3], [f32; 3]); 7] = [
+    let bones: [Bone; 7] = [
         (
             "pelvis_j",
             None,
