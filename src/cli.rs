@@ -86,8 +86,9 @@ enum Command {
         /// The dataset folder written by `unica bake`
         dir: PathBuf,
     },
-    /// Headless scripted session to numbered PNGs (not built yet)
-    Render(Later),
+    /// Headless scripted session to numbered PNGs per view + manifest.json (today with
+    /// --teacher CHARACTER; the neural --bundle arrives with the live model)
+    Render(RenderArgs),
     /// Evaluate a bundle against the teacher (not built yet)
     Eval(Later),
     /// Export splats as a 3DGS PLY (not built yet)
@@ -109,8 +110,39 @@ struct BakeArgs {
     /// A few short clips instead of the full table (smoke tests)
     #[arg(long)]
     quick: bool,
+    /// Skip the ground-truth RGB renders (geometry only; no GPU adapter needed)
+    #[arg(long)]
+    no_renders: bool,
     /// Avatar description (JSON) [default: <character>.avatar.json beside it, a shipped
     /// one for its name, or inferred from bone and clip names]
+    #[arg(long, value_name = "FILE")]
+    avatar: Option<PathBuf>,
+}
+
+#[derive(clap::Args, Debug)]
+struct RenderArgs {
+    /// Render the teacher (the rigged character driven by the locomotion controller)
+    #[arg(long, value_name = "CHARACTER")]
+    teacher: Option<PathBuf>,
+    /// Neural avatar bundle (not built yet)
+    #[arg(long, value_name = "PATH")]
+    bundle: Option<PathBuf>,
+    /// Key script, e.g. "60W 60S 60A 20I" (one action per frame at 30 fps)
+    #[arg(long, value_name = "SCRIPT")]
+    keys: String,
+    /// Output folder (created)
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Image width and height in pixels
+    #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(16..=4096))]
+    size: u32,
+    /// Cameras around the avatar (view 0 behind its start, the others evenly around)
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=16))]
+    views: u32,
+    /// Random seed (the teacher is deterministic; used by the neural avatar)
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Avatar description for --teacher (see `unica bake --help`)
     #[arg(long, value_name = "FILE")]
     avatar: Option<PathBuf>,
 }
@@ -140,7 +172,7 @@ pub fn run() -> anyhow::Result<()> {
             println!("{}", serde_json::to_string_pretty(&report)?);
             Ok(())
         }
-        Some(Command::Render(_)) => not_built("render"),
+        Some(Command::Render(args)) => render(args, &gpu_options),
         Some(Command::Eval(_)) => not_built("eval"),
         Some(Command::Export(_)) => not_built("export"),
         Some(Command::View(_)) => not_built("view"),
@@ -156,6 +188,7 @@ fn bake(args: BakeArgs) -> anyhow::Result<()> {
         description: args.avatar,
         quick: args.quick,
         preview: args.preview,
+        no_renders: args.no_renders,
     };
     let start = std::time::Instant::now();
     let manifest =
@@ -173,6 +206,44 @@ fn bake(args: BakeArgs) -> anyhow::Result<()> {
         start.elapsed().as_secs_f64(),
         manifest.foreground_pixels,
         manifest.coverage["surface_seen"].as_f64().unwrap_or(0.0) * 100.0
+    );
+    Ok(())
+}
+
+fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
+    let character = match (args.teacher, args.bundle) {
+        (Some(character), None) => character,
+        (None, Some(bundle)) => bail!(
+            "{}: rendering a neural avatar bundle is not built yet; use --teacher CHARACTER",
+            bundle.display()
+        ),
+        _ => bail!("give exactly one of --teacher CHARACTER or --bundle PATH"),
+    };
+    let _ = args.seed;
+    let job = crate::headless::RenderJob {
+        character,
+        description: args.avatar,
+        keys: KeyScript::parse(&args.keys).context("--keys")?,
+        out: args.out,
+        size: args.size,
+        views: args.views,
+    };
+    let gpu = GpuContext::headless(gpu)?;
+    let bar = indicatif::ProgressBar::new(0).with_style(
+        indicatif::ProgressStyle::with_template(
+            "rendering {bar:40} {pos}/{len} frames, {eta} left",
+        )
+        .expect("valid template"),
+    );
+    let frames = crate::headless::render_teacher(&job, gpu, &|done, total| {
+        bar.set_length(total);
+        bar.set_position(done);
+    })?;
+    bar.finish_and_clear();
+    println!(
+        "rendered {frames} frames x {} views into {}",
+        job.views,
+        job.out.display()
     );
     Ok(())
 }

@@ -9,6 +9,7 @@ pub mod cli;
 pub mod dataset;
 pub mod files;
 pub mod gpu;
+pub mod headless;
 pub mod posmap;
 pub mod render;
 pub mod tensors;

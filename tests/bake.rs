@@ -67,6 +67,50 @@ fn the_witch_bakes_validates_and_rebakes_identically() {
 }
 
 #[test]
+fn ground_truth_renders_are_written_listed_and_reproducible() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+    let witch = witch();
+    for out in [&a, &b] {
+        let run = unica(&[
+            "bake",
+            witch.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--quick",
+            "--preview",
+        ]);
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+    }
+    assert_eq!(
+        files(&a),
+        files(&b),
+        "renders and preview are deterministic too"
+    );
+    let report = unica::dataset::validate(&a).unwrap();
+    // 50 rest cameras + 4 views of every 5th frame of the quick clips (8, 18, 24, 26 frames).
+    assert_eq!(report.renders, 50 + 4 * (2 + 4 + 5 + 6));
+    let front = image::open(a.join("renders/clip_002/f0010_front.png"))
+        .unwrap()
+        .to_rgba8();
+    let covered = front.pixels().filter(|p| p.0[3] == 255).count() as f64 / (512.0 * 512.0);
+    assert!(
+        (0.02..0.5).contains(&covered),
+        "the character covers {covered} of a render"
+    );
+    assert_eq!(
+        front.get_pixel(0, 0).0[3],
+        0,
+        "the background is transparent"
+    );
+    assert!(a.join("preview.png").is_file());
+}
+
+#[test]
 fn bad_inputs_and_broken_datasets_are_named() {
     let dir = tempfile::tempdir().unwrap();
     let run = unica(&[

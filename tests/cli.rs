@@ -65,7 +65,7 @@ fn help_explains_the_commands_and_the_gpu_choice() {
 
 #[test]
 fn later_subcommands_say_not_built_yet() {
-    for sub in ["render", "eval", "export", "view"] {
+    for sub in ["eval", "export", "view"] {
         assert_one_line_error(
             &unica(&[sub, "whatever", "--out", "x"], &[]),
             "not built yet",

@@ -8,13 +8,18 @@ use glam::Vec3;
 
 use super::{ClipInfo, FORMAT, Manifest, VERSION};
 use crate::action::Action;
+use crate::avatar::Mesh;
 use crate::avatar::description::Description;
 use crate::avatar::load_character;
 use crate::avatar::locomotion::FRAME_RATE;
 use crate::avatar::reference::Reference;
 use crate::avatar::teacher::Teacher;
 use crate::files::{write_atomic, write_png_atomic};
+use crate::gpu::{GpuContext, GpuOptions};
 use crate::posmap::{GroupNorm, MAP_SIZE};
+use crate::render::OrbitCamera;
+use crate::render::offscreen::Offscreen;
+use crate::render::scene::DrawOptions;
 use crate::tensors::{self, Tensor};
 
 /// The preview shows the middle frame of every third clip.
@@ -28,7 +33,16 @@ pub struct BakeOptions {
     pub quick: bool,
     /// Also write preview.png: position maps and posed point clouds of sampled frames.
     pub preview: bool,
+    /// Skip the ground-truth RGB renders (which need a GPU adapter, lavapipe will do).
+    pub no_renders: bool,
 }
+
+/// Ground-truth renders: size, every how many frames, and the rest-pose cameras.
+pub const RENDER_SIZE: u32 = 512;
+pub const RENDER_EVERY: usize = 5;
+const REST_CAMERAS: usize = 50;
+/// Direction toward the light in the character's frame (it faces +Z).
+const LIGHT: Vec3 = Vec3::new(0.35, 0.8, 0.5);
 
 /// One clip of the plan: (first action, second action, frames of each).
 type Planned = (Action, Action, usize, usize);
@@ -73,6 +87,12 @@ pub fn bake(
         .map_err(|e| anyhow::anyhow!("{}: {e}", clips_dir.display()))?;
     write_reference(&start, &reference, &out.join("reference.safetensors"))?;
 
+    let mut renders = if options.no_renders {
+        None
+    } else {
+        let gpu = GpuContext::headless(&GpuOptions::from_env())?;
+        Some(GroundTruth::new(gpu, out, &start)?)
+    };
     let plan = plan(options.quick);
     let total: usize = plan.iter().map(|(_, _, a, b)| a + b).sum();
     let mut done = 0;
@@ -93,6 +113,9 @@ pub fn bake(
                 skin.extend_from_slice(&m.transpose().to_cols_array()[..12]);
             }
             actions.push(action.id() as i32);
+            if let Some(renders) = renders.as_mut().filter(|_| f % RENDER_EVERY == 0) {
+                renders.frame(index, f, &mesh, &teacher)?;
+            }
             if options.preview && f == frames / 2 && index % PREVIEW_EVERY == 0 {
                 previews.push((mesh.positions, points, roots[f]));
             }
@@ -118,6 +141,9 @@ pub fn bake(
             second,
             switch_frame: first_frames,
         });
+    }
+    if let Some(renders) = renders {
+        renders.finish()?;
     }
     let p = start.locomotion.params;
     let manifest = Manifest {
@@ -148,6 +174,112 @@ pub fn bake(
         )?;
     }
     Ok(manifest)
+}
+
+/// Writes the ground-truth RGB renders: RGBA PNGs (alpha = coverage, so black and white
+/// backgrounds are both a composite away) from four cameras around the character (front,
+/// right, back, left in its own frame) with a light fixed in its frame, and 50 cameras
+/// on a cylinder around the rest pose; every camera in renders/cameras.json.
+struct GroundTruth {
+    offscreen: Offscreen,
+    dir: PathBuf,
+    extent: f32,
+    cameras: Vec<serde_json::Value>,
+}
+
+impl GroundTruth {
+    fn new(gpu: GpuContext, out: &Path, start: &Teacher) -> anyhow::Result<Self> {
+        let dir = out.join("renders");
+        let rest = start.mesh();
+        let (lo, hi) = rest.bounds().expect("a character has vertices");
+        let mut truth = Self {
+            offscreen: Offscreen::new(gpu, RENDER_SIZE, RENDER_SIZE),
+            dir,
+            extent: (hi - lo).max_element(),
+            cameras: Vec::new(),
+        };
+        let centre = (lo + hi) * 0.5;
+        for k in 0..REST_CAMERAS {
+            // 10 headings on each of 5 heights of a cylinder.
+            let yaw = std::f32::consts::TAU * (k % 10) as f32 / 10.0;
+            let pitch = -0.4 + 0.2 * (k / 10) as f32;
+            let camera = truth.camera(centre, yaw, pitch);
+            truth.shoot(&format!("rest/cam_{k:02}.png"), &rest, camera, LIGHT, None)?;
+        }
+        Ok(truth)
+    }
+
+    fn camera(&self, target: Vec3, yaw: f32, pitch: f32) -> OrbitCamera {
+        OrbitCamera {
+            target,
+            yaw,
+            pitch,
+            distance: self.extent * 1.6,
+        }
+    }
+
+    fn shoot(
+        &mut self,
+        file: &str,
+        mesh: &Mesh,
+        camera: OrbitCamera,
+        light: Vec3,
+        frame: Option<(usize, usize)>,
+    ) -> anyhow::Result<()> {
+        let options = DrawOptions {
+            grid: false,
+            background: wgpu::Color::TRANSPARENT,
+            light: Some(light),
+        };
+        let image = self.offscreen.render(mesh, &camera, &options)?;
+        let path = self.dir.join(file);
+        if let Some(folder) = path.parent().filter(|f| !f.is_dir()) {
+            std::fs::create_dir_all(folder)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", folder.display()))?;
+        }
+        write_png_atomic(&path, &image)?;
+        self.cameras.push(serde_json::json!({
+            "file": file,
+            "clip_frame": frame,
+            "camera": camera,
+            "view_projection": camera.view_projection(1.0).to_cols_array(),
+        }));
+        Ok(())
+    }
+
+    fn frame(
+        &mut self,
+        clip: usize,
+        frame: usize,
+        mesh: &Mesh,
+        teacher: &Teacher,
+    ) -> anyhow::Result<()> {
+        let facing = teacher.locomotion.yaw;
+        let light = glam::Quat::from_rotation_y(facing) * LIGHT;
+        let (lo, hi) = mesh.bounds().expect("a character has vertices");
+        for (view, name) in ["front", "right", "back", "left"].iter().enumerate() {
+            // Yaw 0 looks from +Z: a camera at the character's facing sees its front.
+            let yaw = facing - view as f32 * std::f32::consts::FRAC_PI_2;
+            let camera = self.camera((lo + hi) * 0.5, yaw, 0.1);
+            self.shoot(
+                &format!("clip_{clip:03}/f{frame:04}_{name}.png"),
+                mesh,
+                camera,
+                light,
+                Some((clip, frame)),
+            )?;
+        }
+        Ok(())
+    }
+
+    fn finish(self) -> anyhow::Result<()> {
+        let json = serde_json::json!({ "size": RENDER_SIZE, "every": RENDER_EVERY, "cameras": self.cameras });
+        write_atomic(
+            &self.dir.join("cameras.json"),
+            serde_json::to_string_pretty(&json)?.as_bytes(),
+        )?;
+        Ok(())
+    }
 }
 
 fn write_reference(teacher: &Teacher, reference: &Reference, path: &Path) -> anyhow::Result<()> {

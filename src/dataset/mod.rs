@@ -224,6 +224,8 @@ pub struct Validation {
     pub min: f32,
     pub max: f32,
     pub switches: usize,
+    /// Ground-truth renders listed in renders/cameras.json (0 when baked without).
+    pub renders: usize,
 }
 
 /// Checks a baked dataset: files and shapes, actions against the switch frames, the
@@ -245,6 +247,7 @@ pub fn validate(dir: &Path) -> Result<Validation, DatasetError> {
         min: f32::MAX,
         max: f32::MIN,
         switches: 0,
+        renders: 0,
     };
     for (index, info) in m.clips.iter().enumerate() {
         let path = dir.join(&info.file);
@@ -293,6 +296,35 @@ pub fn validate(dir: &Path) -> Result<Validation, DatasetError> {
             report.groups += 1;
         }
         report.frames += info.frames;
+    }
+    let cameras = dir.join("renders/cameras.json");
+    if cameras.is_file() {
+        let text =
+            std::fs::read_to_string(&cameras).map_err(|e| invalid(&cameras, e.to_string()))?;
+        let json: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| invalid(&cameras, e.to_string()))?;
+        let every = json["every"].as_u64().unwrap_or(1).max(1) as usize;
+        let listed = json["cameras"].as_array().map_or(&[][..], Vec::as_slice);
+        let expected = 50
+            + 4 * m
+                .clips
+                .iter()
+                .map(|c| c.frames.div_ceil(every))
+                .sum::<usize>();
+        if listed.len() != expected {
+            return Err(invalid(
+                &cameras,
+                format!("{} renders listed, expected {expected}", listed.len()),
+            ));
+        }
+        if let Some(missing) = listed
+            .iter()
+            .filter_map(|c| c["file"].as_str())
+            .find(|f| !dir.join("renders").join(f).is_file())
+        {
+            return Err(invalid(&cameras, format!("render {missing} is missing")));
+        }
+        report.renders = listed.len();
     }
     Ok(report)
 }

@@ -204,11 +204,34 @@ impl SceneRenderer {
         meshes: &[&GpuMesh],
         timer: Option<PassTimer<'_>>,
     ) {
+        self.draw_with(
+            gpu,
+            encoder,
+            target,
+            camera,
+            meshes,
+            &DrawOptions::default(),
+            timer,
+        );
+    }
+
+    /// [`Self::draw`] with a choice of grid, background and light.
+    #[allow(clippy::too_many_arguments)]
+    pub fn draw_with(
+        &self,
+        gpu: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        target: &RenderTarget,
+        camera: &OrbitCamera,
+        meshes: &[&GpuMesh],
+        options: &DrawOptions,
+        timer: Option<PassTimer<'_>>,
+    ) {
         let (w, h) = target.size();
+        let light = options.light.unwrap_or_else(|| light_direction(camera));
         let uniforms = SceneUniforms {
             view_proj: camera.view_projection(w as f32 / h as f32),
-            // A key light above and to the side of the camera, so what is seen is lit.
-            light_dir: light_direction(camera).extend(0.8),
+            light_dir: light.normalize().extend(0.8),
             sky_ambient: Vec4::new(0.6, 0.62, 0.68, 0.0),
             ground_ambient: Vec4::new(0.25, 0.22, 0.2, 0.0),
         };
@@ -221,7 +244,7 @@ impl SceneRenderer {
                 depth_slice: None,
                 resolve_target: None,
                 ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(BACKGROUND),
+                    load: wgpu::LoadOp::Clear(options.background),
                     store: wgpu::StoreOp::Store,
                 },
             })],
@@ -244,9 +267,31 @@ impl SceneRenderer {
             pass.set_index_buffer(mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
             pass.draw_indexed(0..mesh.index_count, 0, 0..1);
         };
-        draw(&self.lines, &self.grid);
+        if options.grid {
+            draw(&self.lines, &self.grid);
+        }
         for mesh in meshes {
             draw(&self.triangles, mesh);
+        }
+    }
+}
+
+/// What a frame shows besides the meshes.
+#[derive(Clone, Copy, Debug)]
+pub struct DrawOptions {
+    pub grid: bool,
+    pub background: wgpu::Color,
+    /// Direction toward the light; `None` puts a key light above and beside the camera,
+    /// so what is seen is lit.
+    pub light: Option<Vec3>,
+}
+
+impl Default for DrawOptions {
+    fn default() -> Self {
+        Self {
+            grid: true,
+            background: BACKGROUND,
+            light: None,
         }
     }
 }
