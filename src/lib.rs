@@ -10,6 +10,7 @@ pub mod dataset;
 pub mod files;
 pub mod gpu;
 pub mod headless;
+pub mod mesh;
 pub mod posmap;
 pub mod render;
 pub mod tensors;

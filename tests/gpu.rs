@@ -3,10 +3,10 @@
 //! limits, stage timing and an off-screen scene render.
 
 use glam::Vec3;
-use unica::avatar::Mesh;
 use unica::gpu::kernel::{self, Grid, PipelineCache, Precision, WORKGROUP_SIZE};
 use unica::gpu::timing::Profiler;
 use unica::gpu::{GpuContext, GpuError, GpuOptions, readback};
+use unica::mesh::Mesh;
 use unica::render::scene::BACKGROUND;
 use unica::render::{OrbitCamera, RenderTarget, SceneRenderer};
 

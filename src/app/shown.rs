@@ -7,9 +7,10 @@ use glam::Vec3;
 
 use crate::action::Action;
 use crate::avatar::description::Description;
+use crate::avatar::load_character;
 use crate::avatar::teacher::Teacher;
-use crate::avatar::{Mesh, load_character};
 use crate::gpu::GpuContext;
+use crate::mesh::Mesh;
 use crate::render::{GpuMesh, SceneRenderer};
 
 pub struct Shown {

@@ -6,9 +6,9 @@ use std::path::{Path, PathBuf};
 
 use glam::{Mat4, Quat, Vec2, Vec3, Vec4};
 
-use super::Mesh;
 use super::clip::{Channel, Clip, Interpolation, Values};
 use super::rig::{Bone, Node, Part, Rig, SkinnedMesh, Transform};
+use crate::mesh::Mesh;
 
 /// A loaded character: the mesh in bind space, its rig and clips.
 #[derive(Clone, Debug)]

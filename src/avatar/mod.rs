@@ -6,11 +6,9 @@ pub mod clip;
 pub mod description;
 pub mod locomotion;
 pub mod loose;
-pub mod mesh;
 pub mod reference;
 pub mod rig;
 pub mod springs;
 pub mod teacher;
 
 pub use character::{Character, LoadError, load_character};
-pub use mesh::Mesh;

@@ -3,7 +3,7 @@
 
 use glam::{Mat4, Quat, Vec3};
 
-use super::Mesh;
+use crate::mesh::Mesh;
 
 /// A local transform: translation, rotation, scale (applied scale first).
 #[derive(Clone, Copy, Debug, PartialEq)]

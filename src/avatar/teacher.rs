@@ -4,7 +4,6 @@
 
 use glam::{Mat4, Vec3};
 
-use super::Mesh;
 use super::character::{Character, LoadError, fail};
 use super::clip::Clip;
 use super::description::Description;
@@ -13,6 +12,7 @@ use super::loose::add_spring_chains;
 use super::rig::Transform;
 use super::springs::SpringSystem;
 use crate::action::Action;
+use crate::mesh::Mesh;
 
 #[derive(Clone)]
 pub struct Teacher {

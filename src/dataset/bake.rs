@@ -8,7 +8,6 @@ use glam::Vec3;
 
 use super::{ClipInfo, FORMAT, Manifest, VERSION};
 use crate::action::Action;
-use crate::avatar::Mesh;
 use crate::avatar::description::Description;
 use crate::avatar::load_character;
 use crate::avatar::locomotion::FRAME_RATE;
@@ -16,6 +15,7 @@ use crate::avatar::reference::Reference;
 use crate::avatar::teacher::Teacher;
 use crate::files::{write_atomic, write_png_atomic};
 use crate::gpu::{GpuContext, GpuOptions};
+use crate::mesh::Mesh;
 use crate::posmap::{GroupNorm, MAP_SIZE};
 use crate::render::OrbitCamera;
 use crate::render::offscreen::Offscreen;

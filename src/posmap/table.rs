@@ -314,7 +314,7 @@ mod tests {
 
     #[test]
     fn a_cube_fills_each_view_with_its_facing_side() {
-        let mesh = crate::avatar::Mesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5), Vec3::ONE);
+        let mesh = crate::mesh::Mesh::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5), Vec3::ONE);
         let table = SurfaceTable::build(&mesh.positions, &mesh.indices);
         let points = table.gather(&mesh.positions, &mesh.indices);
         for (&pixel, p) in table.pixels.iter().zip(&points) {

@@ -1,8 +1,8 @@
 //! Headless rendering of posed meshes to images: one device, one target, one mesh buffer
 //! reused frame after frame (teacher renders, dataset ground truth).
 
-use crate::avatar::Mesh;
 use crate::gpu::{GpuContext, GpuError, readback};
+use crate::mesh::Mesh;
 
 use super::scene::DrawOptions;
 use super::{GpuMesh, OrbitCamera, RenderTarget, SceneRenderer};

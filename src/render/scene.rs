@@ -5,10 +5,10 @@ use glam::{Vec3, Vec4};
 use wgpu::util::DeviceExt;
 
 use super::OrbitCamera;
-use crate::avatar::Mesh;
 use crate::gpu::timing::PassTimer;
 use crate::gpu::{GpuContext, shaders};
 use crate::gpu_struct;
+use crate::mesh::Mesh;
 
 /// Colour format of render targets (sRGB: shaders write linear colour).
 pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;

@@ -1,5 +1,5 @@
-//! A triangle mesh with per-vertex colour, as drawn by the renderer and read by the bake.
-//! Plain data plus the geometry helpers every loader needs (normals, bounds).
+//! A triangle mesh with per-vertex colour: plain data shared by the loaders, the renderer
+//! and the bake, with the geometry helpers they need (normals, bounds, boxes).
 
 use glam::Vec3;
 
