@@ -1,0 +1,97 @@
+"""Shapes, budgets and known answers for the VAE, UNet and the diffusion maths."""
+
+import torch
+
+from unica_train.diffusion import Schedule, ddim_step, sample_next
+from unica_train.unet import UNet, UNetConfig, conv_and_linear_flops, parameter_count
+from unica_train.vae import PositionVae, VaeConfig
+
+
+def test_vae_shapes_and_decoder_budget():
+    vae = PositionVae()
+    x = torch.rand(2, 3, 128, 128)
+    z, mean, logvar = vae.encode(x)
+    assert z.shape == (2, 4, 16, 16)
+    assert vae.decode(z).shape == (2, 3, 128, 128)
+    flops = conv_and_linear_flops(vae.decoder, z[:1])
+    assert flops <= 0.5e9, f"decoder {flops / 1e9:.3f} GFLOP"
+
+
+def test_unet_shapes_budget_and_zero_start():
+    unet = UNet()
+    x = torch.randn(1, 4, 4, 16, 16)
+    t = torch.tensor([[0, 0, 0, 500]])
+    with torch.no_grad():
+        out = unet(x, t, torch.tensor([1]))
+    assert out.shape == x.shape
+    assert float(out.abs().max()) == 0.0, "the output layer starts at zero"
+    # Per frame of the group: at most 1 GFLOP per UNet step for the frame generated.
+    per_frame = conv_and_linear_flops(unet, x, t, torch.tensor([1])) / 4
+    assert per_frame <= 1e9, f"{per_frame / 1e9:.3f} GFLOP per frame"
+    assert parameter_count(unet) < 20e6
+
+
+def test_temporal_attention_is_causal():
+    torch.manual_seed(0)
+    unet = UNet(UNetConfig(channels=(16, 32), embed=32, heads=2))
+    torch.nn.init.normal_(unet.conv_out.weight, std=0.1)
+    x = torch.randn(1, 4, 4, 16, 16)
+    t = torch.tensor([[0, 0, 0, 900]])
+    with torch.no_grad():
+        a = unet(x, t, torch.tensor([2]))
+    x2 = x.clone()
+    x2[:, 3] = torch.randn(4, 16, 16)  # a different noisy target
+    with torch.no_grad():
+        b = unet(x2, torch.tensor([[0, 0, 0, 100]]), torch.tensor([2]))
+    torch.testing.assert_close(a[:, :3], b[:, :3], rtol=0, atol=1e-6)
+    assert not torch.allclose(a[:, 3], b[:, 3])
+
+
+def test_schedule_endpoints_and_min_snr():
+    s = Schedule()
+    a = s.alphas_cumprod
+    assert abs(float(a[0]) - (1 - 0.00085)) < 1e-7
+    assert 0.004 < float(a[-1]) < 0.006  # the SD-1.5 schedule ends near 0.0047
+    w = s.min_snr_weight(torch.tensor([0, 999]))
+    assert float(w[1]) == 1.0 and float(w[0]) < 0.01
+
+
+def test_ddim_recovers_a_point_mass_exactly():
+    # Data is the single point x0: the exact eps at x_t is (x_t - sqrt(ab) x0) / sqrt(1 - ab).
+    s = Schedule()
+    x0 = torch.full((1, 4, 16, 16), 0.3)
+
+    class Oracle(torch.nn.Module):
+        cfg = UNetConfig()
+
+        def forward(self, latents, t_frames, action):
+            t = int(t_frames[0, -1])
+            ab = s.alpha_bar(torch.tensor(t))
+            eps = (latents[:, -1] - ab.sqrt() * x0) / (1 - ab).sqrt()
+            return torch.stack([eps] * 4, 1)
+
+    noise = torch.randn(1, 4, 16, 16, generator=torch.Generator().manual_seed(1))
+    for steps in (1, 4, 10):
+        out = sample_next(Oracle(), s, torch.zeros(1, 3, 4, 16, 16), torch.tensor([1]), steps=steps, noise=noise)
+        torch.testing.assert_close(out, x0, atol=1e-4, rtol=0)
+    # One step from t to -1 with the true eps lands on x0 too.
+    xt = s.add_noise(x0, noise, torch.tensor([700]))
+    eps = (xt - s.alpha_bar(torch.tensor(700)).sqrt() * x0) / (1 - s.alpha_bar(torch.tensor(700))).sqrt()
+    torch.testing.assert_close(ddim_step(s, xt, eps, 700, -1), x0, atol=1e-5, rtol=0)
+
+
+def test_vae_loss_falls_on_an_overfit_batch():
+    torch.manual_seed(0)
+    vae = PositionVae(VaeConfig(channels=(16, 12, 8, 8)))
+    x = torch.rand(2, 3, 128, 128)
+    mask = (torch.rand(1, 1, 128, 128) > 0.7).float()
+    x = x * mask
+    opt = torch.optim.Adam(vae.parameters(), lr=3e-3)
+    first = None
+    for _ in range(60):
+        loss, _ = vae.loss(x, mask, generator=torch.Generator().manual_seed(0))
+        first = first if first is not None else float(loss)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert float(loss) < 0.5 * first, f"{first} -> {float(loss)}"
