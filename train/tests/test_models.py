@@ -90,8 +90,8 @@ def test_vae_loss_falls_on_an_overfit_batch():
     first = None
     for _ in range(60):
         loss, _ = vae.loss(x, mask, generator=torch.Generator().manual_seed(0))
-        first = first if first is not None else float(loss)
+        first = first if first is not None else loss.item()
         opt.zero_grad()
         loss.backward()
         opt.step()
-    assert float(loss) < 0.5 * first, f"{first} -> {float(loss)}"
+    assert loss.item() < 0.5 * first, f"{first} -> {loss.item()}"

@@ -1,0 +1,60 @@
+"""PCA with known answers; bundle export -> import round trip and named load errors."""
+
+import json
+
+import pytest
+import torch
+from safetensors.torch import load_file, save_file
+
+from unica_train import bundle, pca
+from unica_train.unet import UNet, UNetConfig
+from unica_train.vae import PositionVae, VaeConfig
+
+
+def test_pca_recovers_a_low_dimensional_subspace():
+    g = torch.Generator().manual_seed(0)
+    basis = torch.linalg.qr(torch.randn(30, 3, generator=g))[0].T  # 3 orthonormal rows
+    coeffs = torch.randn(200, 3, generator=g) * torch.tensor([5.0, 2.0, 1.0])
+    frames = coeffs @ basis + 0.7
+    mean, fitted = pca.fit(frames, 10)
+    assert fitted.shape == (10, 30)
+    top = fitted[:3]
+    # The top 3 components span the same space; data in it projects onto itself.
+    torch.testing.assert_close(pca.project(frames, mean, top), frames, atol=1e-4, rtol=0)
+    off = frames[:1] + torch.randn(1, 30, generator=g)
+    once = pca.project(off, mean, top)
+    torch.testing.assert_close(pca.project(once, mean, top), once, atol=1e-5, rtol=0)
+    assert torch.allclose(top @ top.T, torch.eye(3), atol=1e-5)
+
+
+def small_models():
+    torch.manual_seed(0)
+    return PositionVae(VaeConfig(channels=(16, 12, 8, 8))), UNet(UNetConfig(channels=(16, 32), embed=32, heads=2))
+
+
+def test_bundle_round_trip(tmp_path):
+    vae, unet = small_models()
+    extra = {"pca.mean": torch.rand(12), "pca.basis": torch.rand(2, 12), "map.pixels": torch.arange(4, dtype=torch.int32)}
+    bundle.save(tmp_path, vae, unet, extra, {"avatar": "test", "actions": ["Idle"]})
+    vae2, unet2, extra2, manifest = bundle.load(tmp_path)
+    assert manifest["avatar"] == "test" and manifest["version"] == bundle.VERSION
+    for a, b in [(vae, vae2), (unet, unet2)]:
+        for (k, v), (k2, v2) in zip(a.state_dict().items(), b.state_dict().items()):
+            assert k == k2 and torch.equal(v, v2)
+    assert torch.equal(extra2["pca.basis"], extra["pca.basis"])
+    assert manifest["tensors"]["unet.conv_in.weight"]["shape"] == [16, 4, 3, 3]
+
+
+def test_bundle_errors_name_the_tensor(tmp_path):
+    vae, unet = small_models()
+    bundle.save(tmp_path, vae, unet, {}, {})
+    weights = load_file(str(tmp_path / "weights.safetensors"))
+    weights["unet.conv_in.weight"] = torch.zeros(16, 4, 1, 1)
+    save_file(weights, str(tmp_path / "weights.safetensors"))
+    with pytest.raises(bundle.BundleError, match=r"'unet.conv_in.weight' is torch.float32 \[16, 4, 1, 1\], expected torch.float32 \[16, 4, 3, 3\]"):
+        bundle.load(tmp_path)
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
+    manifest["version"] = 99
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(bundle.BundleError, match="bundle version 99"):
+        bundle.load(tmp_path)

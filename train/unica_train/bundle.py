@@ -1,0 +1,82 @@
+"""Bundles (DESIGN §8): what the app loads to play an avatar — `weights.safetensors` and a
+versioned `manifest.json` with the full model config, action names, normalisation, PCA,
+the position-map layout and the initial context of a standing start. Loading checks every
+tensor's name, shape and dtype and names the first that is wrong."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+from safetensors.torch import load_file, save_file
+
+from .unet import UNet, UNetConfig
+from .vae import PositionVae, VaeConfig
+
+FORMAT = "unica-bundle"
+VERSION = 1
+
+
+class BundleError(ValueError):
+    """A bundle that cannot be loaded; the message names the file and the problem."""
+
+
+def _tensors(vae: PositionVae, unet: UNet, extra: dict) -> dict:
+    out = {f"vae.{k}": v for k, v in vae.state_dict().items()}
+    out.update({f"unet.{k}": v for k, v in unet.state_dict().items()})
+    out.update(extra)
+    return {k: v.detach().contiguous().cpu() for k, v in out.items()}
+
+
+def save(directory: str | Path, vae: PositionVae, unet: UNet, extra: dict, manifest: dict) -> None:
+    """Writes the bundle. `extra` holds the non-model tensors (pca.mean, pca.basis,
+    context.latents, map.pixels, map.waist); `manifest` the rest of the manifest."""
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    tensors = _tensors(vae, unet, extra)
+    full = dict(manifest)
+    full.update({
+        "format": FORMAT,
+        "version": VERSION,
+        "vae": vae.cfg.to_dict(),
+        "unet": unet.cfg.to_dict(),
+        "tensors": {k: {"shape": list(v.shape), "dtype": str(v.dtype).removeprefix("torch.")} for k, v in sorted(tensors.items())},
+    })
+    save_file(tensors, str(d / "weights.safetensors"))
+    (d / "manifest.json").write_text(json.dumps(full, indent=2, sort_keys=True) + "\n")
+
+
+def load(directory: str | Path):
+    """(vae, unet, extra tensors, manifest), every tensor checked against the manifest's
+    model config."""
+    d = Path(directory)
+    manifest_path = d / "manifest.json"
+    try:
+        manifest = json.loads(manifest_path.read_text())
+    except (OSError, ValueError) as e:
+        raise BundleError(f"{manifest_path}: {e}") from e
+    if manifest.get("format") != FORMAT:
+        raise BundleError(f"{manifest_path}: not a unica bundle (format {manifest.get('format')!r})")
+    if manifest.get("version") != VERSION:
+        raise BundleError(f"{manifest_path}: bundle version {manifest.get('version')}, this trainer reads {VERSION}")
+    vae = PositionVae(VaeConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in manifest["vae"].items()}))
+    unet = UNet(UNetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in manifest["unet"].items()}))
+    weights_path = d / "weights.safetensors"
+    try:
+        tensors = load_file(str(weights_path))
+    except Exception as e:
+        raise BundleError(f"{weights_path}: {e}") from e
+    expected = _tensors(vae, unet, {})
+    for name, want in sorted(expected.items()):
+        found = tensors.get(name)
+        if found is None:
+            raise BundleError(f"{weights_path}: tensor '{name}' is missing")
+        if found.shape != want.shape or found.dtype != want.dtype:
+            raise BundleError(
+                f"{weights_path}: tensor '{name}' is {found.dtype} {list(found.shape)}, expected {want.dtype} {list(want.shape)}"
+            )
+    vae.load_state_dict({k[4:]: v for k, v in tensors.items() if k.startswith("vae.")})
+    unet.load_state_dict({k[5:]: v for k, v in tensors.items() if k.startswith("unet.")})
+    extra = {k: v for k, v in tensors.items() if k not in expected}
+    return vae, unet, extra, manifest

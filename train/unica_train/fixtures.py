@@ -1,0 +1,96 @@
+"""Parity fixtures for the WGSL engine: for a tiny random-weight configuration, the inputs,
+weights and outputs of every module kind (VAE encoder and decoder, each UNet block kind,
+the timestep embedding, a whole UNet step, a DDIM step with CFG, a 4-step DDIM sample from
+fixed noise, the PCA projection) as small safetensors files.
+
+    python -m unica_train.fixtures --out tests/fixtures/nn
+
+Every file holds `io.in.*` inputs, `io.out.*` outputs and the module's weights under their
+PyTorch state-dict names; the tiny configs are in tests/fixtures/nn/README.md."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import torch
+from safetensors.torch import save_file
+
+from . import pca
+from .diffusion import Schedule, ddim_step, guided_eps, sample_next
+from .layers import CrossAttention, Down, ResBlock, SpatialAttention, TemporalAttention, Up, timestep_embedding
+from .unet import UNet, UNetConfig
+from .vae import PositionVae, VaeConfig
+
+TINY_VAE = VaeConfig(channels=(16, 12, 8, 8))
+TINY_UNET = UNetConfig(channels=(16, 32), embed=32, heads=2)
+
+
+def _randomise(module: torch.nn.Module, gen: torch.Generator) -> None:
+    """Random weights everywhere (zero-initialised layers would test nothing)."""
+    with torch.no_grad():
+        for p in module.parameters():
+            p.copy_(torch.randn(p.shape, generator=gen) * 0.2)
+
+
+def build() -> dict[str, dict[str, torch.Tensor]]:
+    gen = torch.Generator().manual_seed(1234)
+    rand = lambda *shape: torch.randn(*shape, generator=gen)  # noqa: E731
+    files: dict[str, dict[str, torch.Tensor]] = {}
+
+    def module_file(name, module, inputs: dict, forward):
+        _randomise(module, gen)
+        with torch.no_grad():
+            outputs = forward(module, **inputs)
+        if not isinstance(outputs, dict):
+            outputs = {"y": outputs}
+        files[name] = {**{f"io.in.{k}": v for k, v in inputs.items()}, **{f"io.out.{k}": v for k, v in outputs.items()}, **module.state_dict()}
+
+    module_file("resblock", ResBlock(8, 16, 32), {"x": rand(2, 8, 8, 8), "emb": rand(2, 32)}, lambda m, x, emb: m(x, emb))
+    module_file("down", Down(8, 12), {"x": rand(1, 8, 16, 16)}, lambda m, x: m(x))
+    module_file("up", Up(8, 12), {"x": rand(1, 8, 8, 8)}, lambda m, x: m(x))
+    module_file("spatial_attention", SpatialAttention(16, 2), {"x": rand(2, 16, 8, 8)}, lambda m, x: m(x))
+    module_file("cross_attention", CrossAttention(16, 32, 2), {"x": rand(2, 16, 8, 8), "ctx": rand(2, 1, 32)}, lambda m, x, ctx: m(x, ctx))
+    module_file("temporal_attention", TemporalAttention(16, 4, 2), {"x": rand(8, 16, 4, 4)}, lambda m, x: m(x))
+    files["timestep_embedding"] = {"io.in.t": torch.tensor([0.0, 1.0, 250.0, 999.0]), "io.out.y": timestep_embedding(torch.tensor([0.0, 1.0, 250.0, 999.0]), 32)}
+
+    vae = PositionVae(TINY_VAE)
+    module_file("vae_encoder", vae.encoder, {"x": rand(1, 3, 128, 128).clamp(0, 1)}, lambda m, x: dict(zip(("mean", "logvar"), m(x))))
+    module_file("vae_decoder", vae.decoder, {"z": rand(1, 4, 16, 16)}, lambda m, z: m(z))
+
+    unet = UNet(TINY_UNET)
+    _randomise(unet, gen)
+    x, t, action = rand(1, 4, 4, 16, 16), torch.tensor([[0, 0, 0, 700]]), torch.tensor([3])
+    schedule = Schedule()
+    with torch.no_grad():
+        eps = unet(x, t, action)
+        guided = guided_eps(unet, x, t, action, 2.0)
+        stepped = ddim_step(schedule, x[:, -1], guided, 700, 600)
+        noise = rand(1, 4, 16, 16)
+        sample = sample_next(unet, schedule, x[:, :3], action, steps=4, cfg_scale=2.0, noise=noise)
+    weights = unet.state_dict()
+    files["unet_step"] = {"io.in.x": x, "io.in.t": t.float(), "io.in.action": action.float(), "io.out.eps": eps, **weights}
+    files["ddim_cfg_step"] = {"io.in.x": x, "io.in.t": t.float(), "io.in.action": action.float(), "io.in.cfg_scale": torch.tensor([2.0]),
+                              "io.in.t_prev": torch.tensor([600.0]), "io.out.eps": guided, "io.out.x_prev": stepped, **weights}
+    files["ddim_sample_4"] = {"io.in.context": x[:, :3], "io.in.noise": noise, "io.in.action": action.float(), "io.in.cfg_scale": torch.tensor([2.0]),
+                              "io.in.steps": torch.tensor([4.0]), "io.out.x0": sample, **weights}
+    data = rand(40, 30)
+    mean, basis = pca.fit(data, 5)
+    query = rand(3, 30)
+    files["pca_projection"] = {"io.in.x": query, "io.in.mean": mean, "io.in.basis": basis, "io.out.y": pca.project(query, mean, basis)}
+    files["alphas_cumprod"] = {"io.out.alphas_cumprod": schedule.alphas_cumprod}
+    return {name: {k: v.float().contiguous() for k, v in tensors.items()} for name, tensors in files.items()}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    for name, tensors in build().items():
+        save_file(tensors, str(args.out / f"{name}.safetensors"))
+    print(f"wrote {len(build())} fixtures to {args.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,374 @@
+"""Trains the geometry model on a baked dataset and writes the bundle:
+
+    python -m unica_train.train --data DATA --out OUT [--config CONFIG.json] [--resume]
+
+Stages: the VAE; latents of every 4-frame group; UNet stage 1 (steady locomotion) and
+stage 2 (frames just after a key change oversampled, action embeddings frozen), with
+context-noise augmentation, CFG dropout, Min-SNR weights, noise offset and EMA; PCA; then
+the evaluation numbers, the bundle, losses.csv and curves.png. Runs on CUDA (bf16
+autocast) when present, else on the CPU; checkpoints after every stage and every
+`checkpoint_every` steps so `--resume` continues where a run stopped."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+
+from . import bundle, pca
+from .dataset import ANCHOR, BakedDataset
+from .diffusion import Schedule, sample_next
+from .plot import curves
+from .unet import NULL_ACTION, UNet, UNetConfig, conv_and_linear_flops, parameter_count
+from .vae import PositionVae, VaeConfig
+
+
+@dataclass
+class TrainConfig:
+    vae: dict = field(default_factory=lambda: VaeConfig().to_dict())
+    unet: dict = field(default_factory=lambda: UNetConfig().to_dict())
+    vae_steps: int = 3000
+    vae_batch: int = 16
+    vae_lr: float = 1e-3
+    unet_steps: int = 6000
+    stage2_steps: int = 1500
+    unet_batch: int = 32
+    unet_lr: float = 3e-4
+    after_switch_share: float = 0.7
+    cfg_dropout: float = 0.1
+    clean_context_share: float = 0.3
+    context_max_t: int = 300
+    noise_offset: float = 0.1
+    min_snr_gamma: float = 5.0
+    ema: float = 0.999
+    pca_components: int = 200
+    pca_frames: int = 3000
+    held_out_clips: list = field(default_factory=lambda: [4, 13])
+    rollout_keys: str = "60W 60S 60A 20I"
+    rollout_frames: int = 300
+    ddim_steps: int = 10
+    cfg_scale: float = 1.0
+    checkpoint_every: int = 500
+    seed: int = 0
+
+
+def parse_keys(text: str, frames: int) -> list[int]:
+    letters = {"I": 0, "W": 1, "S": 2, "A": 3, "D": 4}
+    out = []
+    for token in text.split():
+        out += [letters[token[-1].upper()]] * int(token[:-1])
+    return (out + [0] * frames)[:frames]
+
+
+class Run:
+    def __init__(self, data: Path, out: Path, cfg: TrainConfig, device: torch.device):
+        self.cfg, self.out, self.device = cfg, out, device
+        self.ds = BakedDataset(data)
+        t0 = time.time()
+        self.world = [self.ds.positions(c, list(range(clip["actions"].shape[0]))) for c, clip in enumerate(self.ds.clips)]
+        print(f"materialised {sum(w.shape[0] for w in self.world)} frames in {time.time() - t0:.1f} s", flush=True)
+        self.groups = self.ds.groups()
+        held = set(cfg.held_out_clips)
+        self.train_groups = [i for i, g in enumerate(self.groups) if g.clip not in held]
+        self.test_groups = [i for i, g in enumerate(self.groups) if g.clip in held]
+        self.mask = self.ds.mask().to(device)
+        self.gen = torch.Generator().manual_seed(cfg.seed)
+        self.log_path = out / "losses.csv"
+        self.autocast = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" else torch.autocast("cpu", enabled=False)
+
+    def log(self, stage: str, step: int, values: dict):
+        new = not self.log_path.exists()
+        with self.log_path.open("a", newline="") as f:
+            w = csv.writer(f)
+            if new:
+                w.writerow(["stage", "step", "name", "value"])
+            for k, v in values.items():
+                w.writerow([stage, step, k, f"{v:.6g}"])
+
+    def group_maps(self, index: int) -> torch.Tensor:
+        """The 4 normalised maps [4, 3, 128, 128] of group `index` (3rd frame's root at 0.5)."""
+        g = self.groups[index]
+        unit, _ = self.ds.normalise(self.world[g.clip][g.start:g.start + 4])
+        return self.ds.to_maps(unit)
+
+    def pick(self, pool: list[int], n: int) -> list[int]:
+        idx = torch.randint(len(pool), (n,), generator=self.gen)
+        return [pool[i] for i in idx]
+
+    # -- the VAE ---------------------------------------------------------------------
+    def train_vae(self, resume: bool) -> PositionVae:
+        cfg = self.cfg
+        vae = PositionVae(VaeConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.vae.items()})).to(self.device)
+        opt = torch.optim.AdamW(vae.parameters(), lr=cfg.vae_lr)
+        step = self.restore("vae", resume, {"vae": vae, "opt": opt})
+        start = time.time()
+        while step < cfg.vae_steps:
+            batch = []
+            for i in self.pick(self.train_groups, cfg.vae_batch):
+                batch.append(self.group_maps(i)[torch.randint(4, (1,), generator=self.gen)])
+            x = torch.cat(batch).to(self.device)
+            lr = cfg.vae_lr * 0.5 * (1 + math.cos(math.pi * step / cfg.vae_steps))
+            for group in opt.param_groups:
+                group["lr"] = lr
+            with self.autocast:
+                loss, parts = vae.loss(x, self.mask)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            step += 1
+            if step % 50 == 0 or step == cfg.vae_steps:
+                mm = parts["l1"] / self.ds.scale * 1000
+                self.log("vae", step, {"loss": loss.item(), "l1_mm": mm})
+                print(f"vae {step}/{cfg.vae_steps} loss {loss.item():.5f} (~{mm:.1f} mm per coordinate) {time.time() - start:.0f} s", flush=True)
+            if step % cfg.checkpoint_every == 0 or step == cfg.vae_steps:
+                self.save("vae", step, {"vae": vae, "opt": opt})
+        return vae.eval()
+
+    # -- latents ---------------------------------------------------------------------
+    @torch.no_grad()
+    def encode_groups(self, vae: PositionVae) -> tuple[torch.Tensor, float]:
+        path = self.out / "checkpoints" / "latents.pt"
+        if path.exists():
+            saved = torch.load(path)
+            return saved["latents"], saved["scale"]
+        latents = []
+        for start in range(0, len(self.groups), 64):
+            maps = torch.stack([self.group_maps(i) for i in range(start, min(start + 64, len(self.groups)))])
+            mean, _ = vae.encoder(maps.flatten(0, 1).to(self.device))
+            latents.append(mean.reshape(maps.shape[0], 4, *mean.shape[1:]).cpu())
+        latents = torch.cat(latents)
+        scale = float(1.0 / latents[self.train_groups].std())
+        torch.save({"latents": latents, "scale": scale}, path)
+        return latents, scale
+
+    # -- the UNet --------------------------------------------------------------------
+    def train_unet(self, latents: torch.Tensor, scale: float, resume: bool):
+        cfg = self.cfg
+        unet = UNet(UNetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.unet.items()})).to(self.device)
+        ema = UNet(unet.cfg).to(self.device)
+        ema.load_state_dict(unet.state_dict())
+        opt = torch.optim.AdamW(unet.parameters(), lr=cfg.unet_lr)
+        schedule = Schedule()
+        step = self.restore("unet", resume, {"unet": unet, "ema": ema, "opt": opt})
+        steady = [i for i in self.train_groups if not self.groups[i].after_switch]
+        after = [i for i in self.train_groups if self.groups[i].after_switch]
+        total = cfg.unet_steps + cfg.stage2_steps
+        start = time.time()
+        while step < total:
+            stage2 = step >= cfg.unet_steps
+            unet.action.weight.requires_grad_(not stage2)
+            if stage2:
+                n_after = int(round(cfg.unet_batch * cfg.after_switch_share))
+                chosen = self.pick(after, n_after) + self.pick(steady, cfg.unet_batch - n_after)
+            else:
+                chosen = self.pick(steady, cfg.unet_batch)
+            x0 = (latents[chosen] * scale).to(self.device)  # [B, 4, C, H, W]
+            b = x0.shape[0]
+            action = torch.tensor([self.groups[i].action for i in chosen])
+            action[torch.rand(b, generator=self.gen) < cfg.cfg_dropout] = NULL_ACTION
+            t_target = torch.randint(0, schedule.steps, (b,), generator=self.gen)
+            t_context = torch.randint(0, cfg.context_max_t, (b, 3), generator=self.gen)
+            t_context[torch.rand(b, generator=self.gen) < cfg.clean_context_share] = -1
+            t = torch.cat([t_context, t_target[:, None]], 1)
+            noise = torch.randn(x0.shape, generator=self.gen)
+            noise += cfg.noise_offset * torch.randn(b, 4, x0.shape[2], 1, 1, generator=self.gen)
+            noise = noise.to(self.device)
+            xt = schedule.add_noise(x0, noise, t.to(self.device))
+            with self.autocast:
+                eps = unet(xt, t.clamp(min=0).to(self.device), action.to(self.device))
+            weight = schedule.min_snr_weight(t_target, cfg.min_snr_gamma).to(self.device)
+            per_sample = ((eps[:, -1].float() - noise[:, -1]) ** 2).mean((1, 2, 3))
+            loss = (weight * per_sample).mean()
+            lr = cfg.unet_lr * 0.5 * (1 + math.cos(math.pi * step / total))
+            for group in opt.param_groups:
+                group["lr"] = lr
+            opt.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(unet.parameters(), 1.0)
+            opt.step()
+            with torch.no_grad():
+                for pe, p in zip(ema.parameters(), unet.parameters()):
+                    pe.lerp_(p, 1 - cfg.ema)
+            step += 1
+            if step % 50 == 0 or step == total:
+                self.log("unet2" if stage2 else "unet1", step, {"loss": loss.item(), "mse": per_sample.mean().item()})
+                print(f"unet {step}/{total} loss {loss.item():.4f} {time.time() - start:.0f} s", flush=True)
+            if step % cfg.checkpoint_every == 0 or step == total:
+                self.save("unet", step, {"unet": unet, "ema": ema, "opt": opt})
+        return ema.eval(), schedule
+
+    # -- checkpoints -----------------------------------------------------------------
+    def save(self, name: str, step: int, parts: dict):
+        path = self.out / "checkpoints" / f"{name}.pt"
+        tmp = path.with_suffix(".tmp")
+        torch.save({"step": step, **{k: v.state_dict() for k, v in parts.items()}}, tmp)
+        tmp.replace(path)
+
+    def restore(self, name: str, resume: bool, parts: dict) -> int:
+        path = self.out / "checkpoints" / f"{name}.pt"
+        if not (resume and path.exists()):
+            return 0
+        saved = torch.load(path)
+        for k, v in parts.items():
+            v.load_state_dict(saved[k])
+        print(f"resumed {name} at step {saved['step']}", flush=True)
+        return saved["step"]
+
+    # -- PCA, evaluation -------------------------------------------------------------
+    def fit_pca(self) -> tuple[torch.Tensor, torch.Tensor]:
+        frames = []
+        for c, world in enumerate(self.world):
+            if c in self.cfg.held_out_clips:
+                continue
+            root = self.ds.root(world)[:, None]
+            frames.append(((world - root) * self.ds.scale + 0.5).flatten(1))
+        frames = torch.cat(frames)
+        pick = torch.randperm(frames.shape[0], generator=self.gen)[: self.cfg.pca_frames]
+        return pca.fit(frames[pick], self.cfg.pca_components)
+
+    @torch.no_grad()
+    def evaluate(self, vae, unet, schedule, latents, scale, basis, mean) -> dict:
+        fg = self.ds.pixels
+        # VAE reconstruction of held-out frames, in millimetres at the avatar's scale.
+        errors = []
+        for i in self.test_groups[::7]:
+            maps = self.group_maps(i).to(self.device)
+            recon = vae.decode(vae.encoder(maps)[0])
+            diff = (recon - maps).flatten(2)[:, :, fg]  # [4, 3, N]
+            errors.append(diff.norm(dim=1).mean().item() / self.ds.scale * 1000)
+        # One-step denoising error of the target frame at three noise levels.
+        denoise = {}
+        for level in (100, 500, 900):
+            mses = []
+            for start in range(0, len(self.test_groups), 64):
+                chosen = self.test_groups[start:start + 64]
+                x0 = latents[chosen] * scale
+                noise = torch.randn(x0.shape, generator=self.gen)
+                t = torch.tensor([[-1, -1, -1, level]] * len(chosen))
+                xt = schedule.add_noise(x0, noise, t)
+                action = torch.tensor([self.groups[i].action for i in chosen])
+                eps = unet(xt, t.clamp(min=0), action)
+                mses.append(((eps[:, -1] - noise[:, -1]) ** 2).mean().item())
+            denoise[f"t{level}"] = sum(mses) / len(mses)
+        # PCA: how much of a held-out frame the basis keeps, in millimetres.
+        held = torch.cat([self.world[c] for c in self.cfg.held_out_clips])
+        unit = ((held - self.ds.root(held)[:, None]) * self.ds.scale + 0.5).flatten(1)
+        pca_mm = (pca.project(unit, mean, basis) - unit).reshape(-1, fg.shape[0], 3).norm(dim=2).mean().item() / self.ds.scale * 1000
+        return {
+            "vae_reconstruction_mm": sum(errors) / len(errors),
+            "denoise_mse": denoise,
+            "pca_reconstruction_mm": pca_mm,
+        }
+
+    @torch.no_grad()
+    def rollout(self, vae, unet, schedule, scale) -> dict:
+        """The reference of the live loop (DESIGN §6): from a standing start, generate each
+        next frame from the last three, move the world root by the new frame's root shift,
+        recentre the window on the new frame and slide it."""
+        cfg, ds = self.cfg, self.ds
+        keys = parse_keys(cfg.rollout_keys, cfg.rollout_frames)
+        unit, root = ds.normalise(self.world[0][0:4])
+        window = unit[:3]  # [3, N, 3] normalised, the 3rd frame's root at 0.5
+        world_root = root.clone()
+        path, points = [world_root.tolist()], []
+        gen = torch.Generator().manual_seed(cfg.seed)
+
+        def encode(w):
+            return vae.encoder(ds.to_maps(w).to(self.device))[0] * scale
+
+        context = encode(window)
+        for i, a in enumerate(keys):
+            z = sample_next(unet, schedule, context[None], torch.tensor([a]), cfg.ddim_steps, cfg.cfg_scale, generator=gen)
+            new = (vae.decode(z / scale)[0].flatten(1)[:, ds.pixels]).T  # [N, 3]
+            shift = ds.root(new) - 0.5
+            world_root = world_root + shift / ds.scale
+            window = torch.cat([window[1:], new[None]]) - shift
+            context = encode(window)
+            path.append(world_root.tolist())
+            if i % 30 == 0:
+                points.append(((new - 0.5) / ds.scale + world_root - shift / ds.scale).tolist())
+        return {"keys": cfg.rollout_keys, "frames": len(keys), "root_path": path, "sampled_points": points}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", required=True, type=Path, help="dataset folder written by `unica bake`")
+    parser.add_argument("--out", required=True, type=Path, help="run folder (checkpoints, logs, bundle)")
+    parser.add_argument("--config", type=Path, help="JSON file overriding TrainConfig fields")
+    parser.add_argument("--resume", action="store_true", help="continue from the run folder's checkpoints")
+    parser.add_argument("--device", default="auto", help="auto, cpu or cuda")
+    args = parser.parse_args(argv)
+
+    cfg = TrainConfig(**(json.loads(args.config.read_text()) if args.config else {}))
+    device = torch.device("cuda" if args.device == "auto" and torch.cuda.is_available() else ("cpu" if args.device == "auto" else args.device))
+    (args.out / "checkpoints").mkdir(parents=True, exist_ok=True)
+    (args.out / "config.json").write_text(json.dumps(asdict(cfg), indent=2) + "\n")
+    torch.manual_seed(cfg.seed)
+    run = Run(args.data, args.out, cfg, device)
+    started = time.time()
+    vae = run.train_vae(args.resume)
+    latents, scale = run.encode_groups(vae)
+    unet, schedule = run.train_unet(latents, scale, args.resume)
+    vae, unet = vae.cpu(), unet.cpu()
+    run.device = torch.device("cpu")
+    run.mask = run.mask.cpu()
+    mean, basis = run.fit_pca()
+    metrics = run.evaluate(vae, unet, schedule, latents, scale, basis, mean)
+    rollout = run.rollout(vae, unet, schedule, scale)
+    x = torch.zeros(1, 4, 4, 16, 16)
+    metrics.update({
+        "device": str(device),
+        "minutes": (time.time() - started) / 60,
+        "unet_parameters": parameter_count(unet),
+        "vae_parameters": parameter_count(vae),
+        "unet_gflop_per_step_per_frame": conv_and_linear_flops(unet, x, torch.zeros(1, 4, dtype=torch.long), torch.tensor([0])) / 4e9,
+        "vae_decoder_gflop": conv_and_linear_flops(vae.decoder, torch.zeros(1, 4, 16, 16)) / 1e9,
+        "latent_scale": scale,
+    })
+    (args.out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    (args.out / "rollout.json").write_text(json.dumps(rollout) + "\n")
+    unit, _ = run.ds.normalise(run.world[0][0:4])
+    context = vae.encoder(run.ds.to_maps(unit[:3]))[0] * scale
+    m = run.ds.manifest
+    bundle.save(
+        args.out / "bundle",
+        vae,
+        unet,
+        {
+            "pca.mean": mean,
+            "pca.basis": basis,
+            "context.latents": context,
+            "map.pixels": run.ds.pixels.int(),
+            "map.waist": run.ds.waist.int(),
+        },
+        {
+            "avatar": m["avatar"],
+            "actions": m["actions"],
+            "frame_rate": m["frame_rate"],
+            "map_size": m["map_size"],
+            "foreground_pixels": m["foreground_pixels"],
+            "normalisation": {"scale": run.ds.scale, "fill": 0.7, "group": 4, "anchor": ANCHOR},
+            "latent_scale": scale,
+            "diffusion": {"steps": schedule.steps, "beta_start": 0.00085, "beta_end": 0.012, "schedule": "scaled_linear", "prediction": "epsilon"},
+            "sampler": {"ddim_steps": cfg.ddim_steps, "cfg_scale": cfg.cfg_scale},
+            "pca": {"components": int(basis.shape[0])},
+            "metrics": metrics,
+        },
+    )
+    series: dict[str, list] = {}
+    with run.log_path.open() as f:
+        for row in csv.DictReader(f):
+            if row["name"] in ("loss",):
+                series.setdefault(f"{row['stage']} {row['name']}", []).append((int(row["step"]), float(row["value"])))
+    curves(args.out / "curves.png", series)
+    print(json.dumps(metrics, indent=2))
+
+
+if __name__ == "__main__":
+    main()
