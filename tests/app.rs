@@ -1,8 +1,12 @@
 //! GUI smoke tests: the real window under an X server (Xvfb is started when DISPLAY is
 //! unset), screenshots that must not be blank, scripted keys, and recording from the app.
 
+mod common;
+
+use common::witch;
+
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::sync::OnceLock;
 
@@ -41,10 +45,6 @@ fn display() -> &'static str {
         });
         format!(":{number}")
     })
-}
-
-fn witch() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets/witch/Witch.gltf")
 }
 
 fn unica(args: &[&str], env: &[(&str, &str)]) -> Output {

@@ -1,13 +1,13 @@
 //! Character loading: the shared Witch loads with the counts its SOURCE.md states, and bad
 //! files fail with errors that name the file and the problem.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::witch;
+
+use std::path::Path;
 
 use unica::avatar::load_character;
-
-fn witch() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets/witch/Witch.gltf")
-}
 
 #[test]
 fn the_witch_loads_in_its_rest_pose() {

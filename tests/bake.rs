@@ -1,36 +1,17 @@
 //! `unica bake` on the Witch: the full transition table bakes, validates and is
 //! byte-for-byte reproducible; broken inputs and datasets fail with named errors.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod common;
 
-fn witch() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets/witch/Witch.gltf")
-}
+use common::{files, witch};
+
+use std::process::Command;
 
 fn unica(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_unica"))
         .args(args)
         .output()
         .unwrap()
-}
-
-/// Every file under `dir` with its path relative to `dir`, sorted.
-fn files(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
-    fn walk(root: &Path, dir: &Path, out: &mut Vec<(PathBuf, Vec<u8>)>) {
-        for entry in std::fs::read_dir(dir).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                walk(root, &path, out);
-            } else {
-                out.push((path.strip_prefix(root).unwrap().to_path_buf(), std::fs::read(&path).unwrap()));
-            }
-        }
-    }
-    let mut out = Vec::new();
-    walk(dir, dir, &mut out);
-    out.sort();
-    out
 }
 
 #[test]

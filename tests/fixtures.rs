@@ -3,6 +3,10 @@
 //! test fails if the committed files differ from what the code makes now; regenerate with
 //! `UNICA_REGENERATE_FIXTURES=1 cargo test --release --test fixtures`.
 
+mod common;
+
+use common::files;
+
 use std::path::{Path, PathBuf};
 
 use unica::dataset::bake::{BakeOptions, bake};
@@ -26,42 +30,49 @@ fn generate(dir: &Path) {
     bake(&witch, &data_dir, &options, &|_, _| {}).unwrap();
     // The manifest names the character as given; keep it machine-independent.
     let manifest = data_dir.join("manifest.json");
-    let text = std::fs::read_to_string(&manifest).unwrap().replace(&witch.display().to_string(), "Witch.gltf");
+    let text = std::fs::read_to_string(&manifest)
+        .unwrap()
+        .replace(&witch.display().to_string(), "Witch.gltf");
     std::fs::write(&manifest, text).unwrap();
     let data = Dataset::open(&data_dir).unwrap();
     let clip = data.clip(2).unwrap();
     let frames: Vec<Vec<glam::Vec3>> = (0..GROUP).map(|f| data.positions(&clip, 4 + f)).collect();
-    let (unit, root) = data.norm().normalise(&frames, &data.reference.waist, ANCHOR).unwrap();
+    let (unit, root) = data
+        .norm()
+        .normalise(&frames, &data.reference.waist, ANCHOR)
+        .unwrap();
     let n = frames[0].len();
-    let flat = |v: &[Vec<glam::Vec3>]| v.iter().flatten().flat_map(|p| p.to_array()).collect::<Vec<f32>>();
+    let flat = |v: &[Vec<glam::Vec3>]| {
+        v.iter()
+            .flatten()
+            .flat_map(|p| p.to_array())
+            .collect::<Vec<f32>>()
+    };
     tensors::write(
         &dir.join("dataset_expected.safetensors"),
         &[
-            ("clip2_frames4to7_positions", Tensor::f32(&[GROUP, n, 3], &flat(&frames))),
-            ("clip2_frames4to7_normalised", Tensor::f32(&[GROUP, n, 3], &flat(&unit))),
+            (
+                "clip2_frames4to7_positions",
+                Tensor::f32(&[GROUP, n, 3], &flat(&frames)),
+            ),
+            (
+                "clip2_frames4to7_normalised",
+                Tensor::f32(&[GROUP, n, 3], &flat(&unit)),
+            ),
             ("clip2_frames4to7_root", Tensor::f32(&[3], &root.to_array())),
-            ("clip2_frames4to7_roots", Tensor::f32(&[GROUP, 3], &frames.iter().flat_map(|f| GroupNorm::root(f, &data.reference.waist).to_array()).collect::<Vec<_>>())),
+            (
+                "clip2_frames4to7_roots",
+                Tensor::f32(
+                    &[GROUP, 3],
+                    &frames
+                        .iter()
+                        .flat_map(|f| GroupNorm::root(f, &data.reference.waist).to_array())
+                        .collect::<Vec<_>>(),
+                ),
+            ),
         ],
     )
     .unwrap();
-}
-
-/// Every file under `dir` with its path relative to `dir`, sorted.
-fn files(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
-    fn walk(root: &Path, dir: &Path, out: &mut Vec<(PathBuf, Vec<u8>)>) {
-        for entry in std::fs::read_dir(dir).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                walk(root, &path, out);
-            } else {
-                out.push((path.strip_prefix(root).unwrap().to_path_buf(), std::fs::read(&path).unwrap()));
-            }
-        }
-    }
-    let mut out = Vec::new();
-    walk(dir, dir, &mut out);
-    out.sort();
-    out
 }
 
 #[test]
@@ -77,8 +88,17 @@ fn the_committed_dataset_fixtures_are_what_the_code_makes() {
     generate(fresh.path());
     let committed: Vec<_> = files(&fixtures())
         .into_iter()
-        .filter(|(p, _)| p.starts_with("dataset_quick") || p.starts_with("dataset_expected.safetensors"))
+        .filter(|(p, _)| {
+            p.starts_with("dataset_quick") || p.starts_with("dataset_expected.safetensors")
+        })
         .collect();
-    assert_eq!(committed.len(), files(fresh.path()).len(), "fixture files missing; regenerate (see the module header)");
-    assert!(committed == files(fresh.path()), "fixtures are stale; regenerate (see the module header)");
+    assert_eq!(
+        committed.len(),
+        files(fresh.path()).len(),
+        "fixture files missing; regenerate (see the module header)"
+    );
+    assert!(
+        committed == files(fresh.path()),
+        "fixtures are stale; regenerate (see the module header)"
+    );
 }
