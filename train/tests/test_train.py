@@ -39,3 +39,14 @@ def test_training_end_to_end_and_resume(quick_dataset_dir, tmp_path, capsys):
     assert "resumed vae at step 4" in log and "resumed unet at step 6" in log
     assert "vae 1/" not in log and "unet 1/" not in log
     bundle.load(out / "bundle")
+
+
+def test_path_comparison_splits_the_script_into_legs():
+    from unica_train.compare import compare, segments
+
+    assert segments("2W 1D", 5) == [("W", 0, 2), ("D", 2, 3), ("I", 3, 5)]
+    # A path going 1 m along +Z in 30 frames, then 1 m along -X.
+    path = [[0, 0, i / 30] for i in range(31)] + [[-i / 30, 0, 1] for i in range(1, 31)]
+    rows = compare({"keys": "30W 30D", "root_path": path}, path)
+    assert rows[0]["model"] == {"dx": 0.0, "dz": 1.0, "distance_m": 1.0, "heading_deg": 0.0, "speed_m_s": 1.0}
+    assert rows[1]["teacher"]["heading_deg"] == -90.0
