@@ -374,3 +374,75 @@ fn a_character_with_its_own_names_needs_only_its_description() {
     assert!(report.min >= 0.0 && report.max <= 1.0);
     assert!(out.join("preview.png").is_file());
 }
+
+#[test]
+fn base_colour_textures_are_sampled_at_the_vertex_uvs() {
+    // A quad with a 2x2 texture (red, green / blue, white) and a grey factor; each vertex's
+    // UV sits in a different texel.
+    let mut png = Vec::new();
+    let texels = image::RgbaImage::from_fn(2, 2, |x, y| match (x, y) {
+        (0, 0) => image::Rgba([255, 0, 0, 255]),
+        (1, 0) => image::Rgba([0, 255, 0, 255]),
+        (0, 1) => image::Rgba([0, 0, 255, 255]),
+        _ => image::Rgba([255, 255, 255, 255]),
+    });
+    texels
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .unwrap();
+    let mut buffer = Buffer::default();
+    let positions = [
+        0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0, 0.0,
+    ];
+    let uvs = [0.25f32, 0.25, 0.75, 0.25, 0.75, 0.75, 0.25, 0.75];
+    let position = buffer.floats(
+        &positions,
+        "VEC3",
+        4,
+        serde_json::json!({"min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 0.0]}),
+    );
+    let uv = buffer.floats(&uvs, "VEC2", 4, serde_json::json!({}));
+    let index = buffer.add(
+        bytemuck::cast_slice(&[0u32, 1, 2, 0, 2, 3]),
+        5125,
+        "SCALAR",
+        6,
+        serde_json::json!({}),
+    );
+    while !buffer.bin.len().is_multiple_of(4) {
+        buffer.bin.push(0);
+    }
+    buffer.views.push(
+        serde_json::json!({"buffer": 0, "byteOffset": buffer.bin.len(), "byteLength": png.len()}),
+    );
+    buffer.bin.extend(&png);
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"name": "quad", "mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": position, "TEXCOORD_0": uv}, "indices": index, "material": 0}]}],
+        "materials": [{"pbrMetallicRoughness": {"baseColorFactor": [0.5, 0.5, 0.5, 1.0], "baseColorTexture": {"index": 0}}}],
+        "textures": [{"source": 0}],
+        "images": [{"bufferView": buffer.views.len() - 1, "mimeType": "image/png"}],
+        "buffers": [{"byteLength": buffer.bin.len()}],
+        "bufferViews": buffer.views,
+        "accessors": buffer.accessors,
+    });
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("quad.glb");
+    std::fs::write(&path, glb(&json, &buffer.bin)).unwrap();
+    let colours = load_character(&path).unwrap().rest_mesh().colors;
+    // Linear colour = factor × sRGB-decoded texel (255 -> 1.0).
+    let expected = [
+        [0.5, 0.0, 0.0],
+        [0.0, 0.5, 0.0],
+        [0.5, 0.5, 0.5],
+        [0.0, 0.0, 0.5],
+    ];
+    for (got, want) in colours.iter().zip(expected) {
+        assert!(
+            got.abs_diff_eq(glam::Vec3::from(want), 1e-6),
+            "{got} vs {want:?}"
+        );
+    }
+}
