@@ -50,3 +50,18 @@ def test_path_comparison_splits_the_script_into_legs():
     rows = compare({"keys": "30W 30D", "root_path": path}, path)
     assert rows[0]["model"] == {"dx": 0.0, "dz": 1.0, "distance_m": 1.0, "heading_deg": 0.0, "speed_m_s": 1.0}
     assert rows[1]["teacher"]["heading_deg"] == -90.0
+
+
+def test_point_sheet_draws_each_cloud_in_its_tile(tmp_path):
+    import zlib
+
+    from unica_train.plot import point_sheet
+
+    point_sheet(tmp_path / "s.png", [[[0, 0, 0], [1, 1, 0]], [[0, 0, 0], [0, 2, 0]]], tile=50)
+    data = (tmp_path / "s.png").read_bytes()
+    assert data[:4] == b"\x89PNG"
+    width = int.from_bytes(data[16:20], "big")
+    assert width == 100
+    idat = data[data.index(b"IDAT") + 4: data.index(b"IEND") - 8]
+    rows = zlib.decompress(idat)
+    assert rows.count(bytes([230, 230, 230])) >= 4

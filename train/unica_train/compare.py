@@ -2,7 +2,7 @@
 under the same keys (manifest.json of `unica render --teacher`): per key segment the
 horizontal displacement, its heading and the mean speed.
 
-    python -m unica_train.compare --rollout RUN/rollout.json --teacher RENDER/manifest.json"""
+    python -m unica_train.compare --rollout RUN/rollout.json --teacher RENDER/manifest.json [--sheet PNG]"""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import json
 import math
 from pathlib import Path
 
+from .plot import point_sheet
 from .train import parse_keys
 
 FRAME_RATE = 30.0
@@ -53,10 +54,13 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rollout", type=Path, required=True)
     parser.add_argument("--teacher", type=Path, required=True)
+    parser.add_argument("--sheet", type=Path, help="also write the rollout's sampled frames as point clouds (PNG)")
     args = parser.parse_args(argv)
     rollout = json.loads(args.rollout.read_text())
     teacher = [f["root"] for f in json.loads(args.teacher.read_text())["frames"]]
     print(json.dumps(compare(rollout, teacher), indent=2))
+    if args.sheet:
+        point_sheet(args.sheet, rollout["sampled_points"])
 
 
 if __name__ == "__main__":

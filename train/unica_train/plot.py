@@ -50,3 +50,22 @@ def curves(path: str | Path, series: dict[str, list[tuple[int, float]]], width: 
                 y = int(round(py[a] + t * (py[a + 1] - py[a])))
                 img[max(top, y - 1):y + 1, max(0, x - 1):x + 1] = colour
     write_png(path, img)
+
+
+def point_sheet(path: str | Path, frames: list, tile: int = 200) -> None:
+    """Point clouds side by side, each seen from the front (x right, y up), white on
+    black, scaled so the largest frame fills its tile."""
+    clouds = [np.asarray(f, float) for f in frames if len(f)]
+    img = np.zeros((tile, tile * max(1, len(clouds)), 3), np.uint8)
+    if not clouds:
+        write_png(path, img)
+        return
+    extent = max(max(np.ptp(c[:, 0]), np.ptp(c[:, 1])) for c in clouds) * 1.1
+    for i, c in enumerate(clouds):
+        centre = np.array([(c[:, 0].max() + c[:, 0].min()) / 2, (c[:, 1].max() + c[:, 1].min()) / 2])
+        x = ((c[:, 0] - centre[0]) / extent + 0.5) * (tile - 1)
+        y = (0.5 - (c[:, 1] - centre[1]) / extent) * (tile - 1)
+        ok = (x >= 0) & (x < tile) & (y >= 0) & (y < tile)
+        img[y[ok].astype(int), (x[ok] + i * tile).astype(int)] = 230
+        img[:, i * tile] = 60
+    write_png(path, img)
