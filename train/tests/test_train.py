@@ -19,6 +19,13 @@ def test_keys_parse_like_the_app():
     assert parse_keys("2W 1D", 5) == [1, 1, 4, 0, 0]
 
 
+def test_progress_bar():
+    from unica_train.train import bar
+
+    assert bar(5, 10, width=10) == "[#####-----]  50%"
+    assert bar(10, 10, width=4) == "[####] 100%"
+
+
 def test_training_end_to_end_and_resume(quick_dataset_dir, tmp_path, capsys):
     config = tmp_path / "tiny.json"
     config.write_text(json.dumps(TINY))
@@ -37,7 +44,7 @@ def test_training_end_to_end_and_resume(quick_dataset_dir, tmp_path, capsys):
     main(["--data", str(quick_dataset_dir), "--out", str(out), "--config", str(config), "--resume"])
     log = capsys.readouterr().out
     assert "resumed vae at step 4" in log and "resumed unet at step 6" in log
-    assert "vae 1/" not in log and "unet 1/" not in log
+    assert "] 1/" not in log and "] 2/" not in log, "nothing retrained"
     bundle.load(out / "bundle")
 
 
@@ -65,3 +72,27 @@ def test_point_sheet_draws_each_cloud_in_its_tile(tmp_path):
     idat = data[data.index(b"IDAT") + 4: data.index(b"IEND") - 8]
     rows = zlib.decompress(idat)
     assert rows.count(bytes([230, 230, 230])) >= 4
+
+
+def _rank(rank, world, port, argv):
+    import os
+
+    os.environ.update({"RANK": str(rank), "LOCAL_RANK": str(rank), "WORLD_SIZE": str(world), "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port)})
+    main(argv)
+
+
+def test_two_process_data_parallel_training_stays_in_sync(quick_dataset_dir, tmp_path, capfd):
+    import socket
+
+    import torch.multiprocessing as mp
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    config = tmp_path / "tiny.json"
+    config.write_text(json.dumps(TINY))
+    out = tmp_path / "ddp"
+    argv = ["--data", str(quick_dataset_dir), "--out", str(out), "--config", str(config), "--device", "cpu"]
+    mp.spawn(_rank, args=(2, port, argv), nprocs=2, join=True)
+    assert "parameters in sync across 2 ranks" in capfd.readouterr().out
+    bundle.load(out / "bundle")

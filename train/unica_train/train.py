@@ -15,6 +15,7 @@ import argparse
 import csv
 import json
 import math
+import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -27,6 +28,8 @@ from .diffusion import Schedule, sample_next
 from .plot import curves
 from .unet import NULL_ACTION, UNet, UNetConfig, conv_and_linear_flops, parameter_count
 from .vae import PositionVae, VaeConfig
+
+DDP = torch.nn.parallel.DistributedDataParallel
 
 
 @dataclass
@@ -58,6 +61,12 @@ class TrainConfig:
     seed: int = 0
 
 
+def bar(step: int, total: int, width: int = 24) -> str:
+    """A text progress bar: [#####-------] 41%."""
+    done = int(width * step / max(total, 1))
+    return f"[{'#' * done}{'-' * (width - done)}] {100 * step // max(total, 1):3d}%"
+
+
 def parse_keys(text: str, frames: int) -> list[int]:
     letters = {"I": 0, "W": 1, "S": 2, "A": 3, "D": 4}
     out = []
@@ -66,9 +75,24 @@ def parse_keys(text: str, frames: int) -> list[int]:
     return (out + [0] * frames)[:frames]
 
 
+def distributed() -> tuple[int, int]:
+    """(rank, world size): under torchrun the process group is set up (NCCL on GPUs,
+    gloo on CPUs); a plain run is rank 0 of 1."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return 0, 1
+    torch.distributed.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+    return torch.distributed.get_rank(), world
+
+
+def checksum(module: torch.nn.Module) -> float:
+    return float(sum(p.detach().double().sum() for p in module.parameters()))
+
+
 class Run:
-    def __init__(self, data: Path, out: Path, cfg: TrainConfig, device: torch.device):
+    def __init__(self, data: Path, out: Path, cfg: TrainConfig, device: torch.device, rank: int = 0, world: int = 1):
         self.cfg, self.out, self.device = cfg, out, device
+        self.rank, self.ranks = rank, world
         self.ds = BakedDataset(data)
         t0 = time.time()
         self.world = [self.ds.positions(c, list(range(clip["actions"].shape[0]))) for c, clip in enumerate(self.ds.clips)]
@@ -78,11 +102,13 @@ class Run:
         self.train_groups = [i for i, g in enumerate(self.groups) if g.clip not in held]
         self.test_groups = [i for i, g in enumerate(self.groups) if g.clip in held]
         self.mask = self.ds.mask().to(device)
-        self.gen = torch.Generator().manual_seed(cfg.seed)
+        self.gen = torch.Generator().manual_seed(cfg.seed + rank)
         self.log_path = out / "losses.csv"
         self.autocast = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" else torch.autocast("cpu", enabled=False)
 
     def log(self, stage: str, step: int, values: dict):
+        if self.rank != 0:
+            return
         new = not self.log_path.exists()
         with self.log_path.open("a", newline="") as f:
             w = csv.writer(f)
@@ -107,6 +133,7 @@ class Run:
         vae = PositionVae(VaeConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.vae.items()})).to(self.device)
         opt = torch.optim.AdamW(vae.parameters(), lr=cfg.vae_lr)
         step = self.restore("vae", resume, {"vae": vae, "opt": opt})
+        model = DDP(vae) if self.ranks > 1 else vae
         start = time.time()
         while step < cfg.vae_steps:
             batch = []
@@ -117,7 +144,7 @@ class Run:
             for group in opt.param_groups:
                 group["lr"] = lr
             with self.autocast:
-                loss, parts = vae.loss(x, self.mask)
+                loss, parts = model(x, self.mask)
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -125,7 +152,8 @@ class Run:
             if step % 50 == 0 or step == cfg.vae_steps:
                 mm = parts["l1"] / self.ds.scale * 1000
                 self.log("vae", step, {"loss": loss.item(), "l1_mm": mm})
-                print(f"vae {step}/{cfg.vae_steps} loss {loss.item():.5f} (~{mm:.1f} mm per coordinate) {time.time() - start:.0f} s", flush=True)
+                if self.rank == 0:
+                    print(f"vae {bar(step, cfg.vae_steps)} {step}/{cfg.vae_steps} loss {loss.item():.5f} (~{mm:.1f} mm per coordinate) {time.time() - start:.0f} s", flush=True)
             if step % cfg.checkpoint_every == 0 or step == cfg.vae_steps:
                 self.save("vae", step, {"vae": vae, "opt": opt})
         return vae.eval()
@@ -144,7 +172,8 @@ class Run:
             latents.append(mean.reshape(maps.shape[0], 4, *mean.shape[1:]).cpu())
         latents = torch.cat(latents)
         scale = float(1.0 / latents[self.train_groups].std())
-        torch.save({"latents": latents, "scale": scale}, path)
+        if self.rank == 0:
+            torch.save({"latents": latents, "scale": scale}, path)
         return latents, scale
 
     # -- the UNet --------------------------------------------------------------------
@@ -156,13 +185,16 @@ class Run:
         opt = torch.optim.AdamW(unet.parameters(), lr=cfg.unet_lr)
         schedule = Schedule()
         step = self.restore("unet", resume, {"unet": unet, "ema": ema, "opt": opt})
+        model = DDP(unet) if self.ranks > 1 else unet
+        frozen_actions = None
         steady = [i for i in self.train_groups if not self.groups[i].after_switch]
         after = [i for i in self.train_groups if self.groups[i].after_switch]
         total = cfg.unet_steps + cfg.stage2_steps
         start = time.time()
         while step < total:
             stage2 = step >= cfg.unet_steps
-            unet.action.weight.requires_grad_(not stage2)
+            if stage2 and frozen_actions is None:
+                frozen_actions = unet.action.weight.detach().clone()
             if stage2:
                 n_after = int(round(cfg.unet_batch * cfg.after_switch_share))
                 chosen = self.pick(after, n_after) + self.pick(steady, cfg.unet_batch - n_after)
@@ -181,7 +213,7 @@ class Run:
             noise = noise.to(self.device)
             xt = schedule.add_noise(x0, noise, t.to(self.device))
             with self.autocast:
-                eps = unet(xt, t.clamp(min=0).to(self.device), action.to(self.device))
+                eps = model(xt, t.clamp(min=0).to(self.device), action.to(self.device))
             weight = schedule.min_snr_weight(t_target, cfg.min_snr_gamma).to(self.device)
             per_sample = ((eps[:, -1].float() - noise[:, -1]) ** 2).mean((1, 2, 3))
             loss = (weight * per_sample).mean()
@@ -193,18 +225,24 @@ class Run:
             torch.nn.utils.clip_grad_norm_(unet.parameters(), 1.0)
             opt.step()
             with torch.no_grad():
+                if frozen_actions is not None:
+                    # Stage 2 keeps the action embeddings of stage 1.
+                    unet.action.weight.copy_(frozen_actions)
                 for pe, p in zip(ema.parameters(), unet.parameters()):
                     pe.lerp_(p, 1 - cfg.ema)
             step += 1
             if step % 50 == 0 or step == total:
                 self.log("unet2" if stage2 else "unet1", step, {"loss": loss.item(), "mse": per_sample.mean().item()})
-                print(f"unet {step}/{total} loss {loss.item():.4f} {time.time() - start:.0f} s", flush=True)
+                if self.rank == 0:
+                    print(f"unet {bar(step, total)} {step}/{total} loss {loss.item():.4f} {time.time() - start:.0f} s", flush=True)
             if step % cfg.checkpoint_every == 0 or step == total:
                 self.save("unet", step, {"unet": unet, "ema": ema, "opt": opt})
         return ema.eval(), schedule
 
     # -- checkpoints -----------------------------------------------------------------
     def save(self, name: str, step: int, parts: dict):
+        if self.rank != 0:
+            return
         path = self.out / "checkpoints" / f"{name}.pt"
         tmp = path.with_suffix(".tmp")
         torch.save({"step": step, **{k: v.state_dict() for k, v in parts.items()}}, tmp)
@@ -306,15 +344,29 @@ def main(argv=None):
     args = parser.parse_args(argv)
 
     cfg = TrainConfig(**(json.loads(args.config.read_text()) if args.config else {}))
+    rank, world = distributed()
     device = torch.device("cuda" if args.device == "auto" and torch.cuda.is_available() else ("cpu" if args.device == "auto" else args.device))
+    if device.type == "cuda" and world > 1:
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
     (args.out / "checkpoints").mkdir(parents=True, exist_ok=True)
-    (args.out / "config.json").write_text(json.dumps(asdict(cfg), indent=2) + "\n")
-    torch.manual_seed(cfg.seed)
-    run = Run(args.data, args.out, cfg, device)
+    if rank == 0:
+        (args.out / "config.json").write_text(json.dumps(asdict(cfg), indent=2) + "\n")
+    torch.manual_seed(cfg.seed)  # the same initial weights on every rank
+    run = Run(args.data, args.out, cfg, device, rank, world)
     started = time.time()
     vae = run.train_vae(args.resume)
     latents, scale = run.encode_groups(vae)
     unet, schedule = run.train_unet(latents, scale, args.resume)
+    if world > 1:
+        sums = [None] * world
+        torch.distributed.all_gather_object(sums, (checksum(vae), checksum(unet)))
+        if any(s != sums[0] for s in sums):
+            raise RuntimeError(f"ranks disagree after training: {sums}")
+        if rank == 0:
+            print(f"parameters in sync across {world} ranks", flush=True)
+        torch.distributed.destroy_process_group()
+        if rank != 0:
+            return
     vae, unet = vae.cpu(), unet.cpu()
     run.device = torch.device("cpu")
     run.mask = run.mask.cpu()

@@ -75,6 +75,10 @@ class PositionVae(nn.Module):
         x = self.decoder(z)
         return x * mask if mask is not None else x
 
+    def forward(self, x, mask):
+        """The training loss (so DistributedDataParallel can wrap the VAE)."""
+        return self.loss(x, mask)
+
     def loss(self, x, mask, generator=None):
         """L1 on the foreground (mean over foreground values) + kl_weight * KL."""
         z, mean, logvar = self.encode(x, sample=True, generator=generator)
