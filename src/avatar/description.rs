@@ -115,6 +115,16 @@ fn full_circle() -> f32 {
 }
 
 impl Description {
+    /// The heading (rotation about +Y, 0 = +Z) of the character's own forward axis.
+    pub fn forward_heading(&self) -> f32 {
+        match self.forward.as_str() {
+            "-z" => std::f32::consts::PI,
+            "+x" => std::f32::consts::FRAC_PI_2,
+            "-x" => -std::f32::consts::FRAC_PI_2,
+            _ => 0.0,
+        }
+    }
+
     /// The description for `character`: `explicit` if given, else `<file>.avatar.json`
     /// beside the character, else a shipped one for its name, else inferred.
     pub fn find(character: &Character, explicit: Option<&Path>) -> Result<Self, LoadError> {

@@ -37,12 +37,7 @@ pub fn add_spring_chains(
         .world(&character.rig.rest_pose(), Mat4::IDENTITY);
     let rest_mesh = character.rest_mesh();
     let height = rest_mesh.bounds().map_or(1.0, |(lo, hi)| hi.y - lo.y);
-    let forward_heading = match description.forward.as_str() {
-        "-z" => std::f32::consts::PI,
-        "+x" => std::f32::consts::FRAC_PI_2,
-        "-x" => -std::f32::consts::FRAC_PI_2,
-        _ => 0.0,
-    };
+    let forward_heading = description.forward_heading();
     let mut system = SpringSystem::default();
     let mut world = rest.clone();
     for part in &description.loose_parts {

@@ -70,12 +70,7 @@ impl Teacher {
                 "the avatar description names no waist or no feet bones",
             ));
         }
-        let forward_heading = match description.forward.as_str() {
-            "-z" => std::f32::consts::PI,
-            "+x" => std::f32::consts::FRAC_PI_2,
-            "-x" => -std::f32::consts::FRAC_PI_2,
-            _ => 0.0,
-        };
+        let forward_heading = description.forward_heading();
         let forward = Vec3::new(forward_heading.sin(), 0.0, forward_heading.cos());
         let [_, walk, run] = clips.map(|i| &character.clips[i]);
         let walk_speed = description
