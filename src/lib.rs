@@ -11,6 +11,7 @@ pub mod files;
 pub mod gpu;
 pub mod headless;
 pub mod mesh;
+pub mod nn;
 pub mod posmap;
 pub mod render;
 pub mod tensors;

@@ -131,6 +131,7 @@ macro_rules! shader {
 }
 
 use super::kernel::{ElementwiseParams, ReduceParams};
+use crate::nn::{Conv2dParams, UpsampleParams};
 use crate::render::SceneUniforms;
 
 pub const SCALE_ADD_F32: Shader =
@@ -142,6 +143,9 @@ pub const SUM_SHARED: Shader =
 pub const SUM_SUBGROUP: Shader =
     shader!("sum_subgroup.wgsl", [ReduceParams], f16: false, subgroups: true);
 pub const SCENE: Shader = shader!("scene.wgsl", [SceneUniforms], f16: false, subgroups: false);
+pub const CONV2D: Shader = shader!("conv2d.wgsl", [Conv2dParams], f16: false, subgroups: false);
+pub const UPSAMPLE_NEAREST: Shader =
+    shader!("upsample_nearest.wgsl", [UpsampleParams], f16: false, subgroups: false);
 
 /// Every shader of the crate; a test checks this covers every file in `shaders/`.
 pub const ALL: &[Shader] = &[
@@ -150,4 +154,6 @@ pub const ALL: &[Shader] = &[
     SUM_SHARED,
     SUM_SUBGROUP,
     SCENE,
+    CONV2D,
+    UPSAMPLE_NEAREST,
 ];

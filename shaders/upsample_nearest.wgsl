@@ -1,0 +1,23 @@
+// Nearest-neighbour ×2 upsampling, NCHW f32: out[n, c, y, x] = in[n, c, y / 2, x / 2].
+
+@group(0) @binding(0) var<uniform> p: UpsampleParams;
+@group(0) @binding(1) var<storage, read> x: array<f32>;
+@group(0) @binding(2) var<storage, read_write> y: array<f32>;
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let i = (group.x + group.y * groups.x) * 64u + lane;
+    let w_out = 2u * p.w_in;
+    let h_out = 2u * p.h_in;
+    if i >= p.planes * h_out * w_out {
+        return;
+    }
+    let ox = i % w_out;
+    let oy = (i / w_out) % h_out;
+    let plane = i / (w_out * h_out);
+    y[i] = x[(plane * p.h_in + oy / 2u) * p.w_in + ox / 2u];
+}

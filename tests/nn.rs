@@ -1,0 +1,100 @@
+//! WGSL kernels against the PyTorch trainer's fixtures (tests/fixtures/nn, written by
+//! `python -m unica_train.fixtures`). Tolerance: f32 sums of up to 72 products of values
+//! around 1 in another order differ by a few ulps; 1e-4 absolute on outputs of size ~5
+//! (2e-5 relative) leaves room for that and catches any indexing error (errors of O(1)).
+
+use std::path::Path;
+
+use unica::gpu::kernel::PipelineCache;
+use unica::gpu::{GpuContext, GpuOptions};
+use unica::nn::{Tensor, conv2d, upsample_nearest2x};
+use unica::tensors::TensorFile;
+
+const TOLERANCE: f32 = 1e-4;
+
+fn fixture(name: &str) -> TensorFile {
+    TensorFile::open(
+        &Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join(format!("tests/fixtures/nn/{name}.safetensors")),
+    )
+    .unwrap()
+}
+
+fn tensor(gpu: &GpuContext, file: &TensorFile, name: &str) -> Tensor {
+    let (values, shape) = file.f32(name, &[None; 4][..rank(file, name)]).unwrap();
+    Tensor::upload(gpu, name, &shape, &values).unwrap()
+}
+
+/// The rank of a stored tensor (tried from 1 to 4 dimensions).
+fn rank(file: &TensorFile, name: &str) -> usize {
+    (1..=4)
+        .find(|&r| file.f32(name, &vec![None; r]).is_ok())
+        .unwrap_or_else(|| panic!("{name}: no f32 tensor of rank 1-4"))
+}
+
+fn assert_close(got: &[f32], file: &TensorFile, name: &str) {
+    let want = file.f32(name, &vec![None; rank(file, name)]).unwrap().0;
+    assert_eq!(got.len(), want.len(), "{name}: length");
+    let worst = got
+        .iter()
+        .zip(&want)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(worst <= TOLERANCE, "{name}: max abs difference {worst}");
+}
+
+#[test]
+fn stride_two_convolution_matches_pytorch() {
+    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
+    let f = fixture("down");
+    let mut cache = PipelineCache::default();
+    let mut encoder = gpu.device.create_command_encoder(&Default::default());
+    let (x, w, b) = (
+        tensor(&gpu, &f, "io.in.x"),
+        tensor(&gpu, &f, "conv.weight"),
+        tensor(&gpu, &f, "conv.bias"),
+    );
+    let y = conv2d(&gpu, &mut cache, &mut encoder, &x, &w, Some(&b), 2, 1).unwrap();
+    gpu.queue.submit([encoder.finish()]);
+    assert_eq!(y.shape, [1, 12, 8, 8]);
+    assert_close(&y.read(&gpu).unwrap(), &f, "io.out.y");
+}
+
+#[test]
+fn nearest_upsampling_then_convolution_matches_pytorch() {
+    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
+    let f = fixture("up");
+    let mut cache = PipelineCache::default();
+    let mut encoder = gpu.device.create_command_encoder(&Default::default());
+    let (x, w, b) = (
+        tensor(&gpu, &f, "io.in.x"),
+        tensor(&gpu, &f, "conv.weight"),
+        tensor(&gpu, &f, "conv.bias"),
+    );
+    let up = upsample_nearest2x(&gpu, &mut cache, &mut encoder, &x).unwrap();
+    let y = conv2d(&gpu, &mut cache, &mut encoder, &up, &w, Some(&b), 1, 1).unwrap();
+    gpu.queue.submit([encoder.finish()]);
+    assert_eq!(y.shape, [1, 12, 16, 16]);
+    assert_close(&y.read(&gpu).unwrap(), &f, "io.out.y");
+}
+
+#[test]
+fn a_wrong_index_would_be_caught() {
+    // The check above is only as good as its tolerance: a convolution without its bias
+    // (one missing term) must fail it.
+    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
+    let f = fixture("down");
+    let mut cache = PipelineCache::default();
+    let mut encoder = gpu.device.create_command_encoder(&Default::default());
+    let (x, w) = (tensor(&gpu, &f, "io.in.x"), tensor(&gpu, &f, "conv.weight"));
+    let y = conv2d(&gpu, &mut cache, &mut encoder, &x, &w, None, 2, 1).unwrap();
+    gpu.queue.submit([encoder.finish()]);
+    let got = y.read(&gpu).unwrap();
+    let want = f.f32("io.out.y", &[None; 4]).unwrap().0;
+    let worst = got
+        .iter()
+        .zip(&want)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(worst > 100.0 * TOLERANCE, "{worst}");
+}
