@@ -7,7 +7,7 @@ use std::path::Path;
 
 use unica::gpu::kernel::PipelineCache;
 use unica::gpu::{GpuContext, GpuOptions};
-use unica::nn::{Tensor, conv2d, upsample_nearest2x};
+use unica::nn::{Tensor, add, conv2d, group_norm, linear, upsample_nearest2x};
 use unica::tensors::TensorFile;
 
 const TOLERANCE: f32 = 1e-4;
@@ -97,4 +97,87 @@ fn a_wrong_index_would_be_caught() {
         .map(|(a, b)| (a - b).abs())
         .fold(0.0f32, f32::max);
     assert!(worst > 100.0 * TOLERANCE, "{worst}");
+}
+
+#[test]
+fn a_residual_block_from_group_norm_silu_conv_linear_and_adds_matches_pytorch() {
+    // ResBlock(8 -> 16, embedding 32): h = conv1(silu(norm1 x)) + emb(silu(e));
+    // out = skip(x) + conv2(silu(norm2 h)); 8 groups in both norms (gcd(8, channels)).
+    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
+    let f = fixture("resblock");
+    let t = |name: &str| tensor(&gpu, &f, name);
+    let mut cache = PipelineCache::default();
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    let x = t("io.in.x");
+    let e = t("io.in.emb");
+    let h = group_norm(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &x,
+        &t("norm1.weight"),
+        &t("norm1.bias"),
+        8,
+        true,
+    )
+    .unwrap();
+    let h = conv2d(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &h,
+        &t("conv1.weight"),
+        Some(&t("conv1.bias")),
+        1,
+        1,
+    )
+    .unwrap();
+    let projected = linear(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &e,
+        &t("emb.weight"),
+        &t("emb.bias"),
+        true,
+    )
+    .unwrap();
+    let h = add(&gpu, &mut cache, &mut enc, &h, &projected).unwrap();
+    let h = group_norm(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &h,
+        &t("norm2.weight"),
+        &t("norm2.bias"),
+        8,
+        true,
+    )
+    .unwrap();
+    let h = conv2d(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &h,
+        &t("conv2.weight"),
+        Some(&t("conv2.bias")),
+        1,
+        1,
+    )
+    .unwrap();
+    let skip = conv2d(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &x,
+        &t("skip.weight"),
+        Some(&t("skip.bias")),
+        1,
+        0,
+    )
+    .unwrap();
+    let y = add(&gpu, &mut cache, &mut enc, &skip, &h).unwrap();
+    gpu.queue.submit([enc.finish()]);
+    assert_eq!(y.shape, [2, 16, 8, 8]);
+    assert_close(&y.read(&gpu).unwrap(), &f, "io.out.y");
 }

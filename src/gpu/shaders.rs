@@ -131,7 +131,7 @@ macro_rules! shader {
 }
 
 use super::kernel::{ElementwiseParams, ReduceParams};
-use crate::nn::{Conv2dParams, UpsampleParams};
+use crate::nn::{AddParams, Conv2dParams, GroupNormParams, LinearParams, UpsampleParams};
 use crate::render::SceneUniforms;
 
 pub const SCALE_ADD_F32: Shader =
@@ -144,6 +144,10 @@ pub const SUM_SUBGROUP: Shader =
     shader!("sum_subgroup.wgsl", [ReduceParams], f16: false, subgroups: true);
 pub const SCENE: Shader = shader!("scene.wgsl", [SceneUniforms], f16: false, subgroups: false);
 pub const CONV2D: Shader = shader!("conv2d.wgsl", [Conv2dParams], f16: false, subgroups: false);
+pub const GROUP_NORM: Shader =
+    shader!("group_norm.wgsl", [GroupNormParams], f16: false, subgroups: false);
+pub const LINEAR: Shader = shader!("linear.wgsl", [LinearParams], f16: false, subgroups: false);
+pub const ADD: Shader = shader!("add.wgsl", [AddParams], f16: false, subgroups: false);
 pub const UPSAMPLE_NEAREST: Shader =
     shader!("upsample_nearest.wgsl", [UpsampleParams], f16: false, subgroups: false);
 
@@ -156,4 +160,7 @@ pub const ALL: &[Shader] = &[
     SCENE,
     CONV2D,
     UPSAMPLE_NEAREST,
+    GROUP_NORM,
+    LINEAR,
+    ADD,
 ];

@@ -1,6 +1,6 @@
 //! The geometry model on the GPU: tensors in storage buffers and the WGSL kernels of the
-//! VAE and UNet, pinned to the PyTorch trainer by parity tests (tests/nn.rs). Started:
-//! 2-D convolution and nearest upsampling; the rest of the engine is open work.
+//! VAE and UNet, pinned to the PyTorch trainer by parity tests (tests/nn.rs). Built so
+//! far: convolution, upsampling, group norm (+SiLU), linear, adds; modules are open work.
 
 use crate::gpu::kernel::{Grid, PipelineCache, dispatch};
 use crate::gpu::{GpuContext, GpuError, readback, shaders};
@@ -33,6 +33,43 @@ gpu_struct! {
         pub reserved: u32,
     }
 }
+
+gpu_struct! {
+    /// Group normalisation of `batch` samples of `channels` × `hw` values.
+    pub struct GroupNormParams {
+        pub batch: u32,
+        pub channels: u32,
+        pub groups: u32,
+        pub hw: u32,
+        pub eps: f32,
+        pub silu: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
+    }
+}
+
+gpu_struct! {
+    /// A fully connected layer over `rows` rows.
+    pub struct LinearParams {
+        pub rows: u32,
+        pub inputs: u32,
+        pub outputs: u32,
+        pub input_silu: u32,
+    }
+}
+
+gpu_struct! {
+    /// `y[i] = a[i] + b[i / per_value]` over `len` values.
+    pub struct AddParams {
+        pub len: u32,
+        pub per_value: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
+    }
+}
+
+/// The epsilon of every group norm in the trainer's models.
+pub const GROUP_NORM_EPS: f32 = 1e-5;
 
 /// An f32 tensor in a GPU storage buffer, NCHW for images.
 pub struct Tensor {
@@ -184,6 +221,135 @@ pub fn upsample_nearest2x(
         encoder,
         pipeline,
         &[&params, &x.buffer, &y.buffer],
+        grid(gpu, y.len()),
+        None,
+    );
+    Ok(y)
+}
+
+/// Records group normalisation of an NCHW tensor with the per-channel affine `gamma`,
+/// `beta`, followed by SiLU when `silu` is set.
+#[allow(clippy::too_many_arguments)]
+pub fn group_norm(
+    gpu: &GpuContext,
+    cache: &mut PipelineCache,
+    encoder: &mut wgpu::CommandEncoder,
+    x: &Tensor,
+    gamma: &Tensor,
+    beta: &Tensor,
+    groups: usize,
+    silu: bool,
+) -> Result<Tensor, GpuError> {
+    let [n, c, h, w] = x.shape[..] else {
+        panic!("group norm input must be NCHW, got {:?}", x.shape)
+    };
+    assert!(c % groups == 0, "{c} channels in {groups} groups");
+    let y = Tensor::empty(gpu, "group_norm.y", &x.shape)?;
+    let params = uniform(
+        gpu,
+        &GroupNormParams {
+            batch: n as u32,
+            channels: c as u32,
+            groups: groups as u32,
+            hw: (h * w) as u32,
+            eps: GROUP_NORM_EPS,
+            silu: u32::from(silu),
+            reserved0: 0,
+            reserved1: 0,
+        },
+    );
+    let pipeline = cache.get(&gpu.device, &shaders::GROUP_NORM, "main");
+    let grid = Grid::for_workgroups(
+        (n * groups) as u32,
+        gpu.device.limits().max_compute_workgroups_per_dimension,
+    );
+    dispatch(
+        &gpu.device,
+        encoder,
+        pipeline,
+        &[&params, &x.buffer, &gamma.buffer, &beta.buffer, &y.buffer],
+        grid,
+        None,
+    );
+    Ok(y)
+}
+
+/// Records `y = act(x) Wᵀ + b` for `x` of shape [rows, inputs] and `weight` [outputs,
+/// inputs]; act is SiLU when `input_silu` is set.
+#[allow(clippy::too_many_arguments)]
+pub fn linear(
+    gpu: &GpuContext,
+    cache: &mut PipelineCache,
+    encoder: &mut wgpu::CommandEncoder,
+    x: &Tensor,
+    weight: &Tensor,
+    bias: &Tensor,
+    input_silu: bool,
+) -> Result<Tensor, GpuError> {
+    let inputs = *x.shape.last().expect("a tensor has a shape");
+    let rows = x.len() / inputs;
+    let [outputs, w_inputs] = weight.shape[..] else {
+        panic!(
+            "linear weight must be [outputs, inputs], got {:?}",
+            weight.shape
+        )
+    };
+    assert_eq!(inputs, w_inputs, "linear input size mismatch");
+    let mut shape = x.shape.clone();
+    *shape.last_mut().expect("non-empty") = outputs;
+    let y = Tensor::empty(gpu, "linear.y", &shape)?;
+    let params = uniform(
+        gpu,
+        &LinearParams {
+            rows: rows as u32,
+            inputs: inputs as u32,
+            outputs: outputs as u32,
+            input_silu: u32::from(input_silu),
+        },
+    );
+    let pipeline = cache.get(&gpu.device, &shaders::LINEAR, "main");
+    dispatch(
+        &gpu.device,
+        encoder,
+        pipeline,
+        &[&params, &x.buffer, &weight.buffer, &bias.buffer, &y.buffer],
+        grid(gpu, y.len()),
+        None,
+    );
+    Ok(y)
+}
+
+/// Records `a + b` where `b` is either shaped like `a` or holds one value per leading
+/// index (e.g. [N, C] added over each H×W plane of an NCHW `a`).
+pub fn add(
+    gpu: &GpuContext,
+    cache: &mut PipelineCache,
+    encoder: &mut wgpu::CommandEncoder,
+    a: &Tensor,
+    b: &Tensor,
+) -> Result<Tensor, GpuError> {
+    assert!(
+        b.len() > 0 && a.len() % b.len() == 0,
+        "cannot broadcast {:?} onto {:?}",
+        b.shape,
+        a.shape
+    );
+    let y = Tensor::empty(gpu, "add.y", &a.shape)?;
+    let params = uniform(
+        gpu,
+        &AddParams {
+            len: a.len() as u32,
+            per_value: (a.len() / b.len()) as u32,
+            reserved0: 0,
+            reserved1: 0,
+        },
+    );
+    let pipeline = cache.get(&gpu.device, &shaders::ADD, "main");
+    dispatch(
+        &gpu.device,
+        encoder,
+        pipeline,
+        &[&params, &a.buffer, &b.buffer, &y.buffer],
         grid(gpu, y.len()),
         None,
     );

@@ -1,0 +1,31 @@
+// Fully connected layer, f32: y[b, o] = sum_i act(x[b, i]) * weight[o, i] + bias[o], where
+// act is SiLU when `input_silu` is set (the embedding projections) and identity otherwise.
+
+@group(0) @binding(0) var<uniform> p: LinearParams;
+@group(0) @binding(1) var<storage, read> x: array<f32>;
+@group(0) @binding(2) var<storage, read> weight: array<f32>;
+@group(0) @binding(3) var<storage, read> bias: array<f32>;
+@group(0) @binding(4) var<storage, read_write> y: array<f32>;
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let i = (group.x + group.y * groups.x) * 64u + lane;
+    if i >= p.rows * p.outputs {
+        return;
+    }
+    let o = i % p.outputs;
+    let row = i / p.outputs;
+    var acc = bias[o];
+    for (var k = 0u; k < p.inputs; k++) {
+        var v = x[row * p.inputs + k];
+        if p.input_silu != 0u {
+            v = v / (1.0 + exp(-v));
+        }
+        acc += v * weight[o * p.inputs + k];
+    }
+    y[i] = acc;
+}
