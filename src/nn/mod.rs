@@ -329,7 +329,7 @@ pub fn add(
     b: &Tensor,
 ) -> Result<Tensor, GpuError> {
     assert!(
-        b.len() > 0 && a.len() % b.len() == 0,
+        !b.is_empty() && a.len().is_multiple_of(b.len()),
         "cannot broadcast {:?} onto {:?}",
         b.shape,
         a.shape
