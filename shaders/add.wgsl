@@ -1,5 +1,6 @@
-// Sums: y[i] = a[i] + b[i / per_value] — an elementwise add when per_value is 1, and a
-// per-channel broadcast (b[n, c] over each H×W plane) when per_value is H×W.
+// Sums: y[i] = a[i] + b[(i / per_value) % b_len] — elementwise when b is as long as a,
+// per-channel (b[n, c] over each H×W plane) with per_value = H×W, and a trailing
+// broadcast (b repeated over the leading axes) with per_value = 1.
 
 @group(0) @binding(0) var<uniform> p: AddParams;
 @group(0) @binding(1) var<storage, read> a: array<f32>;
@@ -16,5 +17,5 @@ fn main(
     if i >= p.len {
         return;
     }
-    y[i] = a[i] + b[i / p.per_value];
+    y[i] = a[i] + b[(i / p.per_value) % p.b_len];
 }

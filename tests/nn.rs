@@ -7,7 +7,10 @@ use std::path::Path;
 
 use unica::gpu::kernel::PipelineCache;
 use unica::gpu::{GpuContext, GpuOptions};
-use unica::nn::{Tensor, add, conv2d, group_norm, linear, upsample_nearest2x};
+use unica::nn::{
+    AttentionParams, Broadcast, Tensor, add, attention, conv2d, group_norm, linear, permute,
+    upsample_nearest2x,
+};
 use unica::tensors::TensorFile;
 
 const TOLERANCE: f32 = 1e-4;
@@ -142,7 +145,15 @@ fn a_residual_block_from_group_norm_silu_conv_linear_and_adds_matches_pytorch() 
         true,
     )
     .unwrap();
-    let h = add(&gpu, &mut cache, &mut enc, &h, &projected).unwrap();
+    let h = add(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &h,
+        &projected,
+        Broadcast::Leading,
+    )
+    .unwrap();
     let h = group_norm(
         &gpu,
         &mut cache,
@@ -176,8 +187,268 @@ fn a_residual_block_from_group_norm_silu_conv_linear_and_adds_matches_pytorch() 
         0,
     )
     .unwrap();
-    let y = add(&gpu, &mut cache, &mut enc, &skip, &h).unwrap();
+    let y = add(&gpu, &mut cache, &mut enc, &skip, &h, Broadcast::Leading).unwrap();
     gpu.queue.submit([enc.finish()]);
     assert_eq!(y.shape, [2, 16, 8, 8]);
+    assert_close(&y.read(&gpu).unwrap(), &f, "io.out.y");
+}
+
+fn attention_params(
+    sequences: usize,
+    queries: usize,
+    keys: usize,
+    channels: usize,
+    packed_kv: bool,
+) -> AttentionParams {
+    // Packed qkv rows [q | k | v] (self-attention) or q rows and [k | v] rows (cross).
+    let (q_stride, kv_stride, k_offset) = if packed_kv {
+        (3 * channels, 3 * channels, channels)
+    } else {
+        (channels, 2 * channels, 0)
+    };
+    AttentionParams {
+        sequences: sequences as u32,
+        heads: 2,
+        queries: queries as u32,
+        keys: keys as u32,
+        channels: channels as u32,
+        q_stride: q_stride as u32,
+        q_offset: 0,
+        kv_stride: kv_stride as u32,
+        k_offset: k_offset as u32,
+        v_offset: (k_offset + channels) as u32,
+        causal: 0,
+        reserved: 0,
+    }
+}
+
+#[test]
+fn spatial_self_attention_matches_pytorch() {
+    // x [2, 16, 8, 8]: norm -> tokens [2, 64, 16] -> qkv -> attention -> out -> image + x.
+    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
+    let f = fixture("spatial_attention");
+    let t = |name: &str| tensor(&gpu, &f, name);
+    let mut cache = PipelineCache::default();
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    let x = t("io.in.x");
+    let normed = group_norm(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &x,
+        &t("norm.weight"),
+        &t("norm.bias"),
+        8,
+        false,
+    )
+    .unwrap();
+    let tokens = permute(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &normed,
+        [1, 2, 16, 64],
+        [0, 1, 3, 2],
+    )
+    .unwrap();
+    let qkv = linear(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &tokens,
+        &t("qkv.weight"),
+        &t("qkv.bias"),
+        false,
+    )
+    .unwrap();
+    let mixed = attention(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &qkv,
+        &qkv,
+        attention_params(2, 64, 64, 16, true),
+    )
+    .unwrap();
+    let projected = linear(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &mixed,
+        &t("out.weight"),
+        &t("out.bias"),
+        false,
+    )
+    .unwrap();
+    let image = permute(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &projected,
+        [1, 2, 64, 16],
+        [0, 1, 3, 2],
+    )
+    .unwrap();
+    let y = add(&gpu, &mut cache, &mut enc, &x, &image, Broadcast::Leading).unwrap();
+    gpu.queue.submit([enc.finish()]);
+    assert_close(&y.read(&gpu).unwrap(), &f, "io.out.y");
+}
+
+#[test]
+fn cross_attention_to_the_action_token_matches_pytorch() {
+    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
+    let f = fixture("cross_attention");
+    let t = |name: &str| tensor(&gpu, &f, name);
+    let mut cache = PipelineCache::default();
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    let x = t("io.in.x");
+    let normed = group_norm(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &x,
+        &t("norm.weight"),
+        &t("norm.bias"),
+        8,
+        false,
+    )
+    .unwrap();
+    let tokens = permute(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &normed,
+        [1, 2, 16, 64],
+        [0, 1, 3, 2],
+    )
+    .unwrap();
+    let q = linear(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &tokens,
+        &t("q.weight"),
+        &t("q.bias"),
+        false,
+    )
+    .unwrap();
+    let kv = linear(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &t("io.in.ctx"),
+        &t("kv.weight"),
+        &t("kv.bias"),
+        false,
+    )
+    .unwrap();
+    let mixed = attention(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &q,
+        &kv,
+        attention_params(2, 64, 1, 16, false),
+    )
+    .unwrap();
+    let projected = linear(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &mixed,
+        &t("out.weight"),
+        &t("out.bias"),
+        false,
+    )
+    .unwrap();
+    let image = permute(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &projected,
+        [1, 2, 64, 16],
+        [0, 1, 3, 2],
+    )
+    .unwrap();
+    let y = add(&gpu, &mut cache, &mut enc, &x, &image, Broadcast::Leading).unwrap();
+    gpu.queue.submit([enc.finish()]);
+    assert_close(&y.read(&gpu).unwrap(), &f, "io.out.y");
+}
+
+#[test]
+fn causal_temporal_attention_with_frame_positions_matches_pytorch() {
+    // x [8, 16, 4, 4] = 2 groups x 4 frames: norm -> [b, hw, f, c] + position [f, c] ->
+    // qkv -> causal attention over the 4 frames -> out -> back to [b*f, c, h, w] + x.
+    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
+    let f = fixture("temporal_attention");
+    let t = |name: &str| tensor(&gpu, &f, name);
+    let mut cache = PipelineCache::default();
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    let x = t("io.in.x");
+    let normed = group_norm(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &x,
+        &t("norm.weight"),
+        &t("norm.bias"),
+        8,
+        false,
+    )
+    .unwrap();
+    let tokens = permute(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &normed,
+        [2, 4, 16, 16],
+        [0, 3, 1, 2],
+    )
+    .unwrap();
+    let tokens = add(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &tokens,
+        &t("position"),
+        Broadcast::Trailing,
+    )
+    .unwrap();
+    let qkv = linear(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &tokens,
+        &t("qkv.weight"),
+        &t("qkv.bias"),
+        false,
+    )
+    .unwrap();
+    let params = AttentionParams {
+        causal: 1,
+        ..attention_params(2 * 16, 4, 4, 16, true)
+    };
+    let mixed = attention(&gpu, &mut cache, &mut enc, &qkv, &qkv, params).unwrap();
+    let projected = linear(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &mixed,
+        &t("out.weight"),
+        &t("out.bias"),
+        false,
+    )
+    .unwrap();
+    let image = permute(
+        &gpu,
+        &mut cache,
+        &mut enc,
+        &projected,
+        [2, 16, 4, 16],
+        [0, 2, 3, 1],
+    )
+    .unwrap();
+    let y = add(&gpu, &mut cache, &mut enc, &x, &image, Broadcast::Leading).unwrap();
+    gpu.queue.submit([enc.finish()]);
     assert_close(&y.read(&gpu).unwrap(), &f, "io.out.y");
 }

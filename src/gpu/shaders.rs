@@ -131,7 +131,10 @@ macro_rules! shader {
 }
 
 use super::kernel::{ElementwiseParams, ReduceParams};
-use crate::nn::{AddParams, Conv2dParams, GroupNormParams, LinearParams, UpsampleParams};
+use crate::nn::{
+    AddParams, AttentionParams, Conv2dParams, GroupNormParams, LinearParams, PermuteParams,
+    UpsampleParams,
+};
 use crate::render::SceneUniforms;
 
 pub const SCALE_ADD_F32: Shader =
@@ -148,6 +151,9 @@ pub const GROUP_NORM: Shader =
     shader!("group_norm.wgsl", [GroupNormParams], f16: false, subgroups: false);
 pub const LINEAR: Shader = shader!("linear.wgsl", [LinearParams], f16: false, subgroups: false);
 pub const ADD: Shader = shader!("add.wgsl", [AddParams], f16: false, subgroups: false);
+pub const PERMUTE: Shader = shader!("permute.wgsl", [PermuteParams], f16: false, subgroups: false);
+pub const ATTENTION: Shader =
+    shader!("attention.wgsl", [AttentionParams], f16: false, subgroups: false);
 pub const UPSAMPLE_NEAREST: Shader =
     shader!("upsample_nearest.wgsl", [UpsampleParams], f16: false, subgroups: false);
 
@@ -163,4 +169,6 @@ pub const ALL: &[Shader] = &[
     GROUP_NORM,
     LINEAR,
     ADD,
+    PERMUTE,
+    ATTENTION,
 ];

@@ -59,12 +59,38 @@ gpu_struct! {
 }
 
 gpu_struct! {
-    /// `y[i] = a[i] + b[i / per_value]` over `len` values.
+    /// `y[i] = a[i] + b[(i / per_value) % b_len]` over `len` values.
     pub struct AddParams {
         pub len: u32,
         pub per_value: u32,
-        pub reserved0: u32,
-        pub reserved1: u32,
+        pub b_len: u32,
+        pub reserved: u32,
+    }
+}
+
+gpu_struct! {
+    /// A 4-D permutation: output axis k is input axis `perm[k]` of `shape`.
+    pub struct PermuteParams {
+        pub shape: [u32; 4],
+        pub perm: [u32; 4],
+    }
+}
+
+gpu_struct! {
+    /// Multi-head attention over `sequences` independent sequences (see attention.wgsl).
+    pub struct AttentionParams {
+        pub sequences: u32,
+        pub heads: u32,
+        pub queries: u32,
+        pub keys: u32,
+        pub channels: u32,
+        pub q_stride: u32,
+        pub q_offset: u32,
+        pub kv_stride: u32,
+        pub k_offset: u32,
+        pub v_offset: u32,
+        pub causal: u32,
+        pub reserved: u32,
     }
 }
 
@@ -319,14 +345,23 @@ pub fn linear(
     Ok(y)
 }
 
-/// Records `a + b` where `b` is either shaped like `a` or holds one value per leading
-/// index (e.g. [N, C] added over each H×W plane of an NCHW `a`).
+/// How `b` lines up with `a` in [`add`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Broadcast {
+    /// `b` holds one value per leading index (e.g. [N, C] over each H×W plane of NCHW).
+    Leading,
+    /// `b` repeats over the leading axes (e.g. [F, C] over [B, HW, F, C]).
+    Trailing,
+}
+
+/// Records `a + b`, where `b` is shaped like `a` or broadcast as `broadcast` says.
 pub fn add(
     gpu: &GpuContext,
     cache: &mut PipelineCache,
     encoder: &mut wgpu::CommandEncoder,
     a: &Tensor,
     b: &Tensor,
+    broadcast: Broadcast,
 ) -> Result<Tensor, GpuError> {
     assert!(
         !b.is_empty() && a.len().is_multiple_of(b.len()),
@@ -339,9 +374,12 @@ pub fn add(
         gpu,
         &AddParams {
             len: a.len() as u32,
-            per_value: (a.len() / b.len()) as u32,
-            reserved0: 0,
-            reserved1: 0,
+            per_value: match broadcast {
+                Broadcast::Leading => (a.len() / b.len()) as u32,
+                Broadcast::Trailing => 1,
+            },
+            b_len: b.len() as u32,
+            reserved: 0,
         },
     );
     let pipeline = cache.get(&gpu.device, &shaders::ADD, "main");
@@ -351,6 +389,71 @@ pub fn add(
         pipeline,
         &[&params, &a.buffer, &b.buffer, &y.buffer],
         grid(gpu, y.len()),
+        None,
+    );
+    Ok(y)
+}
+
+/// Records a permutation of a 4-D tensor's axes (output axis k is input axis `perm[k]`).
+pub fn permute(
+    gpu: &GpuContext,
+    cache: &mut PipelineCache,
+    encoder: &mut wgpu::CommandEncoder,
+    x: &Tensor,
+    shape: [usize; 4],
+    perm: [usize; 4],
+) -> Result<Tensor, GpuError> {
+    assert_eq!(
+        shape.iter().product::<usize>(),
+        x.len(),
+        "permute shape {shape:?} for {:?}",
+        x.shape
+    );
+    let y = Tensor::empty(gpu, "permute.y", &perm.map(|k| shape[k]))?;
+    let params = uniform(
+        gpu,
+        &PermuteParams {
+            shape: shape.map(|s| s as u32),
+            perm: perm.map(|k| k as u32),
+        },
+    );
+    let pipeline = cache.get(&gpu.device, &shaders::PERMUTE, "main");
+    dispatch(
+        &gpu.device,
+        encoder,
+        pipeline,
+        &[&params, &x.buffer, &y.buffer],
+        grid(gpu, y.len()),
+        None,
+    );
+    Ok(y)
+}
+
+/// Records multi-head attention; `q` rows and `kv` rows as described by `params`; the
+/// output is [sequences, queries, channels].
+pub fn attention(
+    gpu: &GpuContext,
+    cache: &mut PipelineCache,
+    encoder: &mut wgpu::CommandEncoder,
+    q: &Tensor,
+    kv: &Tensor,
+    params: AttentionParams,
+) -> Result<Tensor, GpuError> {
+    let shape = [
+        params.sequences as usize,
+        params.queries as usize,
+        params.channels as usize,
+    ];
+    let y = Tensor::empty(gpu, "attention.y", &shape)?;
+    let threads = (params.sequences * params.heads * params.queries) as usize;
+    let uniform = uniform(gpu, &params);
+    let pipeline = cache.get(&gpu.device, &shaders::ATTENTION, "main");
+    dispatch(
+        &gpu.device,
+        encoder,
+        pipeline,
+        &[&uniform, &q.buffer, &kv.buffer, &y.buffer],
+        grid(gpu, threads),
         None,
     );
     Ok(y)

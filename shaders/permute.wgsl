@@ -1,0 +1,30 @@
+// Permutes the axes of a 4-D f32 tensor: output axis k is input axis perm[k].
+// Moves images between NCHW and token-major layouts for the attention layers.
+
+@group(0) @binding(0) var<uniform> p: PermuteParams;
+@group(0) @binding(1) var<storage, read> x: array<f32>;
+@group(0) @binding(2) var<storage, read_write> y: array<f32>;
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let i = (group.x + group.y * groups.x) * 64u + lane;
+    let s = p.shape;
+    if i >= s.x * s.y * s.z * s.w {
+        return;
+    }
+    let in_stride = vec4<u32>(s.y * s.z * s.w, s.z * s.w, s.w, 1u);
+    let out_shape = vec4<u32>(s[p.perm.x], s[p.perm.y], s[p.perm.z], s[p.perm.w]);
+    var rest = i;
+    let c3 = rest % out_shape.w;
+    rest /= out_shape.w;
+    let c2 = rest % out_shape.z;
+    rest /= out_shape.z;
+    let c1 = rest % out_shape.y;
+    let c0 = rest / out_shape.y;
+    let src = c0 * in_stride[p.perm.x] + c1 * in_stride[p.perm.y] + c2 * in_stride[p.perm.z] + c3 * in_stride[p.perm.w];
+    y[i] = x[src];
+}
