@@ -9,7 +9,7 @@ use unica::gpu::kernel::PipelineCache;
 use unica::gpu::{GpuContext, GpuOptions};
 use unica::nn::{
     AttentionParams, Broadcast, Tensor, add, attention, conv2d, group_norm, linear, permute,
-    upsample_nearest2x,
+    timestep_embedding, upsample_nearest2x,
 };
 use unica::tensors::TensorFile;
 
@@ -451,4 +451,25 @@ fn causal_temporal_attention_with_frame_positions_matches_pytorch() {
     let y = add(&gpu, &mut cache, &mut enc, &x, &image, Broadcast::Leading).unwrap();
     gpu.queue.submit([enc.finish()]);
     assert_close(&y.read(&gpu).unwrap(), &f, "io.out.y");
+}
+
+#[test]
+fn the_timestep_embedding_matches_pytorch() {
+    // Arguments reach 999 rad, whose f32 spacing is 6.1e-5; sin/cos of the same rounded
+    // argument may then differ by that much plus a few ulps of the GPU's approximations.
+    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
+    let f = fixture("timestep_embedding");
+    let mut cache = PipelineCache::default();
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    let y =
+        timestep_embedding(&gpu, &mut cache, &mut enc, &tensor(&gpu, &f, "io.in.t"), 32).unwrap();
+    gpu.queue.submit([enc.finish()]);
+    let got = y.read(&gpu).unwrap();
+    let want = f.f32("io.out.y", &[Some(4), Some(32)]).unwrap().0;
+    let worst = got
+        .iter()
+        .zip(&want)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(worst <= 5e-4, "max abs difference {worst}");
 }

@@ -132,8 +132,8 @@ macro_rules! shader {
 
 use super::kernel::{ElementwiseParams, ReduceParams};
 use crate::nn::{
-    AddParams, AttentionParams, Conv2dParams, GroupNormParams, LinearParams, PermuteParams,
-    UpsampleParams,
+    AddParams, AttentionParams, Conv2dParams, EmbeddingParams, GroupNormParams, LinearParams,
+    PermuteParams, UpsampleParams,
 };
 use crate::render::SceneUniforms;
 
@@ -152,6 +152,8 @@ pub const GROUP_NORM: Shader =
 pub const LINEAR: Shader = shader!("linear.wgsl", [LinearParams], f16: false, subgroups: false);
 pub const ADD: Shader = shader!("add.wgsl", [AddParams], f16: false, subgroups: false);
 pub const PERMUTE: Shader = shader!("permute.wgsl", [PermuteParams], f16: false, subgroups: false);
+pub const TIMESTEP_EMBEDDING: Shader =
+    shader!("timestep_embedding.wgsl", [EmbeddingParams], f16: false, subgroups: false);
 pub const ATTENTION: Shader =
     shader!("attention.wgsl", [AttentionParams], f16: false, subgroups: false);
 pub const UPSAMPLE_NEAREST: Shader =
@@ -171,4 +173,5 @@ pub const ALL: &[Shader] = &[
     ADD,
     PERMUTE,
     ATTENTION,
+    TIMESTEP_EMBEDDING,
 ];

@@ -1,6 +1,7 @@
 //! The geometry model on the GPU: tensors in storage buffers and the WGSL kernels of the
 //! VAE and UNet, pinned to the PyTorch trainer by parity tests (tests/nn.rs). Built so
-//! far: convolution, upsampling, group norm (+SiLU), linear, adds; modules are open work.
+//! far: convolution, upsampling, group norm (+SiLU), linear, adds, permutes, attention,
+//! the timestep embedding; the VAE/UNet modules and the sampler are open work.
 
 use crate::gpu::kernel::{Grid, PipelineCache, dispatch};
 use crate::gpu::{GpuContext, GpuError, readback, shaders};
@@ -65,6 +66,16 @@ gpu_struct! {
         pub per_value: u32,
         pub b_len: u32,
         pub reserved: u32,
+    }
+}
+
+gpu_struct! {
+    /// `count` timesteps embedded in `dim` values each.
+    pub struct EmbeddingParams {
+        pub count: u32,
+        pub dim: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
     }
 }
 
@@ -454,6 +465,37 @@ pub fn attention(
         pipeline,
         &[&uniform, &q.buffer, &kv.buffer, &y.buffer],
         grid(gpu, threads),
+        None,
+    );
+    Ok(y)
+}
+
+/// Records the sinusoidal embedding of the timesteps in `t` (any shape) into `dim` values.
+pub fn timestep_embedding(
+    gpu: &GpuContext,
+    cache: &mut PipelineCache,
+    encoder: &mut wgpu::CommandEncoder,
+    t: &Tensor,
+    dim: usize,
+) -> Result<Tensor, GpuError> {
+    assert!(dim.is_multiple_of(2), "embedding size {dim} must be even");
+    let y = Tensor::empty(gpu, "timestep_embedding.y", &[t.len(), dim])?;
+    let params = uniform(
+        gpu,
+        &EmbeddingParams {
+            count: t.len() as u32,
+            dim: dim as u32,
+            reserved0: 0,
+            reserved1: 0,
+        },
+    );
+    let pipeline = cache.get(&gpu.device, &shaders::TIMESTEP_EMBEDDING, "main");
+    dispatch(
+        &gpu.device,
+        encoder,
+        pipeline,
+        &[&params, &t.buffer, &y.buffer],
+        grid(gpu, t.len() * dim / 2),
         None,
     );
     Ok(y)

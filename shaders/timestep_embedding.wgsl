@@ -1,0 +1,25 @@
+// Sinusoidal timestep embedding: for each timestep t and k < half, out[k] = cos(t f_k) and
+// out[half + k] = sin(t f_k) with f_k = exp(-ln(10000) k / half) — the trainer's order.
+
+@group(0) @binding(0) var<uniform> p: EmbeddingParams;
+@group(0) @binding(1) var<storage, read> t: array<f32>;
+@group(0) @binding(2) var<storage, read_write> y: array<f32>;
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let i = (group.x + group.y * groups.x) * 64u + lane;
+    let half = p.dim / 2u;
+    if i >= p.count * half {
+        return;
+    }
+    let k = i % half;
+    let row = i / half;
+    let freq = exp(-log(10000.0) * f32(k) / f32(half));
+    let arg = t[row] * freq;
+    y[row * p.dim + k] = cos(arg);
+    y[row * p.dim + half + k] = sin(arg);
+}
