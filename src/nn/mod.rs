@@ -3,8 +3,9 @@
 //! far: convolution, upsampling, group norm (+SiLU), linear, adds, permutes, attention,
 //! the timestep embedding; the VAE/UNet modules and the sampler are open work.
 
-use crate::gpu::kernel::{Grid, PipelineCache, dispatch};
-use crate::gpu::{GpuContext, GpuError, readback, shaders};
+use crate::gpu::kernel::{Grid, PipelineCache, dispatch, uniform};
+use crate::gpu::shaders::{self, Shader};
+use crate::gpu::{GpuContext, GpuError, readback};
 use crate::gpu_struct;
 
 gpu_struct! {
@@ -161,14 +162,23 @@ impl Tensor {
     }
 }
 
-fn uniform<T: bytemuck::Pod>(gpu: &GpuContext, value: &T) -> wgpu::Buffer {
-    use wgpu::util::DeviceExt;
-    gpu.device
-        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("nn params"),
-            contents: bytemuck::bytes_of(value),
-            usage: wgpu::BufferUsages::UNIFORM,
-        })
+/// Records one dispatch of `shader`: `params` as a uniform at binding 0, then `buffers`.
+#[allow(clippy::too_many_arguments)]
+fn launch<P: bytemuck::Pod>(
+    gpu: &GpuContext,
+    cache: &mut PipelineCache,
+    encoder: &mut wgpu::CommandEncoder,
+    shader: &Shader,
+    params: &P,
+    buffers: &[&wgpu::Buffer],
+    grid: Grid,
+) {
+    let params = uniform(&gpu.device, params);
+    let bindings: Vec<&wgpu::Buffer> = std::iter::once(&params)
+        .chain(buffers.iter().copied())
+        .collect();
+    let pipeline = cache.get(&gpu.device, shader, "main");
+    dispatch(&gpu.device, encoder, pipeline, &bindings, grid, None);
 }
 
 fn grid(gpu: &GpuContext, elements: usize) -> Grid {
@@ -217,17 +227,16 @@ pub fn conv2d(
         has_bias: u32::from(bias.is_some()),
         reserved: 0,
     };
-    let params = uniform(gpu, &params);
     // A bias binding must exist even without a bias; the weight stands in (unread).
     let bias = bias.map_or(&weight.buffer, |b| &b.buffer);
-    let pipeline = cache.get(&gpu.device, &shaders::CONV2D, "main");
-    dispatch(
-        &gpu.device,
+    launch(
+        gpu,
+        cache,
         encoder,
-        pipeline,
-        &[&params, &x.buffer, &weight.buffer, bias, &y.buffer],
+        &shaders::CONV2D,
+        &params,
+        &[&x.buffer, &weight.buffer, bias, &y.buffer],
         grid(gpu, y.len()),
-        None,
     );
     Ok(y)
 }
@@ -243,23 +252,20 @@ pub fn upsample_nearest2x(
         panic!("upsample input must be NCHW, got {:?}", x.shape)
     };
     let y = Tensor::empty(gpu, "upsample.y", &[n, c, 2 * h, 2 * w])?;
-    let params = uniform(
+    let params = UpsampleParams {
+        planes: (n * c) as u32,
+        h_in: h as u32,
+        w_in: w as u32,
+        reserved: 0,
+    };
+    launch(
         gpu,
-        &UpsampleParams {
-            planes: (n * c) as u32,
-            h_in: h as u32,
-            w_in: w as u32,
-            reserved: 0,
-        },
-    );
-    let pipeline = cache.get(&gpu.device, &shaders::UPSAMPLE_NEAREST, "main");
-    dispatch(
-        &gpu.device,
+        cache,
         encoder,
-        pipeline,
-        &[&params, &x.buffer, &y.buffer],
+        &shaders::UPSAMPLE_NEAREST,
+        &params,
+        &[&x.buffer, &y.buffer],
         grid(gpu, y.len()),
-        None,
     );
     Ok(y)
 }
@@ -282,31 +288,30 @@ pub fn group_norm(
     };
     assert!(c % groups == 0, "{c} channels in {groups} groups");
     let y = Tensor::empty(gpu, "group_norm.y", &x.shape)?;
-    let params = uniform(
-        gpu,
-        &GroupNormParams {
-            batch: n as u32,
-            channels: c as u32,
-            groups: groups as u32,
-            hw: (h * w) as u32,
-            eps: GROUP_NORM_EPS,
-            silu: u32::from(silu),
-            reserved0: 0,
-            reserved1: 0,
-        },
-    );
-    let pipeline = cache.get(&gpu.device, &shaders::GROUP_NORM, "main");
+    let params = GroupNormParams {
+        batch: n as u32,
+        channels: c as u32,
+        groups: groups as u32,
+        hw: (h * w) as u32,
+        eps: GROUP_NORM_EPS,
+        silu: u32::from(silu),
+        reserved0: 0,
+        reserved1: 0,
+    };
+    // One workgroup per (sample, group).
     let grid = Grid::for_workgroups(
         (n * groups) as u32,
         gpu.device.limits().max_compute_workgroups_per_dimension,
     );
-    dispatch(
-        &gpu.device,
+    let buffers = [&x.buffer, &gamma.buffer, &beta.buffer, &y.buffer];
+    launch(
+        gpu,
+        cache,
         encoder,
-        pipeline,
-        &[&params, &x.buffer, &gamma.buffer, &beta.buffer, &y.buffer],
+        &shaders::GROUP_NORM,
+        &params,
+        &buffers,
         grid,
-        None,
     );
     Ok(y)
 }
@@ -335,23 +340,20 @@ pub fn linear(
     let mut shape = x.shape.clone();
     *shape.last_mut().expect("non-empty") = outputs;
     let y = Tensor::empty(gpu, "linear.y", &shape)?;
-    let params = uniform(
+    let params = LinearParams {
+        rows: rows as u32,
+        inputs: inputs as u32,
+        outputs: outputs as u32,
+        input_silu: u32::from(input_silu),
+    };
+    launch(
         gpu,
-        &LinearParams {
-            rows: rows as u32,
-            inputs: inputs as u32,
-            outputs: outputs as u32,
-            input_silu: u32::from(input_silu),
-        },
-    );
-    let pipeline = cache.get(&gpu.device, &shaders::LINEAR, "main");
-    dispatch(
-        &gpu.device,
+        cache,
         encoder,
-        pipeline,
-        &[&params, &x.buffer, &weight.buffer, &bias.buffer, &y.buffer],
+        &shaders::LINEAR,
+        &params,
+        &[&x.buffer, &weight.buffer, &bias.buffer, &y.buffer],
         grid(gpu, y.len()),
-        None,
     );
     Ok(y)
 }
@@ -381,26 +383,23 @@ pub fn add(
         a.shape
     );
     let y = Tensor::empty(gpu, "add.y", &a.shape)?;
-    let params = uniform(
-        gpu,
-        &AddParams {
-            len: a.len() as u32,
-            per_value: match broadcast {
-                Broadcast::Leading => (a.len() / b.len()) as u32,
-                Broadcast::Trailing => 1,
-            },
-            b_len: b.len() as u32,
-            reserved: 0,
+    let params = AddParams {
+        len: a.len() as u32,
+        per_value: match broadcast {
+            Broadcast::Leading => (a.len() / b.len()) as u32,
+            Broadcast::Trailing => 1,
         },
-    );
-    let pipeline = cache.get(&gpu.device, &shaders::ADD, "main");
-    dispatch(
-        &gpu.device,
+        b_len: b.len() as u32,
+        reserved: 0,
+    };
+    launch(
+        gpu,
+        cache,
         encoder,
-        pipeline,
-        &[&params, &a.buffer, &b.buffer, &y.buffer],
+        &shaders::ADD,
+        &params,
+        &[&a.buffer, &b.buffer, &y.buffer],
         grid(gpu, y.len()),
-        None,
     );
     Ok(y)
 }
@@ -421,21 +420,18 @@ pub fn permute(
         x.shape
     );
     let y = Tensor::empty(gpu, "permute.y", &perm.map(|k| shape[k]))?;
-    let params = uniform(
+    let params = PermuteParams {
+        shape: shape.map(|s| s as u32),
+        perm: perm.map(|k| k as u32),
+    };
+    launch(
         gpu,
-        &PermuteParams {
-            shape: shape.map(|s| s as u32),
-            perm: perm.map(|k| k as u32),
-        },
-    );
-    let pipeline = cache.get(&gpu.device, &shaders::PERMUTE, "main");
-    dispatch(
-        &gpu.device,
+        cache,
         encoder,
-        pipeline,
-        &[&params, &x.buffer, &y.buffer],
+        &shaders::PERMUTE,
+        &params,
+        &[&x.buffer, &y.buffer],
         grid(gpu, y.len()),
-        None,
     );
     Ok(y)
 }
@@ -457,15 +453,14 @@ pub fn attention(
     ];
     let y = Tensor::empty(gpu, "attention.y", &shape)?;
     let threads = (params.sequences * params.heads * params.queries) as usize;
-    let uniform = uniform(gpu, &params);
-    let pipeline = cache.get(&gpu.device, &shaders::ATTENTION, "main");
-    dispatch(
-        &gpu.device,
+    launch(
+        gpu,
+        cache,
         encoder,
-        pipeline,
-        &[&uniform, &q.buffer, &kv.buffer, &y.buffer],
+        &shaders::ATTENTION,
+        &params,
+        &[&q.buffer, &kv.buffer, &y.buffer],
         grid(gpu, threads),
-        None,
     );
     Ok(y)
 }
@@ -480,23 +475,20 @@ pub fn timestep_embedding(
 ) -> Result<Tensor, GpuError> {
     assert!(dim.is_multiple_of(2), "embedding size {dim} must be even");
     let y = Tensor::empty(gpu, "timestep_embedding.y", &[t.len(), dim])?;
-    let params = uniform(
+    let params = EmbeddingParams {
+        count: t.len() as u32,
+        dim: dim as u32,
+        reserved0: 0,
+        reserved1: 0,
+    };
+    launch(
         gpu,
-        &EmbeddingParams {
-            count: t.len() as u32,
-            dim: dim as u32,
-            reserved0: 0,
-            reserved1: 0,
-        },
-    );
-    let pipeline = cache.get(&gpu.device, &shaders::TIMESTEP_EMBEDDING, "main");
-    dispatch(
-        &gpu.device,
+        cache,
         encoder,
-        pipeline,
-        &[&params, &t.buffer, &y.buffer],
+        &shaders::TIMESTEP_EMBEDDING,
+        &params,
+        &[&t.buffer, &y.buffer],
         grid(gpu, t.len() * dim / 2),
-        None,
     );
     Ok(y)
 }
