@@ -7,190 +7,202 @@ use std::path::Path;
 
 use unica::gpu::kernel::PipelineCache;
 use unica::gpu::{GpuContext, GpuOptions};
-use unica::nn::{
-    AttentionParams, Broadcast, Tensor, add, attention, conv2d, group_norm, linear, permute,
-    timestep_embedding, upsample_nearest2x,
-};
+use unica::nn::{self, AttentionParams, Broadcast, Tensor};
 use unica::tensors::TensorFile;
 
 const TOLERANCE: f32 = 1e-4;
+/// Every group norm of the fixtures has 8 groups (gcd(8, channels)).
+const GROUPS: usize = 8;
 
-fn fixture(name: &str) -> TensorFile {
-    TensorFile::open(
-        &Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join(format!("tests/fixtures/nn/{name}.safetensors")),
-    )
-    .unwrap()
+/// One fixture, a device and one command encoder: kernels are recorded in order, reading
+/// the fixture's tensors by name, and `result` runs them and compares with PyTorch.
+struct Fixture {
+    file: TensorFile,
+    gpu: GpuContext,
+    cache: PipelineCache,
+    encoder: wgpu::CommandEncoder,
 }
 
-fn tensor(gpu: &GpuContext, file: &TensorFile, name: &str) -> Tensor {
-    let (values, shape) = file.f32(name, &[None; 4][..rank(file, name)]).unwrap();
-    Tensor::upload(gpu, name, &shape, &values).unwrap()
-}
+impl Fixture {
+    fn open(name: &str) -> Self {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join(format!("tests/fixtures/nn/{name}.safetensors"));
+        let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
+        Self {
+            file: TensorFile::open(&path).unwrap(),
+            encoder: gpu.device.create_command_encoder(&Default::default()),
+            gpu,
+            cache: PipelineCache::default(),
+        }
+    }
 
-/// The rank of a stored tensor (tried from 1 to 4 dimensions).
-fn rank(file: &TensorFile, name: &str) -> usize {
-    (1..=4)
-        .find(|&r| file.f32(name, &vec![None; r]).is_ok())
-        .unwrap_or_else(|| panic!("{name}: no f32 tensor of rank 1-4"))
-}
+    /// The rank of a stored tensor (tried from 1 to 4 dimensions).
+    fn rank(&self, name: &str) -> usize {
+        (1..=4)
+            .find(|&r| self.file.f32(name, &vec![None; r]).is_ok())
+            .unwrap_or_else(|| panic!("{name}: no f32 tensor of rank 1-4"))
+    }
 
-fn assert_close(got: &[f32], file: &TensorFile, name: &str) {
-    let want = file.f32(name, &vec![None; rank(file, name)]).unwrap().0;
-    assert_eq!(got.len(), want.len(), "{name}: length");
-    let worst = got
-        .iter()
-        .zip(&want)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0f32, f32::max);
-    assert!(worst <= TOLERANCE, "{name}: max abs difference {worst}");
+    fn t(&self, name: &str) -> Tensor {
+        let (values, shape) = self.file.f32(name, &vec![None; self.rank(name)]).unwrap();
+        Tensor::upload(&self.gpu, name, &shape, &values).unwrap()
+    }
+
+    fn conv(
+        &mut self,
+        x: &Tensor,
+        layer: &str,
+        with_bias: bool,
+        stride: usize,
+        pad: usize,
+    ) -> Tensor {
+        let (w, b) = (
+            self.t(&format!("{layer}.weight")),
+            self.t(&format!("{layer}.bias")),
+        );
+        nn::conv2d(
+            &self.gpu,
+            &mut self.cache,
+            &mut self.encoder,
+            x,
+            &w,
+            with_bias.then_some(&b),
+            stride,
+            pad,
+        )
+        .unwrap()
+    }
+
+    fn norm(&mut self, x: &Tensor, layer: &str, silu: bool) -> Tensor {
+        let (g, b) = (
+            self.t(&format!("{layer}.weight")),
+            self.t(&format!("{layer}.bias")),
+        );
+        nn::group_norm(
+            &self.gpu,
+            &mut self.cache,
+            &mut self.encoder,
+            x,
+            &g,
+            &b,
+            GROUPS,
+            silu,
+        )
+        .unwrap()
+    }
+
+    fn linear(&mut self, x: &Tensor, layer: &str, input_silu: bool) -> Tensor {
+        let (w, b) = (
+            self.t(&format!("{layer}.weight")),
+            self.t(&format!("{layer}.bias")),
+        );
+        nn::linear(
+            &self.gpu,
+            &mut self.cache,
+            &mut self.encoder,
+            x,
+            &w,
+            &b,
+            input_silu,
+        )
+        .unwrap()
+    }
+
+    fn add(&mut self, a: &Tensor, b: &Tensor, broadcast: Broadcast) -> Tensor {
+        nn::add(
+            &self.gpu,
+            &mut self.cache,
+            &mut self.encoder,
+            a,
+            b,
+            broadcast,
+        )
+        .unwrap()
+    }
+
+    fn permute(&mut self, x: &Tensor, shape: [usize; 4], perm: [usize; 4]) -> Tensor {
+        nn::permute(
+            &self.gpu,
+            &mut self.cache,
+            &mut self.encoder,
+            x,
+            shape,
+            perm,
+        )
+        .unwrap()
+    }
+
+    fn attention(&mut self, q: &Tensor, kv: &Tensor, params: AttentionParams) -> Tensor {
+        nn::attention(&self.gpu, &mut self.cache, &mut self.encoder, q, kv, params).unwrap()
+    }
+
+    /// Runs what was recorded and returns the largest difference of `y` from the
+    /// fixture's `io.out.y`.
+    fn worst_difference(self, y: &Tensor) -> f32 {
+        self.gpu.queue.submit([self.encoder.finish()]);
+        let got = y.read(&self.gpu).unwrap();
+        let want = self
+            .file
+            .f32("io.out.y", &vec![None; y.shape.len()])
+            .unwrap()
+            .0;
+        assert_eq!(got.len(), want.len(), "io.out.y: length");
+        got.iter()
+            .zip(&want)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max)
+    }
+
+    fn assert_matches(self, y: &Tensor) {
+        let worst = self.worst_difference(y);
+        assert!(worst <= TOLERANCE, "io.out.y: max abs difference {worst}");
+    }
 }
 
 #[test]
 fn stride_two_convolution_matches_pytorch() {
-    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
-    let f = fixture("down");
-    let mut cache = PipelineCache::default();
-    let mut encoder = gpu.device.create_command_encoder(&Default::default());
-    let (x, w, b) = (
-        tensor(&gpu, &f, "io.in.x"),
-        tensor(&gpu, &f, "conv.weight"),
-        tensor(&gpu, &f, "conv.bias"),
-    );
-    let y = conv2d(&gpu, &mut cache, &mut encoder, &x, &w, Some(&b), 2, 1).unwrap();
-    gpu.queue.submit([encoder.finish()]);
+    let mut f = Fixture::open("down");
+    let y = f.conv(&f.t("io.in.x"), "conv", true, 2, 1);
     assert_eq!(y.shape, [1, 12, 8, 8]);
-    assert_close(&y.read(&gpu).unwrap(), &f, "io.out.y");
+    f.assert_matches(&y);
 }
 
 #[test]
 fn nearest_upsampling_then_convolution_matches_pytorch() {
-    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
-    let f = fixture("up");
-    let mut cache = PipelineCache::default();
-    let mut encoder = gpu.device.create_command_encoder(&Default::default());
-    let (x, w, b) = (
-        tensor(&gpu, &f, "io.in.x"),
-        tensor(&gpu, &f, "conv.weight"),
-        tensor(&gpu, &f, "conv.bias"),
-    );
-    let up = upsample_nearest2x(&gpu, &mut cache, &mut encoder, &x).unwrap();
-    let y = conv2d(&gpu, &mut cache, &mut encoder, &up, &w, Some(&b), 1, 1).unwrap();
-    gpu.queue.submit([encoder.finish()]);
+    let mut f = Fixture::open("up");
+    let x = f.t("io.in.x");
+    let up = nn::upsample_nearest2x(&f.gpu, &mut f.cache, &mut f.encoder, &x).unwrap();
+    let y = f.conv(&up, "conv", true, 1, 1);
     assert_eq!(y.shape, [1, 12, 16, 16]);
-    assert_close(&y.read(&gpu).unwrap(), &f, "io.out.y");
+    f.assert_matches(&y);
 }
 
 #[test]
 fn a_wrong_index_would_be_caught() {
     // The check above is only as good as its tolerance: a convolution without its bias
     // (one missing term) must fail it.
-    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
-    let f = fixture("down");
-    let mut cache = PipelineCache::default();
-    let mut encoder = gpu.device.create_command_encoder(&Default::default());
-    let (x, w) = (tensor(&gpu, &f, "io.in.x"), tensor(&gpu, &f, "conv.weight"));
-    let y = conv2d(&gpu, &mut cache, &mut encoder, &x, &w, None, 2, 1).unwrap();
-    gpu.queue.submit([encoder.finish()]);
-    let got = y.read(&gpu).unwrap();
-    let want = f.f32("io.out.y", &[None; 4]).unwrap().0;
-    let worst = got
-        .iter()
-        .zip(&want)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0f32, f32::max);
+    let mut f = Fixture::open("down");
+    let y = f.conv(&f.t("io.in.x"), "conv", false, 2, 1);
+    let worst = f.worst_difference(&y);
     assert!(worst > 100.0 * TOLERANCE, "{worst}");
 }
 
 #[test]
 fn a_residual_block_from_group_norm_silu_conv_linear_and_adds_matches_pytorch() {
     // ResBlock(8 -> 16, embedding 32): h = conv1(silu(norm1 x)) + emb(silu(e));
-    // out = skip(x) + conv2(silu(norm2 h)); 8 groups in both norms (gcd(8, channels)).
-    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
-    let f = fixture("resblock");
-    let t = |name: &str| tensor(&gpu, &f, name);
-    let mut cache = PipelineCache::default();
-    let mut enc = gpu.device.create_command_encoder(&Default::default());
-    let x = t("io.in.x");
-    let e = t("io.in.emb");
-    let h = group_norm(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &x,
-        &t("norm1.weight"),
-        &t("norm1.bias"),
-        8,
-        true,
-    )
-    .unwrap();
-    let h = conv2d(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &h,
-        &t("conv1.weight"),
-        Some(&t("conv1.bias")),
-        1,
-        1,
-    )
-    .unwrap();
-    let projected = linear(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &e,
-        &t("emb.weight"),
-        &t("emb.bias"),
-        true,
-    )
-    .unwrap();
-    let h = add(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &h,
-        &projected,
-        Broadcast::Leading,
-    )
-    .unwrap();
-    let h = group_norm(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &h,
-        &t("norm2.weight"),
-        &t("norm2.bias"),
-        8,
-        true,
-    )
-    .unwrap();
-    let h = conv2d(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &h,
-        &t("conv2.weight"),
-        Some(&t("conv2.bias")),
-        1,
-        1,
-    )
-    .unwrap();
-    let skip = conv2d(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &x,
-        &t("skip.weight"),
-        Some(&t("skip.bias")),
-        1,
-        0,
-    )
-    .unwrap();
-    let y = add(&gpu, &mut cache, &mut enc, &skip, &h, Broadcast::Leading).unwrap();
-    gpu.queue.submit([enc.finish()]);
+    // out = skip(x) + conv2(silu(norm2 h)).
+    let mut f = Fixture::open("resblock");
+    let (x, e) = (f.t("io.in.x"), f.t("io.in.emb"));
+    let h = f.norm(&x, "norm1", true);
+    let h = f.conv(&h, "conv1", true, 1, 1);
+    let projected = f.linear(&e, "emb", true);
+    let h = f.add(&h, &projected, Broadcast::Leading);
+    let h = f.norm(&h, "norm2", true);
+    let h = f.conv(&h, "conv2", true, 1, 1);
+    let skip = f.conv(&x, "skip", true, 1, 0);
+    let y = f.add(&skip, &h, Broadcast::Leading);
     assert_eq!(y.shape, [2, 16, 8, 8]);
-    assert_close(&y.read(&gpu).unwrap(), &f, "io.out.y");
+    f.assert_matches(&y);
 }
 
 fn attention_params(
@@ -222,254 +234,68 @@ fn attention_params(
     }
 }
 
+/// The shape of the spatial and cross layers on x [2, 16, 8, 8]: norm -> tokens
+/// [2, 64, 16] -> `mix` (the attention proper) -> out projection -> image + x.
+fn image_attention(f: &mut Fixture, mix: impl FnOnce(&mut Fixture, &Tensor) -> Tensor) -> Tensor {
+    let x = f.t("io.in.x");
+    let normed = f.norm(&x, "norm", false);
+    let tokens = f.permute(&normed, [1, 2, 16, 64], [0, 1, 3, 2]);
+    let mixed = mix(f, &tokens);
+    let projected = f.linear(&mixed, "out", false);
+    let image = f.permute(&projected, [1, 2, 64, 16], [0, 1, 3, 2]);
+    f.add(&x, &image, Broadcast::Leading)
+}
+
 #[test]
 fn spatial_self_attention_matches_pytorch() {
-    // x [2, 16, 8, 8]: norm -> tokens [2, 64, 16] -> qkv -> attention -> out -> image + x.
-    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
-    let f = fixture("spatial_attention");
-    let t = |name: &str| tensor(&gpu, &f, name);
-    let mut cache = PipelineCache::default();
-    let mut enc = gpu.device.create_command_encoder(&Default::default());
-    let x = t("io.in.x");
-    let normed = group_norm(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &x,
-        &t("norm.weight"),
-        &t("norm.bias"),
-        8,
-        false,
-    )
-    .unwrap();
-    let tokens = permute(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &normed,
-        [1, 2, 16, 64],
-        [0, 1, 3, 2],
-    )
-    .unwrap();
-    let qkv = linear(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &tokens,
-        &t("qkv.weight"),
-        &t("qkv.bias"),
-        false,
-    )
-    .unwrap();
-    let mixed = attention(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &qkv,
-        &qkv,
-        attention_params(2, 64, 64, 16, true),
-    )
-    .unwrap();
-    let projected = linear(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &mixed,
-        &t("out.weight"),
-        &t("out.bias"),
-        false,
-    )
-    .unwrap();
-    let image = permute(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &projected,
-        [1, 2, 64, 16],
-        [0, 1, 3, 2],
-    )
-    .unwrap();
-    let y = add(&gpu, &mut cache, &mut enc, &x, &image, Broadcast::Leading).unwrap();
-    gpu.queue.submit([enc.finish()]);
-    assert_close(&y.read(&gpu).unwrap(), &f, "io.out.y");
+    let mut f = Fixture::open("spatial_attention");
+    let y = image_attention(&mut f, |f, tokens| {
+        let qkv = f.linear(tokens, "qkv", false);
+        f.attention(&qkv, &qkv, attention_params(2, 64, 64, 16, true))
+    });
+    f.assert_matches(&y);
 }
 
 #[test]
 fn cross_attention_to_the_action_token_matches_pytorch() {
-    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
-    let f = fixture("cross_attention");
-    let t = |name: &str| tensor(&gpu, &f, name);
-    let mut cache = PipelineCache::default();
-    let mut enc = gpu.device.create_command_encoder(&Default::default());
-    let x = t("io.in.x");
-    let normed = group_norm(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &x,
-        &t("norm.weight"),
-        &t("norm.bias"),
-        8,
-        false,
-    )
-    .unwrap();
-    let tokens = permute(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &normed,
-        [1, 2, 16, 64],
-        [0, 1, 3, 2],
-    )
-    .unwrap();
-    let q = linear(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &tokens,
-        &t("q.weight"),
-        &t("q.bias"),
-        false,
-    )
-    .unwrap();
-    let kv = linear(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &t("io.in.ctx"),
-        &t("kv.weight"),
-        &t("kv.bias"),
-        false,
-    )
-    .unwrap();
-    let mixed = attention(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &q,
-        &kv,
-        attention_params(2, 64, 1, 16, false),
-    )
-    .unwrap();
-    let projected = linear(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &mixed,
-        &t("out.weight"),
-        &t("out.bias"),
-        false,
-    )
-    .unwrap();
-    let image = permute(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &projected,
-        [1, 2, 64, 16],
-        [0, 1, 3, 2],
-    )
-    .unwrap();
-    let y = add(&gpu, &mut cache, &mut enc, &x, &image, Broadcast::Leading).unwrap();
-    gpu.queue.submit([enc.finish()]);
-    assert_close(&y.read(&gpu).unwrap(), &f, "io.out.y");
+    let mut f = Fixture::open("cross_attention");
+    let y = image_attention(&mut f, |f, tokens| {
+        let q = f.linear(tokens, "q", false);
+        let kv = f.linear(&f.t("io.in.ctx"), "kv", false);
+        f.attention(&q, &kv, attention_params(2, 64, 1, 16, false))
+    });
+    f.assert_matches(&y);
 }
 
 #[test]
 fn causal_temporal_attention_with_frame_positions_matches_pytorch() {
     // x [8, 16, 4, 4] = 2 groups x 4 frames: norm -> [b, hw, f, c] + position [f, c] ->
     // qkv -> causal attention over the 4 frames -> out -> back to [b*f, c, h, w] + x.
-    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
-    let f = fixture("temporal_attention");
-    let t = |name: &str| tensor(&gpu, &f, name);
-    let mut cache = PipelineCache::default();
-    let mut enc = gpu.device.create_command_encoder(&Default::default());
-    let x = t("io.in.x");
-    let normed = group_norm(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &x,
-        &t("norm.weight"),
-        &t("norm.bias"),
-        8,
-        false,
-    )
-    .unwrap();
-    let tokens = permute(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &normed,
-        [2, 4, 16, 16],
-        [0, 3, 1, 2],
-    )
-    .unwrap();
-    let tokens = add(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &tokens,
-        &t("position"),
-        Broadcast::Trailing,
-    )
-    .unwrap();
-    let qkv = linear(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &tokens,
-        &t("qkv.weight"),
-        &t("qkv.bias"),
-        false,
-    )
-    .unwrap();
+    let mut f = Fixture::open("temporal_attention");
+    let x = f.t("io.in.x");
+    let normed = f.norm(&x, "norm", false);
+    let tokens = f.permute(&normed, [2, 4, 16, 16], [0, 3, 1, 2]);
+    let tokens = f.add(&tokens, &f.t("position"), Broadcast::Trailing);
+    let qkv = f.linear(&tokens, "qkv", false);
     let params = AttentionParams {
         causal: 1,
         ..attention_params(2 * 16, 4, 4, 16, true)
     };
-    let mixed = attention(&gpu, &mut cache, &mut enc, &qkv, &qkv, params).unwrap();
-    let projected = linear(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &mixed,
-        &t("out.weight"),
-        &t("out.bias"),
-        false,
-    )
-    .unwrap();
-    let image = permute(
-        &gpu,
-        &mut cache,
-        &mut enc,
-        &projected,
-        [2, 16, 4, 16],
-        [0, 2, 3, 1],
-    )
-    .unwrap();
-    let y = add(&gpu, &mut cache, &mut enc, &x, &image, Broadcast::Leading).unwrap();
-    gpu.queue.submit([enc.finish()]);
-    assert_close(&y.read(&gpu).unwrap(), &f, "io.out.y");
+    let mixed = f.attention(&qkv, &qkv, params);
+    let projected = f.linear(&mixed, "out", false);
+    let image = f.permute(&projected, [2, 16, 4, 16], [0, 2, 3, 1]);
+    let y = f.add(&x, &image, Broadcast::Leading);
+    f.assert_matches(&y);
 }
 
 #[test]
 fn the_timestep_embedding_matches_pytorch() {
     // Arguments reach 999 rad, whose f32 spacing is 6.1e-5; sin/cos of the same rounded
     // argument may then differ by that much plus a few ulps of the GPU's approximations.
-    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
-    let f = fixture("timestep_embedding");
-    let mut cache = PipelineCache::default();
-    let mut enc = gpu.device.create_command_encoder(&Default::default());
-    let y =
-        timestep_embedding(&gpu, &mut cache, &mut enc, &tensor(&gpu, &f, "io.in.t"), 32).unwrap();
-    gpu.queue.submit([enc.finish()]);
-    let got = y.read(&gpu).unwrap();
-    let want = f.f32("io.out.y", &[Some(4), Some(32)]).unwrap().0;
-    let worst = got
-        .iter()
-        .zip(&want)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0f32, f32::max);
+    let mut f = Fixture::open("timestep_embedding");
+    let t = f.t("io.in.t");
+    let y = nn::timestep_embedding(&f.gpu, &mut f.cache, &mut f.encoder, &t, 32).unwrap();
+    assert_eq!(y.shape, [4, 32]);
+    let worst = f.worst_difference(&y);
     assert!(worst <= 5e-4, "max abs difference {worst}");
 }
