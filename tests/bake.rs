@@ -5,6 +5,7 @@ mod common;
 
 use common::{files, witch};
 
+use std::path::PathBuf;
 use std::process::Command;
 
 fn unica(args: &[&str]) -> std::process::Output {
@@ -14,26 +15,37 @@ fn unica(args: &[&str]) -> std::process::Output {
         .unwrap()
 }
 
-#[test]
-fn the_witch_bakes_validates_and_rebakes_identically() {
+/// Bakes the Witch twice with `options` into folders `a` and `b` of a temporary folder
+/// (kept alive by the first value); returns each run's standard output too.
+fn bake_twice(options: &[&str]) -> (tempfile::TempDir, PathBuf, PathBuf, Vec<String>) {
     let dir = tempfile::tempdir().unwrap();
     let (a, b) = (dir.path().join("a"), dir.path().join("b"));
     let witch = witch();
+    let mut outputs = Vec::new();
     for out in [&a, &b] {
-        let run = unica(&[
+        let mut args = vec![
             "bake",
             witch.to_str().unwrap(),
             "--out",
             out.to_str().unwrap(),
-        ]);
+        ];
+        args.extend_from_slice(options);
+        let run = unica(&args);
         assert!(
             run.status.success(),
             "{}",
             String::from_utf8_lossy(&run.stderr)
         );
-        assert!(
-            String::from_utf8_lossy(&run.stdout).contains("baked 21 clips, 5520 frames of Witch")
-        );
+        outputs.push(String::from_utf8_lossy(&run.stdout).into_owned());
+    }
+    (dir, a, b, outputs)
+}
+
+#[test]
+fn the_witch_bakes_validates_and_rebakes_identically() {
+    let (_dir, a, b, outputs) = bake_twice(&[]);
+    for stdout in outputs {
+        assert!(stdout.contains("baked 21 clips, 5520 frames of Witch"));
     }
     assert_eq!(files(&a), files(&b), "the same inputs give the same bytes");
     let report = unica::dataset::validate(&a).unwrap();
@@ -50,24 +62,7 @@ fn the_witch_bakes_validates_and_rebakes_identically() {
 
 #[test]
 fn ground_truth_renders_are_written_listed_and_reproducible() {
-    let dir = tempfile::tempdir().unwrap();
-    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
-    let witch = witch();
-    for out in [&a, &b] {
-        let run = unica(&[
-            "bake",
-            witch.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--quick",
-            "--preview",
-        ]);
-        assert!(
-            run.status.success(),
-            "{}",
-            String::from_utf8_lossy(&run.stderr)
-        );
-    }
+    let (_dir, a, b, _) = bake_twice(&["--quick", "--preview"]);
     assert_eq!(
         files(&a),
         files(&b),
