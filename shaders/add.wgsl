@@ -1,11 +1,12 @@
-// Sums: y[i] = a[i] + b[(i / per_value) % b_len] — elementwise when b is as long as a,
-// per-channel (b[n, c] over each H×W plane) with per_value = H×W, and a trailing
-// broadcast (b repeated over the leading axes) with per_value = 1.
+// Sums: y[i] = a[i] + b[b_offset + (i / per_value) % b_len] — elementwise when b is as
+// long as a, per-channel (b[n, c] over each H×W plane) with per_value = H×W, and a
+// trailing broadcast (b repeated over the leading axes) with per_value = 1; b_offset
+// picks a part of b (some rows of a table).
 
 @group(0) @binding(0) var<uniform> p: AddParams;
-@group(0) @binding(1) var<storage, read> a: array<f32>;
-@group(0) @binding(2) var<storage, read> b: array<f32>;
-@group(0) @binding(3) var<storage, read_write> y: array<f32>;
+@group(0) @binding(1) var<storage, read> a: array<Elem>;
+@group(0) @binding(2) var<storage, read> b: array<Elem>;
+@group(0) @binding(3) var<storage, read_write> y: array<Elem>;
 
 @compute @workgroup_size(64)
 fn main(
@@ -17,5 +18,5 @@ fn main(
     if i >= p.len {
         return;
     }
-    y[i] = a[i] + b[(i / p.per_value) % p.b_len];
+    y[i] = Elem(f32(a[i]) + f32(b[p.b_offset + (i / p.per_value) % p.b_len]));
 }

@@ -1,13 +1,15 @@
-// Multi-head softmax attention over independent sequences, f32. Queries are read from
-// rows of `q` (row stride q_stride, head h at q_offset + h·d), keys and values from rows of
-// `kv` (k_offset, v_offset), so packed qkv projections need no splitting. One thread per
-// (sequence, head, query): two passes for the softmax, then the weighted sum of values.
-// With `causal` set, query i sees keys j <= i.
+// Multi-head softmax attention over independent sequences (Elem storage, f32 arithmetic).
+// Queries are read from rows of `q` (row stride q_stride, head h at q_offset + h·d), keys
+// and values from rows of `kv` (k_offset, v_offset), so packed qkv projections need no
+// splitting; `kv_share` consecutive sequences read the same keys (one action token for
+// every frame of a group). One thread per (sequence, head, query), an online softmax in
+// one pass over the keys. With `causal` set, query i sees keys j <= i + keys - queries
+// (the queries are the last ones of the sequence). Head size at most 64 (host-checked).
 
 @group(0) @binding(0) var<uniform> p: AttentionParams;
-@group(0) @binding(1) var<storage, read> q: array<f32>;
-@group(0) @binding(2) var<storage, read> kv: array<f32>;
-@group(0) @binding(3) var<storage, read_write> out: array<f32>;
+@group(0) @binding(1) var<storage, read> q: array<Elem>;
+@group(0) @binding(2) var<storage, read> kv: array<Elem>;
+@group(0) @binding(3) var<storage, read_write> out: array<Elem>;
 
 @compute @workgroup_size(64)
 fn main(
@@ -25,42 +27,32 @@ fn main(
     let d = p.channels / p.heads;
     let scale = inverseSqrt(f32(d));
     let q_row = (s * p.queries + i) * p.q_stride + p.q_offset + h * d;
+    let kv_sequence = s / p.kv_share;
     var keys = p.keys;
     if p.causal != 0u {
-        keys = min(keys, i + 1u);
+        keys = min(keys, i + 1u + p.keys - p.queries);
     }
+    var acc: array<f32, 64>;
     var best = -3.0e38;
-    for (var j = 0u; j < keys; j++) {
-        let k_row = (s * p.keys + j) * p.kv_stride + p.k_offset + h * d;
-        var dot = 0.0;
-        for (var e = 0u; e < d; e++) {
-            dot += q[q_row + e] * kv[k_row + e];
-        }
-        best = max(best, dot * scale);
-    }
     var total = 0.0;
     for (var j = 0u; j < keys; j++) {
-        let k_row = (s * p.keys + j) * p.kv_stride + p.k_offset + h * d;
+        let row = (kv_sequence * p.keys + j) * p.kv_stride + h * d;
         var dot = 0.0;
         for (var e = 0u; e < d; e++) {
-            dot += q[q_row + e] * kv[k_row + e];
+            dot += f32(q[q_row + e]) * f32(kv[row + p.k_offset + e]);
         }
-        total += exp(dot * scale - best);
+        let score = dot * scale;
+        let new_best = max(best, score);
+        let rescale = exp(best - new_best);
+        let weight = exp(score - new_best);
+        total = total * rescale + weight;
+        for (var e = 0u; e < d; e++) {
+            acc[e] = acc[e] * rescale + weight * f32(kv[row + p.v_offset + e]);
+        }
+        best = new_best;
     }
     let o_row = (s * p.queries + i) * p.channels + h * d;
     for (var e = 0u; e < d; e++) {
-        out[o_row + e] = 0.0;
-    }
-    for (var j = 0u; j < keys; j++) {
-        let k_row = (s * p.keys + j) * p.kv_stride + p.k_offset + h * d;
-        let v_row = (s * p.keys + j) * p.kv_stride + p.v_offset + h * d;
-        var dot = 0.0;
-        for (var e = 0u; e < d; e++) {
-            dot += q[q_row + e] * kv[k_row + e];
-        }
-        let weight = exp(dot * scale - best) / total;
-        for (var e = 0u; e < d; e++) {
-            out[o_row + e] += weight * kv[v_row + e];
-        }
+        out[o_row + e] = Elem(acc[e] / total);
     }
 }

@@ -1,11 +1,11 @@
-// 2-D convolution, NCHW f32: one thread per output value, summing input channels and the
+// 2-D convolution, NCHW, stored as Elem (f32 or f16), summed in f32: one thread per output value, summing input channels and the
 // kernel window (zero padding). Weights [c_out, c_in, k, k], optional bias [c_out].
 
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
-@group(0) @binding(1) var<storage, read> x: array<f32>;
-@group(0) @binding(2) var<storage, read> weight: array<f32>;
-@group(0) @binding(3) var<storage, read> bias: array<f32>;
-@group(0) @binding(4) var<storage, read_write> y: array<f32>;
+@group(0) @binding(1) var<storage, read> x: array<Elem>;
+@group(0) @binding(2) var<storage, read> weight: array<Elem>;
+@group(0) @binding(3) var<storage, read> bias: array<Elem>;
+@group(0) @binding(4) var<storage, read_write> y: array<Elem>;
 
 @compute @workgroup_size(64)
 fn main(
@@ -24,7 +24,7 @@ fn main(
     let n = i / (p.w_out * p.h_out * p.c_out);
     var acc = 0.0;
     if p.has_bias != 0u {
-        acc = bias[co];
+        acc = f32(bias[co]);
     }
     for (var ci = 0u; ci < p.c_in; ci++) {
         let x_base = (n * p.c_in + ci) * p.h_in * p.w_in;
@@ -39,9 +39,9 @@ fn main(
                 if ix < 0 || ix >= i32(p.w_in) {
                     continue;
                 }
-                acc += x[x_base + u32(iy) * p.w_in + u32(ix)] * weight[w_base + ky * p.kernel + kx];
+                acc += f32(x[x_base + u32(iy) * p.w_in + u32(ix)]) * f32(weight[w_base + ky * p.kernel + kx]);
             }
         }
     }
-    y[i] = acc;
+    y[i] = Elem(acc);
 }

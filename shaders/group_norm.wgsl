@@ -1,12 +1,12 @@
-// Group normalisation of NCHW f32 with a per-channel affine and an optional fused SiLU.
+// Group normalisation of NCHW (Elem storage, f32 statistics) with a per-channel affine and an optional fused SiLU.
 // One workgroup per (sample, group): a shared-memory reduction of the mean and variance
 // (two passes over the data, exact), then every thread writes its share.
 
 @group(0) @binding(0) var<uniform> p: GroupNormParams;
-@group(0) @binding(1) var<storage, read> x: array<f32>;
-@group(0) @binding(2) var<storage, read> gamma: array<f32>;
-@group(0) @binding(3) var<storage, read> beta: array<f32>;
-@group(0) @binding(4) var<storage, read_write> y: array<f32>;
+@group(0) @binding(1) var<storage, read> x: array<Elem>;
+@group(0) @binding(2) var<storage, read> gamma: array<Elem>;
+@group(0) @binding(3) var<storage, read> beta: array<Elem>;
+@group(0) @binding(4) var<storage, read_write> y: array<Elem>;
 
 var<workgroup> partial: array<f32, 64>;
 
@@ -39,22 +39,22 @@ fn main(
     let base = id * count; // (n, g) blocks are contiguous in NCHW
     var sum = 0.0;
     for (var i = lane; i < count; i += 64u) {
-        sum += x[base + i];
+        sum += f32(x[base + i]);
     }
     let mean = reduce(lane, sum) / f32(count);
     var squares = 0.0;
     for (var i = lane; i < count; i += 64u) {
-        let d = x[base + i] - mean;
+        let d = f32(x[base + i]) - mean;
         squares += d * d;
     }
     let inv_std = inverseSqrt(reduce(lane, squares) / f32(count) + p.eps);
     let first_channel = (id % p.groups) * per_group;
     for (var i = lane; i < count; i += 64u) {
         let c = first_channel + i / p.hw;
-        var v = (x[base + i] - mean) * inv_std * gamma[c] + beta[c];
+        var v = (f32(x[base + i]) - mean) * inv_std * f32(gamma[c]) + f32(beta[c]);
         if p.silu != 0u {
             v = v / (1.0 + exp(-v));
         }
-        y[base + i] = v;
+        y[base + i] = Elem(v);
     }
 }

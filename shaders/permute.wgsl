@@ -1,9 +1,9 @@
-// Permutes the axes of a 4-D f32 tensor: output axis k is input axis perm[k].
+// Permutes the axes of a 4-D tensor: output axis k is input axis perm[k].
 // Moves images between NCHW and token-major layouts for the attention layers.
 
 @group(0) @binding(0) var<uniform> p: PermuteParams;
-@group(0) @binding(1) var<storage, read> x: array<f32>;
-@group(0) @binding(2) var<storage, read_write> y: array<f32>;
+@group(0) @binding(1) var<storage, read> x: array<Elem>;
+@group(0) @binding(2) var<storage, read_write> y: array<Elem>;
 
 @compute @workgroup_size(64)
 fn main(

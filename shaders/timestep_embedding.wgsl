@@ -2,8 +2,8 @@
 // out[half + k] = sin(t f_k) with f_k = exp(-ln(10000) k / half) — the trainer's order.
 
 @group(0) @binding(0) var<uniform> p: EmbeddingParams;
-@group(0) @binding(1) var<storage, read> t: array<f32>;
-@group(0) @binding(2) var<storage, read_write> y: array<f32>;
+@group(0) @binding(1) var<storage, read> t: array<Elem>;
+@group(0) @binding(2) var<storage, read_write> y: array<Elem>;
 
 @compute @workgroup_size(64)
 fn main(
@@ -19,7 +19,7 @@ fn main(
     let k = i % half;
     let row = i / half;
     let freq = exp(-log(10000.0) * f32(k) / f32(half));
-    let arg = t[row] * freq;
-    y[row * p.dim + k] = cos(arg);
-    y[row * p.dim + half + k] = sin(arg);
+    let arg = f32(t[row]) * freq;
+    y[row * p.dim + k] = Elem(cos(arg));
+    y[row * p.dim + half + k] = Elem(sin(arg));
 }

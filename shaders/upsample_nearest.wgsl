@@ -1,8 +1,8 @@
-// Nearest-neighbour ×2 upsampling, NCHW f32: out[n, c, y, x] = in[n, c, y / 2, x / 2].
+// Nearest-neighbour ×2 upsampling, NCHW: out[n, c, y, x] = in[n, c, y / 2, x / 2].
 
 @group(0) @binding(0) var<uniform> p: UpsampleParams;
-@group(0) @binding(1) var<storage, read> x: array<f32>;
-@group(0) @binding(2) var<storage, read_write> y: array<f32>;
+@group(0) @binding(1) var<storage, read> x: array<Elem>;
+@group(0) @binding(2) var<storage, read_write> y: array<Elem>;
 
 @compute @workgroup_size(64)
 fn main(

@@ -1,301 +1,457 @@
-//! WGSL kernels against the PyTorch trainer's fixtures (tests/fixtures/nn, written by
-//! `python -m unica_train.fixtures`). Tolerance: f32 sums of up to 72 products of values
-//! around 1 in another order differ by a few ulps; 1e-4 absolute on outputs of size ~5
-//! (2e-5 relative) leaves room for that and catches any indexing error (errors of O(1)).
+//! The WGSL engine against the PyTorch trainer's fixtures (tests/fixtures/nn, written by
+//! `python -m unica_train.fixtures`): every layer kind, the VAE encoder and decoder, a
+//! whole UNet step, the cached context path, a DDIM step with CFG and a 4-step DDIM
+//! sample, in f32 and (where the adapter has SHADER_F16) in f16 storage.
+//!
+//! Error measure: max |GPU - PyTorch| / max(1, max |PyTorch|) over the output.
+//! - f32: the same products summed in another order differ by a few ulps per layer
+//!   (~1e-7 relative); 1e-4 leaves room for a UNet's ~60 kernels in a row and still
+//!   catches any indexing error (errors of O(1); `a_wrong_index_would_be_caught`).
+//!   Measured on lavapipe: 6e-8 to 3e-7 for layers, up to 1.2e-6 for whole models.
+//! - f16: every stored activation and weight is rounded to 11 bits (4.9e-4 relative)
+//!   while arithmetic stays f32, so one layer is off by about one rounding and a whole
+//!   UNet or VAE (25-60 kernels, errors partly averaging out) by a few: measured 4e-4 to
+//!   6e-4 for layers, up to 1.5e-3 for the models and the sampler. 2e-3 for layers and
+//!   5e-3 for models leave about 3x margin and stay 100x below an indexing error.
 
 use std::path::Path;
 
-use unica::gpu::kernel::PipelineCache;
+use unica::gpu::kernel::{PipelineCache, Precision};
 use unica::gpu::{GpuContext, GpuOptions};
-use unica::nn::{self, AttentionParams, Broadcast, Tensor};
+use unica::nn::layers::{
+    Conv, CrossAttention, Frames, ResBlock, SpatialAttention, TemporalAttention, Up,
+};
+use unica::nn::sampler::{self, Sampling, Schedule};
+use unica::nn::unet::{UNet, UNetConfig};
+use unica::nn::vae::{Decoder, Encoder, VaeConfig};
+use unica::nn::{Recorder, Tensor, Weights};
 use unica::tensors::TensorFile;
 
-const TOLERANCE: f32 = 1e-4;
-/// Every group norm of the fixtures has 8 groups (gcd(8, channels)).
-const GROUPS: usize = 8;
+/// Tolerances of the error measure above: (layers, whole models).
+fn tolerances(precision: Precision) -> (f32, f32) {
+    match precision {
+        Precision::F32 => (1e-4, 1e-4),
+        Precision::F16 => (2e-3, 5e-3),
+    }
+}
 
-/// One fixture, a device and one command encoder: kernels are recorded in order, reading
-/// the fixture's tensors by name, and `result` runs them and compares with PyTorch.
+const TINY_VAE: VaeConfig = VaeConfig {
+    channels: [16, 12, 8, 8],
+    latent: 4,
+};
+
+fn tiny_unet() -> UNetConfig {
+    UNetConfig {
+        latent: 4,
+        channels: [16, 32],
+        embed: 32,
+        heads: 2,
+        frames: 4,
+        actions: 5,
+    }
+}
+
+/// One fixture file, a device and a pipeline cache.
 struct Fixture {
     file: TensorFile,
     gpu: GpuContext,
-    cache: PipelineCache,
-    encoder: wgpu::CommandEncoder,
+    pipelines: PipelineCache,
+    precision: Precision,
 }
 
 impl Fixture {
-    fn open(name: &str) -> Self {
+    fn open(name: &str, precision: Precision) -> Self {
         let path = Path::new(env!("CARGO_MANIFEST_DIR"))
             .join(format!("tests/fixtures/nn/{name}.safetensors"));
         let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
         Self {
             file: TensorFile::open(&path).unwrap(),
-            encoder: gpu.device.create_command_encoder(&Default::default()),
             gpu,
-            cache: PipelineCache::default(),
+            pipelines: PipelineCache::default(),
+            precision,
         }
     }
 
-    /// The rank of a stored tensor (tried from 1 to 4 dimensions).
-    fn rank(&self, name: &str) -> usize {
-        (1..=4)
-            .find(|&r| self.file.f32(name, &vec![None; r]).is_ok())
-            .unwrap_or_else(|| panic!("{name}: no f32 tensor of rank 1-4"))
+    fn recorder(&mut self) -> (Recorder<'_>, Weights<'_>) {
+        (
+            Recorder::new(&self.gpu, &mut self.pipelines, self.precision),
+            Weights::new(&self.file, &self.gpu, self.precision),
+        )
     }
 
-    fn t(&self, name: &str) -> Tensor {
-        let (values, shape) = self.file.f32(name, &vec![None; self.rank(name)]).unwrap();
-        Tensor::upload(&self.gpu, name, &shape, &values).unwrap()
+    /// A stored tensor's values and shape (ranks 1 to 5 tried).
+    fn stored(&self, name: &str) -> (Vec<f32>, Vec<usize>) {
+        (1..=5)
+            .find_map(|rank| self.file.f32(name, &vec![None; rank]).ok())
+            .unwrap_or_else(|| panic!("{name}: no f32 tensor of rank 1-5"))
     }
 
-    fn conv(
-        &mut self,
-        x: &Tensor,
-        layer: &str,
-        with_bias: bool,
-        stride: usize,
-        pad: usize,
-    ) -> Tensor {
-        let (w, b) = (
-            self.t(&format!("{layer}.weight")),
-            self.t(&format!("{layer}.bias")),
+    fn input(&self, name: &str) -> Tensor {
+        let (values, shape) = self.stored(name);
+        Tensor::upload(&self.gpu, name, &shape, &values, self.precision).unwrap()
+    }
+
+    fn scalar(&self, name: &str) -> f32 {
+        self.stored(name).0[0]
+    }
+
+    /// The error measure of `got` (run and read back) against the stored `name`.
+    fn error(&self, got: &Tensor, name: &str) -> f32 {
+        let (want, shape) = self.stored(name);
+        assert_eq!(
+            got.len(),
+            want.len(),
+            "{name}: {:?} vs {shape:?}",
+            got.shape
         );
-        nn::conv2d(
-            &self.gpu,
-            &mut self.cache,
-            &mut self.encoder,
-            x,
-            &w,
-            with_bias.then_some(&b),
-            stride,
-            pad,
-        )
-        .unwrap()
-    }
-
-    fn norm(&mut self, x: &Tensor, layer: &str, silu: bool) -> Tensor {
-        let (g, b) = (
-            self.t(&format!("{layer}.weight")),
-            self.t(&format!("{layer}.bias")),
-        );
-        nn::group_norm(
-            &self.gpu,
-            &mut self.cache,
-            &mut self.encoder,
-            x,
-            &g,
-            &b,
-            GROUPS,
-            silu,
-        )
-        .unwrap()
-    }
-
-    fn linear(&mut self, x: &Tensor, layer: &str, input_silu: bool) -> Tensor {
-        let (w, b) = (
-            self.t(&format!("{layer}.weight")),
-            self.t(&format!("{layer}.bias")),
-        );
-        nn::linear(
-            &self.gpu,
-            &mut self.cache,
-            &mut self.encoder,
-            x,
-            &w,
-            &b,
-            input_silu,
-        )
-        .unwrap()
-    }
-
-    fn add(&mut self, a: &Tensor, b: &Tensor, broadcast: Broadcast) -> Tensor {
-        nn::add(
-            &self.gpu,
-            &mut self.cache,
-            &mut self.encoder,
-            a,
-            b,
-            broadcast,
-        )
-        .unwrap()
-    }
-
-    fn permute(&mut self, x: &Tensor, shape: [usize; 4], perm: [usize; 4]) -> Tensor {
-        nn::permute(
-            &self.gpu,
-            &mut self.cache,
-            &mut self.encoder,
-            x,
-            shape,
-            perm,
-        )
-        .unwrap()
-    }
-
-    fn attention(&mut self, q: &Tensor, kv: &Tensor, params: AttentionParams) -> Tensor {
-        nn::attention(&self.gpu, &mut self.cache, &mut self.encoder, q, kv, params).unwrap()
-    }
-
-    /// Runs what was recorded and returns the largest difference of `y` from the
-    /// fixture's `io.out.y`.
-    fn worst_difference(self, y: &Tensor) -> f32 {
-        self.gpu.queue.submit([self.encoder.finish()]);
-        let got = y.read(&self.gpu).unwrap();
-        let want = self
-            .file
-            .f32("io.out.y", &vec![None; y.shape.len()])
-            .unwrap()
-            .0;
-        assert_eq!(got.len(), want.len(), "io.out.y: length");
-        got.iter()
+        let got = got.read(&self.gpu).unwrap();
+        let worst = got
+            .iter()
             .zip(&want)
             .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max)
+            .fold(0.0f32, f32::max);
+        let scale = want.iter().fold(1.0f32, |m, v| m.max(v.abs()));
+        worst / scale
     }
 
-    fn assert_matches(self, y: &Tensor) {
-        let worst = self.worst_difference(y);
-        assert!(worst <= TOLERANCE, "io.out.y: max abs difference {worst}");
+    fn assert_close(&self, got: &Tensor, name: &str, tolerance: f32) {
+        let error = self.error(got, name);
+        println!(
+            "{name} ({:?}): error {error:.2e} (tolerance {tolerance:.0e})",
+            self.precision
+        );
+        assert!(
+            error <= tolerance,
+            "{name} ({:?}): error {error} > {tolerance}",
+            self.precision
+        );
+    }
+}
+
+/// The precisions to test: f32, and f16 unless the adapter lacks SHADER_F16 and the
+/// fallback was asked for (UNICA_FORCE_FALLBACK: f32 only, by design).
+fn precisions() -> Vec<Precision> {
+    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
+    if gpu.caps.shader_f16 {
+        vec![Precision::F32, Precision::F16]
+    } else {
+        assert!(
+            GpuOptions::from_env().force_fallback,
+            "{} has no SHADER_F16: the f16 path cannot be tested here",
+            gpu.adapter_label()
+        );
+        eprintln!("f16 path not tested: UNICA_FORCE_FALLBACK is set");
+        vec![Precision::F32]
+    }
+}
+
+/// Runs `layer` on the fixture's `inputs` (recording with its weights) in every
+/// precision and compares its output with `io.out.y` at the layer tolerance.
+fn check_layer(
+    name: &str,
+    inputs: &[&str],
+    layer: impl Fn(&mut Recorder, &Weights, &[Tensor]) -> Tensor,
+) {
+    for precision in precisions() {
+        let mut f = Fixture::open(name, precision);
+        let inputs: Vec<Tensor> = inputs.iter().map(|n| f.input(n)).collect();
+        let (mut r, w) = f.recorder();
+        let y = layer(&mut r, &w, &inputs);
+        r.submit();
+        f.assert_close(&y, "io.out.y", tolerances(precision).0);
     }
 }
 
 #[test]
 fn stride_two_convolution_matches_pytorch() {
-    let mut f = Fixture::open("down");
-    let y = f.conv(&f.t("io.in.x"), "conv", true, 2, 1);
-    assert_eq!(y.shape, [1, 12, 8, 8]);
-    f.assert_matches(&y);
+    check_layer("down", &["io.in.x"], |r, w, x| {
+        let conv = Conv::load(&w.at("conv"), 8, 12, 3, 2).unwrap();
+        conv.forward(r, &x[0]).unwrap()
+    });
 }
 
 #[test]
 fn nearest_upsampling_then_convolution_matches_pytorch() {
-    let mut f = Fixture::open("up");
-    let x = f.t("io.in.x");
-    let up = nn::upsample_nearest2x(&f.gpu, &mut f.cache, &mut f.encoder, &x).unwrap();
-    let y = f.conv(&up, "conv", true, 1, 1);
-    assert_eq!(y.shape, [1, 12, 16, 16]);
-    f.assert_matches(&y);
+    check_layer("up", &["io.in.x"], |r, w, x| {
+        let up = Up::load(w, 8, 12).unwrap();
+        up.forward(r, &x[0]).unwrap()
+    });
 }
 
 #[test]
 fn a_wrong_index_would_be_caught() {
-    // The check above is only as good as its tolerance: a convolution without its bias
-    // (one missing term) must fail it.
-    let mut f = Fixture::open("down");
-    let y = f.conv(&f.t("io.in.x"), "conv", false, 2, 1);
-    let worst = f.worst_difference(&y);
-    assert!(worst > 100.0 * TOLERANCE, "{worst}");
+    // The check is only as good as its tolerance: a convolution without its bias (one
+    // missing term) must fail it by far.
+    let mut f = Fixture::open("down", Precision::F32);
+    let x = f.input("io.in.x");
+    let (mut r, w) = f.recorder();
+    let weight = w.at("conv").tensor("weight", &[12, 8, 3, 3]).unwrap();
+    let y = r.conv2d(&x, &weight, None, 2, 1).unwrap();
+    r.submit();
+    let error = f.error(&y, "io.out.y");
+    assert!(error > 10.0 * tolerances(Precision::F16).1, "{error}");
 }
 
 #[test]
-fn a_residual_block_from_group_norm_silu_conv_linear_and_adds_matches_pytorch() {
-    // ResBlock(8 -> 16, embedding 32): h = conv1(silu(norm1 x)) + emb(silu(e));
-    // out = skip(x) + conv2(silu(norm2 h)).
-    let mut f = Fixture::open("resblock");
-    let (x, e) = (f.t("io.in.x"), f.t("io.in.emb"));
-    let h = f.norm(&x, "norm1", true);
-    let h = f.conv(&h, "conv1", true, 1, 1);
-    let projected = f.linear(&e, "emb", true);
-    let h = f.add(&h, &projected, Broadcast::Leading);
-    let h = f.norm(&h, "norm2", true);
-    let h = f.conv(&h, "conv2", true, 1, 1);
-    let skip = f.conv(&x, "skip", true, 1, 0);
-    let y = f.add(&skip, &h, Broadcast::Leading);
-    assert_eq!(y.shape, [2, 16, 8, 8]);
-    f.assert_matches(&y);
-}
-
-fn attention_params(
-    sequences: usize,
-    queries: usize,
-    keys: usize,
-    channels: usize,
-    packed_kv: bool,
-) -> AttentionParams {
-    // Packed qkv rows [q | k | v] (self-attention) or q rows and [k | v] rows (cross).
-    let (q_stride, kv_stride, k_offset) = if packed_kv {
-        (3 * channels, 3 * channels, channels)
-    } else {
-        (channels, 2 * channels, 0)
-    };
-    AttentionParams {
-        sequences: sequences as u32,
-        heads: 2,
-        queries: queries as u32,
-        keys: keys as u32,
-        channels: channels as u32,
-        q_stride: q_stride as u32,
-        q_offset: 0,
-        kv_stride: kv_stride as u32,
-        k_offset: k_offset as u32,
-        v_offset: (k_offset + channels) as u32,
-        causal: 0,
-        reserved: 0,
-    }
-}
-
-/// The shape of the spatial and cross layers on x [2, 16, 8, 8]: norm -> tokens
-/// [2, 64, 16] -> `mix` (the attention proper) -> out projection -> image + x.
-fn image_attention(f: &mut Fixture, mix: impl FnOnce(&mut Fixture, &Tensor) -> Tensor) -> Tensor {
-    let x = f.t("io.in.x");
-    let normed = f.norm(&x, "norm", false);
-    let tokens = f.permute(&normed, [1, 2, 16, 64], [0, 1, 3, 2]);
-    let mixed = mix(f, &tokens);
-    let projected = f.linear(&mixed, "out", false);
-    let image = f.permute(&projected, [1, 2, 64, 16], [0, 1, 3, 2]);
-    f.add(&x, &image, Broadcast::Leading)
+fn a_residual_block_matches_pytorch() {
+    check_layer("resblock", &["io.in.x", "io.in.emb"], |r, w, x| {
+        let block = ResBlock::load(w, 8, 16, Some(32)).unwrap();
+        block.forward(r, &x[0], Some(&x[1])).unwrap()
+    });
 }
 
 #[test]
 fn spatial_self_attention_matches_pytorch() {
-    let mut f = Fixture::open("spatial_attention");
-    let y = image_attention(&mut f, |f, tokens| {
-        let qkv = f.linear(tokens, "qkv", false);
-        f.attention(&qkv, &qkv, attention_params(2, 64, 64, 16, true))
+    check_layer("spatial_attention", &["io.in.x"], |r, w, x| {
+        let layer = SpatialAttention::load(w, 16, 2).unwrap();
+        layer.forward(r, &x[0]).unwrap()
     });
-    f.assert_matches(&y);
 }
 
 #[test]
 fn cross_attention_to_the_action_token_matches_pytorch() {
-    let mut f = Fixture::open("cross_attention");
-    let y = image_attention(&mut f, |f, tokens| {
-        let q = f.linear(tokens, "q", false);
-        let kv = f.linear(&f.t("io.in.ctx"), "kv", false);
-        f.attention(&q, &kv, attention_params(2, 64, 1, 16, false))
+    check_layer("cross_attention", &["io.in.x", "io.in.ctx"], |r, w, x| {
+        let layer = CrossAttention::load(w, 16, 32, 2).unwrap();
+        layer.forward(r, &x[0], &x[1]).unwrap()
     });
-    f.assert_matches(&y);
 }
 
 #[test]
 fn causal_temporal_attention_with_frame_positions_matches_pytorch() {
-    // x [8, 16, 4, 4] = 2 groups x 4 frames: norm -> [b, hw, f, c] + position [f, c] ->
-    // qkv -> causal attention over the 4 frames -> out -> back to [b*f, c, h, w] + x.
-    let mut f = Fixture::open("temporal_attention");
-    let x = f.t("io.in.x");
-    let normed = f.norm(&x, "norm", false);
-    let tokens = f.permute(&normed, [2, 4, 16, 16], [0, 3, 1, 2]);
-    let tokens = f.add(&tokens, &f.t("position"), Broadcast::Trailing);
-    let qkv = f.linear(&tokens, "qkv", false);
-    let params = AttentionParams {
-        causal: 1,
-        ..attention_params(2 * 16, 4, 4, 16, true)
+    check_layer("temporal_attention", &["io.in.x"], |r, w, x| {
+        let layer = TemporalAttention::load(w, 16, 4, 2).unwrap();
+        let frames = Frames::First {
+            count: 4,
+            keep: None,
+        };
+        layer.forward(r, &x[0], frames).unwrap()
+    });
+}
+
+#[test]
+fn the_last_frame_from_cached_rows_equals_the_whole_group() {
+    // Causality: frames 0-2 run alone (rows kept), then frame 3 alone against the kept
+    // rows, must give the whole group's frame 3. x [8, 16, 4, 4] = 2 groups × 4 frames.
+    let mut f = Fixture::open("temporal_attention", Precision::F32);
+    let (values, _) = f.stored("io.in.x");
+    let frame = 16 * 4 * 4;
+    let pick = |frames: std::ops::Range<usize>| -> Vec<f32> {
+        (0..2)
+            .flat_map(|g| {
+                values[(4 * g + frames.start) * frame..(4 * g + frames.end) * frame].to_vec()
+            })
+            .collect()
     };
-    let mixed = f.attention(&qkv, &qkv, params);
-    let projected = f.linear(&mixed, "out", false);
-    let image = f.permute(&projected, [2, 16, 4, 16], [0, 2, 3, 1]);
-    let y = f.add(&x, &image, Broadcast::Leading);
-    f.assert_matches(&y);
+    let context = Tensor::upload(
+        &f.gpu,
+        "context",
+        &[6, 16, 4, 4],
+        &pick(0..3),
+        Precision::F32,
+    )
+    .unwrap();
+    let last = Tensor::upload(&f.gpu, "last", &[2, 16, 4, 4], &pick(3..4), Precision::F32).unwrap();
+    let (mut r, w) = f.recorder();
+    let layer = TemporalAttention::load(&w, 16, 4, 2).unwrap();
+    let mut kept = Vec::new();
+    let frames = Frames::First {
+        count: 3,
+        keep: Some(&mut kept),
+    };
+    layer.forward(&mut r, &context, frames).unwrap();
+    let y = layer
+        .forward(&mut r, &last, Frames::Next { cached: &kept[0] })
+        .unwrap();
+    r.submit();
+    let got = y.read(&f.gpu).unwrap();
+    let want: Vec<f32> = {
+        let (out, _) = f.stored("io.out.y");
+        (0..2)
+            .flat_map(|g| out[(4 * g + 3) * frame..(4 * g + 4) * frame].to_vec())
+            .collect()
+    };
+    let worst = got
+        .iter()
+        .zip(&want)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(worst <= 1e-4, "{worst}");
 }
 
 #[test]
 fn the_timestep_embedding_matches_pytorch() {
     // Arguments reach 999 rad, whose f32 spacing is 6.1e-5; sin/cos of the same rounded
     // argument may then differ by that much plus a few ulps of the GPU's approximations.
-    let mut f = Fixture::open("timestep_embedding");
-    let t = f.t("io.in.t");
-    let y = nn::timestep_embedding(&f.gpu, &mut f.cache, &mut f.encoder, &t, 32).unwrap();
+    let mut f = Fixture::open("timestep_embedding", Precision::F32);
+    let t = f.input("io.in.t");
+    let (mut r, _) = f.recorder();
+    let y = r.timestep_embedding(&t, 32).unwrap();
+    r.submit();
     assert_eq!(y.shape, [4, 32]);
-    let worst = f.worst_difference(&y);
-    assert!(worst <= 5e-4, "max abs difference {worst}");
+    f.assert_close(&y, "io.out.y", 5e-4);
+}
+
+#[test]
+fn the_vae_encoder_mean_matches_pytorch() {
+    for precision in precisions() {
+        let mut f = Fixture::open("vae_encoder", precision);
+        let x = f.input("io.in.x");
+        let (mut r, w) = f.recorder();
+        let encoder = Encoder::load(&w, &TINY_VAE).unwrap();
+        let mean = encoder.forward(&mut r, &x).unwrap();
+        r.submit();
+        assert_eq!(mean.shape, [1, 4, 16, 16]);
+        f.assert_close(&mean, "io.out.mean", tolerances(precision).1);
+    }
+}
+
+#[test]
+fn the_vae_decoder_matches_pytorch() {
+    for precision in precisions() {
+        let mut f = Fixture::open("vae_decoder", precision);
+        let z = f.input("io.in.z");
+        let (mut r, w) = f.recorder();
+        let decoder = Decoder::load(&w, &TINY_VAE).unwrap();
+        let y = decoder.forward(&mut r, &z).unwrap();
+        r.submit();
+        assert_eq!(y.shape, [1, 3, 128, 128]);
+        f.assert_close(&y, "io.out.y", tolerances(precision).1);
+    }
+}
+
+/// The action id stored in a fixture.
+fn action(f: &Fixture) -> usize {
+    f.scalar("io.in.action") as usize
+}
+
+#[test]
+fn a_whole_unet_step_matches_pytorch() {
+    for precision in precisions() {
+        let mut f = Fixture::open("unet_step", precision);
+        let (x, t, a) = (f.input("io.in.x"), f.stored("io.in.t").0, action(&f));
+        let (mut r, w) = f.recorder();
+        let unet = UNet::load(&w, &tiny_unet()).unwrap();
+        let eps = unet.groups(&mut r, &x, &t, &[a]).unwrap();
+        r.submit();
+        assert_eq!(eps.shape, [1, 4, 4, 16, 16]);
+        f.assert_close(&eps, "io.out.eps", tolerances(precision).1);
+    }
+}
+
+#[test]
+fn the_cached_context_path_gives_the_whole_groups_target_noise() {
+    // Context frames once, then the target alone, against PyTorch's full 4-frame pass.
+    let mut f = Fixture::open("unet_step", Precision::F32);
+    let (x, shape) = f.stored("io.in.x");
+    let frame = x.len() / 4;
+    let context = Tensor::upload(
+        &f.gpu,
+        "context",
+        &[1, 3, 4, 16, 16],
+        &x[..3 * frame],
+        Precision::F32,
+    )
+    .unwrap();
+    let target = Tensor::upload(
+        &f.gpu,
+        "target",
+        &[1, 4, 16, 16],
+        &x[3 * frame..],
+        Precision::F32,
+    )
+    .unwrap();
+    assert_eq!(shape, [1, 4, 4, 16, 16]);
+    let (t, a) = (f.stored("io.in.t").0, action(&f));
+    let (mut r, w) = f.recorder();
+    let unet = UNet::load(&w, &tiny_unet()).unwrap();
+    let cache = unet.context(&mut r, &context, &[a]).unwrap();
+    let eps = unet.next(&mut r, &target, t[3], &cache).unwrap();
+    r.submit();
+    let got = eps.read(&f.gpu).unwrap();
+    let want = &f.stored("io.out.eps").0[3 * frame..];
+    let scale = want.iter().fold(1.0f32, |m, v| m.max(v.abs()));
+    let worst = got
+        .iter()
+        .zip(want)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(worst / scale <= 1e-4, "{}", worst / scale);
+}
+
+fn schedule() -> Schedule {
+    Schedule::scaled_linear(1000, 0.00085, 0.012)
+}
+
+#[test]
+fn the_schedule_matches_pytorch() {
+    let f = Fixture::open("alphas_cumprod", Precision::F32);
+    let want = f.stored("io.out.alphas_cumprod").0;
+    let s = schedule();
+    assert_eq!(s.steps(), want.len());
+    for (t, w) in want.iter().enumerate() {
+        assert!((s.alpha_bar(t as i64) as f32 - w).abs() <= 1e-7, "t = {t}");
+    }
+}
+
+#[test]
+fn a_ddim_step_with_classifier_free_guidance_matches_pytorch() {
+    for precision in precisions() {
+        let mut f = Fixture::open("ddim_cfg_step", precision);
+        let (x, shape) = f.stored("io.in.x");
+        let frame = x.len() / 4;
+        let context = Tensor::upload(
+            &f.gpu,
+            "context",
+            &[1, 3, 4, 16, 16],
+            &x[..3 * frame],
+            precision,
+        )
+        .unwrap();
+        let target = Tensor::upload(
+            &f.gpu,
+            "target",
+            &[1, 4, 16, 16],
+            &x[3 * frame..],
+            precision,
+        )
+        .unwrap();
+        assert_eq!(shape[1], 4);
+        let (a, scale, t_prev) = (
+            action(&f),
+            f.scalar("io.in.cfg_scale"),
+            f.scalar("io.in.t_prev") as i64,
+        );
+        let t = f.stored("io.in.t").0[3] as i64;
+        let (mut r, w) = f.recorder();
+        let unet = UNet::load(&w, &tiny_unet()).unwrap();
+        let both = r.concat(&context, &context, 0).unwrap();
+        let cache = unet
+            .context(&mut r, &both, &[a, unet.cfg.null_action()])
+            .unwrap();
+        let eps = sampler::guided_eps(&mut r, &unet, &target, t, &cache, scale).unwrap();
+        let (ca, cb) = schedule().ddim_coefficients(t, t_prev);
+        let x_prev = r.axpby(ca, &target, 0, cb, &eps, 0, &target.shape).unwrap();
+        r.submit();
+        let tolerance = tolerances(precision).1;
+        f.assert_close(&eps, "io.out.eps", tolerance);
+        f.assert_close(&x_prev, "io.out.x_prev", tolerance);
+    }
+}
+
+#[test]
+fn a_four_step_ddim_sample_matches_pytorch() {
+    for precision in precisions() {
+        let mut f = Fixture::open("ddim_sample_4", precision);
+        let (context, noise, a) = (f.input("io.in.context"), f.input("io.in.noise"), action(&f));
+        let sampling = Sampling {
+            steps: f.scalar("io.in.steps") as usize,
+            cfg_scale: f.scalar("io.in.cfg_scale"),
+        };
+        let (mut r, w) = f.recorder();
+        let unet = UNet::load(&w, &tiny_unet()).unwrap();
+        let x0 = sampler::sample_next(&mut r, &unet, &schedule(), &context, &[a], &noise, sampling)
+            .unwrap();
+        r.submit();
+        f.assert_close(&x0, "io.out.x0", tolerances(precision).1);
+    }
 }

@@ -1,36 +1,65 @@
-//! Every WGSL file is registered, parses and validates with naga (no device needed), and
-//! every shared struct has the same size and field offsets in WGSL as in Rust.
+//! Every WGSL file is registered, parses and validates with naga (no device needed) in
+//! every precision variant it has, and every shared struct has the same size and field
+//! offsets in WGSL as in Rust.
 
 use std::collections::BTreeSet;
 
+use unica::gpu::kernel::Precision;
 use unica::gpu::shaders::{ALL, Shader};
 use wgpu::naga;
 
-fn parse(shader: &Shader) -> naga::Module {
-    let source = shader.source();
+fn parse(shader: &Shader, precision: Precision) -> naga::Module {
+    let source = shader.source(precision);
     naga::front::wgsl::parse_str(&source)
         .unwrap_or_else(|e| panic!("{}: {}", shader.file, e.emit_to_string(&source)))
 }
 
-fn capabilities(shader: &Shader) -> naga::valid::Capabilities {
+fn capabilities(shader: &Shader, precision: Precision) -> naga::valid::Capabilities {
     use naga::valid::Capabilities as C;
     let mut caps = C::empty();
-    caps.set(C::SHADER_FLOAT16, shader.needs_f16);
+    caps.set(C::SHADER_FLOAT16, shader.needs_f16_for(precision));
     caps.set(C::SUBGROUP, shader.needs_subgroups);
     caps
+}
+
+/// The variants a shader is built in: both precisions for `Elem` shaders.
+fn variants(shader: &Shader) -> Vec<Precision> {
+    if shader.elem {
+        vec![Precision::F32, Precision::F16]
+    } else {
+        vec![Precision::F32]
+    }
 }
 
 #[test]
 fn every_shader_parses_and_validates_with_only_the_features_it_declares() {
     for shader in ALL {
-        let module = parse(shader);
-        let source = shader.source();
-        naga::valid::Validator::new(naga::valid::ValidationFlags::all(), capabilities(shader))
-            .subgroup_stages(naga::valid::ShaderStages::all())
-            .subgroup_operations(naga::valid::SubgroupOperationSet::all())
-            .validate(&module)
-            .unwrap_or_else(|e| panic!("{}: {}", shader.file, e.emit_to_string(&source)));
+        for precision in variants(shader) {
+            let module = parse(shader, precision);
+            let source = shader.source(precision);
+            let caps = capabilities(shader, precision);
+            naga::valid::Validator::new(naga::valid::ValidationFlags::all(), caps)
+                .subgroup_stages(naga::valid::ShaderStages::all())
+                .subgroup_operations(naga::valid::SubgroupOperationSet::all())
+                .validate(&module)
+                .unwrap_or_else(|e| {
+                    panic!(
+                        "{} ({precision:?}): {}",
+                        shader.file,
+                        e.emit_to_string(&source)
+                    )
+                });
+        }
     }
+}
+
+#[test]
+fn the_f32_variant_of_an_elem_shader_needs_no_f16() {
+    let shader = unica::gpu::shaders::CONV2D;
+    assert!(!shader.needs_f16_for(Precision::F32));
+    assert!(shader.needs_f16_for(Precision::F16));
+    assert!(shader.source(Precision::F16).starts_with("enable f16;"));
+    assert!(!shader.source(Precision::F32).contains("f16"));
 }
 
 #[test]
@@ -55,7 +84,7 @@ fn every_file_in_shaders_is_registered_once() {
 fn shared_structs_have_the_host_layout() {
     let mut checked = 0;
     for shader in ALL {
-        let module = parse(shader);
+        let module = parse(shader, Precision::F32);
         for shared in shader.structs {
             let (span, members) = module
                 .types

@@ -59,10 +59,11 @@ impl Grid {
     }
 }
 
-/// Compute pipelines by (shader file, entry point), built once on first use.
+/// Compute pipelines by (shader file, precision variant), built once on first use; every
+/// compute shader's entry point is `main`.
 #[derive(Default)]
 pub struct PipelineCache {
-    pipelines: HashMap<(&'static str, &'static str), wgpu::ComputePipeline>,
+    pipelines: HashMap<(&'static str, Precision), wgpu::ComputePipeline>,
 }
 
 impl PipelineCache {
@@ -70,17 +71,17 @@ impl PipelineCache {
         &mut self,
         device: &wgpu::Device,
         shader: &Shader,
-        entry: &'static str,
+        precision: Precision,
     ) -> &wgpu::ComputePipeline {
         self.pipelines
-            .entry((shader.file, entry))
+            .entry((shader.file, precision))
             .or_insert_with(|| {
-                let module = shader.module(device);
+                let module = shader.module(device, precision);
                 device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                     label: Some(shader.file),
                     layout: None,
                     module: &module,
-                    entry_point: Some(entry),
+                    entry_point: Some("main"),
                     compilation_options: Default::default(),
                     cache: None,
                 })
@@ -127,14 +128,46 @@ pub fn dispatch(
     pass.dispatch_workgroups(grid.x, grid.y, 1);
 }
 
-/// Which element type the example kernels store: f16 where the device has SHADER_F16.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Which element type kernels store (`Elem` in WGSL): f16 where the device has
+/// SHADER_F16 and the caller wants it; arithmetic is f32 either way.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Precision {
     F32,
     F16,
 }
 
 impl Precision {
+    /// Bytes per stored value.
+    pub fn bytes(self) -> usize {
+        match self {
+            Self::F32 => 4,
+            Self::F16 => 2,
+        }
+    }
+
+    /// `values` as this precision's bytes (f16: rounded to nearest).
+    pub fn encode(self, values: &[f32]) -> Vec<u8> {
+        match self {
+            Self::F32 => bytemuck::cast_slice(values).to_vec(),
+            Self::F16 => {
+                let halves: Vec<half::f16> =
+                    values.iter().map(|&v| half::f16::from_f32(v)).collect();
+                bytemuck::cast_slice(&halves).to_vec()
+            }
+        }
+    }
+
+    /// Stored bytes back to f32 values.
+    pub fn decode(self, raw: &[u8]) -> Vec<f32> {
+        match self {
+            Self::F32 => bytemuck::pod_collect_to_vec(raw),
+            Self::F16 => bytemuck::pod_collect_to_vec::<u8, half::f16>(raw)
+                .iter()
+                .map(|v| v.to_f32())
+                .collect(),
+        }
+    }
+
     /// The best precision path the device supports (f16 storage halves bandwidth).
     pub fn preferred(gpu: &GpuContext) -> Self {
         if gpu.caps.shader_f16 {
@@ -176,18 +209,8 @@ impl ScaleAdd {
         bias: f32,
         precision: Precision,
     ) -> Result<Self, GpuError> {
-        let (shader, bytes) = match precision {
-            Precision::F32 => (&shaders::SCALE_ADD_F32, bytemuck::cast_slice(x).to_vec()),
-            Precision::F16 => {
-                let halves: Vec<half::f16> = x.iter().map(|&v| half::f16::from_f32(v)).collect();
-                (
-                    &shaders::SCALE_ADD_F16,
-                    bytemuck::cast_slice(&halves).to_vec(),
-                )
-            }
-        };
         // f16 arrays are padded to 4 bytes so odd lengths still bind and copy.
-        let mut bytes = bytes;
+        let mut bytes = precision.encode(x);
         bytes.resize(bytes.len().next_multiple_of(4), 0);
         let padded = bytes.len() as u64;
         let input = gpu.storage_buffer("scale_add.x", padded, wgpu::BufferUsages::COPY_DST)?;
@@ -201,7 +224,9 @@ impl ScaleAdd {
             pad: 0,
         };
         Ok(Self {
-            pipeline: cache.get(&gpu.device, shader, "main").clone(),
+            pipeline: cache
+                .get(&gpu.device, &shaders::SCALE_ADD, precision)
+                .clone(),
             params: uniform(&gpu.device, &params),
             input,
             output,
@@ -216,14 +241,7 @@ impl ScaleAdd {
 
     /// Bytes read and written by one run.
     pub fn bytes_moved(&self) -> u64 {
-        2 * self.len as u64 * self.element_size() as u64
-    }
-
-    fn element_size(&self) -> usize {
-        match self.precision {
-            Precision::F32 => 4,
-            Precision::F16 => 2,
-        }
+        2 * (self.len * self.precision.bytes()) as u64
     }
 
     pub fn record(
@@ -246,14 +264,9 @@ impl ScaleAdd {
     /// The output as f32.
     pub fn read(&self, gpu: &GpuContext) -> Result<Vec<f32>, GpuError> {
         let raw = readback::buffer(gpu, &self.output, "scale_add.y")?;
-        let raw = &raw[..self.len * self.element_size()];
-        Ok(match self.precision {
-            Precision::F32 => bytemuck::cast_slice(raw).to_vec(),
-            Precision::F16 => bytemuck::cast_slice::<u8, half::f16>(raw)
-                .iter()
-                .map(|v| v.to_f32())
-                .collect(),
-        })
+        Ok(self
+            .precision
+            .decode(&raw[..self.len * self.precision.bytes()]))
     }
 }
 
@@ -296,7 +309,7 @@ pub fn sum(gpu: &GpuContext, cache: &mut PipelineCache, x: &[f32]) -> Result<f32
             pad2: 0,
         },
     );
-    let pipeline = cache.get(&gpu.device, shader, "main");
+    let pipeline = cache.get(&gpu.device, shader, Precision::F32);
     let mut encoder = gpu.device.create_command_encoder(&Default::default());
     dispatch(
         &gpu.device,

@@ -89,19 +89,34 @@ pub struct Shader {
     pub file: &'static str,
     pub body: &'static str,
     pub structs: &'static [SharedStruct],
-    /// Needs `enable f16;` support (SHADER_F16).
+    /// Needs `enable f16;` support (SHADER_F16) in every variant.
     pub needs_f16: bool,
     /// Needs subgroup operations (SUBGROUP).
     pub needs_subgroups: bool,
+    /// Stores its tensors as `Elem`, built as f32 or f16 (see [`Precision`]).
+    pub elem: bool,
 }
 
 impl Shader {
-    /// The full WGSL source: `enable f16;` where needed, shared struct declarations, then
-    /// the file. (naga takes subgroup builtins without a directive.)
-    pub fn source(&self) -> String {
+    /// Whether the variant for `precision` needs SHADER_F16.
+    pub fn needs_f16_for(&self, precision: Precision) -> bool {
+        self.needs_f16 || (self.elem && precision == Precision::F16)
+    }
+
+    /// The full WGSL source of one variant: `enable f16;` where needed, the `Elem` alias,
+    /// the shared struct declarations, then the file. (naga takes subgroup builtins
+    /// without a directive.)
+    pub fn source(&self, precision: Precision) -> String {
         let mut out = String::new();
-        if self.needs_f16 {
+        if self.needs_f16_for(precision) {
             out.push_str("enable f16;\n");
+        }
+        if self.elem {
+            let elem = match precision {
+                Precision::F32 => "f32",
+                Precision::F16 => "f16",
+            };
+            out.push_str(&format!("alias Elem = {elem};\n"));
         }
         for s in self.structs {
             out.push_str(&(s.wgsl)());
@@ -110,59 +125,60 @@ impl Shader {
         out
     }
 
-    pub fn module(&self, device: &wgpu::Device) -> wgpu::ShaderModule {
+    pub fn module(&self, device: &wgpu::Device, precision: Precision) -> wgpu::ShaderModule {
         device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(self.file),
-            source: wgpu::ShaderSource::Wgsl(Cow::Owned(self.source())),
+            source: wgpu::ShaderSource::Wgsl(Cow::Owned(self.source(precision))),
         })
     }
 }
 
 macro_rules! shader {
+    ($file:literal, [$($s:ty),*], elem) => {
+        shader!($file, [$($s),*], f16: false, subgroups: false, elem: true)
+    };
     ($file:literal, [$($s:ty),*], f16: $f16:expr, subgroups: $sg:expr) => {
+        shader!($file, [$($s),*], f16: $f16, subgroups: $sg, elem: false)
+    };
+    ($file:literal, [$($s:ty),*], f16: $f16:expr, subgroups: $sg:expr, elem: $elem:expr) => {
         Shader {
             file: $file,
             body: include_str!(concat!("../../shaders/", $file)),
             structs: &[$(SharedStruct::of::<$s>()),*],
             needs_f16: $f16,
             needs_subgroups: $sg,
+            elem: $elem,
         }
     };
 }
 
-use super::kernel::{ElementwiseParams, ReduceParams};
-use crate::nn::{
-    AddParams, AttentionParams, Conv2dParams, EmbeddingParams, GroupNormParams, LinearParams,
-    PermuteParams, UpsampleParams,
+use super::kernel::{ElementwiseParams, Precision, ReduceParams};
+use crate::nn::ops::{
+    AddParams, AttentionParams, AxpbyParams, ConcatParams, Conv2dParams, EmbeddingParams,
+    GroupNormParams, LinearParams, PermuteParams, UpsampleParams,
 };
 use crate::render::SceneUniforms;
 
-pub const SCALE_ADD_F32: Shader =
-    shader!("scale_add_f32.wgsl", [ElementwiseParams], f16: false, subgroups: false);
-pub const SCALE_ADD_F16: Shader =
-    shader!("scale_add_f16.wgsl", [ElementwiseParams], f16: true, subgroups: false);
+pub const SCALE_ADD: Shader = shader!("scale_add.wgsl", [ElementwiseParams], elem);
 pub const SUM_SHARED: Shader =
     shader!("sum_shared.wgsl", [ReduceParams], f16: false, subgroups: false);
 pub const SUM_SUBGROUP: Shader =
     shader!("sum_subgroup.wgsl", [ReduceParams], f16: false, subgroups: true);
 pub const SCENE: Shader = shader!("scene.wgsl", [SceneUniforms], f16: false, subgroups: false);
-pub const CONV2D: Shader = shader!("conv2d.wgsl", [Conv2dParams], f16: false, subgroups: false);
-pub const GROUP_NORM: Shader =
-    shader!("group_norm.wgsl", [GroupNormParams], f16: false, subgroups: false);
-pub const LINEAR: Shader = shader!("linear.wgsl", [LinearParams], f16: false, subgroups: false);
-pub const ADD: Shader = shader!("add.wgsl", [AddParams], f16: false, subgroups: false);
-pub const PERMUTE: Shader = shader!("permute.wgsl", [PermuteParams], f16: false, subgroups: false);
-pub const TIMESTEP_EMBEDDING: Shader =
-    shader!("timestep_embedding.wgsl", [EmbeddingParams], f16: false, subgroups: false);
-pub const ATTENTION: Shader =
-    shader!("attention.wgsl", [AttentionParams], f16: false, subgroups: false);
-pub const UPSAMPLE_NEAREST: Shader =
-    shader!("upsample_nearest.wgsl", [UpsampleParams], f16: false, subgroups: false);
+pub const CONV2D: Shader = shader!("conv2d.wgsl", [Conv2dParams], elem);
+pub const UPSAMPLE_NEAREST: Shader = shader!("upsample_nearest.wgsl", [UpsampleParams], elem);
+pub const GROUP_NORM: Shader = shader!("group_norm.wgsl", [GroupNormParams], elem);
+pub const LINEAR: Shader = shader!("linear.wgsl", [LinearParams], elem);
+pub const ADD: Shader = shader!("add.wgsl", [AddParams], elem);
+pub const PERMUTE: Shader = shader!("permute.wgsl", [PermuteParams], elem);
+pub const CONCAT: Shader = shader!("concat.wgsl", [ConcatParams], elem);
+pub const AXPBY: Shader = shader!("axpby.wgsl", [AxpbyParams], elem);
+pub const ATTENTION: Shader = shader!("attention.wgsl", [AttentionParams], elem);
+pub const TIMESTEP_EMBEDDING: Shader = shader!("timestep_embedding.wgsl", [EmbeddingParams], elem);
 
 /// Every shader of the crate; a test checks this covers every file in `shaders/`.
 pub const ALL: &[Shader] = &[
-    SCALE_ADD_F32,
-    SCALE_ADD_F16,
+    SCALE_ADD,
     SUM_SHARED,
     SUM_SUBGROUP,
     SCENE,
@@ -172,6 +188,8 @@ pub const ALL: &[Shader] = &[
     LINEAR,
     ADD,
     PERMUTE,
+    CONCAT,
+    AXPBY,
     ATTENTION,
     TIMESTEP_EMBEDDING,
 ];

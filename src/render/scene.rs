@@ -5,6 +5,7 @@ use glam::{Vec3, Vec4};
 use wgpu::util::DeviceExt;
 
 use super::OrbitCamera;
+use crate::gpu::kernel::Precision;
 use crate::gpu::timing::PassTimer;
 use crate::gpu::{GpuContext, shaders};
 use crate::gpu_struct;
@@ -115,7 +116,7 @@ pub struct SceneRenderer {
 impl SceneRenderer {
     pub fn new(gpu: &GpuContext) -> Self {
         let device = &gpu.device;
-        let module = shaders::SCENE.module(device);
+        let module = shaders::SCENE.module(device, Precision::F32);
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("scene"),
             entries: &[wgpu::BindGroupLayoutEntry {

@@ -1,0 +1,20 @@
+// y[i] = alpha · x[x_offset + i] + beta · z[z_offset + i] for i < len: the DDIM update
+// and classifier-free guidance (conditional and null halves of one batch), in f32.
+
+@group(0) @binding(0) var<uniform> p: AxpbyParams;
+@group(0) @binding(1) var<storage, read> x: array<Elem>;
+@group(0) @binding(2) var<storage, read> z: array<Elem>;
+@group(0) @binding(3) var<storage, read_write> y: array<Elem>;
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let i = (group.x + group.y * groups.x) * 64u + lane;
+    if i >= p.len {
+        return;
+    }
+    y[i] = Elem(p.alpha * f32(x[p.x_offset + i]) + p.beta * f32(z[p.z_offset + i]));
+}

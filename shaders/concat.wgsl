@@ -1,0 +1,28 @@
+// Concatenation along one axis: a [outer, a_inner] and b [outer, b_inner] become
+// y [outer, a_inner + b_inner] (channels of NCHW: inner = C·H·W per sample; frames of
+// [B, HW, F, C] rows: inner = F·C).
+
+@group(0) @binding(0) var<uniform> p: ConcatParams;
+@group(0) @binding(1) var<storage, read> a: array<Elem>;
+@group(0) @binding(2) var<storage, read> b: array<Elem>;
+@group(0) @binding(3) var<storage, read_write> y: array<Elem>;
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let i = (group.x + group.y * groups.x) * 64u + lane;
+    let row = p.a_inner + p.b_inner;
+    if i >= p.outer * row {
+        return;
+    }
+    let o = i / row;
+    let k = i % row;
+    if k < p.a_inner {
+        y[i] = a[o * p.a_inner + k];
+    } else {
+        y[i] = b[o * p.b_inner + k - p.a_inner];
+    }
+}

@@ -1,0 +1,146 @@
+//! Bundles (DESIGN §8), the trainer's output: `manifest.json` (format, version, model
+//! configs, sampler defaults, normalisation) and `weights.safetensors`. Loading refuses
+//! another format or version and names the first tensor whose name, dtype or shape is
+//! not what the manifest's configs imply.
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use super::Tensor;
+use super::sampler::{DiffusionConfig, Sampling, Schedule};
+use super::unet::{UNet, UNetConfig};
+use super::vae::{Decoder, Encoder, VaeConfig};
+use super::weights::{LoadError, Weights};
+use crate::gpu::GpuContext;
+use crate::gpu::kernel::Precision;
+use crate::nn::ops::MAX_HEAD_SIZE;
+use crate::tensors::TensorFile;
+
+pub const FORMAT: &str = "unica-bundle";
+pub const VERSION: u64 = 1;
+
+/// What the manifest says (unknown fields are ignored; `tensors` is checked through the
+/// weights themselves).
+#[derive(Clone, Debug, Deserialize)]
+pub struct Manifest {
+    pub avatar: String,
+    pub actions: Vec<String>,
+    pub vae: VaeConfig,
+    pub unet: UNetConfig,
+    pub diffusion: DiffusionConfig,
+    pub sampler: Sampling,
+    /// Latents the UNet sees are the VAE means times this.
+    pub latent_scale: f32,
+    pub frame_rate: f32,
+    pub map_size: usize,
+}
+
+/// A loaded bundle: the models on the GPU and what the sampler needs.
+pub struct Bundle {
+    pub dir: PathBuf,
+    pub manifest: Manifest,
+    pub encoder: Encoder,
+    pub decoder: Decoder,
+    pub unet: UNet,
+    pub schedule: Schedule,
+    /// The standing start's context, [frames - 1, latent, h, w], already scaled.
+    pub context: Tensor,
+}
+
+impl Bundle {
+    pub fn load(dir: &Path, gpu: &GpuContext, precision: Precision) -> Result<Self, LoadError> {
+        let manifest = read_manifest(&dir.join("manifest.json"))?;
+        let file = TensorFile::open(&dir.join("weights.safetensors"))?;
+        let w = Weights::new(&file, gpu, precision);
+        let (vae, unet) = (&manifest.vae, &manifest.unet);
+        let side = manifest.map_size / 8;
+        Ok(Self {
+            encoder: Encoder::load(&w.at("vae.encoder"), vae)?,
+            decoder: Decoder::load(&w.at("vae.decoder"), vae)?,
+            unet: UNet::load(&w.at("unet"), unet)?,
+            schedule: Schedule::scaled_linear(
+                manifest.diffusion.steps,
+                manifest.diffusion.beta_start,
+                manifest.diffusion.beta_end,
+            ),
+            context: w.tensor(
+                "context.latents",
+                &[unet.frames - 1, unet.latent, side, side],
+            )?,
+            dir: dir.to_path_buf(),
+            manifest,
+        })
+    }
+}
+
+/// Reads and checks a manifest: format and version first (so a future version gets that
+/// message, not a field error), then the fields and what this engine supports.
+pub fn read_manifest(path: &Path) -> Result<Manifest, LoadError> {
+    let fail = |problem: String| LoadError::Manifest {
+        path: path.display().to_string(),
+        problem,
+    };
+    let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
+    let value: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| fail(format!("not JSON: {e}")))?;
+    let format = value.get("format").and_then(|f| f.as_str()).unwrap_or("");
+    if format != FORMAT {
+        return Err(fail(format!(
+            "not a unica bundle (format '{format}', expected '{FORMAT}')"
+        )));
+    }
+    match value.get("version").and_then(|v| v.as_u64()) {
+        Some(VERSION) => {}
+        Some(v) => {
+            return Err(fail(format!(
+                "bundle version {v}, this build reads version {VERSION}"
+            )));
+        }
+        None => return Err(fail("no bundle version".into())),
+    }
+    let manifest: Manifest = serde_json::from_value(value).map_err(|e| fail(e.to_string()))?;
+    let (unet, diffusion) = (&manifest.unet, &manifest.diffusion);
+    let problem = if diffusion.schedule != "scaled_linear" || diffusion.prediction != "epsilon" {
+        Some(format!(
+            "diffusion '{}' with '{}' prediction; this engine runs scaled_linear with epsilon",
+            diffusion.schedule, diffusion.prediction
+        ))
+    } else if manifest.actions.len() != unet.actions {
+        Some(format!(
+            "{} action names for {} actions",
+            manifest.actions.len(),
+            unet.actions
+        ))
+    } else if unet.frames < 2 {
+        Some(format!(
+            "groups of {} frames; at least 2 are needed",
+            unet.frames
+        ))
+    } else if unet
+        .channels
+        .iter()
+        .any(|c| c % unet.heads != 0 || c / unet.heads > MAX_HEAD_SIZE)
+    {
+        Some(format!(
+            "channels {:?} in {} heads: each head must be a whole number of at most {MAX_HEAD_SIZE} channels",
+            unet.channels, unet.heads
+        ))
+    } else if manifest.map_size != 128 {
+        Some(format!(
+            "position maps of {} pixels; this engine's VAE layout is 128",
+            manifest.map_size
+        ))
+    } else if manifest.sampler.steps == 0 || manifest.sampler.steps > diffusion.steps {
+        Some(format!(
+            "{} DDIM steps of a {}-step schedule",
+            manifest.sampler.steps, diffusion.steps
+        ))
+    } else {
+        None
+    };
+    match problem {
+        Some(p) => Err(fail(p)),
+        None => Ok(manifest),
+    }
+}

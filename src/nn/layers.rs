@@ -1,0 +1,389 @@
+//! The trainer's building blocks (train/unica_train/layers.py) on the GPU: convolutions,
+//! group norms, linear layers, residual blocks and the three attention kinds, loaded by
+//! their PyTorch names and recorded with a [`Recorder`].
+
+use super::Tensor;
+use super::ops::{AttentionParams, Broadcast, Recorder};
+use super::weights::{LoadError, Weights};
+use crate::gpu::GpuError;
+
+/// A square convolution with bias and "same" padding (k / 2).
+pub struct Conv {
+    weight: Tensor,
+    bias: Tensor,
+    stride: usize,
+}
+
+impl Conv {
+    pub fn load(
+        w: &Weights,
+        c_in: usize,
+        c_out: usize,
+        kernel: usize,
+        stride: usize,
+    ) -> Result<Self, LoadError> {
+        Ok(Self {
+            weight: w.tensor("weight", &[c_out, c_in, kernel, kernel])?,
+            bias: w.tensor("bias", &[c_out])?,
+            stride,
+        })
+    }
+
+    /// Only the first `keep` output channels of a convolution with `c_out` of them.
+    pub fn load_first(
+        w: &Weights,
+        c_in: usize,
+        c_out: usize,
+        keep: usize,
+    ) -> Result<Self, LoadError> {
+        Ok(Self {
+            weight: w.rows("weight", &[c_out, c_in, 3, 3], keep)?,
+            bias: w.rows("bias", &[c_out], keep)?,
+            stride: 1,
+        })
+    }
+
+    pub fn forward(&self, r: &mut Recorder, x: &Tensor) -> Result<Tensor, GpuError> {
+        let pad = self.weight.shape[2] / 2;
+        r.conv2d(x, &self.weight, Some(&self.bias), self.stride, pad)
+    }
+}
+
+/// Group norm with gcd(8, channels) groups, as the trainer's `norm`.
+pub struct Norm {
+    gamma: Tensor,
+    beta: Tensor,
+    groups: usize,
+}
+
+impl Norm {
+    pub fn load(w: &Weights, channels: usize) -> Result<Self, LoadError> {
+        Ok(Self {
+            gamma: w.tensor("weight", &[channels])?,
+            beta: w.tensor("bias", &[channels])?,
+            groups: gcd(8, channels),
+        })
+    }
+
+    pub fn forward(&self, r: &mut Recorder, x: &Tensor, silu: bool) -> Result<Tensor, GpuError> {
+        r.group_norm(x, &self.gamma, &self.beta, self.groups, silu)
+    }
+}
+
+fn gcd(a: usize, b: usize) -> usize {
+    if b == 0 { a } else { gcd(b, a % b) }
+}
+
+pub struct Linear {
+    weight: Tensor,
+    bias: Tensor,
+}
+
+impl Linear {
+    pub fn load(w: &Weights, inputs: usize, outputs: usize) -> Result<Self, LoadError> {
+        Ok(Self {
+            weight: w.tensor("weight", &[outputs, inputs])?,
+            bias: w.tensor("bias", &[outputs])?,
+        })
+    }
+
+    pub fn forward(
+        &self,
+        r: &mut Recorder,
+        x: &Tensor,
+        input_silu: bool,
+    ) -> Result<Tensor, GpuError> {
+        r.linear(x, &self.weight, &self.bias, input_silu)
+    }
+}
+
+/// GroupNorm-SiLU-Conv twice, an optional per-sample embedding added in between, and a
+/// 1×1 skip when the channel count changes.
+pub struct ResBlock {
+    norm1: Norm,
+    conv1: Conv,
+    emb: Option<Linear>,
+    norm2: Norm,
+    conv2: Conv,
+    skip: Option<Conv>,
+}
+
+impl ResBlock {
+    pub fn load(
+        w: &Weights,
+        c_in: usize,
+        c_out: usize,
+        emb: Option<usize>,
+    ) -> Result<Self, LoadError> {
+        Ok(Self {
+            norm1: Norm::load(&w.at("norm1"), c_in)?,
+            conv1: Conv::load(&w.at("conv1"), c_in, c_out, 3, 1)?,
+            emb: emb
+                .map(|e| Linear::load(&w.at("emb"), e, c_out))
+                .transpose()?,
+            norm2: Norm::load(&w.at("norm2"), c_out)?,
+            conv2: Conv::load(&w.at("conv2"), c_out, c_out, 3, 1)?,
+            skip: (c_in != c_out)
+                .then(|| Conv::load(&w.at("skip"), c_in, c_out, 1, 1))
+                .transpose()?,
+        })
+    }
+
+    /// `x` [N, C, H, W]; `emb` [N, E] when the block has an embedding.
+    pub fn forward(
+        &self,
+        r: &mut Recorder,
+        x: &Tensor,
+        emb: Option<&Tensor>,
+    ) -> Result<Tensor, GpuError> {
+        let h = self.norm1.forward(r, x, true)?;
+        let mut h = self.conv1.forward(r, &h)?;
+        if let Some(layer) = &self.emb {
+            let projected = layer.forward(r, emb.expect("this block takes an embedding"), true)?;
+            h = r.add(&h, &projected, Broadcast::Leading)?;
+        }
+        let h = self.norm2.forward(r, &h, true)?;
+        let h = self.conv2.forward(r, &h)?;
+        let skip = match &self.skip {
+            Some(conv) => conv.forward(r, x)?,
+            None => x.clone(),
+        };
+        r.add(&skip, &h, Broadcast::Leading)
+    }
+}
+
+/// Nearest ×2 upsampling then a 3×3 convolution.
+pub struct Up {
+    conv: Conv,
+}
+
+impl Up {
+    pub fn load(w: &Weights, c_in: usize, c_out: usize) -> Result<Self, LoadError> {
+        Ok(Self {
+            conv: Conv::load(&w.at("conv"), c_in, c_out, 3, 1)?,
+        })
+    }
+
+    pub fn forward(&self, r: &mut Recorder, x: &Tensor) -> Result<Tensor, GpuError> {
+        let up = r.upsample_nearest2x(x)?;
+        self.conv.forward(r, &up)
+    }
+}
+
+/// Attention shapes: `sequences` × `queries` rows attend to `keys` rows; packed qkv rows
+/// ([q | k | v], self-attention) or separate q rows and [k | v] rows.
+fn attention_params(
+    sequences: usize,
+    queries: usize,
+    keys: usize,
+    channels: usize,
+    heads: usize,
+    packed: bool,
+) -> AttentionParams {
+    let (q_stride, kv_stride, k_offset) = if packed {
+        (3 * channels, 3 * channels, channels)
+    } else {
+        (channels, 2 * channels, 0)
+    };
+    AttentionParams {
+        sequences: sequences as u32,
+        heads: heads as u32,
+        queries: queries as u32,
+        keys: keys as u32,
+        channels: channels as u32,
+        q_stride: q_stride as u32,
+        q_offset: 0,
+        kv_stride: kv_stride as u32,
+        k_offset: k_offset as u32,
+        v_offset: (k_offset + channels) as u32,
+        causal: 0,
+        kv_share: 1,
+    }
+}
+
+/// NCHW images as [N, HW, C] token rows, and back (adding the residual).
+fn to_tokens(r: &mut Recorder, x: &Tensor) -> Result<Tensor, GpuError> {
+    let [n, c, h, w] = x.shape[..] else {
+        panic!("NCHW expected, got {:?}", x.shape)
+    };
+    r.permute(x, [1, n, c, h * w], [0, 1, 3, 2])
+}
+
+fn add_tokens(r: &mut Recorder, x: &Tensor, tokens: &Tensor) -> Result<Tensor, GpuError> {
+    let [n, c, h, w] = x.shape[..] else {
+        panic!("NCHW expected, got {:?}", x.shape)
+    };
+    let image = r.permute(tokens, [1, n, h * w, c], [0, 1, 3, 2])?;
+    r.add(x, &image.reshaped(&x.shape), Broadcast::Leading)
+}
+
+/// Self-attention among the H×W positions of each image.
+pub struct SpatialAttention {
+    norm: Norm,
+    qkv: Linear,
+    out: Linear,
+    heads: usize,
+}
+
+impl SpatialAttention {
+    pub fn load(w: &Weights, channels: usize, heads: usize) -> Result<Self, LoadError> {
+        Ok(Self {
+            norm: Norm::load(&w.at("norm"), channels)?,
+            qkv: Linear::load(&w.at("qkv"), channels, 3 * channels)?,
+            out: Linear::load(&w.at("out"), channels, channels)?,
+            heads,
+        })
+    }
+
+    pub fn forward(&self, r: &mut Recorder, x: &Tensor) -> Result<Tensor, GpuError> {
+        let [n, c, h, w] = x.shape[..] else {
+            panic!("NCHW expected, got {:?}", x.shape)
+        };
+        let normed = self.norm.forward(r, x, false)?;
+        let tokens = to_tokens(r, &normed)?;
+        let qkv = self.qkv.forward(r, &tokens, false)?;
+        let mixed = r.attention(
+            &qkv,
+            &qkv,
+            attention_params(n, h * w, h * w, c, self.heads, true),
+        )?;
+        let out = self.out.forward(r, &mixed, false)?;
+        add_tokens(r, x, &out)
+    }
+}
+
+/// Every position attends to its sample's context tokens (here: one action token).
+pub struct CrossAttention {
+    norm: Norm,
+    q: Linear,
+    kv: Linear,
+    out: Linear,
+    heads: usize,
+}
+
+impl CrossAttention {
+    pub fn load(
+        w: &Weights,
+        channels: usize,
+        context: usize,
+        heads: usize,
+    ) -> Result<Self, LoadError> {
+        Ok(Self {
+            norm: Norm::load(&w.at("norm"), channels)?,
+            q: Linear::load(&w.at("q"), channels, channels)?,
+            kv: Linear::load(&w.at("kv"), context, 2 * channels)?,
+            out: Linear::load(&w.at("out"), channels, channels)?,
+            heads,
+        })
+    }
+
+    /// `x` [N·F, C, H, W]; `context` [N, T, E]: the F consecutive images of a sample
+    /// share its T tokens.
+    pub fn forward(
+        &self,
+        r: &mut Recorder,
+        x: &Tensor,
+        context: &Tensor,
+    ) -> Result<Tensor, GpuError> {
+        let [nf, c, h, w] = x.shape[..] else {
+            panic!("NCHW expected, got {:?}", x.shape)
+        };
+        let [n, tokens_per_sample, _] = context.shape[..] else {
+            panic!("context must be [N, T, E], got {:?}", context.shape)
+        };
+        let normed = self.norm.forward(r, x, false)?;
+        let tokens = to_tokens(r, &normed)?;
+        let q = self.q.forward(r, &tokens, false)?;
+        let kv = self.kv.forward(r, context, false)?;
+        let params = AttentionParams {
+            kv_share: (nf / n) as u32,
+            ..attention_params(nf, h * w, tokens_per_sample, c, self.heads, false)
+        };
+        let mixed = r.attention(&q, &kv, params)?;
+        let out = self.out.forward(r, &mixed, false)?;
+        add_tokens(r, x, &out)
+    }
+}
+
+/// Which frames of each group a batch holds, for [`TemporalAttention`].
+pub enum Frames<'a> {
+    /// The first `count` frames of every group, in order; their packed qkv rows
+    /// [N, HW, count, 3C] are handed to `keep` when given (the context cache).
+    First {
+        count: usize,
+        keep: Option<&'a mut Vec<Tensor>>,
+    },
+    /// Only the frame after the cached ones: `cached` holds the earlier frames' qkv rows.
+    Next { cached: &'a Tensor },
+}
+
+/// Each position attends across the frames of its group, with learned frame positions
+/// and a causal mask (frame i sees frames <= i).
+pub struct TemporalAttention {
+    norm: Norm,
+    position: Tensor,
+    qkv: Linear,
+    out: Linear,
+    heads: usize,
+}
+
+impl TemporalAttention {
+    pub fn load(
+        w: &Weights,
+        channels: usize,
+        frames: usize,
+        heads: usize,
+    ) -> Result<Self, LoadError> {
+        Ok(Self {
+            norm: Norm::load(&w.at("norm"), channels)?,
+            position: w.tensor("position", &[frames, channels])?,
+            qkv: Linear::load(&w.at("qkv"), channels, 3 * channels)?,
+            out: Linear::load(&w.at("out"), channels, channels)?,
+            heads,
+        })
+    }
+
+    /// `x` [N·F, C, H, W] with F frames per group as `frames` says.
+    pub fn forward(
+        &self,
+        r: &mut Recorder,
+        x: &Tensor,
+        frames: Frames,
+    ) -> Result<Tensor, GpuError> {
+        let [nf, c, h, w] = x.shape[..] else {
+            panic!("NCHW expected, got {:?}", x.shape)
+        };
+        let (f, first) = match &frames {
+            Frames::First { count, .. } => (*count, 0),
+            Frames::Next { cached } => (1, cached.shape[2]),
+        };
+        let n = nf / f;
+        let hw = h * w;
+        let normed = self.norm.forward(r, x, false)?;
+        let tokens = r.permute(&normed, [n, f, c, hw], [0, 3, 1, 2])?; // [N, HW, F, C]
+        let tokens = r.add_part(
+            &tokens,
+            &self.position,
+            first * c..(first + f) * c,
+            Broadcast::Trailing,
+        )?;
+        let qkv = self.qkv.forward(r, &tokens, false)?;
+        let kv = match frames {
+            Frames::First { keep, .. } => {
+                if let Some(keep) = keep {
+                    keep.push(qkv.clone());
+                }
+                qkv.clone()
+            }
+            Frames::Next { cached } => r.concat(cached, &qkv, 2)?,
+        };
+        let params = AttentionParams {
+            causal: 1,
+            ..attention_params(n * hw, f, first + f, c, self.heads, true)
+        };
+        let mixed = r.attention(&qkv, &kv, params)?; // [N·HW, F, C]
+        let out = self.out.forward(r, &mixed, false)?;
+        let image = r.permute(&out, [n, hw, f, c], [0, 2, 3, 1])?; // [N, F, C, HW]
+        r.add(x, &image.reshaped(&x.shape), Broadcast::Leading)
+    }
+}

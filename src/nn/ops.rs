@@ -1,0 +1,561 @@
+//! The kernels of the geometry model, recorded into one command encoder by a [`Recorder`]:
+//! convolution, nearest upsampling, group norm (+SiLU), linear, broadcast adds, permutes,
+//! concatenation, axpby, multi-head attention and the timestep embedding. Each call
+//! allocates its output and records one dispatch; nothing is read back.
+
+use super::Tensor;
+use crate::gpu::kernel::{Grid, PipelineCache, Precision, dispatch, uniform};
+use crate::gpu::shaders::{self, Shader};
+use crate::gpu::{GpuContext, GpuError};
+use crate::gpu_struct;
+
+gpu_struct! {
+    /// Shapes of one 2-D convolution (NCHW, square kernel, zero padding).
+    pub struct Conv2dParams {
+        pub batch: u32,
+        pub c_in: u32,
+        pub c_out: u32,
+        pub h_in: u32,
+        pub w_in: u32,
+        pub h_out: u32,
+        pub w_out: u32,
+        pub kernel: u32,
+        pub stride: u32,
+        pub pad: u32,
+        pub has_bias: u32,
+        pub reserved: u32,
+    }
+}
+
+gpu_struct! {
+    /// Shapes of a nearest ×2 upsampling: `planes` = batch × channels.
+    pub struct UpsampleParams {
+        pub planes: u32,
+        pub h_in: u32,
+        pub w_in: u32,
+        pub reserved: u32,
+    }
+}
+
+gpu_struct! {
+    /// Group normalisation of `batch` samples of `channels` × `hw` values.
+    pub struct GroupNormParams {
+        pub batch: u32,
+        pub channels: u32,
+        pub groups: u32,
+        pub hw: u32,
+        pub eps: f32,
+        pub silu: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
+    }
+}
+
+gpu_struct! {
+    /// A fully connected layer over `rows` rows.
+    pub struct LinearParams {
+        pub rows: u32,
+        pub inputs: u32,
+        pub outputs: u32,
+        pub input_silu: u32,
+    }
+}
+
+gpu_struct! {
+    /// `y[i] = a[i] + b[b_offset + (i / per_value) % b_len]` over `len` values.
+    pub struct AddParams {
+        pub len: u32,
+        pub per_value: u32,
+        pub b_len: u32,
+        pub b_offset: u32,
+    }
+}
+
+gpu_struct! {
+    /// `count` timesteps embedded in `dim` values each.
+    pub struct EmbeddingParams {
+        pub count: u32,
+        pub dim: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
+    }
+}
+
+gpu_struct! {
+    /// A 4-D permutation: output axis k is input axis `perm[k]` of `shape`.
+    pub struct PermuteParams {
+        pub shape: [u32; 4],
+        pub perm: [u32; 4],
+    }
+}
+
+gpu_struct! {
+    /// Multi-head attention over `sequences` independent sequences (see attention.wgsl).
+    pub struct AttentionParams {
+        pub sequences: u32,
+        pub heads: u32,
+        pub queries: u32,
+        pub keys: u32,
+        pub channels: u32,
+        pub q_stride: u32,
+        pub q_offset: u32,
+        pub kv_stride: u32,
+        pub k_offset: u32,
+        pub v_offset: u32,
+        pub causal: u32,
+        /// Consecutive sequences that read the same keys and values.
+        pub kv_share: u32,
+    }
+}
+
+gpu_struct! {
+    /// Concatenation of [outer, a_inner] and [outer, b_inner] rows.
+    pub struct ConcatParams {
+        pub outer: u32,
+        pub a_inner: u32,
+        pub b_inner: u32,
+        pub reserved: u32,
+    }
+}
+
+gpu_struct! {
+    /// `y = alpha · x[x_offset..] + beta · z[z_offset..]` over `len` values.
+    pub struct AxpbyParams {
+        pub len: u32,
+        pub x_offset: u32,
+        pub z_offset: u32,
+        pub reserved: u32,
+        pub alpha: f32,
+        pub beta: f32,
+        pub reserved1: u32,
+        pub reserved2: u32,
+    }
+}
+
+/// The epsilon of every group norm in the trainer's models.
+pub const GROUP_NORM_EPS: f32 = 1e-5;
+
+/// The largest attention head the attention kernel holds in registers.
+pub const MAX_HEAD_SIZE: usize = 64;
+
+/// How `b` lines up with `a` in [`Recorder::add`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Broadcast {
+    /// `b` holds one value per leading index (e.g. [N, C] over each H×W plane of NCHW).
+    Leading,
+    /// `b` repeats over the leading axes (e.g. [F, C] over [B, HW, F, C]).
+    Trailing,
+}
+
+/// Records kernels in one precision into one command encoder; [`Recorder::submit`] sends
+/// them to the GPU in one submission. Shapes that do not fit are programming errors and
+/// panic; running out of buffer space is a [`GpuError`].
+pub struct Recorder<'a> {
+    gpu: &'a GpuContext,
+    pipelines: &'a mut PipelineCache,
+    precision: Precision,
+    encoder: wgpu::CommandEncoder,
+}
+
+impl<'a> Recorder<'a> {
+    pub fn new(
+        gpu: &'a GpuContext,
+        pipelines: &'a mut PipelineCache,
+        precision: Precision,
+    ) -> Self {
+        let encoder = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nn") });
+        Self {
+            gpu,
+            pipelines,
+            precision,
+            encoder,
+        }
+    }
+
+    pub fn gpu(&self) -> &GpuContext {
+        self.gpu
+    }
+
+    pub fn precision(&self) -> Precision {
+        self.precision
+    }
+
+    /// Submits everything recorded.
+    pub fn submit(self) {
+        self.gpu.queue.submit([self.encoder.finish()]);
+    }
+
+    /// A tensor of host values in this recorder's precision (written before the
+    /// submission runs).
+    pub fn upload(&self, label: &str, shape: &[usize], values: &[f32]) -> Result<Tensor, GpuError> {
+        Tensor::upload(self.gpu, label, shape, values, self.precision)
+    }
+
+    fn output(&self, label: &str, shape: &[usize]) -> Result<Tensor, GpuError> {
+        Tensor::empty(self.gpu, label, shape, self.precision)
+    }
+
+    fn check(&self, tensors: &[&Tensor]) {
+        for t in tensors {
+            assert_eq!(
+                t.precision, self.precision,
+                "a {:?} tensor {:?} in a {:?} recorder",
+                t.precision, t.shape, self.precision
+            );
+        }
+    }
+
+    /// Records one dispatch of `shader`: `params` as a uniform at binding 0, then
+    /// `buffers`.
+    fn launch<P: bytemuck::Pod>(
+        &mut self,
+        shader: &Shader,
+        params: &P,
+        buffers: &[&Tensor],
+        grid: Grid,
+    ) {
+        self.check(buffers);
+        let params = uniform(&self.gpu.device, params);
+        let bindings: Vec<&wgpu::Buffer> = std::iter::once(&params)
+            .chain(buffers.iter().map(|t| &t.buffer))
+            .collect();
+        let pipeline = self.pipelines.get(&self.gpu.device, shader, self.precision);
+        dispatch(
+            &self.gpu.device,
+            &mut self.encoder,
+            pipeline,
+            &bindings,
+            grid,
+            None,
+        );
+    }
+
+    fn grid(&self, threads: usize) -> Grid {
+        Grid::for_elements(
+            threads as u32,
+            self.gpu
+                .device
+                .limits()
+                .max_compute_workgroups_per_dimension,
+        )
+    }
+
+    /// `y = conv2d(x, weight) + bias` (square kernel, `stride`, zero padding `pad`).
+    pub fn conv2d(
+        &mut self,
+        x: &Tensor,
+        weight: &Tensor,
+        bias: Option<&Tensor>,
+        stride: usize,
+        pad: usize,
+    ) -> Result<Tensor, GpuError> {
+        let [n, c_in, h_in, w_in] = x.shape[..] else {
+            panic!("conv2d input must be NCHW, got {:?}", x.shape)
+        };
+        let [c_out, wc_in, k, _] = weight.shape[..] else {
+            panic!(
+                "conv2d weight must be [c_out, c_in, k, k], got {:?}",
+                weight.shape
+            )
+        };
+        assert_eq!(c_in, wc_in, "conv2d channel mismatch");
+        let h_out = (h_in + 2 * pad - k) / stride + 1;
+        let w_out = (w_in + 2 * pad - k) / stride + 1;
+        let y = self.output("conv2d.y", &[n, c_out, h_out, w_out])?;
+        let params = Conv2dParams {
+            batch: n as u32,
+            c_in: c_in as u32,
+            c_out: c_out as u32,
+            h_in: h_in as u32,
+            w_in: w_in as u32,
+            h_out: h_out as u32,
+            w_out: w_out as u32,
+            kernel: k as u32,
+            stride: stride as u32,
+            pad: pad as u32,
+            has_bias: u32::from(bias.is_some()),
+            reserved: 0,
+        };
+        // A bias binding must exist even without a bias; the weight stands in (unread).
+        let bias = bias.unwrap_or(weight);
+        let grid = self.grid(y.len());
+        self.launch(&shaders::CONV2D, &params, &[x, weight, bias, &y], grid);
+        Ok(y)
+    }
+
+    /// Nearest-neighbour ×2 upsampling of an NCHW tensor.
+    pub fn upsample_nearest2x(&mut self, x: &Tensor) -> Result<Tensor, GpuError> {
+        let [n, c, h, w] = x.shape[..] else {
+            panic!("upsample input must be NCHW, got {:?}", x.shape)
+        };
+        let y = self.output("upsample.y", &[n, c, 2 * h, 2 * w])?;
+        let params = UpsampleParams {
+            planes: (n * c) as u32,
+            h_in: h as u32,
+            w_in: w as u32,
+            reserved: 0,
+        };
+        let grid = self.grid(y.len());
+        self.launch(&shaders::UPSAMPLE_NEAREST, &params, &[x, &y], grid);
+        Ok(y)
+    }
+
+    /// Group normalisation of an NCHW tensor with the per-channel affine `gamma`, `beta`,
+    /// followed by SiLU when `silu` is set.
+    pub fn group_norm(
+        &mut self,
+        x: &Tensor,
+        gamma: &Tensor,
+        beta: &Tensor,
+        groups: usize,
+        silu: bool,
+    ) -> Result<Tensor, GpuError> {
+        let [n, c, h, w] = x.shape[..] else {
+            panic!("group norm input must be NCHW, got {:?}", x.shape)
+        };
+        assert!(c.is_multiple_of(groups), "{c} channels in {groups} groups");
+        let y = self.output("group_norm.y", &x.shape)?;
+        let params = GroupNormParams {
+            batch: n as u32,
+            channels: c as u32,
+            groups: groups as u32,
+            hw: (h * w) as u32,
+            eps: GROUP_NORM_EPS,
+            silu: u32::from(silu),
+            reserved0: 0,
+            reserved1: 0,
+        };
+        // One workgroup per (sample, group).
+        let grid = Grid::for_workgroups(
+            (n * groups) as u32,
+            self.gpu
+                .device
+                .limits()
+                .max_compute_workgroups_per_dimension,
+        );
+        self.launch(&shaders::GROUP_NORM, &params, &[x, gamma, beta, &y], grid);
+        Ok(y)
+    }
+
+    /// `y = act(x) Wᵀ + b` over the last axis of `x`, `weight` [outputs, inputs]; act is
+    /// SiLU when `input_silu` is set.
+    pub fn linear(
+        &mut self,
+        x: &Tensor,
+        weight: &Tensor,
+        bias: &Tensor,
+        input_silu: bool,
+    ) -> Result<Tensor, GpuError> {
+        let inputs = *x.shape.last().expect("a tensor has a shape");
+        let [outputs, w_inputs] = weight.shape[..] else {
+            panic!(
+                "linear weight must be [outputs, inputs], got {:?}",
+                weight.shape
+            )
+        };
+        assert_eq!(inputs, w_inputs, "linear input size mismatch");
+        let mut shape = x.shape.clone();
+        *shape.last_mut().expect("non-empty") = outputs;
+        let y = self.output("linear.y", &shape)?;
+        let params = LinearParams {
+            rows: (x.len() / inputs) as u32,
+            inputs: inputs as u32,
+            outputs: outputs as u32,
+            input_silu: u32::from(input_silu),
+        };
+        let grid = self.grid(y.len());
+        self.launch(&shaders::LINEAR, &params, &[x, weight, bias, &y], grid);
+        Ok(y)
+    }
+
+    /// `a + b`, where `b` is shaped like `a` or broadcast as `broadcast` says.
+    pub fn add(
+        &mut self,
+        a: &Tensor,
+        b: &Tensor,
+        broadcast: Broadcast,
+    ) -> Result<Tensor, GpuError> {
+        self.add_part(a, b, 0..b.len(), broadcast)
+    }
+
+    /// `a + b[part]`, the values `part` of `b` broadcast as `broadcast` says (e.g. some
+    /// rows of a table of frame positions).
+    pub fn add_part(
+        &mut self,
+        a: &Tensor,
+        b: &Tensor,
+        part: std::ops::Range<usize>,
+        broadcast: Broadcast,
+    ) -> Result<Tensor, GpuError> {
+        assert!(
+            !part.is_empty() && part.end <= b.len() && a.len().is_multiple_of(part.len()),
+            "cannot broadcast values {part:?} of {:?} onto {:?}",
+            b.shape,
+            a.shape
+        );
+        let y = self.output("add.y", &a.shape)?;
+        let params = AddParams {
+            len: a.len() as u32,
+            per_value: match broadcast {
+                Broadcast::Leading => (a.len() / part.len()) as u32,
+                Broadcast::Trailing => 1,
+            },
+            b_len: part.len() as u32,
+            b_offset: part.start as u32,
+        };
+        let grid = self.grid(y.len());
+        self.launch(&shaders::ADD, &params, &[a, b, &y], grid);
+        Ok(y)
+    }
+
+    /// A permutation of the axes of `x` seen as 4-D `shape` (output axis k is input axis
+    /// `perm[k]`).
+    pub fn permute(
+        &mut self,
+        x: &Tensor,
+        shape: [usize; 4],
+        perm: [usize; 4],
+    ) -> Result<Tensor, GpuError> {
+        assert_eq!(
+            shape.iter().product::<usize>(),
+            x.len(),
+            "permute shape {shape:?} for {:?}",
+            x.shape
+        );
+        let y = self.output("permute.y", &perm.map(|k| shape[k]))?;
+        let params = PermuteParams {
+            shape: shape.map(|s| s as u32),
+            perm: perm.map(|k| k as u32),
+        };
+        let grid = self.grid(y.len());
+        self.launch(&shaders::PERMUTE, &params, &[x, &y], grid);
+        Ok(y)
+    }
+
+    /// `a` and `b` joined along `axis`; all other axes must agree.
+    pub fn concat(&mut self, a: &Tensor, b: &Tensor, axis: usize) -> Result<Tensor, GpuError> {
+        assert!(
+            a.shape.len() == b.shape.len()
+                && a.shape
+                    .iter()
+                    .zip(&b.shape)
+                    .enumerate()
+                    .all(|(k, (x, y))| k == axis || x == y),
+            "cannot concatenate {:?} and {:?} along axis {axis}",
+            a.shape,
+            b.shape
+        );
+        let outer: usize = a.shape[..axis].iter().product();
+        let mut shape = a.shape.clone();
+        shape[axis] += b.shape[axis];
+        let y = self.output("concat.y", &shape)?;
+        let params = ConcatParams {
+            outer: outer as u32,
+            a_inner: (a.len() / outer) as u32,
+            b_inner: (b.len() / outer) as u32,
+            reserved: 0,
+        };
+        let grid = self.grid(y.len());
+        self.launch(&shaders::CONCAT, &params, &[a, b, &y], grid);
+        Ok(y)
+    }
+
+    /// `alpha · x + beta · z` of shape `shape`, read from `x` and `z` at value offsets
+    /// (e.g. the halves of a batch).
+    #[allow(clippy::too_many_arguments)]
+    pub fn axpby(
+        &mut self,
+        alpha: f32,
+        x: &Tensor,
+        x_offset: usize,
+        beta: f32,
+        z: &Tensor,
+        z_offset: usize,
+        shape: &[usize],
+    ) -> Result<Tensor, GpuError> {
+        let y = self.output("axpby.y", shape)?;
+        assert!(
+            x_offset + y.len() <= x.len() && z_offset + y.len() <= z.len(),
+            "axpby out of range"
+        );
+        let params = AxpbyParams {
+            len: y.len() as u32,
+            x_offset: x_offset as u32,
+            z_offset: z_offset as u32,
+            reserved: 0,
+            alpha,
+            beta,
+            reserved1: 0,
+            reserved2: 0,
+        };
+        let grid = self.grid(y.len());
+        self.launch(&shaders::AXPBY, &params, &[x, z, &y], grid);
+        Ok(y)
+    }
+
+    /// Multi-head attention; `q` rows and `kv` rows as `params` describes; the output is
+    /// [sequences, queries, channels].
+    pub fn attention(
+        &mut self,
+        q: &Tensor,
+        kv: &Tensor,
+        params: AttentionParams,
+    ) -> Result<Tensor, GpuError> {
+        assert!(
+            (params.channels / params.heads) as usize <= MAX_HEAD_SIZE,
+            "attention heads of {} values (at most {MAX_HEAD_SIZE})",
+            params.channels / params.heads
+        );
+        let shape = [
+            params.sequences as usize,
+            params.queries as usize,
+            params.channels as usize,
+        ];
+        let y = self.output("attention.y", &shape)?;
+        let grid = self.grid((params.sequences * params.heads * params.queries) as usize);
+        self.launch(&shaders::ATTENTION, &params, &[q, kv, &y], grid);
+        Ok(y)
+    }
+
+    /// The sinusoidal embedding of the timesteps in `t` (any shape) into `dim` values.
+    pub fn timestep_embedding(&mut self, t: &Tensor, dim: usize) -> Result<Tensor, GpuError> {
+        assert!(dim.is_multiple_of(2), "embedding size {dim} must be even");
+        let y = self.output("timestep_embedding.y", &[t.len(), dim])?;
+        let params = EmbeddingParams {
+            count: t.len() as u32,
+            dim: dim as u32,
+            reserved0: 0,
+            reserved1: 0,
+        };
+        let grid = self.grid(t.len() * dim / 2);
+        self.launch(&shaders::TIMESTEP_EMBEDDING, &params, &[t, &y], grid);
+        Ok(y)
+    }
+
+    /// The rows `rows` of a [R, D] table as a [rows.len(), D] tensor (buffer copies: an
+    /// embedding lookup with host-known ids).
+    pub fn gather_rows(&mut self, table: &Tensor, rows: &[usize]) -> Result<Tensor, GpuError> {
+        let [count, dim] = table.shape[..] else {
+            panic!("a row table must be 2-D, got {:?}", table.shape)
+        };
+        let y = self.output("gather_rows.y", &[rows.len(), dim])?;
+        let row_bytes = (dim * self.precision.bytes()) as u64;
+        assert!(
+            row_bytes.is_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT),
+            "rows of {row_bytes} bytes"
+        );
+        for (k, &r) in rows.iter().enumerate() {
+            assert!(r < count, "row {r} of a {count}-row table");
+            self.encoder.copy_buffer_to_buffer(
+                &table.buffer,
+                r as u64 * row_bytes,
+                &y.buffer,
+                k as u64 * row_bytes,
+                row_bytes,
+            );
+        }
+        Ok(y)
+    }
+}

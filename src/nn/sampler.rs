@@ -1,0 +1,175 @@
+//! The diffusion schedule and the DDIM sampler with classifier-free guidance
+//! (train/unica_train/diffusion.py), recorded on the GPU: one generated frame is the
+//! context pass plus `steps` target passes and updates, with no readback in between.
+
+use serde::Deserialize;
+
+use super::Tensor;
+use super::ops::Recorder;
+use super::unet::UNet;
+use crate::gpu::GpuError;
+
+/// The training noise schedule, as the bundle manifest's `diffusion` entry.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct DiffusionConfig {
+    pub steps: usize,
+    pub beta_start: f64,
+    pub beta_end: f64,
+    pub schedule: String,
+    pub prediction: String,
+}
+
+/// ᾱ_t of a scaled-linear DDPM schedule.
+#[derive(Clone, Debug)]
+pub struct Schedule {
+    alphas_cumprod: Vec<f32>,
+}
+
+impl Schedule {
+    /// β_t = (√β₀ + t/(T-1)·(√β₁ - √β₀))² in f64, ᾱ_t = Π(1 - β) stored as f32 (as the
+    /// trainer).
+    pub fn scaled_linear(steps: usize, beta_start: f64, beta_end: f64) -> Self {
+        let (a, b) = (beta_start.sqrt(), beta_end.sqrt());
+        let mut product = 1.0f64;
+        let alphas_cumprod = (0..steps)
+            .map(|t| {
+                let root = a + (b - a) * t as f64 / (steps - 1) as f64;
+                product *= 1.0 - root * root;
+                product as f32
+            })
+            .collect();
+        Self { alphas_cumprod }
+    }
+
+    pub fn steps(&self) -> usize {
+        self.alphas_cumprod.len()
+    }
+
+    /// ᾱ_t; t = -1 means no noise (ᾱ = 1).
+    pub fn alpha_bar(&self, t: i64) -> f64 {
+        if t < 0 {
+            1.0
+        } else {
+            self.alphas_cumprod[t as usize] as f64
+        }
+    }
+
+    /// `count` evenly spaced timesteps from high to low, as the trainer's DDIM.
+    pub fn ddim_timesteps(&self, count: usize) -> Vec<i64> {
+        let stride = self.steps() / count;
+        (0..count)
+            .map(|i| (self.steps() - 1 - i * stride) as i64)
+            .collect()
+    }
+
+    /// (a, b) of the deterministic DDIM step x_prev = a·x_t + b·ε from t to t_prev:
+    /// x₀ = (x_t - √(1-ᾱ_t) ε)/√ᾱ_t, x_prev = √ᾱ_prev x₀ + √(1-ᾱ_prev) ε.
+    pub fn ddim_coefficients(&self, t: i64, t_prev: i64) -> (f32, f32) {
+        let (a_t, a_prev) = (self.alpha_bar(t), self.alpha_bar(t_prev));
+        let a = (a_prev / a_t).sqrt();
+        let b = (1.0 - a_prev).sqrt() - (a_prev * (1.0 - a_t) / a_t).sqrt();
+        (a as f32, b as f32)
+    }
+}
+
+/// How a frame is sampled: DDIM steps and the guidance scale (1 = no guidance, one
+/// batch; otherwise the conditional and the null action run in one batch of two).
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+pub struct Sampling {
+    #[serde(rename = "ddim_steps")]
+    pub steps: usize,
+    pub cfg_scale: f32,
+}
+
+/// Records the generation of the frame after `context` [N, F-1, C, H, W] under `actions`
+/// (N ids) from `noise` [N, C, H, W]; returns its clean latents [N, C, H, W].
+pub fn sample_next(
+    r: &mut Recorder,
+    unet: &UNet,
+    schedule: &Schedule,
+    context: &Tensor,
+    actions: &[usize],
+    noise: &Tensor,
+    sampling: Sampling,
+) -> Result<Tensor, GpuError> {
+    let guided = sampling.cfg_scale != 1.0;
+    let (context, batch_actions) = if guided {
+        let null = vec![unet.cfg.null_action(); actions.len()];
+        (r.concat(context, context, 0)?, [actions, &null].concat())
+    } else {
+        (context.clone(), actions.to_vec())
+    };
+    let cache = unet.context(r, &context, &batch_actions)?;
+    let times = schedule.ddim_timesteps(sampling.steps);
+    let mut x = noise.clone();
+    for (i, &t) in times.iter().enumerate() {
+        let t_prev = times.get(i + 1).copied().unwrap_or(-1);
+        let eps = guided_eps(r, unet, &x, t, &cache, sampling.cfg_scale)?;
+        let (a, b) = schedule.ddim_coefficients(t, t_prev);
+        x = r.axpby(a, &x, 0, b, &eps, 0, &noise.shape)?;
+    }
+    Ok(x)
+}
+
+/// The target frame's noise prediction at `t`; with guidance, null + s·(cond - null)
+/// from the two halves of one batch.
+pub fn guided_eps(
+    r: &mut Recorder,
+    unet: &UNet,
+    x: &Tensor,
+    t: i64,
+    cache: &super::unet::ContextCache,
+    cfg_scale: f32,
+) -> Result<Tensor, GpuError> {
+    if cfg_scale == 1.0 {
+        return unet.next(r, x, t as f32, cache);
+    }
+    let doubled = r.concat(x, x, 0)?;
+    let eps = unet.next(r, &doubled, t as f32, cache)?;
+    r.axpby(cfg_scale, &eps, 0, 1.0 - cfg_scale, &eps, x.len(), &x.shape)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn schedule() -> Schedule {
+        Schedule::scaled_linear(1000, 0.00085, 0.012)
+    }
+
+    #[test]
+    fn the_schedule_starts_and_ends_where_the_betas_say() {
+        let s = schedule();
+        assert!((s.alpha_bar(0) - (1.0 - 0.00085)).abs() < 1e-7);
+        assert_eq!(s.alpha_bar(-1), 1.0);
+        // ᾱ_999 of SD's schedule: 0.00466.
+        assert!(
+            (s.alpha_bar(999) - 0.004_660_5).abs() < 1e-6,
+            "{}",
+            s.alpha_bar(999)
+        );
+    }
+
+    #[test]
+    fn ddim_timesteps_are_evenly_spaced_from_the_top() {
+        let s = schedule();
+        assert_eq!(s.ddim_timesteps(4), [999, 749, 499, 249]);
+        assert_eq!(s.ddim_timesteps(10)[..3], [999, 899, 799]);
+        assert_eq!(s.ddim_timesteps(1), [999]);
+    }
+
+    #[test]
+    fn a_ddim_step_with_the_true_noise_lands_on_the_noised_sample() {
+        // x_t = √ᾱ_t x0 + √(1-ᾱ_t) ε; given the true ε the step to t_prev must give
+        // √ᾱ_prev x0 + √(1-ᾱ_prev) ε exactly, and to -1 the clean x0.
+        let s = schedule();
+        let (x0, eps) = (0.7f64, -1.3f64);
+        for (t, t_prev) in [(999, 749), (700, 600), (249, -1), (0, -1)] {
+            let x_t = s.alpha_bar(t).sqrt() * x0 + (1.0 - s.alpha_bar(t)).sqrt() * eps;
+            let (a, b) = s.ddim_coefficients(t, t_prev);
+            let got = a as f64 * x_t + b as f64 * eps;
+            let want = s.alpha_bar(t_prev).sqrt() * x0 + (1.0 - s.alpha_bar(t_prev)).sqrt() * eps;
+            assert!((got - want).abs() < 1e-5, "{t}->{t_prev}: {got} vs {want}");
+        }
+    }
+}

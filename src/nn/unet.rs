@@ -1,0 +1,277 @@
+//! The action-conditioned UNet (train/unica_train/unet.py) over groups of latent frames.
+//! Because temporal attention is causal, the clean context frames never see the target:
+//! [`UNet::context`] runs them once per generated frame and keeps their temporal-attention
+//! rows, and every denoising step then runs only the target frame ([`UNet::next`]).
+
+use serde::Deserialize;
+
+use super::Tensor;
+use super::layers::{
+    Conv, CrossAttention, Frames, Linear, Norm, ResBlock, SpatialAttention, TemporalAttention, Up,
+};
+use super::ops::Recorder;
+use super::weights::{LoadError, Weights};
+use crate::gpu::GpuError;
+
+/// The UNet's shape, as the bundle manifest's `unet` entry.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct UNetConfig {
+    pub latent: usize,
+    /// Channels at 16×16 and 8×8.
+    pub channels: [usize; 2],
+    pub embed: usize,
+    pub heads: usize,
+    pub frames: usize,
+    pub actions: usize,
+}
+
+impl UNetConfig {
+    /// The action id of the unconditional (null) token used by classifier-free guidance.
+    pub fn null_action(&self) -> usize {
+        self.actions
+    }
+}
+
+/// Spatial self-attention, cross-attention to the action, temporal attention.
+struct AttentionStack {
+    spatial: SpatialAttention,
+    cross: CrossAttention,
+    temporal: TemporalAttention,
+}
+
+impl AttentionStack {
+    fn load(w: &Weights, c: usize, cfg: &UNetConfig) -> Result<Self, LoadError> {
+        Ok(Self {
+            spatial: SpatialAttention::load(&w.at("spatial"), c, cfg.heads)?,
+            cross: CrossAttention::load(&w.at("cross"), c, cfg.embed, cfg.heads)?,
+            temporal: TemporalAttention::load(&w.at("temporal"), c, cfg.frames, cfg.heads)?,
+        })
+    }
+}
+
+/// The context frames' temporal-attention rows of one generated frame, for every
+/// denoising step of it; valid for the actions it was made with.
+pub struct ContextCache {
+    rows: Vec<Tensor>,
+    actions: Vec<usize>,
+}
+
+/// How the batch's frames meet the temporal layers (see [`Frames`]).
+enum Pass<'a> {
+    Groups {
+        count: usize,
+        keep: Option<&'a mut Vec<Tensor>>,
+    },
+    Next {
+        cache: &'a ContextCache,
+        layer: usize,
+    },
+}
+
+impl Pass<'_> {
+    fn temporal(
+        &mut self,
+        r: &mut Recorder,
+        layer: &TemporalAttention,
+        x: &Tensor,
+    ) -> Result<Tensor, GpuError> {
+        match self {
+            Pass::Groups { count, keep } => layer.forward(
+                r,
+                x,
+                Frames::First {
+                    count: *count,
+                    keep: keep.as_deref_mut(),
+                },
+            ),
+            Pass::Next {
+                cache,
+                layer: index,
+            } => {
+                let cached = &cache.rows[*index];
+                *index += 1;
+                layer.forward(r, x, Frames::Next { cached })
+            }
+        }
+    }
+
+    fn frames(&self) -> usize {
+        match self {
+            Pass::Groups { count, .. } => *count,
+            Pass::Next { .. } => 1,
+        }
+    }
+}
+
+pub struct UNet {
+    pub cfg: UNetConfig,
+    time_in: Linear,
+    time_out: Linear,
+    action: Tensor,
+    conv_in: Conv,
+    down0: ResBlock,
+    temporal0: TemporalAttention,
+    down: Conv,
+    down1: ResBlock,
+    attn1: AttentionStack,
+    mid1: ResBlock,
+    mid_attn: AttentionStack,
+    mid2: ResBlock,
+    up1: ResBlock,
+    up_attn: AttentionStack,
+    up: Up,
+    up0: ResBlock,
+    temporal_up0: TemporalAttention,
+    norm_out: Norm,
+    conv_out: Conv,
+}
+
+impl UNet {
+    pub fn load(w: &Weights, cfg: &UNetConfig) -> Result<Self, LoadError> {
+        let [c0, c1] = cfg.channels;
+        let e = Some(cfg.embed);
+        Ok(Self {
+            time_in: Linear::load(&w.at("time_mlp.0"), cfg.embed, cfg.embed)?,
+            time_out: Linear::load(&w.at("time_mlp.2"), cfg.embed, cfg.embed)?,
+            action: w.tensor("action.weight", &[cfg.actions + 1, cfg.embed])?,
+            conv_in: Conv::load(&w.at("conv_in"), cfg.latent, c0, 3, 1)?,
+            down0: ResBlock::load(&w.at("down0"), c0, c0, e)?,
+            temporal0: TemporalAttention::load(&w.at("temporal0"), c0, cfg.frames, cfg.heads)?,
+            down: Conv::load(&w.at("down.conv"), c0, c0, 3, 2)?,
+            down1: ResBlock::load(&w.at("down1"), c0, c1, e)?,
+            attn1: AttentionStack::load(&w.at("attn1"), c1, cfg)?,
+            mid1: ResBlock::load(&w.at("mid1"), c1, c1, e)?,
+            mid_attn: AttentionStack::load(&w.at("mid_attn"), c1, cfg)?,
+            mid2: ResBlock::load(&w.at("mid2"), c1, c1, e)?,
+            up1: ResBlock::load(&w.at("up1"), 2 * c1, c1, e)?,
+            up_attn: AttentionStack::load(&w.at("up_attn"), c1, cfg)?,
+            up: Up::load(&w.at("up"), c1, c1)?,
+            up0: ResBlock::load(&w.at("up0"), c1 + c0, c0, e)?,
+            temporal_up0: TemporalAttention::load(
+                &w.at("temporal_up0"),
+                c0,
+                cfg.frames,
+                cfg.heads,
+            )?,
+            norm_out: Norm::load(&w.at("norm_out"), c0)?,
+            conv_out: Conv::load(&w.at("conv_out"), c0, cfg.latent, 3, 1)?,
+            cfg: cfg.clone(),
+        })
+    }
+
+    /// The noise prediction for every frame of whole groups: `x` [N, F, C, H, W],
+    /// `timesteps` N·F values, `actions` N ids (as the trainer's forward).
+    pub fn groups(
+        &self,
+        r: &mut Recorder,
+        x: &Tensor,
+        timesteps: &[f32],
+        actions: &[usize],
+    ) -> Result<Tensor, GpuError> {
+        let pass = Pass::Groups {
+            count: self.cfg.frames,
+            keep: None,
+        };
+        let eps = self.run(r, x, timesteps, actions, pass)?;
+        Ok(eps.reshaped(&x.shape))
+    }
+
+    /// Runs the clean context frames `context` [N, F-1, C, H, W] (timestep 0) under
+    /// `actions` and keeps what the target frame's steps need.
+    pub fn context(
+        &self,
+        r: &mut Recorder,
+        context: &Tensor,
+        actions: &[usize],
+    ) -> Result<ContextCache, GpuError> {
+        let count = self.cfg.frames - 1;
+        assert_eq!(context.shape[1], count, "context frames");
+        let mut rows = Vec::new();
+        let pass = Pass::Groups {
+            count,
+            keep: Some(&mut rows),
+        };
+        self.run(r, context, &vec![0.0; actions.len() * count], actions, pass)?;
+        Ok(ContextCache {
+            rows,
+            actions: actions.to_vec(),
+        })
+    }
+
+    /// The noise prediction of the frame after the context: `x` [N, C, H, W] at
+    /// `timestep`, with the actions the cache was made with.
+    pub fn next(
+        &self,
+        r: &mut Recorder,
+        x: &Tensor,
+        timestep: f32,
+        cache: &ContextCache,
+    ) -> Result<Tensor, GpuError> {
+        let pass = Pass::Next { cache, layer: 0 };
+        let n = cache.actions.len();
+        self.run(r, x, &vec![timestep; n], &cache.actions, pass)
+    }
+
+    fn run(
+        &self,
+        r: &mut Recorder,
+        x: &Tensor,
+        timesteps: &[f32],
+        actions: &[usize],
+        mut pass: Pass,
+    ) -> Result<Tensor, GpuError> {
+        let (c, h, w) = (
+            self.cfg.latent,
+            x.shape[x.shape.len() - 2],
+            x.shape[x.shape.len() - 1],
+        );
+        let frames = timesteps.len();
+        assert_eq!(
+            x.len(),
+            frames * c * h * w,
+            "latents {:?} for {frames} frames",
+            x.shape
+        );
+        assert_eq!(frames, actions.len() * pass.frames(), "timesteps per frame");
+        let x = x.reshaped(&[frames, c, h, w]);
+        let t = r.upload("unet.timesteps", &[frames], timesteps)?;
+        let te = r.timestep_embedding(&t, self.cfg.embed)?;
+        let te = self.time_in.forward(r, &te, false)?;
+        let emb = self.time_out.forward(r, &te, true)?; // [frames, E]
+        let token = r.gather_rows(&self.action, actions)?;
+        let token = token.reshaped(&[actions.len(), 1, self.cfg.embed]);
+        let emb = Some(&emb);
+
+        let h0 = self.conv_in.forward(r, &x)?;
+        let h0 = self.down0.forward(r, &h0, emb)?;
+        let h0 = pass.temporal(r, &self.temporal0, &h0)?;
+        let h1 = self.down.forward(r, &h0)?;
+        let h1 = self.down1.forward(r, &h1, emb)?;
+        let h1 = self.attend(r, &self.attn1, &h1, &token, &mut pass)?;
+        let m = self.mid1.forward(r, &h1, emb)?;
+        let m = self.attend(r, &self.mid_attn, &m, &token, &mut pass)?;
+        let m = self.mid2.forward(r, &m, emb)?;
+        let u1 = r.concat(&m, &h1, 1)?;
+        let u1 = self.up1.forward(r, &u1, emb)?;
+        let u1 = self.attend(r, &self.up_attn, &u1, &token, &mut pass)?;
+        let u0 = self.up.forward(r, &u1)?;
+        let u0 = r.concat(&u0, &h0, 1)?;
+        let u0 = self.up0.forward(r, &u0, emb)?;
+        let u0 = pass.temporal(r, &self.temporal_up0, &u0)?;
+        let out = self.norm_out.forward(r, &u0, true)?;
+        self.conv_out.forward(r, &out)
+    }
+
+    fn attend(
+        &self,
+        r: &mut Recorder,
+        stack: &AttentionStack,
+        x: &Tensor,
+        token: &Tensor,
+        pass: &mut Pass,
+    ) -> Result<Tensor, GpuError> {
+        let h = stack.spatial.forward(r, x)?;
+        let h = stack.cross.forward(r, &h, token)?;
+        pass.temporal(r, &stack.temporal, &h)
+    }
+}
