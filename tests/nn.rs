@@ -24,7 +24,7 @@ use unica::nn::layers::{
 use unica::nn::sampler::{self, Sampling, Schedule};
 use unica::nn::unet::{UNet, UNetConfig};
 use unica::nn::vae::{Decoder, Encoder, VaeConfig};
-use unica::nn::{Recorder, Tensor, Weights};
+use unica::nn::{Bundle, Recorder, Tensor, Weights};
 use unica::tensors::TensorFile;
 
 /// Tolerances of the error measure above: (layers, whole models).
@@ -454,4 +454,94 @@ fn a_four_step_ddim_sample_matches_pytorch() {
         r.submit();
         f.assert_close(&x0, "io.out.x0", tolerances(precision).1);
     }
+}
+
+fn witch_bundle() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle")
+}
+
+#[test]
+fn the_shipped_witch_bundle_generates_and_decodes_what_pytorch_does() {
+    // Trained weights, 10 DDIM steps without guidance (the bundle's defaults), then the
+    // decoder: values are latents of size ~3 and map coordinates in [0, 1].
+    for precision in precisions() {
+        let mut f = Fixture::open("witch_frame", precision);
+        let (noise, a) = (f.input("io.in.noise"), action(&f));
+        let bundle = Bundle::load(&witch_bundle(), &f.gpu, precision).unwrap();
+        let sampling = bundle.manifest.sampler;
+        let mut r = Recorder::new(&f.gpu, &mut f.pipelines, precision);
+        let context = bundle.context.reshaped(&[1, 3, 4, 16, 16]);
+        let z = bundle
+            .generate(&mut r, &context, a, &noise, sampling)
+            .unwrap();
+        let map = bundle.decode(&mut r, &z).unwrap();
+        r.submit();
+        let tolerance = tolerances(precision).1;
+        f.assert_close(&z, "io.out.z", tolerance);
+        f.assert_close(&map, "io.out.map", tolerance);
+    }
+}
+
+/// A copy of the Witch bundle whose manifest `edit` changes.
+fn edited_bundle(edit: impl FnOnce(&mut serde_json::Value)) -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    let source = witch_bundle();
+    std::fs::copy(
+        source.join("weights.safetensors"),
+        dir.path().join("weights.safetensors"),
+    )
+    .unwrap();
+    let mut manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(source.join("manifest.json")).unwrap())
+            .unwrap();
+    edit(&mut manifest);
+    std::fs::write(dir.path().join("manifest.json"), manifest.to_string()).unwrap();
+    dir
+}
+
+fn load_error(dir: &Path) -> String {
+    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
+    match Bundle::load(dir, &gpu, Precision::F32) {
+        Ok(_) => panic!("{} loaded", dir.display()),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn bundles_of_another_version_or_format_are_refused() {
+    let dir = edited_bundle(|m| m["version"] = 2.into());
+    let message = load_error(dir.path());
+    assert!(
+        message.contains("manifest.json")
+            && message.contains("bundle version 2, this build reads version 1"),
+        "{message}"
+    );
+    let dir = edited_bundle(|m| m["format"] = "something-else".into());
+    let message = load_error(dir.path());
+    assert!(message.contains("not a unica bundle"), "{message}");
+}
+
+#[test]
+fn the_first_tensor_that_disagrees_with_the_config_is_named() {
+    // A manifest claiming a 64-d embedding: the first embedding-sized tensor loaded is
+    // the time MLP's first weight, stored as [128, 128].
+    let dir = edited_bundle(|m| m["unet"]["embed"] = 64.into());
+    let message = load_error(dir.path());
+    assert!(
+        message.contains("weights.safetensors")
+            && message.contains("'unet.time_mlp.0.weight' has shape [128, 128], expected [64, 64]"),
+        "{message}"
+    );
+    // A missing file is named too.
+    let dir = edited_bundle(|_| {});
+    std::fs::remove_file(dir.path().join("weights.safetensors")).unwrap();
+    let message = load_error(dir.path());
+    assert!(message.contains("weights.safetensors"), "{message}");
+}
+
+#[test]
+fn unsupported_model_shapes_are_refused_before_loading() {
+    let dir = edited_bundle(|m| m["unet"]["heads"] = 1.into());
+    let message = load_error(dir.path());
+    assert!(message.contains("at most 64 channels"), "{message}");
 }

@@ -8,12 +8,13 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use super::Tensor;
-use super::sampler::{DiffusionConfig, Sampling, Schedule};
+use super::ops::Recorder;
+use super::sampler::{self, DiffusionConfig, Sampling, Schedule};
 use super::unet::{UNet, UNetConfig};
 use super::vae::{Decoder, Encoder, VaeConfig};
 use super::weights::{LoadError, Weights};
-use crate::gpu::GpuContext;
 use crate::gpu::kernel::Precision;
+use crate::gpu::{GpuContext, GpuError};
 use crate::nn::ops::MAX_HEAD_SIZE;
 use crate::tensors::TensorFile;
 
@@ -71,6 +72,33 @@ impl Bundle {
             dir: dir.to_path_buf(),
             manifest,
         })
+    }
+
+    /// Records the generation of the frame after `context` [1, F-1, C, h, w] under
+    /// `action` from `noise` [1, C, h, w] with `sampling`; returns its latent.
+    pub fn generate(
+        &self,
+        r: &mut Recorder,
+        context: &Tensor,
+        action: usize,
+        noise: &Tensor,
+        sampling: Sampling,
+    ) -> Result<Tensor, GpuError> {
+        sampler::sample_next(
+            r,
+            &self.unet,
+            &self.schedule,
+            context,
+            &[action],
+            noise,
+            sampling,
+        )
+    }
+
+    /// Records the decoding of UNet latents [N, C, h, w] into position maps.
+    pub fn decode(&self, r: &mut Recorder, z: &Tensor) -> Result<Tensor, GpuError> {
+        let unscaled = r.axpby(1.0 / self.manifest.latent_scale, z, 0, 0.0, z, 0, &z.shape)?;
+        self.decoder.forward(r, &unscaled)
     }
 }
 

@@ -61,13 +61,14 @@ def guided_eps(model, latents, t_frames, action, cfg_scale: float):
 @torch.no_grad()
 def sample_next(model, schedule: Schedule, context, action, steps: int = 10, cfg_scale: float = 1.0, noise=None, generator=None):
     """Generates the 4th latent frame from 3 clean context latents [B, 3, C, H, W]."""
-    b = context.shape[0]
+    b, device = context.shape[0], context.device
     x = noise if noise is not None else torch.randn(context[:, :1].shape, generator=generator)[:, 0]
+    x, action = x.to(device), action.to(device)
     times = schedule.ddim_timesteps(steps)
     for i, t in enumerate(times):
         t_prev = times[i + 1] if i + 1 < len(times) else -1
         latents = torch.cat([context, x[:, None]], 1)
-        t_frames = torch.tensor([[0, 0, 0, t]] * b)
+        t_frames = torch.tensor([[0, 0, 0, t]] * b, device=device)
         eps = guided_eps(model, latents, t_frames, action, cfg_scale)
         x = ddim_step(schedule, x, eps, t, t_prev)
     return x

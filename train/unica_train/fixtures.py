@@ -1,7 +1,9 @@
 """Parity fixtures for the WGSL engine: for a tiny random-weight configuration, the inputs,
 weights and outputs of every module kind (VAE encoder and decoder, each UNet block kind,
 the timestep embedding, a whole UNet step, a DDIM step with CFG, a 4-step DDIM sample from
-fixed noise, the PCA projection) as small safetensors files.
+fixed noise, the PCA projection) as small safetensors files; and one generated frame of
+the shipped Witch bundle (assets/witch/bundle) with its sampler defaults, so the engine is
+pinned on real weights too.
 
     python -m unica_train.fixtures --out tests/fixtures/nn
 
@@ -16,12 +18,13 @@ from pathlib import Path
 import torch
 from safetensors.torch import save_file
 
-from . import pca
+from . import bundle, pca
 from .diffusion import Schedule, ddim_step, guided_eps, sample_next
 from .layers import CrossAttention, Down, ResBlock, SpatialAttention, TemporalAttention, Up, timestep_embedding
 from .unet import UNet, UNetConfig
 from .vae import PositionVae, VaeConfig
 
+WITCH_BUNDLE = Path(__file__).resolve().parents[2] / "assets" / "witch" / "bundle"
 TINY_VAE = VaeConfig(channels=(16, 12, 8, 8))
 TINY_UNET = UNetConfig(channels=(16, 32), embed=32, heads=2)
 
@@ -79,7 +82,20 @@ def build() -> dict[str, dict[str, torch.Tensor]]:
     query = rand(3, 30)
     files["pca_projection"] = {"io.in.x": query, "io.in.mean": mean, "io.in.basis": basis, "io.out.y": pca.project(query, mean, basis)}
     files["alphas_cumprod"] = {"io.out.alphas_cumprod": schedule.alphas_cumprod}
+    files["witch_frame"] = witch_frame(rand(1, 4, 16, 16))
     return {name: {k: v.float().contiguous() for k, v in tensors.items()} for name, tensors in files.items()}
+
+
+def witch_frame(noise: torch.Tensor) -> dict[str, torch.Tensor]:
+    """The Witch bundle's next latent after its standing-start context under Forward, from
+    `noise`, with the bundle's DDIM steps and CFG scale, and the decoded position map."""
+    vae, unet, extra, manifest = bundle.load(WITCH_BUNDLE)
+    sampler, scale = manifest["sampler"], manifest["latent_scale"]
+    action = torch.tensor([1])
+    with torch.no_grad():
+        z = sample_next(unet, Schedule(), extra["context.latents"][None], action, sampler["ddim_steps"], sampler["cfg_scale"], noise)
+        decoded = vae.decode(z / scale)
+    return {"io.in.noise": noise, "io.in.action": action.float(), "io.out.z": z, "io.out.map": decoded}
 
 
 def main(argv=None):
@@ -87,9 +103,10 @@ def main(argv=None):
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    for name, tensors in build().items():
+    built = build()
+    for name, tensors in built.items():
         save_file(tensors, str(args.out / f"{name}.safetensors"))
-    print(f"wrote {len(build())} fixtures to {args.out}")
+    print(f"wrote {len(built)} fixtures to {args.out}")
 
 
 if __name__ == "__main__":
