@@ -76,8 +76,9 @@ pub struct Cli {
 enum Command {
     /// List the GPU adapters and what unica would use on each
     Adapters,
-    /// Print timings of the GPU kernels on the present adapter
-    Bench,
+    /// Time the GPU kernels and the geometry model (UNet steps, decoder, a whole
+    /// generated frame) on the present adapter, with FLOPs and GFLOP/s
+    Bench(BenchArgs),
     /// Bake a teacher dataset from a character file (.gltf, .glb): the transition table
     /// of all action pairs, as skinning matrices + position-map table (see README)
     Bake(BakeArgs),
@@ -95,6 +96,44 @@ enum Command {
     Export(Later),
     /// Open a 3DGS PLY file in the viewer (not built yet)
     View(Later),
+}
+
+#[derive(clap::Args, Debug)]
+struct BenchArgs {
+    /// Model configurations with random weights: tiny (the parity fixtures' shape),
+    /// default (the shipped Witch's shape), both, or none
+    #[arg(long, value_enum, default_value = "both")]
+    models: BenchModels,
+    /// Also time a trained bundle (e.g. assets/witch/bundle)
+    #[arg(long, value_name = "DIR")]
+    bundle: Option<PathBuf>,
+    /// DDIM steps per generated frame
+    #[arg(long, default_value_t = 10)]
+    steps: usize,
+    /// Classifier-free guidance scale (1 = no guidance, batch 1; else batch 2)
+    #[arg(long, default_value_t = 2.0)]
+    cfg_scale: f32,
+    /// Timed runs per row, after one warm-up
+    #[arg(long, default_value_t = 3)]
+    repeat: usize,
+    /// Storage precision: f32, f16 (needs SHADER_F16) or both
+    #[arg(long, value_enum, default_value = "both")]
+    precision: BenchPrecision,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+enum BenchModels {
+    Tiny,
+    Default,
+    Both,
+    None,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+enum BenchPrecision {
+    F32,
+    F16,
+    Both,
 }
 
 #[derive(clap::Args, Debug)]
@@ -162,10 +201,7 @@ pub fn run() -> anyhow::Result<()> {
     match cli.command {
         None => play(cli, gpu_options),
         Some(Command::Adapters) => adapters(&gpu_options),
-        Some(Command::Bench) => {
-            let gpu = GpuContext::headless(&gpu_options)?;
-            crate::bench::run(&gpu, &mut std::io::stdout())
-        }
+        Some(Command::Bench(args)) => bench(args, &gpu_options),
         Some(Command::Bake(args)) => bake(args),
         Some(Command::Validate { dir }) => {
             let report = crate::dataset::validate(&dir)?;
@@ -177,6 +213,39 @@ pub fn run() -> anyhow::Result<()> {
         Some(Command::Export(_)) => not_built("export"),
         Some(Command::View(_)) => not_built("view"),
     }
+}
+
+fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
+    use crate::gpu::kernel::Precision;
+    if args.steps == 0 || args.steps > 1000 {
+        bail!("--steps must be between 1 and 1000, got {}", args.steps);
+    }
+    if args.repeat == 0 {
+        bail!("--repeat must be at least 1");
+    }
+    let gpu = GpuContext::headless(gpu_options)?;
+    if matches!(args.precision, BenchPrecision::F16) && !gpu.caps.shader_f16 {
+        bail!(
+            "{} has no SHADER_F16: use --precision f32",
+            gpu.adapter_label()
+        );
+    }
+    let options = crate::bench::BenchOptions {
+        tiny: matches!(args.models, BenchModels::Tiny | BenchModels::Both),
+        default: matches!(args.models, BenchModels::Default | BenchModels::Both),
+        bundle: args.bundle,
+        sampling: crate::nn::sampler::Sampling {
+            steps: args.steps,
+            cfg_scale: args.cfg_scale,
+        },
+        repeat: args.repeat,
+        precisions: match args.precision {
+            BenchPrecision::F32 => vec![Precision::F32],
+            BenchPrecision::F16 => vec![Precision::F16],
+            BenchPrecision::Both => vec![Precision::F32, Precision::F16],
+        },
+    };
+    crate::bench::run(&gpu, &options, &mut std::io::stdout())
 }
 
 fn bake(args: BakeArgs) -> anyhow::Result<()> {

@@ -129,13 +129,28 @@ fn adapters_lists_the_one_in_use() {
 
 #[test]
 fn bench_prints_its_table() {
-    let out = unica(&["bench"], &[("UNICA_FORCE_FALLBACK", "1")]);
+    let args = ["bench", "--models", "tiny", "--repeat", "1", "--steps", "2"];
+    let out = unica(&args, &[("UNICA_FORCE_FALLBACK", "1")]);
     assert!(out.status.success(), "{}", stderr(&out));
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(
         text.contains("adapter:") && text.contains("scale_add F32"),
         "{text}"
     );
+    // The model rows: FLOPs as the trainer counts them (tiny UNet, batch 2 for CFG).
+    let group = text
+        .lines()
+        .find(|l| l.starts_with("tiny") && l.contains("4-frame group x2"))
+        .unwrap_or_else(|| panic!("no UNet row: {text}"));
+    let gflop: f64 = group
+        .split_whitespace()
+        .rev()
+        .nth(2)
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!((gflop - 0.242).abs() < 1e-3, "{group}");
+    assert!(text.contains("generated frame: 2 steps + decode"), "{text}");
     assert!(
         text.contains("f16 false"),
         "forced fallback shows no f16: {text}"

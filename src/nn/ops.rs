@@ -149,12 +149,15 @@ pub enum Broadcast {
 
 /// Records kernels in one precision into one command encoder; [`Recorder::submit`] sends
 /// them to the GPU in one submission. Shapes that do not fit are programming errors and
-/// panic; running out of buffer space is a [`GpuError`].
+/// panic; running out of buffer space is a [`GpuError`]. It counts the FLOPs it records
+/// as the trainer's counter does (2 per multiply-add of convolutions, linear layers and
+/// both attention products over all keys; norms and element-wise work not counted).
 pub struct Recorder<'a> {
     gpu: &'a GpuContext,
     pipelines: &'a mut PipelineCache,
     precision: Precision,
     encoder: wgpu::CommandEncoder,
+    flops: u64,
 }
 
 impl<'a> Recorder<'a> {
@@ -171,7 +174,13 @@ impl<'a> Recorder<'a> {
             pipelines,
             precision,
             encoder,
+            flops: 0,
         }
+    }
+
+    /// FLOPs recorded so far (see the type's documentation).
+    pub fn flops(&self) -> u64 {
+        self.flops
     }
 
     pub fn gpu(&self) -> &GpuContext {
@@ -278,6 +287,7 @@ impl<'a> Recorder<'a> {
             has_bias: u32::from(bias.is_some()),
             reserved: 0,
         };
+        self.flops += 2 * (y.len() * c_in * k * k) as u64;
         // A bias binding must exist even without a bias; the weight stands in (unread).
         let bias = bias.unwrap_or(weight);
         let grid = self.grid(y.len());
@@ -359,6 +369,7 @@ impl<'a> Recorder<'a> {
         let mut shape = x.shape.clone();
         *shape.last_mut().expect("non-empty") = outputs;
         let y = self.output("linear.y", &shape)?;
+        self.flops += 2 * (y.len() * inputs) as u64;
         let params = LinearParams {
             rows: (x.len() / inputs) as u32,
             inputs: inputs as u32,
@@ -514,6 +525,7 @@ impl<'a> Recorder<'a> {
             params.channels as usize,
         ];
         let y = self.output("attention.y", &shape)?;
+        self.flops += 4 * (y.len() as u64) * params.keys as u64;
         let grid = self.grid((params.sequences * params.heads * params.queries) as usize);
         self.launch(&shaders::ATTENTION, &params, &[q, kv, &y], grid);
         Ok(y)

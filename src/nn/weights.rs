@@ -1,5 +1,6 @@
 //! Model weights by name from a safetensors file (a bundle or a parity fixture), each
-//! checked for name, dtype and shape as it is loaded; the first wrong one is named.
+//! checked for name, dtype and shape as it is loaded; the first wrong one is named. For
+//! benchmarks of a configuration without trained weights, a seeded random source.
 
 use crate::gpu::kernel::Precision;
 use crate::gpu::{GpuContext, GpuError};
@@ -18,9 +19,16 @@ pub enum LoadError {
     Manifest { path: String, problem: String },
 }
 
-/// The tensors under one name prefix of a file, uploaded in one precision.
+#[derive(Clone, Copy)]
+enum Source<'a> {
+    File(&'a TensorFile),
+    /// Uniform values in ±0.1 from a generator seeded by each tensor's name.
+    Random,
+}
+
+/// The tensors under one name prefix of a source, uploaded in one precision.
 pub struct Weights<'a> {
-    file: &'a TensorFile,
+    source: Source<'a>,
     gpu: &'a GpuContext,
     precision: Precision,
     prefix: String,
@@ -29,7 +37,17 @@ pub struct Weights<'a> {
 impl<'a> Weights<'a> {
     pub fn new(file: &'a TensorFile, gpu: &'a GpuContext, precision: Precision) -> Self {
         Self {
-            file,
+            source: Source::File(file),
+            gpu,
+            precision,
+            prefix: String::new(),
+        }
+    }
+
+    /// Deterministic random weights of whatever shape is asked for (benchmarks).
+    pub fn random(gpu: &'a GpuContext, precision: Precision) -> Self {
+        Self {
+            source: Source::Random,
             gpu,
             precision,
             prefix: String::new(),
@@ -46,9 +64,14 @@ impl<'a> Weights<'a> {
 
     /// A tensor's values on the host, which must have exactly `shape`.
     pub fn host(&self, name: &str, shape: &[usize]) -> Result<Vec<f32>, LoadError> {
-        let wanted: Vec<Option<usize>> = shape.iter().map(|&s| Some(s)).collect();
         let full = format!("{}{name}", self.prefix);
-        Ok(self.file.f32(&full, &wanted)?.0)
+        match self.source {
+            Source::File(file) => {
+                let wanted: Vec<Option<usize>> = shape.iter().map(|&s| Some(s)).collect();
+                Ok(file.f32(&full, &wanted)?.0)
+            }
+            Source::Random => Ok(random_values(&full, shape.iter().product())),
+        }
     }
 
     /// A tensor of exactly `shape` on the GPU.
@@ -79,4 +102,19 @@ impl<'a> Weights<'a> {
             self.precision,
         )?)
     }
+}
+
+/// `count` values uniform in ±0.1 from a 64-bit LCG seeded by an FNV-1a hash of `name`.
+fn random_values(name: &str, count: usize) -> Vec<f32> {
+    let mut state = name.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+        (h ^ b as u64).wrapping_mul(0x100_0000_01b3)
+    });
+    (0..count)
+        .map(|_| {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            ((state >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * 0.2
+        })
+        .collect()
 }
