@@ -1,5 +1,6 @@
-// 2-D convolution, NCHW, stored as Elem (f32 or f16), summed in f32: one thread per output value, summing input channels and the
-// kernel window (zero padding). Weights [c_out, c_in, k, k], optional bias [c_out].
+// 2-D convolution, NCHW, stored as Elem (f32 or f16), summed in f32. Weights [c_out, c_in,
+// k, k], optional bias [c_out], zero padding. One thread per output pixel and block of 8
+// output channels: each input value is loaded once for eight accumulators.
 
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
@@ -14,21 +15,31 @@ fn main(
     @builtin(local_invocation_index) lane: u32,
 ) {
     let i = (group.x + group.y * groups.x) * 64u + lane;
-    let total = p.batch * p.c_out * p.h_out * p.w_out;
-    if i >= total {
+    let blocks = (p.c_out + 7u) / 8u;
+    if i >= p.batch * blocks * p.h_out * p.w_out {
         return;
     }
     let ox = i % p.w_out;
     let oy = (i / p.w_out) % p.h_out;
-    let co = (i / (p.w_out * p.h_out)) % p.c_out;
-    let n = i / (p.w_out * p.h_out * p.c_out);
-    var acc = 0.0;
+    let block = (i / (p.w_out * p.h_out)) % blocks;
+    let n = i / (p.w_out * p.h_out * blocks);
+    // Channels past c_out (the last block) read the last channel and are not written.
+    let last = p.c_out - 1u;
+    let co = min(vec4<u32>(8u * block) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
+    let co2 = min(co + vec4<u32>(4u), vec4<u32>(last));
+    var acc = vec4<f32>(0.0);
+    var acc2 = vec4<f32>(0.0);
     if p.has_bias != 0u {
-        acc = f32(bias[co]);
+        acc = vec4<f32>(f32(bias[co.x]), f32(bias[co.y]), f32(bias[co.z]), f32(bias[co.w]));
+        acc2 = vec4<f32>(f32(bias[co2.x]), f32(bias[co2.y]), f32(bias[co2.z]), f32(bias[co2.w]));
     }
+    let taps = p.kernel * p.kernel;
+    let w_base = co * (p.c_in * taps);
+    let w_base2 = co2 * (p.c_in * taps);
     for (var ci = 0u; ci < p.c_in; ci++) {
         let x_base = (n * p.c_in + ci) * p.h_in * p.w_in;
-        let w_base = (co * p.c_in + ci) * p.kernel * p.kernel;
+        let w_ci = w_base + vec4<u32>(ci * taps);
+        let w_ci2 = w_base2 + vec4<u32>(ci * taps);
         for (var ky = 0u; ky < p.kernel; ky++) {
             let iy = i32(oy * p.stride + ky) - i32(p.pad);
             if iy < 0 || iy >= i32(p.h_in) {
@@ -39,9 +50,23 @@ fn main(
                 if ix < 0 || ix >= i32(p.w_in) {
                     continue;
                 }
-                acc += f32(x[x_base + u32(iy) * p.w_in + u32(ix)]) * f32(weight[w_base + ky * p.kernel + kx]);
+                let v = f32(x[x_base + u32(iy) * p.w_in + u32(ix)]);
+                let tap = vec4<u32>(ky * p.kernel + kx);
+                let w = w_ci + tap;
+                let w2 = w_ci2 + tap;
+                acc += v * vec4<f32>(f32(weight[w.x]), f32(weight[w.y]), f32(weight[w.z]), f32(weight[w.w]));
+                acc2 += v * vec4<f32>(f32(weight[w2.x]), f32(weight[w2.y]), f32(weight[w2.z]), f32(weight[w2.w]));
             }
         }
     }
-    y[i] = Elem(acc);
+    let plane = p.h_out * p.w_out;
+    let out = (n * p.c_out + 8u * block) * plane + oy * p.w_out + ox;
+    for (var j = 0u; j < 4u; j++) {
+        if 8u * block + j < p.c_out {
+            y[out + j * plane] = Elem(acc[j]);
+        }
+        if 8u * block + 4u + j < p.c_out {
+            y[out + (4u + j) * plane] = Elem(acc2[j]);
+        }
+    }
 }

@@ -290,7 +290,8 @@ impl<'a> Recorder<'a> {
         self.flops += 2 * (y.len() * c_in * k * k) as u64;
         // A bias binding must exist even without a bias; the weight stands in (unread).
         let bias = bias.unwrap_or(weight);
-        let grid = self.grid(y.len());
+        // One thread per output pixel and block of 8 output channels.
+        let grid = self.grid(n * c_out.div_ceil(8) * h_out * w_out);
         self.launch(&shaders::CONV2D, &params, &[x, weight, bias, &y], grid);
         Ok(y)
     }
