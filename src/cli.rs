@@ -163,9 +163,24 @@ struct RenderArgs {
     /// Render the teacher (the rigged character driven by the locomotion controller)
     #[arg(long, value_name = "CHARACTER")]
     teacher: Option<PathBuf>,
-    /// Neural avatar bundle (not built yet)
-    #[arg(long, value_name = "PATH")]
+    /// Render the neural avatar of a bundle (e.g. assets/witch/bundle)
+    #[arg(long, value_name = "DIR")]
     bundle: Option<PathBuf>,
+    /// DDIM steps per generated frame [default: the bundle's]
+    #[arg(long)]
+    steps: Option<usize>,
+    /// Classifier-free guidance scale [default: the bundle's]
+    #[arg(long)]
+    cfg_scale: Option<f32>,
+    /// Draw the raw decoded points, without the PCA clean-up
+    #[arg(long)]
+    no_pca: bool,
+    /// Store activations as f16 where the adapter has SHADER_F16
+    #[arg(long)]
+    f16: bool,
+    /// Also write each frame's points as frame_NNNNN.ply (--bundle)
+    #[arg(long)]
+    points: bool,
     /// Key script, e.g. "60W 60S 60A 20I" (one action per frame at 30 fps)
     #[arg(long, value_name = "SCRIPT")]
     keys: String,
@@ -178,7 +193,7 @@ struct RenderArgs {
     /// Cameras around the avatar (view 0 behind its start, the others evenly around)
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=16))]
     views: u32,
-    /// Random seed (the teacher is deterministic; used by the neural avatar)
+    /// Seed of the neural avatar's sampler noise (the teacher is deterministic)
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Avatar description for --teacher (see `unica bake --help`)
@@ -280,31 +295,65 @@ fn bake(args: BakeArgs) -> anyhow::Result<()> {
 }
 
 fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
-    let character = match (args.teacher, args.bundle) {
-        (Some(character), None) => character,
-        (None, Some(bundle)) => bail!(
-            "{}: rendering a neural avatar bundle is not built yet; use --teacher CHARACTER",
-            bundle.display()
-        ),
-        _ => bail!("give exactly one of --teacher CHARACTER or --bundle PATH"),
+    use crate::gpu::kernel::Precision;
+    use crate::headless::Avatar;
+    let gpu_context = GpuContext::headless(gpu)?;
+    let avatar = match (args.teacher, args.bundle) {
+        (Some(character), None) => Avatar::Teacher {
+            character,
+            description: args.avatar,
+        },
+        (None, Some(dir)) => {
+            let manifest = crate::nn::bundle::read_manifest(&dir.join("manifest.json"))?;
+            let defaults = manifest.sampler;
+            let sampling = crate::nn::sampler::Sampling {
+                steps: args.steps.unwrap_or(defaults.steps),
+                cfg_scale: args.cfg_scale.unwrap_or(defaults.cfg_scale),
+            };
+            if sampling.steps == 0 || sampling.steps > manifest.diffusion.steps {
+                bail!("--steps must be between 1 and {}", manifest.diffusion.steps);
+            }
+            if args.f16 && !gpu_context.caps.shader_f16 {
+                bail!(
+                    "{} has no SHADER_F16; leave out --f16",
+                    gpu_context.adapter_label()
+                );
+            }
+            Avatar::Bundle {
+                dir,
+                options: crate::engine::EngineOptions {
+                    precision: if args.f16 {
+                        Precision::F16
+                    } else {
+                        Precision::F32
+                    },
+                    seed: args.seed,
+                    sampling: Some(sampling),
+                    pca: !args.no_pca,
+                },
+            }
+        }
+        _ => bail!("give exactly one of --teacher CHARACTER or --bundle DIR"),
     };
-    let _ = args.seed;
+    if args.points && matches!(avatar, Avatar::Teacher { .. }) {
+        bail!("--points needs --bundle (the teacher has no position-map points)");
+    }
     let job = crate::headless::RenderJob {
-        character,
-        description: args.avatar,
+        avatar,
         keys: KeyScript::parse(&args.keys).context("--keys")?,
         out: args.out,
         size: args.size,
         views: args.views,
+        points: args.points,
     };
-    let gpu = GpuContext::headless(gpu)?;
+    let gpu = gpu_context;
     let bar = indicatif::ProgressBar::new(0).with_style(
         indicatif::ProgressStyle::with_template(
             "rendering {bar:40} {pos}/{len} frames, {eta} left",
         )
         .expect("valid template"),
     );
-    let frames = crate::headless::render_teacher(&job, gpu, &|done, total| {
+    let frames = crate::headless::render(&job, gpu, &|done, total| {
         bar.set_length(total);
         bar.set_position(done);
     })?;

@@ -1,74 +1,153 @@
-//! Headless scripted sessions (`unica render`): an avatar driven by a key script, drawn
-//! from cameras that follow it, written as numbered PNGs per view plus manifest.json
-//! (actions, world root path, cameras, timings). Today the teacher; the neural avatar
-//! joins when the live model lands.
+//! Headless scripted sessions (`unica render`): an avatar — the teacher or the neural
+//! avatar of a bundle — driven by a key script, drawn from cameras that follow it,
+//! written as numbered PNGs per view plus manifest.json (actions, world root path per
+//! frame, cameras, timings; for the neural avatar also the sampler, clamped values and
+//! per-stage timings) and optionally one point cloud (.ply) per frame.
 
+use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use crate::action::KeyScript;
+use glam::Vec3;
+
+use crate::action::{Action, KeyScript};
 use crate::avatar::description::Description;
 use crate::avatar::load_character;
 use crate::avatar::teacher::Teacher;
+use crate::engine::surface::MapSurface;
+use crate::engine::{Engine, EngineOptions};
 use crate::files::{write_atomic, write_png_atomic};
 use crate::gpu::GpuContext;
+use crate::mesh::Mesh;
 use crate::render::OrbitCamera;
 use crate::render::offscreen::Offscreen;
 use crate::render::scene::DrawOptions;
 
+/// Who is rendered.
+pub enum Avatar {
+    Teacher {
+        character: PathBuf,
+        description: Option<PathBuf>,
+    },
+    Bundle {
+        dir: PathBuf,
+        options: EngineOptions,
+    },
+}
+
 pub struct RenderJob {
-    pub character: PathBuf,
-    pub description: Option<PathBuf>,
+    pub avatar: Avatar,
     pub keys: KeyScript,
     pub out: PathBuf,
     pub size: u32,
     pub views: u32,
+    /// Also write each frame's points as frame_NNNNN.ply (neural avatar only).
+    pub points: bool,
 }
 
 #[derive(serde::Serialize)]
 struct FrameRecord {
     index: usize,
-    action: crate::action::Action,
+    action: Action,
     root: [f32; 3],
     files: Vec<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    clamped: Option<usize>,
+}
+
+/// The avatar being driven, frame by frame.
+enum Driver {
+    Teacher(Box<Teacher>),
+    /// The surface is built from the first generated frame.
+    Neural(Box<Engine>, Option<MapSurface>),
+}
+
+/// One step's result: the mesh to draw, the root, and for the neural avatar its points,
+/// clamped values and (gpu, cpu) milliseconds.
+struct Step {
+    mesh: Mesh,
+    root: Vec3,
+    neural: Option<(Vec<Vec3>, usize, f64, f64)>,
+}
+
+impl Driver {
+    fn new(avatar: &Avatar, gpu: &GpuContext) -> anyhow::Result<Self> {
+        Ok(match avatar {
+            Avatar::Teacher {
+                character,
+                description,
+            } => {
+                let character = load_character(character)?;
+                let description = Description::find(&character, description.as_deref())?;
+                Driver::Teacher(Box::new(Teacher::new(character, description)?))
+            }
+            Avatar::Bundle { dir, options } => {
+                let engine = Engine::new(gpu, dir, options)?;
+                Driver::Neural(Box::new(engine), None)
+            }
+        })
+    }
+
+    fn step(&mut self, action: Action) -> anyhow::Result<Step> {
+        Ok(match self {
+            Driver::Teacher(teacher) => {
+                teacher.step(action);
+                Step {
+                    mesh: teacher.mesh(),
+                    root: teacher.root(),
+                    neural: None,
+                }
+            }
+            Driver::Neural(engine, surface) => {
+                let frame = engine.step(action)?;
+                let surface = surface
+                    .get_or_insert_with(|| MapSurface::new(&engine.bundle.pixels, &frame.points));
+                Step {
+                    mesh: surface.mesh(&frame.points),
+                    root: frame.root,
+                    neural: Some((frame.points, frame.clamped, frame.gpu_ms, frame.cpu_ms)),
+                }
+            }
+        })
+    }
 }
 
 /// Renders the session; `progress` is told each frame. Returns the frames written.
-pub fn render_teacher(
+pub fn render(
     job: &RenderJob,
     gpu: GpuContext,
     progress: &dyn Fn(u64, u64),
 ) -> anyhow::Result<usize> {
-    let character = load_character(&job.character)?;
-    let description = Description::find(&character, job.description.as_deref())?;
-    let mut teacher = Teacher::new(character, description)?;
+    let mut driver = Driver::new(&job.avatar, &gpu)?;
     std::fs::create_dir_all(&job.out).map_err(|e| anyhow::anyhow!("{}: {e}", job.out.display()))?;
     let mut offscreen = Offscreen::new(gpu, job.size, job.size);
-    let (lo, hi) = teacher.mesh().bounds().expect("a character has vertices");
-    let distance = (hi - lo).max_element() * 1.8;
     let yaws: Vec<f32> = (0..job.views)
         .map(|k| std::f32::consts::PI + std::f32::consts::TAU * k as f32 / job.views as f32)
         .collect();
     let (mut step_ms, mut render_ms, mut write_ms) = (0.0, 0.0, 0.0);
+    let (mut gpu_ms, mut cpu_ms, mut clamped_total) = (0.0, 0.0, 0);
+    let mut distance = None;
     let mut frames = Vec::new();
     let total = job.keys.len();
     for index in 0..total {
         let action = job.keys.action_at(index);
         let clock = Instant::now();
-        teacher.step(action);
-        let mesh = teacher.mesh();
+        let step = driver.step(action)?;
         step_ms += clock.elapsed().as_secs_f64() * 1e3;
-        let root = teacher.root();
+        let distance = *distance.get_or_insert_with(|| {
+            let (lo, hi) = step.mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ONE));
+            (hi - lo).max_element() * 1.8
+        });
         let mut files = Vec::new();
         for (k, &yaw) in yaws.iter().enumerate() {
             let camera = OrbitCamera {
-                target: root,
+                target: step.root,
                 yaw,
                 pitch: 0.2,
                 distance,
             };
             let clock = Instant::now();
-            let image = offscreen.render(&mesh, &camera, &DrawOptions::default())?;
+            let image = offscreen.render(&step.mesh, &camera, &DrawOptions::default())?;
             render_ms += clock.elapsed().as_secs_f64() * 1e3;
             let clock = Instant::now();
             let file = format!("frame_{index:05}_v{k}.png");
@@ -76,27 +155,70 @@ pub fn render_teacher(
             write_ms += clock.elapsed().as_secs_f64() * 1e3;
             files.push(file);
         }
+        let mut clamped = None;
+        if let Some((points, frame_clamped, g, c)) = &step.neural {
+            (gpu_ms, cpu_ms) = (gpu_ms + g, cpu_ms + c);
+            clamped_total += frame_clamped;
+            clamped = Some(*frame_clamped);
+            if job.points {
+                let file = format!("frame_{index:05}.ply");
+                write_atomic(&job.out.join(&file), &ply(points))?;
+                files.push(file);
+            }
+        }
         frames.push(FrameRecord {
             index,
             action,
-            root: root.to_array(),
+            root: step.root.to_array(),
             files,
+            clamped,
         });
         progress(index as u64 + 1, total as u64);
     }
+    let source = match (&job.avatar, &driver) {
+        (Avatar::Teacher { character, .. }, _) => {
+            serde_json::json!({ "teacher": character.display().to_string() })
+        }
+        (Avatar::Bundle { dir, options }, Driver::Neural(engine, _)) => serde_json::json!({
+            "bundle": dir.display().to_string(),
+            "seed": options.seed,
+            "ddim_steps": engine.sampling().steps,
+            "cfg_scale": engine.sampling().cfg_scale,
+            "pca": options.pca,
+            "clamped_values": clamped_total,
+        }),
+        _ => unreachable!("the driver follows the avatar"),
+    };
     let manifest = serde_json::json!({
-        "source": "teacher",
-        "character": job.character.display().to_string(),
+        "source": source,
         "frame_rate": crate::avatar::locomotion::FRAME_RATE,
         "size": job.size,
         "view_yaws": yaws,
         "camera": { "pitch": 0.2, "distance": distance, "target": "the root of each frame" },
         "frames": frames,
-        "timings_ms": { "teacher": step_ms, "render": render_ms, "write": write_ms },
+        "timings_ms": {
+            "step": step_ms, "render": render_ms, "write": write_ms,
+            "model_gpu": gpu_ms, "model_cpu": cpu_ms,
+        },
     });
     write_atomic(
         &job.out.join("manifest.json"),
         serde_json::to_string_pretty(&manifest)?.as_bytes(),
     )?;
     Ok(total)
+}
+
+/// A binary little-endian PLY with x y z per point.
+fn ply(points: &[Vec3]) -> Vec<u8> {
+    let mut out = Vec::new();
+    write!(
+        out,
+        "ply\nformat binary_little_endian 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nend_header\n",
+        points.len()
+    )
+    .expect("writing to memory");
+    for p in points {
+        out.extend(bytemuck::cast_slice(&p.to_array()));
+    }
+    out
 }

@@ -7,6 +7,7 @@ pub mod avatar;
 pub mod bench;
 pub mod cli;
 pub mod dataset;
+pub mod engine;
 pub mod files;
 pub mod gpu;
 pub mod headless;

@@ -96,6 +96,10 @@ impl TensorFile {
         Ok(file)
     }
 
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
     fn fail(&self, problem: String) -> TensorError {
         TensorError {
             path: self.path.clone(),

@@ -35,6 +35,19 @@ pub struct Manifest {
     pub latent_scale: f32,
     pub frame_rate: f32,
     pub map_size: usize,
+    pub normalisation: Normalisation,
+    pub pca: PcaConfig,
+}
+
+/// Group normalisation (DESIGN §4): normalised = (world - root) · scale + 0.5.
+#[derive(Clone, Debug, Deserialize)]
+pub struct Normalisation {
+    pub scale: f32,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+pub struct PcaConfig {
+    pub components: usize,
 }
 
 /// A loaded bundle: the models on the GPU and what the sampler needs.
@@ -47,6 +60,14 @@ pub struct Bundle {
     pub schedule: Schedule,
     /// The standing start's context, [frames - 1, latent, h, w], already scaled.
     pub context: Tensor,
+    /// The map's foreground pixels (row-major indices) and the waist pixels among them
+    /// (indices into `pixels`), whose mean is the root.
+    pub pixels: Vec<u32>,
+    pub waist: Vec<u32>,
+    /// The PCA of root-centred normalised frames: mean [3·pixels], basis [components,
+    /// 3·pixels] (orthonormal rows), point-major xyz.
+    pub pca_mean: Vec<f32>,
+    pub pca_basis: Vec<f32>,
 }
 
 impl Bundle {
@@ -56,7 +77,16 @@ impl Bundle {
         let w = Weights::new(&file, gpu, precision);
         let (vae, unet) = (&manifest.vae, &manifest.unet);
         let side = manifest.map_size / 8;
+        let pixels = indices(&file, "map.pixels", manifest.map_size * manifest.map_size)?;
+        let waist = indices(&file, "map.waist", pixels.len())?;
+        let values = 3 * pixels.len();
+        let pca_mean = w.host("pca.mean", &[values])?;
+        let pca_basis = w.host("pca.basis", &[manifest.pca.components, values])?;
         Ok(Self {
+            pixels,
+            waist,
+            pca_mean,
+            pca_basis,
             encoder: Encoder::load(&w.at("vae.encoder"), vae)?,
             decoder: Decoder::load(&w.at("vae.decoder"), vae)?,
             unet: UNet::load(&w.at("unet"), unet)?,
@@ -99,6 +129,18 @@ impl Bundle {
     pub fn decode(&self, r: &mut Recorder, z: &Tensor) -> Result<Tensor, GpuError> {
         let unscaled = r.axpby(1.0 / self.manifest.latent_scale, z, 0, 0.0, z, 0, &z.shape)?;
         self.decoder.forward(r, &unscaled)
+    }
+}
+
+/// A 1-D int32 tensor of indices, each below `bound`.
+fn indices(file: &TensorFile, name: &str, bound: usize) -> Result<Vec<u32>, LoadError> {
+    let (values, _) = file.i32(name, &[None])?;
+    match values.iter().find(|&&v| v < 0 || v as usize >= bound) {
+        Some(bad) => Err(LoadError::Manifest {
+            path: file.path().display().to_string(),
+            problem: format!("'{name}' holds {bad}, outside 0..{bound}"),
+        }),
+        None => Ok(values.into_iter().map(|v| v as u32).collect()),
     }
 }
 

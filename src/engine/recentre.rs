@@ -1,0 +1,114 @@
+//! Recentring the window without re-encoding: when the window slides, every context frame
+//! is translated by -δ (the new frame's root shift). A uniform shift of the foreground
+//! along axis k moves the encoder's latents along J_k = ∂E/∂δ_k, measured once per
+//! bundle by central differences around the standing start's last frame; the window then
+//! moves by -Σ δ_k J_k in latent space.
+
+use crate::gpu::kernel::{PipelineCache, Precision};
+use crate::gpu::{GpuContext, GpuError};
+use crate::nn::{Bundle, LoadError, Recorder, Tensor};
+
+/// The half-width of the central difference, in normalised units (a running frame moves
+/// the root by about 0.03).
+const STEP: f32 = 0.02;
+
+pub struct ShiftBasis {
+    /// J_x, J_y, J_z, each tiled over the window's frames: [1, F-1, C, h, w].
+    axes: [Tensor; 3],
+    /// The lowest normalised height of the standing start's last frame (the floor).
+    pub lowest: f32,
+}
+
+impl ShiftBasis {
+    pub fn measure(
+        gpu: &GpuContext,
+        pipelines: &mut PipelineCache,
+        precision: Precision,
+        bundle: &Bundle,
+    ) -> Result<Self, LoadError> {
+        let cfg = &bundle.unet.cfg;
+        let size = bundle.manifest.map_size;
+        let plane = size * size;
+        let context_frames = cfg.frames - 1;
+        // The standing start's last frame, decoded.
+        let mut r = Recorder::new(gpu, pipelines, precision);
+        let maps = bundle.decode(&mut r, &bundle.context)?;
+        r.submit();
+        let maps = maps.read(gpu)?;
+        let last = &maps[(context_frames - 1) * 3 * plane..context_frames * 3 * plane];
+        let lowest = bundle
+            .pixels
+            .iter()
+            .map(|&p| last[plane + p as usize])
+            .fold(f32::INFINITY, f32::min);
+        // The foreground shifted by ±STEP along each axis, background 0.
+        let mut shifted = Vec::with_capacity(6 * 3 * plane);
+        for k in 0..3 {
+            for sign in [1.0, -1.0] {
+                let mut map = vec![0.0; 3 * plane];
+                for &p in &bundle.pixels {
+                    for c in 0..3 {
+                        let i = c * plane + p as usize;
+                        map[i] = last[i] + if c == k { sign * STEP } else { 0.0 };
+                    }
+                }
+                shifted.extend(map);
+            }
+        }
+        let mut r = Recorder::new(gpu, pipelines, precision);
+        let input = r.upload("recentre.maps", &[6, 3, size, size], &shifted)?;
+        let means = bundle.encoder.forward(&mut r, &input)?;
+        r.submit();
+        let means = means.read(gpu)?;
+        let frame = means.len() / 6;
+        let factor = bundle.manifest.latent_scale / (2.0 * STEP);
+        let side = size / 8;
+        let shape = [1, context_frames, cfg.latent, side, side];
+        let axis = |k: usize| -> Result<Tensor, GpuError> {
+            let (plus, minus) = (
+                &means[2 * k * frame..][..frame],
+                &means[(2 * k + 1) * frame..][..frame],
+            );
+            let j: Vec<f32> = plus
+                .iter()
+                .zip(minus)
+                .map(|(a, b)| (a - b) * factor)
+                .collect();
+            let tiled = j.repeat(context_frames);
+            Tensor::upload(gpu, "recentre.axis", &shape, &tiled, precision)
+        };
+        Ok(Self {
+            axes: [axis(0)?, axis(1)?, axis(2)?],
+            lowest,
+        })
+    }
+
+    /// Records the next window: frames 1.. of `context` then `latent`, all moved by
+    /// -`shift` in latent space.
+    pub fn slide(
+        &self,
+        r: &mut Recorder,
+        context: &Tensor,
+        latent: &Tensor,
+        shift: glam::Vec3,
+    ) -> Result<Tensor, GpuError> {
+        let [_, frames, c, h, w] = context.shape[..] else {
+            panic!("a window is [1, F, C, H, W], got {:?}", context.shape)
+        };
+        let frame = c * h * w;
+        let older = r.axpby(
+            1.0,
+            context,
+            frame,
+            0.0,
+            context,
+            0,
+            &[1, frames - 1, c, h, w],
+        )?;
+        let mut window = r.concat(&older, &latent.reshaped(&[1, 1, c, h, w]), 1)?;
+        for (k, axis) in self.axes.iter().enumerate() {
+            window = r.axpby(1.0, &window, 0, -shift[k], axis, 0, &context.shape)?;
+        }
+        Ok(window)
+    }
+}
