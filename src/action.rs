@@ -28,6 +28,11 @@ impl Action {
         self as u32
     }
 
+    /// The action with model id `id` (Idle for an unknown id).
+    pub fn from_id(id: u32) -> Action {
+        Self::ALL.get(id as usize).copied().unwrap_or_default()
+    }
+
     /// The key-script letter: I, W, S, A, D.
     pub fn letter(self) -> char {
         match self {

@@ -14,6 +14,8 @@ use crate::gpu::{self, GpuContext, GpuOptions};
 pub const CHARACTER_ENV: &str = "UNICA_CHARACTER";
 /// The default avatar's source, relative to the repository (DESIGN: ../shared/assets).
 const DEFAULT_CHARACTER: &str = "../shared/assets/witch/Witch.gltf";
+/// The default neural avatar, shipped in the repository.
+const DEFAULT_BUNDLE: &str = "assets/witch/bundle";
 
 #[derive(Parser, Debug)]
 #[command(
@@ -32,13 +34,14 @@ pub struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
 
-    /// Character file (.gltf, .glb, .obj) to show [default: $UNICA_CHARACTER, else
-    /// ../shared/assets/witch/Witch.gltf]
+    /// Character file (.gltf, .glb, .obj): without --bundle its teacher is shown alone;
+    /// with --bundle it runs beside the neural avatar [default with neither: the shipped
+    /// Witch bundle beside $UNICA_CHARACTER, else ../shared/assets/witch/Witch.gltf]
     #[arg(long, value_name = "FILE")]
     character: Option<PathBuf>,
 
-    /// Neural avatar bundle to play (arrives with the live model; refused until then)
-    #[arg(long, value_name = "PATH")]
+    /// Neural avatar bundle to play [default: assets/witch/bundle unless --character]
+    #[arg(long, value_name = "DIR")]
     bundle: Option<PathBuf>,
 
     /// Drive the avatar from a key script instead of the keyboard, e.g. "60W 60S 60A 20I"
@@ -330,6 +333,7 @@ fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
                     seed: args.seed,
                     sampling: Some(sampling),
                     pca: !args.no_pca,
+                    split: false,
                 },
             }
         }
@@ -380,11 +384,14 @@ fn not_built(name: &str) -> anyhow::Result<()> {
 }
 
 fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
-    if let Some(bundle) = cli.bundle {
-        bail!(
-            "{}: neural avatar bundles are not supported yet; run without --bundle to see the character",
-            bundle.display()
-        );
+    let (bundle, character) = match (cli.bundle, cli.character) {
+        (Some(bundle), character) => (Some(bundle), character),
+        (None, Some(character)) => (None, Some(character)),
+        (None, None) => (default_bundle(), default_character()),
+    };
+    if let Some(dir) = &bundle {
+        // Refuse a broken bundle before the window opens (the worker loads it again).
+        crate::nn::bundle::read_manifest(&dir.join("manifest.json"))?;
     }
     let keys = cli
         .keys
@@ -403,7 +410,8 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
         PathBuf::from(format!("recordings/session-{secs}"))
     });
     app::run(AppOptions {
-        character: cli.character.or_else(default_character),
+        bundle,
+        character,
         keys,
         exit_after: cli.exit_after,
         screenshot: cli.screenshot,
@@ -412,6 +420,16 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
         record_fps: cli.record_fps,
         gpu,
     })
+}
+
+/// The shipped Witch bundle, beside the working directory or in the source tree.
+pub fn default_bundle() -> Option<PathBuf> {
+    [
+        PathBuf::from(DEFAULT_BUNDLE),
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_BUNDLE),
+    ]
+    .into_iter()
+    .find(|p| p.join("manifest.json").is_file())
 }
 
 /// `$UNICA_CHARACTER`, else the shared Witch beside the working directory or beside the

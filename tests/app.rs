@@ -148,6 +148,45 @@ fn the_witch_window_screenshot_is_not_blank_and_keys_drive_the_action() {
 }
 
 #[test]
+fn the_neural_witch_is_generated_and_drawn() {
+    // The shipped bundle alone (no teacher beside it): on lavapipe a generated frame
+    // takes seconds, so 30 window frames see the load and a few generated frames.
+    let dir = tempfile::tempdir().unwrap();
+    let shot = dir.path().join("neural.png");
+    let bundle = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle");
+    let out = unica(
+        &[
+            "--bundle",
+            bundle.to_str().unwrap(),
+            "--keys",
+            "200W",
+            "--screenshot",
+            shot.to_str().unwrap(),
+            "--exit-after",
+            "30",
+        ],
+        &[],
+    );
+    let stdout = check(&out);
+    let generated: u64 = stdout
+        .split("; ")
+        .find_map(|part| part.strip_suffix(" generated frames\n"))
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no generated frame count: {stdout}"));
+    assert!(generated >= 1, "{stdout}");
+    let (variance, covered) = viewport_stats(&shot);
+    eprintln!(
+        "neural viewport: luma variance {variance:.1}, {:.1}% covered",
+        covered * 100.0
+    );
+    assert!(
+        covered > 0.02,
+        "the avatar covers only {:.2}% of the viewport",
+        covered * 100.0
+    );
+}
+
+#[test]
 fn a_missing_character_shows_the_placeholder() {
     let dir = tempfile::tempdir().unwrap();
     let shot = dir.path().join("placeholder.png");

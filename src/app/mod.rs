@@ -1,6 +1,7 @@
 //! The desktop app: an egui window with the 3D viewport, orbit camera, HUD, menus, WASD
 //! input and the recorder. The only module that knows about windows.
 
+pub mod neural;
 pub mod recorder;
 pub mod shown;
 pub mod viewport;
@@ -13,7 +14,6 @@ use eframe::egui;
 
 use crate::action::{Action, HeldKeys, KeyScript};
 use crate::avatar::locomotion::FRAME_RATE;
-use crate::avatar::teacher::Teacher;
 use crate::gpu::timing::StageTiming;
 use crate::gpu::{self, GpuContext, GpuOptions};
 use crate::render::OrbitCamera;
@@ -24,7 +24,10 @@ use viewport::Viewport;
 /// How the app was started (see `unica --help`).
 #[derive(Clone, Debug, Default)]
 pub struct AppOptions {
-    /// Character file shown in the viewport; `None` shows the placeholder.
+    /// Neural avatar bundle to play; `None` shows the character's teacher.
+    pub bundle: Option<PathBuf>,
+    /// Character file: the teacher (beside the neural avatar when there is a bundle);
+    /// `None` without a bundle shows the placeholder.
     pub character: Option<PathBuf>,
     /// Drive the action from this script instead of the keyboard.
     pub keys: Option<KeyScript>,
@@ -134,15 +137,20 @@ impl UnicaApp {
         outcome: Arc<Mutex<Option<anyhow::Error>>>,
     ) -> Self {
         let mut viewport = Viewport::new(&gpu);
-        let shown = Shown::load(&gpu, &viewport.renderer, options.character.as_deref());
+        let character = options.character.as_deref();
+        let shown = match &options.bundle {
+            Some(dir) => Shown::neural(&gpu, &viewport.renderer, dir, character),
+            None => Shown::load(&gpu, &viewport.renderer, character),
+        };
         viewport.camera = behind(&shown);
         log::info!("adapter: {}; {:?}", gpu.adapter_label(), gpu.caps);
         let record = options.record;
         let mut app = Self {
             record_dir: options.record_dir.display().to_string(),
             open_path: options
-                .character
+                .bundle
                 .as_ref()
+                .or(options.character.as_ref())
                 .map(|p| p.display().to_string())
                 .unwrap_or_default(),
             gpu,
@@ -169,8 +177,14 @@ impl UnicaApp {
         app
     }
 
+    /// Opens a bundle folder (the neural avatar) or a character file (its teacher).
     fn open(&mut self, path: PathBuf) {
-        self.shown = Shown::load(&self.gpu, &self.viewport.renderer, Some(&path));
+        let renderer = &self.viewport.renderer;
+        self.shown = if path.is_dir() {
+            Shown::neural(&self.gpu, renderer, &path, None)
+        } else {
+            Shown::load(&self.gpu, renderer, Some(&path))
+        };
         self.message = self.shown.problem.clone();
         self.viewport.camera = behind(&self.shown);
         self.open_path = path.display().to_string();
@@ -253,9 +267,10 @@ impl UnicaApp {
             self.step_clock = (self.step_clock - steps).min(1.0);
             steps as u32
         };
-        let before = self.shown.teacher.as_ref().map(Teacher::root);
-        self.shown.advance(&self.gpu, self.action, steps);
-        let after = self.shown.teacher.as_ref().map(Teacher::root);
+        let before = self.shown.focus();
+        self.shown
+            .advance(&self.gpu, &self.viewport.renderer, self.action, steps);
+        let after = self.shown.focus();
         if let (true, Some(before), Some(after)) = (self.follow, before, after) {
             self.viewport.camera.target += after - before;
         }
@@ -264,7 +279,7 @@ impl UnicaApp {
     fn menu_bar(&mut self, ui: &mut egui::Ui) {
         egui::MenuBar::new().ui(ui, |ui| {
             ui.menu_button("File", |ui| {
-                ui.label("Character file (.gltf, .glb, .obj), or drop one on the window:");
+                ui.label("A bundle folder (neural avatar) or a character file (.gltf, .glb, .obj); or drop one on the window:");
                 ui.text_edit_singleline(&mut self.open_path);
                 if ui.button("Open").clicked() {
                     self.open(PathBuf::from(self.open_path.trim()));
@@ -299,6 +314,9 @@ impl UnicaApp {
             });
             ui.menu_button("View", |ui| {
                 ui.checkbox(&mut self.follow, "Camera follows the avatar");
+                if self.shown.neural.is_some() && self.shown.teacher.is_some() {
+                    ui.checkbox(&mut self.shown.show_teacher, "Teacher beside the neural avatar");
+                }
                 if ui.button("Frame the avatar (F)").clicked() {
                     let (lo, hi) = self.shown.bounds();
                     self.viewport.camera.frame(lo, hi);
@@ -318,7 +336,7 @@ impl UnicaApp {
         });
     }
 
-    fn hud(&self, ui: &mut egui::Ui) {
+    fn hud(&mut self, ui: &mut egui::Ui) {
         ui.heading(&self.shown.name);
         if let Some(problem) = &self.shown.problem {
             ui.colored_label(egui::Color32::YELLOW, problem);
@@ -350,6 +368,9 @@ impl UnicaApp {
         });
         if self.options.keys.is_some() {
             ui.label(format!("Key script, frame {}", self.frame));
+        }
+        if let Some(neural) = &mut self.shown.neural {
+            neural_hud(ui, neural);
         }
         if let Some(teacher) = &self.shown.teacher {
             let loco = &teacher.locomotion;
@@ -431,8 +452,14 @@ impl UnicaApp {
             return;
         }
         self.screenshot_requested = true;
+        let generated = self
+            .shown
+            .neural
+            .as_ref()
+            .map(|n| format!("; {} generated frames", n.frames))
+            .unwrap_or_default();
         println!(
-            "unica: {} frames rendered; action {}; character {}",
+            "unica: {} frames rendered; action {}; character {}{generated}",
             self.frame, self.action, self.shown.name
         );
         let Some(path) = self.options.screenshot.clone() else {
@@ -501,9 +528,8 @@ impl eframe::App for UnicaApp {
         egui::CentralPanel::default()
             .frame(egui::Frame::NONE)
             .show(ui, |ui| {
-                self.timings =
-                    self.viewport
-                        .show(ui, &self.gpu, &state.renderer, &[self.shown.gpu_mesh()]);
+                let meshes = self.shown.gpu_meshes();
+                self.timings = self.viewport.show(ui, &self.gpu, &state.renderer, &meshes);
             });
         self.record_frame();
         self.frame += 1;
@@ -561,6 +587,35 @@ fn movement(key: egui::Key) -> Option<Action> {
         egui::Key::D | egui::Key::ArrowRight => Action::Right,
         _ => return None,
     })
+}
+
+/// The neural avatar's part of the HUD: generation rate, lag, model timings, clamped
+/// values, and the live settings (DDIM steps, CFG scale, PCA).
+fn neural_hud(ui: &mut egui::Ui, neural: &mut shown::Neural) {
+    ui.label(format!(
+        "Neural: {:.1} generated fps (data rate {FRAME_RATE}), frame {}",
+        neural.avatar.fps, neural.frames
+    ));
+    ui.label(format!(
+        "Model: {:.0} ms GPU + {:.1} ms CPU per frame",
+        neural.gpu_ms, neural.cpu_ms
+    ));
+    if neural.clamped > 0 {
+        ui.colored_label(
+            egui::Color32::YELLOW,
+            format!("{} values clamped to [0, 1]", neural.clamped),
+        );
+    }
+    let Some(settings) = &mut neural.settings else {
+        return;
+    };
+    let before = *settings;
+    ui.add(egui::Slider::new(&mut settings.sampling.steps, 1..=50).text("DDIM steps"));
+    ui.add(egui::Slider::new(&mut settings.sampling.cfg_scale, 0.0..=5.0).text("CFG scale"));
+    ui.checkbox(&mut settings.pca, "PCA clean-up");
+    if *settings != before {
+        neural.avatar.set_settings(*settings);
+    }
 }
 
 fn yes_no(b: bool) -> &'static str {

@@ -1,28 +1,98 @@
-//! What the viewport shows: the teacher (a rigged character driven by the actions), a
-//! static mesh when the character cannot be animated, or a placeholder, with the reason.
+//! What the viewport shows: the neural avatar of a bundle (with the teacher beside it
+//! when its character file loads), the teacher alone, a static mesh when the character
+//! cannot be animated, or a placeholder, with the reason.
 
 use std::path::Path;
 
 use glam::Vec3;
 
+use super::neural::{NeuralAvatar, Settings, Update};
 use crate::action::Action;
 use crate::avatar::description::Description;
 use crate::avatar::load_character;
 use crate::avatar::teacher::Teacher;
+use crate::engine::surface::MapSurface;
 use crate::gpu::GpuContext;
 use crate::mesh::Mesh;
 use crate::render::{GpuMesh, SceneRenderer};
 
+/// Where the teacher stands when it runs beside the neural avatar.
+pub const TEACHER_OFFSET: Vec3 = Vec3::new(1.5, 0.0, 0.0);
+
+/// The neural avatar and what the window draws of it.
+pub struct Neural {
+    pub avatar: NeuralAvatar,
+    /// Live settings, known once the bundle is loaded.
+    pub settings: Option<Settings>,
+    surface: Option<(MapSurface, GpuMesh)>,
+    mesh: Mesh,
+    pub root: Vec3,
+    pub frames: u64,
+    pub clamped: usize,
+    /// The last frame's model time on the GPU and the CPU, ms.
+    pub gpu_ms: f64,
+    pub cpu_ms: f64,
+}
+
+impl Neural {
+    /// Gives the worker the action and takes what it reported; returns the new status
+    /// line when it changed (`Some(None)`: loaded).
+    fn receive(
+        &mut self,
+        gpu: &GpuContext,
+        renderer: &SceneRenderer,
+        action: Action,
+    ) -> Option<Option<String>> {
+        self.avatar.set_action(action);
+        let mut status = None;
+        for update in self.avatar.poll() {
+            match update {
+                Update::Ready {
+                    pixels,
+                    standing,
+                    settings,
+                } => {
+                    let surface = MapSurface::new(&pixels, &standing);
+                    self.mesh = surface.mesh(&standing);
+                    self.surface = Some((surface, renderer.upload(gpu, &self.mesh)));
+                    self.root = standing.iter().sum::<Vec3>() / standing.len().max(1) as f32;
+                    self.settings = Some(settings);
+                    status = Some(None);
+                }
+                Update::Frame(frame) => {
+                    if let Some((surface, gpu_mesh)) = &self.surface {
+                        self.mesh = surface.mesh(&frame.points);
+                        gpu_mesh.write_vertices(gpu, &self.mesh);
+                    }
+                    self.root = frame.root;
+                    self.frames = frame.index + 1;
+                    self.clamped += frame.clamped;
+                    (self.gpu_ms, self.cpu_ms) = (frame.gpu_ms, frame.cpu_ms);
+                }
+                Update::Failed(e) => {
+                    log::error!("neural avatar: {e}");
+                    status = Some(Some(format!("The neural avatar stopped: {e}")));
+                }
+            }
+        }
+        status
+    }
+}
+
 pub struct Shown {
     pub name: String,
-    /// Why the character is static or a placeholder.
+    /// Why the avatar is static, a placeholder, or not yet shown.
     pub problem: Option<String>,
     pub teacher: Option<Teacher>,
+    pub neural: Option<Neural>,
+    /// Draw the teacher beside the neural avatar.
+    pub show_teacher: bool,
     mesh: Mesh,
     gpu_mesh: GpuMesh,
 }
 
 impl Shown {
+    /// The teacher of a character file (or a static mesh, or a placeholder).
     pub fn load(gpu: &GpuContext, renderer: &SceneRenderer, path: Option<&Path>) -> Self {
         let (name, teacher, mesh, problem) = match path.map(load_character) {
             None => placeholder("no character file given (--character)".into()),
@@ -47,12 +117,58 @@ impl Shown {
             gpu_mesh: renderer.upload(gpu, &mesh),
             mesh,
             teacher,
+            neural: None,
+            show_teacher: false,
             problem,
         }
     }
 
-    /// Advances the teacher `steps` frames under `action` and uploads the new pose.
-    pub fn advance(&mut self, gpu: &GpuContext, action: Action, steps: u32) {
+    /// The neural avatar of the bundle `dir`, loading on its worker; the teacher of
+    /// `character` beside it when that file loads.
+    pub fn neural(
+        gpu: &GpuContext,
+        renderer: &SceneRenderer,
+        dir: &Path,
+        character: Option<&Path>,
+    ) -> Self {
+        let mut shown = Self::load(gpu, renderer, character);
+        shown.show_teacher = shown.teacher.is_some();
+        shown.name = format!("{} (neural)", dir.display());
+        shown.problem = Some("Loading the neural avatar…".into());
+        shown.neural = Some(Neural {
+            avatar: NeuralAvatar::start(gpu, dir),
+            settings: None,
+            surface: None,
+            mesh: Mesh::default(),
+            root: Vec3::ZERO,
+            frames: 0,
+            clamped: 0,
+            gpu_ms: 0.0,
+            cpu_ms: 0.0,
+        });
+        shown
+    }
+
+    /// Advances the avatar under `action`: the teacher alone by `steps` frames; beside
+    /// the neural avatar, the teacher moves one frame per generated frame (offset by
+    /// `TEACHER_OFFSET`) so the two stay comparable.
+    pub fn advance(
+        &mut self,
+        gpu: &GpuContext,
+        renderer: &SceneRenderer,
+        action: Action,
+        steps: u32,
+    ) {
+        let steps = match &mut self.neural {
+            None => steps,
+            Some(neural) => {
+                let before = neural.frames;
+                if let Some(problem) = neural.receive(gpu, renderer, action) {
+                    self.problem = problem;
+                }
+                (neural.frames - before) as u32
+            }
+        };
         let Some(teacher) = &mut self.teacher else {
             return;
         };
@@ -63,15 +179,48 @@ impl Shown {
             teacher.step(action);
         }
         self.mesh = teacher.mesh();
+        if self.neural.is_some() {
+            self.mesh
+                .positions
+                .iter_mut()
+                .for_each(|p| *p += TEACHER_OFFSET);
+        }
         self.gpu_mesh.write_vertices(gpu, &self.mesh);
     }
 
-    pub fn gpu_mesh(&self) -> &GpuMesh {
-        &self.gpu_mesh
+    /// The meshes to draw.
+    pub fn gpu_meshes(&self) -> Vec<&GpuMesh> {
+        let neural = self
+            .neural
+            .as_ref()
+            .and_then(|n| n.surface.as_ref())
+            .map(|(_, m)| m);
+        let other = self.neural.is_none() || (self.show_teacher && self.teacher.is_some());
+        neural
+            .into_iter()
+            .chain(other.then_some(&self.gpu_mesh))
+            .collect()
+    }
+
+    /// The point the camera follows: the neural avatar's root, else the teacher's.
+    pub fn focus(&self) -> Option<Vec3> {
+        match (&self.neural, &self.teacher) {
+            (Some(n), _) => n.surface.as_ref().map(|_| n.root),
+            (None, Some(t)) => Some(t.root()),
+            (None, None) => None,
+        }
     }
 
     pub fn bounds(&self) -> (Vec3, Vec3) {
-        self.mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ONE))
+        let neural = self
+            .neural
+            .as_ref()
+            .filter(|n| n.surface.is_some())
+            .map(|n| &n.mesh);
+        neural
+            .unwrap_or(&self.mesh)
+            .bounds()
+            .unwrap_or((Vec3::ZERO, Vec3::new(0.5, 1.8, 0.5)))
     }
 }
 

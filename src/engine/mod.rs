@@ -1,8 +1,10 @@
 //! The live neural avatar (DESIGN §6): a ring of three context latents on the GPU → the
 //! UNet + DDIM with CFG → decode → the new frame's root shift is real motion (world root
 //! accumulated) → the window is recentred in latent space and slid → PCA cleans what is
-//! drawn (never fed back). One submission per generated frame; the only readback is the
-//! decoded map at the frame's end, which the caller draws.
+//! drawn (never fed back). No readback inside a generated frame: the only one is the
+//! decoded map at its end, which the caller draws. Headless, a frame is one submission;
+//! beside a window (`EngineOptions::split`) it is submitted step by step, so the
+//! window's frames never wait for more than one step.
 
 mod noise;
 pub mod pca;
@@ -32,6 +34,8 @@ pub struct EngineOptions {
     pub sampling: Option<Sampling>,
     /// Clean what is drawn with the bundle's PCA.
     pub pca: bool,
+    /// Submit each generated frame in parts (context pass, each step, decode).
+    pub split: bool,
 }
 
 impl Default for EngineOptions {
@@ -41,6 +45,7 @@ impl Default for EngineOptions {
             seed: 0,
             sampling: None,
             pca: true,
+            split: false,
         }
     }
 }
@@ -75,6 +80,7 @@ pub struct Engine {
     pub bundle: Bundle,
     sampling: Sampling,
     pca: bool,
+    split: bool,
     /// [1, F-1, C, h, w]: the window of clean context latents.
     context: Tensor,
     pending: Option<Pending>,
@@ -97,13 +103,19 @@ impl Engine {
             .context
             .reshaped(&[1, cfg.frames - 1, cfg.latent, side, side]);
         let scale = bundle.manifest.normalisation.scale;
-        let world_root = Vec3::new(0.0, (0.5 - basis.lowest) / scale, 0.0);
+        let lowest = basis
+            .standing
+            .iter()
+            .map(|p| p.y)
+            .fold(f32::INFINITY, f32::min);
+        let world_root = Vec3::new(0.0, (0.5 - lowest) / scale, 0.0);
         Ok(Self {
             gpu: gpu.clone(),
             pipelines,
             precision: options.precision,
             sampling: options.sampling.unwrap_or(bundle.manifest.sampler),
             pca: options.pca,
+            split: options.split,
             context,
             pending: None,
             basis,
@@ -116,6 +128,17 @@ impl Engine {
 
     pub fn root(&self) -> Vec3 {
         self.world_root
+    }
+
+    /// The standing start's last frame in world space (what is shown before the first
+    /// generated frame).
+    pub fn standing_points(&self) -> Vec<Vec3> {
+        let scale = self.bundle.manifest.normalisation.scale;
+        self.basis
+            .standing
+            .iter()
+            .map(|&p| (p - Vec3::splat(0.5)) / scale + self.world_root)
+            .collect()
     }
 
     pub fn sampling(&self) -> Sampling {
@@ -136,7 +159,11 @@ impl Engine {
         let cfg = &self.bundle.unet.cfg;
         let side = self.bundle.manifest.map_size / 8;
         let noise_values = self.noise.gaussian(cfg.latent * side * side);
-        let mut r = Recorder::new(&self.gpu, &mut self.pipelines, self.precision);
+        let mut r = if self.split {
+            Recorder::split(&self.gpu, &mut self.pipelines, self.precision)
+        } else {
+            Recorder::new(&self.gpu, &mut self.pipelines, self.precision)
+        };
         if let Some(pending) = self.pending.take() {
             self.context =
                 self.basis

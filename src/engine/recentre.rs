@@ -15,8 +15,8 @@ const STEP: f32 = 0.02;
 pub struct ShiftBasis {
     /// J_x, J_y, J_z, each tiled over the window's frames: [1, F-1, C, h, w].
     axes: [Tensor; 3],
-    /// The lowest normalised height of the standing start's last frame (the floor).
-    pub lowest: f32,
+    /// The standing start's last frame decoded: its foreground points, normalised.
+    pub standing: Vec<glam::Vec3>,
 }
 
 impl ShiftBasis {
@@ -36,11 +36,17 @@ impl ShiftBasis {
         r.submit();
         let maps = maps.read(gpu)?;
         let last = &maps[(context_frames - 1) * 3 * plane..context_frames * 3 * plane];
-        let lowest = bundle
+        let standing = bundle
             .pixels
             .iter()
-            .map(|&p| last[plane + p as usize])
-            .fold(f32::INFINITY, f32::min);
+            .map(|&p| {
+                glam::Vec3::new(
+                    last[p as usize],
+                    last[plane + p as usize],
+                    last[2 * plane + p as usize],
+                )
+            })
+            .collect();
         // The foreground shifted by ±STEP along each axis, background 0.
         let mut shifted = Vec::with_capacity(6 * 3 * plane);
         for k in 0..3 {
@@ -79,7 +85,7 @@ impl ShiftBasis {
         };
         Ok(Self {
             axes: [axis(0)?, axis(1)?, axis(2)?],
-            lowest,
+            standing,
         })
     }
 

@@ -158,6 +158,9 @@ pub struct Recorder<'a> {
     precision: Precision,
     encoder: wgpu::CommandEncoder,
     flops: u64,
+    /// Submit at every [`Recorder::boundary`] (so other work on the queue, such as the
+    /// window's frames, waits for at most one part).
+    split: bool,
 }
 
 impl<'a> Recorder<'a> {
@@ -175,6 +178,32 @@ impl<'a> Recorder<'a> {
             precision,
             encoder,
             flops: 0,
+            split: false,
+        }
+    }
+
+    /// A recorder that submits its work in parts, at every [`Recorder::boundary`].
+    pub fn split(
+        gpu: &'a GpuContext,
+        pipelines: &'a mut PipelineCache,
+        precision: Precision,
+    ) -> Self {
+        Self {
+            split: true,
+            ..Self::new(gpu, pipelines, precision)
+        }
+    }
+
+    /// A point between stages (e.g. denoising steps): a split recorder submits what it
+    /// has recorded so far; nothing is read back.
+    pub fn boundary(&mut self) {
+        if self.split {
+            let next = self
+                .gpu
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nn") });
+            let done = std::mem::replace(&mut self.encoder, next);
+            self.gpu.queue.submit([done.finish()]);
         }
     }
 

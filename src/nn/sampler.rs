@@ -100,6 +100,7 @@ pub fn sample_next(
         (context.clone(), actions.to_vec())
     };
     let cache = unet.context(r, &context, &batch_actions)?;
+    r.boundary();
     let times = schedule.ddim_timesteps(sampling.steps);
     let mut x = noise.clone();
     for (i, &t) in times.iter().enumerate() {
@@ -107,6 +108,7 @@ pub fn sample_next(
         let eps = guided_eps(r, unet, &x, t, &cache, sampling.cfg_scale)?;
         let (a, b) = schedule.ddim_coefficients(t, t_prev);
         x = r.axpby(a, &x, 0, b, &eps, 0, &noise.shape)?;
+        r.boundary();
     }
     Ok(x)
 }

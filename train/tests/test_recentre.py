@@ -1,0 +1,97 @@
+"""Latent recentring (unica_train.recentre): the shift basis is exact for an affine encoder
+and first-order exact for the VAE's encoder; the rollout's "reencode" mode is train.py's
+reference loop and its "latent" mode never calls the encoder."""
+
+import torch
+
+from unica_train import recentre
+from unica_train.dataset import BakedDataset
+from unica_train.diffusion import Schedule
+from unica_train.train import Run, TrainConfig, parse_keys
+from unica_train.unet import UNet, UNetConfig
+from unica_train.vae import PositionVae, VaeConfig
+
+TINY_VAE = VaeConfig(channels=(16, 12, 8, 8))
+TINY_UNET = UNetConfig(channels=(16, 32), embed=32, heads=2)
+
+
+def layout(n=600, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    pixels = torch.randperm(128 * 128, generator=g)[:n].sort().values
+    return pixels, torch.arange(0, n, 7), g
+
+
+def test_basis_is_exact_for_an_affine_encoder():
+    pixels, _, g = layout()
+    conv = torch.nn.Conv2d(3, 4, 8, stride=8)
+    encode = lambda x: conv(x).detach() * 1.7  # noqa: E731
+    refs = recentre.to_maps(torch.rand(2, pixels.shape[0], 3, generator=g), pixels)
+    J = recentre.shift_basis(encode, refs, pixels, step=0.05)
+    assert J.shape == (3, 4, 16, 16)
+    x = recentre.to_maps(torch.rand(pixels.shape[0], 3, generator=g), pixels)
+    delta = torch.tensor([0.03, -0.01, 0.07])
+    exact = encode((x - delta[:, None, None] * recentre.mask(pixels))[None])[0]
+    approx = recentre.apply_shift(encode(x[None])[0], delta, J)
+    assert torch.allclose(approx, exact, atol=1e-5)
+    # one-sided differences agree for an affine map too
+    assert torch.allclose(recentre.shift_basis(encode, refs, pixels, step=0.05, central=False), J, atol=1e-4)
+
+
+def test_basis_is_first_order_exact_for_the_vae_encoder():
+    torch.manual_seed(0)
+    pixels, _, g = layout()
+    vae = PositionVae(TINY_VAE).eval()
+    encode = recentre.encoder_fn(vae, 1.3)
+    x = recentre.to_maps(0.3 + 0.4 * torch.rand(1, pixels.shape[0], 3, generator=g, dtype=torch.float64), pixels)
+    vae.double()
+    J = recentre.shift_basis(encode, x, pixels, step=1e-4)  # the tangent at x
+    m = recentre.mask(pixels).double()
+    direction = torch.tensor([0.8, -0.2, 0.56], dtype=torch.float64)
+    errors = []
+    for size in (0.08, 0.04, 0.02):
+        delta = direction * size
+        exact = encode(x - delta[:, None, None] * m)[0]
+        approx = recentre.apply_shift(encode(x)[0], delta, J)
+        errors.append(float((approx - exact).abs().max()))
+    # second-order remainder: halving δ quarters the error
+    assert 3.0 < errors[0] / errors[1] < 5.0 and 3.0 < errors[1] / errors[2] < 5.0, errors
+
+
+def test_maps_round_trip_and_keys_text():
+    pixels, waist, g = layout()
+    pts = torch.rand(2, pixels.shape[0], 3, generator=g)
+    assert torch.equal(recentre.from_maps(recentre.to_maps(pts, pixels), pixels), pts)
+    assert torch.allclose(recentre.root(pts, waist), pts[:, waist].mean(1))
+    assert recentre.keys_text(parse_keys("3W 2A 1I", 6)) == "3W 2A 1I"
+
+
+def tiny_models():
+    torch.manual_seed(1)
+    return PositionVae(TINY_VAE).eval(), UNet(TINY_UNET).eval(), Schedule()
+
+
+def test_reencode_mode_is_the_reference_rollout(quick_dataset_dir, tmp_path):
+    vae, unet, schedule = tiny_models()
+    cfg = TrainConfig(rollout_keys="2W 1A", rollout_frames=3, ddim_steps=2, seed=3)
+    run = Run(quick_dataset_dir, tmp_path, cfg, torch.device("cpu"))
+    want = run.rollout(vae, unet, schedule, 1.1)
+    ds = BakedDataset(quick_dataset_dir)
+    unit, start = ds.normalise(run.world[0][0:4])
+    context = vae.encoder(ds.to_maps(unit[:3]))[0].detach() * 1.1
+    got = recentre.rollout(vae, unet, schedule, 1.1, context, "2W 1A", 2, 1.0, 3, ds.pixels, ds.waist, ds.scale,
+                           "reencode", frames=3, window=unit[:3], start_root=start)
+    assert got["keys"] == want["keys"] and got["frames"] == 3
+    assert torch.allclose(torch.tensor(got["root_path"]), torch.tensor(want["root_path"]), atol=1e-5)
+
+
+def test_latent_mode_never_encodes():
+    vae, unet, schedule = tiny_models()
+    pixels, waist, g = layout()
+    calls = []
+    vae.encoder.register_forward_hook(lambda *_: calls.append(1))
+    context = torch.randn(3, 4, 16, 16, generator=g)
+    basis = torch.randn(3, 4, 16, 16, generator=g) * 0.1
+    out = recentre.rollout(vae, unet, schedule, 1.0, context, "2W 1S", 2, 1.0, 0, pixels, waist, 0.35, "latent", basis=basis)
+    assert calls == [] and len(out["root_path"]) == 4 and len(out["shifts"]) == 3
+    recentre.rollout(vae, unet, schedule, 1.0, context, "2W", 2, 1.0, 0, pixels, waist, 0.35, "reencode")
+    assert len(calls) == 2  # the reference re-encodes every frame
