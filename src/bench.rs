@@ -367,3 +367,106 @@ fn model_rows(
     )?);
     Ok(rows)
 }
+
+/// A long headless run of the live loop (geometry only): frames per second, values that
+/// left [0, 1], non-finite values, resident memory before and after, and per key segment
+/// the heading of the world path against the key's direction.
+pub fn soak(
+    gpu: &GpuContext,
+    dir: &std::path::Path,
+    frames: usize,
+    sampling: Option<Sampling>,
+    out: &mut impl Write,
+) -> anyhow::Result<()> {
+    use crate::action::Action;
+    use crate::engine::{Engine, EngineOptions};
+    let options = EngineOptions {
+        sampling,
+        ..EngineOptions::default()
+    };
+    let mut engine = Engine::new(gpu, dir, &options)?;
+    writeln!(out, "adapter: {}", gpu.adapter_label())?;
+    let s = engine.sampling();
+    writeln!(
+        out,
+        "soak: {frames} frames of {}, {} DDIM steps, CFG {}, keys repeating {SOAK_KEYS}",
+        dir.display(),
+        s.steps,
+        s.cfg_scale
+    )?;
+    let keys = crate::action::KeyScript::parse(&SOAK_KEYS.repeat(frames.div_ceil(270)))?;
+    let rss_start = resident_mib();
+    let (mut clamped, mut non_finite) = (0usize, 0usize);
+    let mut roots = vec![engine.root()];
+    let bar = indicatif::ProgressBar::new(frames as u64);
+    let start = Instant::now();
+    for i in 0..frames {
+        let frame = engine.step(keys.action_at(i))?;
+        clamped += frame.clamped;
+        non_finite += frame.points.iter().filter(|p| !p.is_finite()).count();
+        roots.push(frame.root);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let seconds = start.elapsed().as_secs_f64();
+    let rss_end = resident_mib();
+    writeln!(
+        out,
+        "{:.2} generated frames per second ({seconds:.0} s)",
+        frames as f64 / seconds
+    )?;
+    writeln!(
+        out,
+        "clamped values: {clamped}; non-finite points: {non_finite}"
+    )?;
+    let mib = |m: Option<f64>| m.map_or("n/a".into(), |m| format!("{m:.0} MiB"));
+    writeln!(
+        out,
+        "resident memory: {} after loading, {} at the end",
+        mib(rss_start),
+        mib(rss_end)
+    )?;
+    // Heading of each movement segment after its first 15 frames (the turn), against
+    // the key's direction: W +Z (0°), A +X (90°), S -Z (180°), D -X (-90°).
+    let mut errors = Vec::new();
+    let mut start_frame = 0;
+    for i in 1..=frames {
+        if i == frames || keys.action_at(i) != keys.action_at(start_frame) {
+            let action = keys.action_at(start_frame);
+            let want = match action {
+                Action::Forward => Some(0.0f32),
+                Action::Left => Some(90.0),
+                Action::Backward => Some(180.0),
+                Action::Right => Some(-90.0),
+                Action::Idle => None,
+            };
+            if let (Some(want), true) = (want, i >= start_frame + 25) {
+                let leg = roots[i] - roots[start_frame + 15];
+                let heading = leg.x.atan2(leg.z).to_degrees();
+                let error = (heading - want + 540.0).rem_euclid(360.0) - 180.0;
+                errors.push(error.abs());
+            }
+            start_frame = i;
+        }
+    }
+    errors.sort_by(f32::total_cmp);
+    if let (Some(median), Some(worst)) = (errors.get(errors.len() / 2), errors.last()) {
+        writeln!(
+            out,
+            "path heading error over {} movement segments: median {median:.1}°, worst {worst:.1}°",
+            errors.len()
+        )?;
+    }
+    Ok(())
+}
+
+/// The soak's key cycle (270 frames): every direction, turns between them, and a stop.
+const SOAK_KEYS: &str = "60W 60D 60S 60A 30I ";
+
+/// This process's resident memory (Linux), MiB.
+fn resident_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
+}

@@ -122,6 +122,10 @@ struct BenchArgs {
     /// Storage precision: f32, f16 (needs SHADER_F16) or both
     #[arg(long, value_enum, default_value = "both")]
     precision: BenchPrecision,
+    /// Instead of the tables: run the live loop of --bundle for N frames (geometry
+    /// only) and report speed, clamped and non-finite values, memory and path headings
+    #[arg(long, value_name = "N", requires = "bundle")]
+    soak: Option<usize>,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug)]
@@ -242,6 +246,13 @@ fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
         bail!("--repeat must be at least 1");
     }
     let gpu = GpuContext::headless(gpu_options)?;
+    if let (Some(frames), Some(dir)) = (args.soak, &args.bundle) {
+        let sampling = crate::nn::sampler::Sampling {
+            steps: args.steps,
+            cfg_scale: args.cfg_scale,
+        };
+        return crate::bench::soak(&gpu, dir, frames, Some(sampling), &mut std::io::stdout());
+    }
     if matches!(args.precision, BenchPrecision::F16) && !gpu.caps.shader_f16 {
         bail!(
             "{} has no SHADER_F16: use --precision f32",

@@ -123,6 +123,16 @@ def bundle_basis(vae, extra: dict, manifest: dict, step: float = 0.03) -> torch.
     return shift_basis(encoder_fn(vae, scale), to_maps(points, pixels), pixels, step)
 
 
+def dataset_basis(vae, ds, manifest: dict, clips: list[int], stride: int = 40, step: float = 0.03) -> tuple[torch.Tensor, int]:
+    """(J, frames used) averaged over dataset maps: the anchor (3rd) frame of every
+    `stride`-th group of `clips`. Costs one bake and a few hundred encoder passes, so
+    training could store it in the bundle next to the context latents."""
+    pixels = ds.pixels
+    ref = torch.stack([u[2] for u in _groups(ds, clips, stride)])
+    scale = manifest["latent_scale"]
+    return shift_basis(encoder_fn(vae, scale), to_maps(ref, pixels), pixels, step), int(ref.shape[0])
+
+
 # -- the rollout ----------------------------------------------------------------------
 def keys_text(actions: list[int]) -> str:
     """Run-length key script of an action list ("60W 20I")."""
@@ -210,14 +220,14 @@ def _groups(ds, clips: list[int], stride: int):
 
 @torch.no_grad()
 def measure(vae, manifest: dict, extra: dict, ds, bases: dict, clips: list[int], stride: int = 8,
-            magnitudes=(0.01, 0.02, 0.04, 0.08), seed: int = 0) -> dict:
+            magnitudes=(0.01, 0.02, 0.04, 0.08), seed: int = 0, oracle: bool = True) -> dict:
     """How well E(x) − Σ δ_k J_k stands for E(x − δ·m) on dataset maps x (context frames of
     the groups of `clips`, every `stride`-th group): δ either of a given magnitude in a
     random direction, or the real one a context frame gets in the loop (the root shifts of
     the frames that follow it, summed: 1, 2 or 3 of them). Per basis: the latent RMS error
     relative to the latent std, the decoded mean position error (mm) against the decoded
     re-encoding and against the true translated map, the decoded root error (mm); and the
-    same with no correction at all for scale."""
+    same with no correction at all for scale, and (`oracle`) with the tangent at x itself."""
     scale = manifest["latent_scale"]
     norm = manifest["normalisation"]["scale"]
     pixels, waist = extra["map.pixels"], extra["map.waist"]
@@ -267,6 +277,11 @@ def measure(vae, manifest: dict, extra: dict, ds, bases: dict, clips: list[int],
     reference = {"none (E(x), no shift)": base}
     for name, J in bases.items():
         reference[f"latent J[{name}]"] = base - torch.einsum("bk,kchw->bchw", deltas, J)
+    if oracle:
+        # The tangent at x itself (an encoder pass per axis and frame: not for the engine,
+        # it separates the basis' pose dependence from the encoder's curvature in δ).
+        tangent = torch.stack([shift_basis(encode, maps[b:b + 1], pixels, 0.01) for b in range(maps.shape[0])])
+        reference["oracle: tangent at x, step 0.01"] = base - torch.einsum("bk,bkchw->bchw", deltas, tangent)
     table = {}
     order = sorted(set(kinds), key=lambda k: (k.startswith("real"), float(k.split()[1].lstrip("x"))))
     ex_mm_truth = (dec_exact - truth).norm(dim=-1).mean(-1) / norm * 1000
@@ -293,6 +308,22 @@ def measure(vae, manifest: dict, extra: dict, ds, bases: dict, clips: list[int],
             }
         table[kind] = row
     return {"latent_std": std, "frames": int(xs.shape[0]), "table": table}
+
+
+def approximation_text(result: dict) -> str:
+    """measure()'s table as text: per shift kind and basis, latent relative RMS error,
+    decoded error and decoded root error against the re-encoding (mm)."""
+    lines = [f"{'shift':13} {'|δ| mm':>7}  {'recentring':44} {'latent rel':>10} {'decoded mm':>10} {'root mm':>8} {'root p95':>8}"]
+    for kind, row in result["table"].items():
+        first = True
+        for name, v in row.items():
+            if not (isinstance(v, dict) and "latent_rel_rms" in v):
+                continue
+            head = f"{kind:13} {row['mean_delta_mm']:7.1f}" if first else " " * 21
+            lines.append(f"{head}  {name:44} {v['latent_rel_rms']:10.4f} {v['decoded_vs_reencoded_mm']:10.1f} "
+                         f"{v['root_vs_reencoded_mm']:8.1f} {v['root_vs_reencoded_mm_p95']:8.1f}")
+            first = False
+    return "\n".join(lines)
 
 
 # -- the command line -----------------------------------------------------------------
@@ -327,13 +358,18 @@ def main(argv=None):
     parser.add_argument("--steps", type=int, help="DDIM steps (default: the bundle's sampler)")
     parser.add_argument("--cfg-scale", type=float, help="default: the bundle's sampler")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--basis", choices=("context", "dataset"), default="context",
+                        help="J at the bundle's standing start, or averaged over --data's training clips")
     parser.add_argument("--basis-step", type=float, default=0.03, help="finite-difference step of J (normalised units)")
     parser.add_argument("--diagnose", action="store_true", help="record each frame's gap to the re-encoded window")
     parser.add_argument("--teacher", type=Path, help="teacher manifest.json (unica render --teacher) to compare with")
-    parser.add_argument("--data", type=Path, help="baked dataset: also measure the approximation on its frames")
-    parser.add_argument("--clips", default="4,13", help="dataset clips to measure on (the held-out ones)")
-    parser.add_argument("--stride", type=int, default=8)
+    parser.add_argument("--data", type=Path, help="baked dataset (for --basis dataset and --measure)")
+    parser.add_argument("--measure", action="store_true", help="measure the approximation directly on --data's frames")
+    parser.add_argument("--clips", default="4,13", help="held-out dataset clips: measured on, left out of the dataset basis")
+    parser.add_argument("--stride", type=int, default=8, help="group stride of the measurement")
     args = parser.parse_args(argv)
+    if (args.measure or args.basis == "dataset") and not args.data:
+        parser.error("--measure and --basis dataset need --data")
     torch.set_num_threads(2)
     torch.manual_seed(args.seed)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -342,29 +378,27 @@ def main(argv=None):
     scale = manifest["latent_scale"]
     norm = manifest["normalisation"]["scale"]
     pixels, waist = extra["map.pixels"], extra["map.waist"]
-    basis = bundle_basis(vae, extra, manifest, args.basis_step)
-    from safetensors.torch import save_file
-
-    save_file({"shift_basis": basis.contiguous()}, str(args.out / "basis.safetensors"))
-    print(f"shift basis J at the standing start (step {args.basis_step}): per-axis RMS "
-          f"{[round(float(v), 3) for v in basis.pow(2).mean((1, 2, 3)).sqrt()]}", flush=True)
-
+    bases = {f"context, step {args.basis_step:g}": bundle_basis(vae, extra, manifest, args.basis_step)}
     if args.data:
         from .dataset import BakedDataset
 
         ds = BakedDataset(args.data)
-        clips = [int(c) for c in args.clips.split(",")]
-        train_clips = [c for c in range(len(ds.clips)) if c not in clips]
-        ref = torch.stack([u[2] for u in _groups(ds, train_clips, 40)])
-        bases = {
-            "context, step 0.001": bundle_basis(vae, extra, manifest, 0.001),
-            f"context, step {args.basis_step:g}": basis,
-            f"dataset {ref.shape[0]} frames, step {args.basis_step:g}": shift_basis(encoder_fn(vae, scale), to_maps(ref, pixels), pixels, args.basis_step),
-        }
+        held = [int(c) for c in args.clips.split(",")]
+        J, count = dataset_basis(vae, ds, manifest, [c for c in range(len(ds.clips)) if c not in held], step=args.basis_step)
+        bases[f"dataset {count} frames, step {args.basis_step:g}"] = J
+    basis = list(bases.values())[0 if args.basis == "context" else 1]
+    from safetensors.torch import save_file
+
+    save_file({"shift_basis": basis.contiguous()}, str(args.out / "basis.safetensors"))
+    print(f"shift basis J ({args.basis}, step {args.basis_step}): per-axis RMS "
+          f"{[round(float(v), 3) for v in basis.pow(2).mean((1, 2, 3)).sqrt()]}", flush=True)
+
+    if args.measure:
+        bases = {"context, step 0.001": bundle_basis(vae, extra, manifest, 0.001), **bases}
         started = time.time()
-        result = measure(vae, manifest, extra, ds, bases, clips, args.stride, seed=args.seed)
+        result = measure(vae, manifest, extra, ds, bases, held, args.stride, seed=args.seed)
         (args.out / "approximation.json").write_text(json.dumps(result, indent=2) + "\n")
-        print(json.dumps(result, indent=2))
+        print(approximation_text(result))
         print(f"measured in {time.time() - started:.0f} s", flush=True)
 
     if args.frames <= 0:
@@ -378,6 +412,7 @@ def main(argv=None):
         out = rollout(vae, unet, schedule, scale, extra["context.latents"], args.keys, steps, cfg_scale, args.seed,
                       pixels, waist, norm, mode, frames=args.frames, basis=basis, diagnose=args.diagnose, log_every=50)
         out["seconds"] = round(time.time() - started, 1)
+        out["basis"] = args.basis if mode == "latent" else None
         path = args.out / f"rollout_{mode}.json"
         path.write_text(json.dumps(out) + "\n")
         print(f"{mode}: {args.frames} frames in {out['seconds']} s -> {path}", flush=True)
