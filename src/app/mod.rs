@@ -195,7 +195,18 @@ impl UnicaApp {
             Some((recorder, _)) => {
                 let dir = recorder.dir.clone();
                 self.message = Some(match recorder.stop() {
-                    Ok(n) => format!("Recorded {n} frames to {}", dir.display()),
+                    Ok(n) => {
+                        let video = match recorder::find_ffmpeg() {
+                            None => String::new(),
+                            Some(ffmpeg) => {
+                                match recorder::encode_mp4(&ffmpeg, &dir, self.options.record_fps) {
+                                    Ok(mp4) => format!(" and {}", mp4.display()),
+                                    Err(e) => format!(" (no MP4: {e})"),
+                                }
+                            }
+                        };
+                        format!("Recorded {n} frames to {}{video}", dir.display())
+                    }
                     Err(e) => format!("Recording stopped: {e}"),
                 });
             }

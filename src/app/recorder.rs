@@ -1,5 +1,6 @@
 //! The recorder: viewport frames at a fixed rate as numbered PNGs, each written atomically
-//! on a background thread, plus manifest.json (frame, time, action, camera).
+//! on a background thread, plus manifest.json (frame, time, action, camera); when an
+//! `ffmpeg` binary is on the PATH, also session.mp4 from the frames.
 
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{self, Receiver, Sender};
@@ -193,9 +194,67 @@ impl Recorder {
     }
 }
 
+/// The first `ffmpeg` on the PATH.
+pub fn find_ffmpeg() -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    std::env::split_paths(&path)
+        .map(|dir| dir.join("ffmpeg"))
+        .find(|candidate| candidate.is_file())
+}
+
+/// Encodes `dir`'s numbered frames at `fps` into `dir/session.mp4` (H.264, yuv420p, even
+/// size) with the `ffmpeg` program; the frames stay.
+pub fn encode_mp4(ffmpeg: &Path, dir: &Path, fps: f64) -> Result<PathBuf, String> {
+    let out = dir.join("session.mp4");
+    let run = std::process::Command::new(ffmpeg)
+        .current_dir(dir)
+        .args(["-y", "-loglevel", "error", "-framerate", &fps.to_string()])
+        .args([
+            "-i",
+            "frame_%06d.png",
+            "-vf",
+            "pad=ceil(iw/2)*2:ceil(ih/2)*2",
+        ])
+        .args(["-c:v", "libx264", "-pix_fmt", "yuv420p", "session.mp4"])
+        .output()
+        .map_err(|e| format!("{}: {e}", ffmpeg.display()))?;
+    if run.status.success() && out.is_file() {
+        Ok(out)
+    } else {
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        Err(format!("{} failed: {}", ffmpeg.display(), stderr.trim()))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn mp4_encoding_calls_ffmpeg_on_the_numbered_frames() {
+        // A stand-in ffmpeg that records its arguments and writes the output file.
+        let dir = tempfile::tempdir().unwrap();
+        let fake = dir.path().join("ffmpeg");
+        std::fs::write(
+            &fake,
+            "#!/bin/sh\necho \"$@\" > args.txt\ntouch session.mp4\n",
+        )
+        .unwrap();
+        std::process::Command::new("chmod")
+            .arg("+x")
+            .arg(&fake)
+            .status()
+            .unwrap();
+        let out = encode_mp4(&fake, dir.path(), 30.0).unwrap();
+        assert_eq!(out, dir.path().join("session.mp4"));
+        let args = std::fs::read_to_string(dir.path().join("args.txt")).unwrap();
+        assert!(args.contains("-framerate 30 -i frame_%06d.png"), "{args}");
+        assert!(args.contains("yuv420p session.mp4"), "{args}");
+        // A failing ffmpeg is reported with its message.
+        std::fs::write(&fake, "#!/bin/sh\necho 'no libx264' >&2\nexit 1\n").unwrap();
+        let err = encode_mp4(&fake, dir.path(), 30.0).unwrap_err();
+        assert!(err.contains("no libx264"), "{err}");
+    }
 
     fn image(v: u8) -> image::RgbaImage {
         image::RgbaImage::from_pixel(4, 3, image::Rgba([v, 0, 0, 255]))
