@@ -145,21 +145,43 @@ fn precisions() -> Vec<Precision> {
     }
 }
 
-/// Runs `layer` on the fixture's `inputs` (recording with its weights) in every
-/// precision and compares its output with `io.out.y` at the layer tolerance.
-fn check_layer(
+/// Which tolerance of [`tolerances`] a check uses.
+#[derive(Clone, Copy)]
+enum Scope {
+    Layer,
+    Model,
+}
+
+/// Runs `module` on the fixture's `inputs` (recording with its weights) in every
+/// precision and compares its result with the stored `output` at `scope`'s tolerance.
+fn check(
     name: &str,
     inputs: &[&str],
-    layer: impl Fn(&mut Recorder, &Weights, &[Tensor]) -> Tensor,
+    output: &str,
+    scope: Scope,
+    module: impl Fn(&mut Recorder, &Weights, &[Tensor]) -> Tensor,
 ) {
     for precision in precisions() {
         let mut f = Fixture::open(name, precision);
         let inputs: Vec<Tensor> = inputs.iter().map(|n| f.input(n)).collect();
         let (mut r, w) = f.recorder();
-        let y = layer(&mut r, &w, &inputs);
+        let y = module(&mut r, &w, &inputs);
         r.submit();
-        f.assert_close(&y, "io.out.y", tolerances(precision).0);
+        let (layer, model) = tolerances(precision);
+        let tolerance = match scope {
+            Scope::Layer => layer,
+            Scope::Model => model,
+        };
+        f.assert_close(&y, output, tolerance);
     }
+}
+
+fn check_layer(
+    name: &str,
+    inputs: &[&str],
+    layer: impl Fn(&mut Recorder, &Weights, &[Tensor]) -> Tensor,
+) {
+    check(name, inputs, "io.out.y", Scope::Layer, layer);
 }
 
 #[test]
@@ -293,30 +315,38 @@ fn the_timestep_embedding_matches_pytorch() {
 
 #[test]
 fn the_vae_encoder_mean_matches_pytorch() {
-    for precision in precisions() {
-        let mut f = Fixture::open("vae_encoder", precision);
-        let x = f.input("io.in.x");
-        let (mut r, w) = f.recorder();
-        let encoder = Encoder::load(&w, &TINY_VAE).unwrap();
-        let mean = encoder.forward(&mut r, &x).unwrap();
-        r.submit();
-        assert_eq!(mean.shape, [1, 4, 16, 16]);
-        f.assert_close(&mean, "io.out.mean", tolerances(precision).1);
-    }
+    check(
+        "vae_encoder",
+        &["io.in.x"],
+        "io.out.mean",
+        Scope::Model,
+        |r, w, x| {
+            let mean = Encoder::load(w, &TINY_VAE)
+                .unwrap()
+                .forward(r, &x[0])
+                .unwrap();
+            assert_eq!(mean.shape, [1, 4, 16, 16]);
+            mean
+        },
+    );
 }
 
 #[test]
 fn the_vae_decoder_matches_pytorch() {
-    for precision in precisions() {
-        let mut f = Fixture::open("vae_decoder", precision);
-        let z = f.input("io.in.z");
-        let (mut r, w) = f.recorder();
-        let decoder = Decoder::load(&w, &TINY_VAE).unwrap();
-        let y = decoder.forward(&mut r, &z).unwrap();
-        r.submit();
-        assert_eq!(y.shape, [1, 3, 128, 128]);
-        f.assert_close(&y, "io.out.y", tolerances(precision).1);
-    }
+    check(
+        "vae_decoder",
+        &["io.in.z"],
+        "io.out.y",
+        Scope::Model,
+        |r, w, z| {
+            let y = Decoder::load(w, &TINY_VAE)
+                .unwrap()
+                .forward(r, &z[0])
+                .unwrap();
+            assert_eq!(y.shape, [1, 3, 128, 128]);
+            y
+        },
+    );
 }
 
 /// The action id stored in a fixture.
