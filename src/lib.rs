@@ -15,4 +15,5 @@ pub mod mesh;
 pub mod nn;
 pub mod posmap;
 pub mod render;
+pub mod splat;
 pub mod tensors;

@@ -15,17 +15,19 @@ is: directly on dataset maps (latent error against the re-encoded one, decoded e
 mm) and on the live loop (rollouts of both kinds against the teacher).
 
     python -m unica_train.recentre --bundle assets/witch/bundle --keys "60W 60S 60A 120I" \\
-        --frames 300 --out /tmp/recentre [--teacher RENDER/manifest.json] [--data DATASET]
+        --frames 300 --out /tmp/recentre [--teacher RENDER/manifest.json] \\
+        [--data DATASET [--basis dataset] [--measure]] [--modes "reencode latent none"]
 
-writes `rollout_reencode.json` and `rollout_latent.json` (the comparator's format, plus the
-per-frame root shifts), `basis.safetensors`, with --teacher the comparator's rows of both
-next to the teacher's, and with --data `approximation.json` (the direct measurement)."""
+writes `rollout_<mode>.json` per mode (the comparator's format plus the per-frame root
+shifts; with --diagnose each frame's gap between the carried and the re-encoded context),
+`basis.safetensors`, with --teacher `comparison.txt` (the comparator's rows of every mode
+next to the teacher's), and with --measure `approximation.json` (the direct measurement on
+the dataset's held-out clips)."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
 from pathlib import Path
 
