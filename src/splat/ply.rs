@@ -1,0 +1,386 @@
+//! Gaussian splats in the de-facto 3DGS PLY layout (DESIGN §8): binary little-endian
+//! vertices with x y z, nx ny nz, f_dc_0..2 (SH degree 0), opacity (logit), scale_0..2
+//! (log), rot_0..3 (w x y z). Reading also takes ASCII and big-endian files, float or
+//! double properties in any order, and ignores extra ones (higher SH degrees: f_rest_*).
+
+use std::path::{Path, PathBuf};
+
+use glam::{Quat, Vec3};
+
+/// One Gaussian with the file's activations undone: opacity in (0, 1), linear scales.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Splat {
+    pub position: Vec3,
+    /// SH degree-0 coefficients (colour = 0.5 + SH_C0 · f_dc).
+    pub f_dc: Vec3,
+    pub opacity: f32,
+    pub scale: Vec3,
+    pub rotation: Quat,
+}
+
+/// The SH degree-0 constant, 1 / (2√π).
+pub const SH_C0: f32 = 0.282_094_8;
+
+impl Splat {
+    /// Linear RGB colour from the degree-0 coefficients.
+    pub fn color(&self) -> Vec3 {
+        Vec3::splat(0.5) + SH_C0 * self.f_dc
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {problem}", path.display())]
+pub struct PlyError {
+    pub path: PathBuf,
+    pub problem: String,
+}
+
+/// The properties written, in order.
+const FIELDS: [&str; 17] = [
+    "x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1",
+    "scale_2", "rot_0", "rot_1", "rot_2", "rot_3",
+];
+
+fn fields(s: &Splat) -> [f32; 17] {
+    let logit =
+        (s.opacity.clamp(1e-6, 1.0 - 1e-6) / (1.0 - s.opacity.clamp(1e-6, 1.0 - 1e-6))).ln();
+    let q = s.rotation;
+    [
+        s.position.x,
+        s.position.y,
+        s.position.z,
+        0.0,
+        0.0,
+        0.0,
+        s.f_dc.x,
+        s.f_dc.y,
+        s.f_dc.z,
+        logit,
+        s.scale.x.ln(),
+        s.scale.y.ln(),
+        s.scale.z.ln(),
+        q.w,
+        q.x,
+        q.y,
+        q.z,
+    ]
+}
+
+/// The file's bytes for `splats`.
+pub fn encode(splats: &[Splat]) -> Vec<u8> {
+    let mut out = format!(
+        "ply\nformat binary_little_endian 1.0\nelement vertex {}\n",
+        splats.len()
+    )
+    .into_bytes();
+    for name in FIELDS {
+        out.extend(format!("property float {name}\n").bytes());
+    }
+    out.extend(b"end_header\n");
+    for s in splats {
+        for v in fields(s) {
+            out.extend(v.to_le_bytes());
+        }
+    }
+    out
+}
+
+pub fn write(path: &Path, splats: &[Splat]) -> Result<(), crate::files::WriteError> {
+    crate::files::write_atomic(path, &encode(splats))
+}
+
+pub fn read(path: &Path) -> Result<Vec<Splat>, PlyError> {
+    let bytes = std::fs::read(path).map_err(|e| PlyError {
+        path: path.to_path_buf(),
+        problem: e.to_string(),
+    })?;
+    decode(&bytes).map_err(|problem| PlyError {
+        path: path.to_path_buf(),
+        problem,
+    })
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Format {
+    Ascii,
+    Little,
+    Big,
+}
+
+/// A property's byte size by PLY type name.
+fn type_size(name: &str) -> Option<usize> {
+    Some(match name {
+        "char" | "uchar" | "int8" | "uint8" => 1,
+        "short" | "ushort" | "int16" | "uint16" => 2,
+        "int" | "uint" | "float" | "int32" | "uint32" | "float32" => 4,
+        "double" | "float64" => 8,
+        _ => return None,
+    })
+}
+
+/// Splats from a PLY file's bytes; the error says what is wrong.
+pub fn decode(bytes: &[u8]) -> Result<Vec<Splat>, String> {
+    let end = find(bytes, b"end_header\n").ok_or("not a PLY file (no end_header line)")?;
+    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "the PLY header is not text")?;
+    let mut lines = header.lines();
+    if lines.next() != Some("ply") {
+        return Err("not a PLY file (the first line is not 'ply')".into());
+    }
+    let mut format = None;
+    let mut count = None;
+    let mut properties: Vec<(String, String)> = Vec::new();
+    let mut in_vertex = false;
+    for line in lines {
+        let words: Vec<&str> = line.split_whitespace().collect();
+        match words.as_slice() {
+            ["format", f, _] => {
+                format = Some(match *f {
+                    "ascii" => Format::Ascii,
+                    "binary_little_endian" => Format::Little,
+                    "binary_big_endian" => Format::Big,
+                    other => return Err(format!("unknown PLY format '{other}'")),
+                })
+            }
+            ["element", "vertex", n] => {
+                count = Some(
+                    n.parse::<usize>()
+                        .map_err(|_| format!("bad vertex count '{n}'"))?,
+                );
+                in_vertex = true;
+            }
+            ["element", ..] => in_vertex = false,
+            ["property", "list", ..] if in_vertex => {
+                return Err("list properties on vertices are not supported".into());
+            }
+            ["property", ty, name] if in_vertex => {
+                type_size(ty).ok_or(format!("unknown property type '{ty}'"))?;
+                properties.push((ty.to_string(), name.to_string()));
+            }
+            _ => {}
+        }
+    }
+    let format = format.ok_or("the PLY header has no format line")?;
+    let count = count.ok_or("the PLY file has no vertex element")?;
+    let column = |name: &str| {
+        properties
+            .iter()
+            .position(|(_, n)| n == name)
+            .ok_or(format!(
+                "the vertices have no '{name}' property (not a 3DGS splat file)"
+            ))
+    };
+    // Every written field but the (unused) normals.
+    let wanted: Vec<usize> = FIELDS
+        .iter()
+        .filter(|n| !["nx", "ny", "nz"].contains(n))
+        .map(|n| column(n))
+        .collect::<Result<_, _>>()?;
+    let rows = read_rows(
+        &bytes[end + b"end_header\n".len()..],
+        format,
+        &properties,
+        count,
+    )?;
+    Ok(rows
+        .iter()
+        .map(|row| {
+            let v: Vec<f32> = wanted.iter().map(|&c| row[c]).collect();
+            Splat {
+                position: Vec3::new(v[0], v[1], v[2]),
+                f_dc: Vec3::new(v[3], v[4], v[5]),
+                opacity: 1.0 / (1.0 + (-v[6]).exp()),
+                scale: Vec3::new(v[7].exp(), v[8].exp(), v[9].exp()),
+                rotation: Quat::from_xyzw(v[11], v[12], v[13], v[10]).normalize(),
+            }
+        })
+        .collect())
+}
+
+fn find(haystack: &[u8], needle: &[u8]) -> Option<usize> {
+    haystack.windows(needle.len()).position(|w| w == needle)
+}
+
+/// Every vertex's properties as f32.
+fn read_rows(
+    body: &[u8],
+    format: Format,
+    properties: &[(String, String)],
+    count: usize,
+) -> Result<Vec<Vec<f32>>, String> {
+    if format == Format::Ascii {
+        let text = std::str::from_utf8(body).map_err(|_| "the ASCII body is not text")?;
+        let mut numbers = text.split_whitespace();
+        return (0..count)
+            .map(|i| {
+                (0..properties.len())
+                    .map(|_| {
+                        let word = numbers
+                            .next()
+                            .ok_or(format!("the file ends inside vertex {i} of {count}"))?;
+                        word.parse::<f32>()
+                            .map_err(|_| format!("vertex {i}: '{word}' is not a number"))
+                    })
+                    .collect()
+            })
+            .collect();
+    }
+    let sizes: Vec<usize> = properties
+        .iter()
+        .map(|(ty, _)| type_size(ty).expect("checked"))
+        .collect();
+    let stride: usize = sizes.iter().sum();
+    if body.len() < stride * count {
+        return Err(format!(
+            "the file is truncated: {count} vertices need {} bytes, {} are there",
+            stride * count,
+            body.len()
+        ));
+    }
+    Ok(body
+        .chunks_exact(stride)
+        .take(count)
+        .map(|row| {
+            let mut at = 0;
+            properties
+                .iter()
+                .zip(&sizes)
+                .map(|((ty, _), &size)| {
+                    let mut raw = row[at..at + size].to_vec();
+                    at += size;
+                    if format == Format::Big {
+                        raw.reverse();
+                    }
+                    value(ty, &raw)
+                })
+                .collect()
+        })
+        .collect())
+}
+
+/// One little-endian value of PLY type `ty` as f32.
+fn value(ty: &str, raw: &[u8]) -> f32 {
+    match ty {
+        "float" | "float32" => f32::from_le_bytes(raw.try_into().expect("4 bytes")),
+        "double" | "float64" => f64::from_le_bytes(raw.try_into().expect("8 bytes")) as f32,
+        "char" | "int8" => raw[0] as i8 as f32,
+        "uchar" | "uint8" => raw[0] as f32,
+        "short" | "int16" => i16::from_le_bytes(raw.try_into().expect("2 bytes")) as f32,
+        "ushort" | "uint16" => u16::from_le_bytes(raw.try_into().expect("2 bytes")) as f32,
+        "int" | "int32" => i32::from_le_bytes(raw.try_into().expect("4 bytes")) as f32,
+        _ => u32::from_le_bytes(raw.try_into().expect("4 bytes")) as f32,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn splats() -> Vec<Splat> {
+        (0..5)
+            .map(|i| {
+                let f = i as f32;
+                Splat {
+                    position: Vec3::new(f, -f, 0.5 * f),
+                    f_dc: Vec3::new(0.1 * f, -0.2, 0.3),
+                    opacity: 0.1 + 0.15 * f,
+                    scale: Vec3::new(0.01, 0.02 + 0.01 * f, 0.005),
+                    rotation: Quat::from_rotation_y(0.3 * f),
+                }
+            })
+            .collect()
+    }
+
+    fn close(a: &Splat, b: &Splat) -> bool {
+        a.position.distance(b.position) < 1e-5
+            && a.f_dc.distance(b.f_dc) < 1e-6
+            && (a.opacity - b.opacity).abs() < 1e-5
+            && (a.scale - b.scale).abs().max_element() < 1e-6
+            && a.rotation.dot(b.rotation).abs() > 1.0 - 1e-6
+    }
+
+    #[test]
+    fn splats_survive_a_round_trip_through_a_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.ply");
+        write(&path, &splats()).unwrap();
+        let back = read(&path).unwrap();
+        assert_eq!(back.len(), 5);
+        assert!(splats().iter().zip(&back).all(|(a, b)| close(a, b)));
+    }
+
+    #[test]
+    fn other_writers_layouts_are_read() {
+        // ASCII, another property order, doubles, and higher-degree SH (ignored).
+        let s = splats()[2];
+        let f = fields(&s);
+        let header = "ply\nformat ascii 1.0\ncomment another tool\nelement vertex 1\nproperty double rot_0\nproperty double rot_1\nproperty double rot_2\nproperty double rot_3\nproperty float f_rest_0\nproperty float x\nproperty float y\nproperty float z\nproperty float f_dc_0\nproperty float f_dc_1\nproperty float f_dc_2\nproperty float opacity\nproperty float scale_0\nproperty float scale_1\nproperty float scale_2\nend_header\n";
+        let body = format!(
+            "{} {} {} {} 0.7 {} {} {} {} {} {} {} {} {} {}\n",
+            f[13],
+            f[14],
+            f[15],
+            f[16],
+            f[0],
+            f[1],
+            f[2],
+            f[6],
+            f[7],
+            f[8],
+            f[9],
+            f[10],
+            f[11],
+            f[12]
+        );
+        let got = decode(format!("{header}{body}").as_bytes()).unwrap();
+        assert!(close(&got[0], &s), "{:?} vs {s:?}", got[0]);
+        // Big-endian binary.
+        let mut big = b"ply\nformat binary_big_endian 1.0\nelement vertex 1\n".to_vec();
+        for name in FIELDS {
+            big.extend(format!("property float {name}\n").bytes());
+        }
+        big.extend(b"end_header\n");
+        for v in f {
+            big.extend(v.to_be_bytes());
+        }
+        assert!(close(&decode(&big).unwrap()[0], &s));
+    }
+
+    #[test]
+    fn malformed_files_get_clear_errors() {
+        let good = encode(&splats());
+        let cases: Vec<(Vec<u8>, &str)> = vec![
+            (b"hello".to_vec(), "no end_header"),
+            (b"plx\nend_header\n".to_vec(), "first line"),
+            (good[..good.len() - 10].to_vec(), "truncated"),
+            (
+                String::from_utf8_lossy(&good)
+                    .replace("property float opacity", "property float alpha")
+                    .into_bytes(),
+                "no 'opacity' property",
+            ),
+            (
+                b"ply\nformat binary_middle_endian 1.0\nelement vertex 0\nend_header\n".to_vec(),
+                "unknown PLY format",
+            ),
+            (
+                b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nend_header\n1 2\n"
+                    .to_vec(),
+                "no 'y' property",
+            ),
+            (
+                b"ply\nformat ascii 1.0\nelement vertex many\nend_header\n".to_vec(),
+                "bad vertex count",
+            ),
+        ];
+        for (bytes, expected) in cases {
+            let err = decode(&bytes).unwrap_err();
+            assert!(
+                err.contains(expected),
+                "'{err}' should mention '{expected}'"
+            );
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("none.ply");
+        assert!(read(&missing).unwrap_err().to_string().contains("none.ply"));
+    }
+}
