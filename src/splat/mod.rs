@@ -4,3 +4,4 @@
 
 pub mod align;
 pub mod ply;
+pub mod project;
