@@ -59,7 +59,8 @@ fn the_f32_variant_of_an_elem_shader_needs_no_f16() {
     assert!(!shader.needs_f16_for(Precision::F32));
     assert!(shader.needs_f16_for(Precision::F16));
     assert!(shader.source(Precision::F16).starts_with("enable f16;"));
-    assert!(!shader.source(Precision::F32).contains("f16"));
+    let f32_source = shader.source(Precision::F32);
+    assert!(f32_source.starts_with("alias Elem = f32;") && !f32_source.contains("enable f16"));
 }
 
 #[test]

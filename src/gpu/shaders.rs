@@ -158,6 +158,7 @@ use crate::nn::ops::{
     GroupNormParams, LinearParams, PermuteParams, UpsampleParams,
 };
 use crate::render::SceneUniforms;
+use crate::splat::raster::{GpuSplat, ProjectedSplat, RadixParams, ScanParams, SplatFrame};
 
 pub const SCALE_ADD: Shader = shader!("scale_add.wgsl", [ElementwiseParams], elem);
 pub const SUM_SHARED: Shader =
@@ -174,6 +175,20 @@ pub const PERMUTE: Shader = shader!("permute.wgsl", [PermuteParams], elem);
 pub const CONCAT: Shader = shader!("concat.wgsl", [ConcatParams], elem);
 pub const AXPBY: Shader = shader!("axpby.wgsl", [AxpbyParams], elem);
 pub const ATTENTION: Shader = shader!("attention.wgsl", [AttentionParams], elem);
+pub const SPLAT_PROJECT: Shader = shader!("splat_project.wgsl", [SplatFrame, GpuSplat, ProjectedSplat], f16: false, subgroups: false);
+pub const SCAN_BLOCKS: Shader =
+    shader!("scan_blocks.wgsl", [ScanParams], f16: false, subgroups: false);
+pub const SCAN_ADD: Shader = shader!("scan_add.wgsl", [ScanParams], f16: false, subgroups: false);
+pub const SPLAT_KEYS: Shader =
+    shader!("splat_keys.wgsl", [SplatFrame, ProjectedSplat], f16: false, subgroups: false);
+pub const RADIX_HISTOGRAM: Shader =
+    shader!("radix_histogram.wgsl", [RadixParams], f16: false, subgroups: false);
+pub const RADIX_SCATTER: Shader =
+    shader!("radix_scatter.wgsl", [RadixParams], f16: false, subgroups: false);
+pub const SPLAT_RANGES: Shader =
+    shader!("splat_ranges.wgsl", [SplatFrame], f16: false, subgroups: false);
+pub const SPLAT_RENDER: Shader =
+    shader!("splat_render.wgsl", [SplatFrame, ProjectedSplat], f16: false, subgroups: false);
 pub const TIMESTEP_EMBEDDING: Shader = shader!("timestep_embedding.wgsl", [EmbeddingParams], elem);
 
 /// Every shader of the crate; a test checks this covers every file in `shaders/`.
@@ -192,4 +207,12 @@ pub const ALL: &[Shader] = &[
     AXPBY,
     ATTENTION,
     TIMESTEP_EMBEDDING,
+    SPLAT_PROJECT,
+    SCAN_BLOCKS,
+    SCAN_ADD,
+    SPLAT_KEYS,
+    RADIX_HISTOGRAM,
+    RADIX_SCATTER,
+    SPLAT_RANGES,
+    SPLAT_RENDER,
 ];

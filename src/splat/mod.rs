@@ -1,7 +1,8 @@
 //! Appearance (DESIGN §7): Gaussian splats from position maps. Built so far: the world
-//! alignment and the 3DGS PLY format; the splats, refiner and rasterizer are open work
-//! (issue #6).
+//! alignment, the 3DGS PLY format, the projection with a CPU reference renderer and the
+//! WGSL tile rasterizer; base splats and the refiner are open work (issue #6).
 
 pub mod align;
 pub mod ply;
 pub mod project;
+pub mod raster;

@@ -1,0 +1,29 @@
+// Radix sort, pass part 1: each workgroup counts the 8-bit digits (at `shift`) of its 256
+// keys and writes the counts digit-major (hist[digit · blocks + block]), so one exclusive
+// scan of `hist` gives every (digit, block) its first output position.
+
+@group(0) @binding(0) var<uniform> p: RadixParams;
+@group(0) @binding(1) var<storage, read> keys: array<u32>;
+@group(0) @binding(2) var<storage, read> info: array<u32>;
+@group(0) @binding(3) var<storage, read_write> hist: array<u32>;
+
+var<workgroup> counts: array<atomic<u32>, 256>;
+
+@compute @workgroup_size(256)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let block = group.x + group.y * groups.x;
+    atomicStore(&counts[lane], 0u);
+    workgroupBarrier();
+    let i = block * 256u + lane;
+    if i < info[0] {
+        atomicAdd(&counts[(keys[i] >> p.shift) & 255u], 1u);
+    }
+    workgroupBarrier();
+    if block < p.blocks {
+        hist[lane * p.blocks + block] = atomicLoad(&counts[lane]);
+    }
+}

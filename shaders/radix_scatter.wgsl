@@ -1,0 +1,42 @@
+// Radix sort, pass part 2: each key goes to its (digit, block) offset plus its rank among
+// the earlier keys of its block with the same digit — a stable pass, so passes from the
+// lowest digit up sort by the whole key, equal keys keeping their order.
+
+@group(0) @binding(0) var<uniform> p: RadixParams;
+@group(0) @binding(1) var<storage, read> keys: array<u32>;
+@group(0) @binding(2) var<storage, read> values: array<u32>;
+@group(0) @binding(3) var<storage, read> info: array<u32>;
+@group(0) @binding(4) var<storage, read> hist: array<u32>;
+@group(0) @binding(5) var<storage, read_write> keys_out: array<u32>;
+@group(0) @binding(6) var<storage, read_write> values_out: array<u32>;
+
+var<workgroup> digits: array<u32, 256>;
+
+@compute @workgroup_size(256)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let block = group.x + group.y * groups.x;
+    let i = block * 256u + lane;
+    let inside = i < info[0];
+    var digit = 256u;
+    if inside {
+        digit = (keys[i] >> p.shift) & 255u;
+    }
+    digits[lane] = digit;
+    workgroupBarrier();
+    if !inside {
+        return;
+    }
+    var rank = 0u;
+    for (var j = 0u; j < lane; j++) {
+        if digits[j] == digit {
+            rank++;
+        }
+    }
+    let at = hist[digit * p.blocks + block] + rank;
+    keys_out[at] = keys[i];
+    values_out[at] = values[i];
+}

@@ -1,0 +1,40 @@
+// Exclusive prefix sum, first pass: each workgroup scans its 256 values in place (in
+// shared memory) and writes its total to `sums`; a second level scans the totals and
+// scan_add.wgsl adds them back. No workgroup waits on another.
+
+@group(0) @binding(0) var<uniform> p: ScanParams;
+@group(0) @binding(1) var<storage, read_write> data: array<u32>;
+@group(0) @binding(2) var<storage, read_write> sums: array<u32>;
+
+var<workgroup> temp: array<u32, 256>;
+
+@compute @workgroup_size(256)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let block = group.x + group.y * groups.x;
+    let i = block * 256u + lane;
+    var value = 0u;
+    if i < p.len {
+        value = data[i];
+    }
+    temp[lane] = value;
+    workgroupBarrier();
+    for (var offset = 1u; offset < 256u; offset *= 2u) {
+        var add = 0u;
+        if lane >= offset {
+            add = temp[lane - offset];
+        }
+        workgroupBarrier();
+        temp[lane] += add;
+        workgroupBarrier();
+    }
+    if i < p.len {
+        data[i] = temp[lane] - value;
+    }
+    if lane == 255u && block < p.blocks {
+        sums[block] = temp[255];
+    }
+}

@@ -1,0 +1,43 @@
+// One sort entry per (splat, covered tile): key = tile << 16 | 16-bit depth, value = the
+// splat's index, written at the splat's scanned offset (tiles in row-major order).
+// Entries past the capacity are dropped; info = [entries kept, entries wanted].
+
+@group(0) @binding(0) var<uniform> f: SplatFrame;
+@group(0) @binding(1) var<storage, read> projected: array<ProjectedSplat>;
+@group(0) @binding(2) var<storage, read> touched: array<u32>;
+@group(0) @binding(3) var<storage, read> offsets: array<u32>;
+@group(0) @binding(4) var<storage, read_write> keys: array<u32>;
+@group(0) @binding(5) var<storage, read_write> values: array<u32>;
+@group(0) @binding(6) var<storage, read_write> info: array<u32>;
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let i = (group.x + group.y * groups.x) * 64u + lane;
+    if i >= f.splats {
+        return;
+    }
+    if i == f.splats - 1u {
+        let wanted = offsets[i] + touched[i];
+        info[0] = min(wanted, f.capacity);
+        info[1] = wanted;
+    }
+    if touched[i] == 0u {
+        return;
+    }
+    let p = projected[i];
+    let depth = u32(clamp(p.center_depth.z / f.depth_range, 0.0, 1.0) * 65535.0);
+    var at = offsets[i];
+    for (var ty = p.tiles.y; ty < p.tiles.w; ty++) {
+        for (var tx = p.tiles.x; tx < p.tiles.z; tx++) {
+            if at < f.capacity {
+                keys[at] = ((ty * f.tiles_x + tx) << 16u) | depth;
+                values[at] = i;
+            }
+            at++;
+        }
+    }
+}

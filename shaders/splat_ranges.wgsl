@@ -1,0 +1,25 @@
+// Each tile's run [start, end) in the sorted entries (ranges cleared to 0 beforehand).
+
+@group(0) @binding(0) var<storage, read> keys: array<u32>;
+@group(0) @binding(1) var<storage, read> info: array<u32>;
+@group(0) @binding(2) var<storage, read_write> ranges: array<vec2<u32>>;
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let i = (group.x + group.y * groups.x) * 64u + lane;
+    let count = info[0];
+    if i >= count {
+        return;
+    }
+    let tile = keys[i] >> 16u;
+    if i == 0u || (keys[i - 1u] >> 16u) != tile {
+        ranges[tile].x = i;
+    }
+    if i == count - 1u || (keys[i + 1u] >> 16u) != tile {
+        ranges[tile].y = i + 1u;
+    }
+}

@@ -1,0 +1,83 @@
+// Front-to-back blending, one workgroup per 16×16 tile and one thread per pixel: the
+// tile's splats (sorted by depth) are loaded 256 at a time into shared memory; each pixel
+// adds α·T·colour (α = min(0.99, opacity·e^power), skipped below 1/255) and stops once
+// its transmittance would fall below 1e-4; the workgroup stops when every pixel has.
+// Output: linear RGBA (alpha = coverage) over the background.
+
+@group(0) @binding(0) var<uniform> f: SplatFrame;
+@group(0) @binding(1) var<storage, read> projected: array<ProjectedSplat>;
+@group(0) @binding(2) var<storage, read> values: array<u32>;
+@group(0) @binding(3) var<storage, read> ranges: array<vec2<u32>>;
+@group(0) @binding(4) var<storage, read_write> image: array<vec4<f32>>;
+
+var<workgroup> batch: array<ProjectedSplat, 256>;
+var<workgroup> finished: atomic<u32>;
+var<workgroup> all_finished: u32;
+
+@compute @workgroup_size(16, 16)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let tile = group.x + group.y * groups.x;
+    let tiles = f.tiles_x * f.tiles_y;
+    let valid_tile = tile < tiles;
+    let tx = tile % f.tiles_x;
+    let ty = tile / f.tiles_x;
+    let x = tx * 16u + lane % 16u;
+    let y = ty * 16u + lane / 16u;
+    let inside = valid_tile && x < f.width && y < f.height;
+    let pixel = vec2<f32>(f32(x) + 0.5, f32(y) + 0.5);
+    var range = vec2<u32>(0u, 0u);
+    if valid_tile {
+        range = ranges[tile];
+    }
+    var color = vec3<f32>(0.0);
+    var transmittance = 1.0;
+    var done = !inside;
+    if lane == 0u {
+        atomicStore(&finished, 0u);
+    }
+    workgroupBarrier();
+    if done {
+        atomicAdd(&finished, 1u);
+    }
+    for (var start = range.x; start < range.y; start += 256u) {
+        workgroupBarrier();
+        if lane == 0u {
+            all_finished = atomicLoad(&finished);
+        }
+        if workgroupUniformLoad(&all_finished) == 256u {
+            break;
+        }
+        if start + lane < range.y {
+            batch[lane] = projected[values[start + lane]];
+        }
+        workgroupBarrier();
+        let n = min(256u, range.y - start);
+        for (var k = 0u; k < n && !done; k++) {
+            let p = batch[k];
+            let d = p.center_depth.xy - pixel;
+            let power = -0.5 * (p.conic_opacity.x * d.x * d.x + p.conic_opacity.z * d.y * d.y) - p.conic_opacity.y * d.x * d.y;
+            if power > 0.0 {
+                continue;
+            }
+            let alpha = min(p.conic_opacity.w * exp(power), 0.99);
+            if alpha < 1.0 / 255.0 {
+                continue;
+            }
+            let next = transmittance * (1.0 - alpha);
+            if next < 1e-4 {
+                done = true;
+                atomicAdd(&finished, 1u);
+                break;
+            }
+            color += p.color.xyz * alpha * transmittance;
+            transmittance = next;
+        }
+    }
+    if inside {
+        image[y * f.width + x] = vec4<f32>(color + f.background.xyz * transmittance, 1.0 - transmittance);
+    }
+}

@@ -1,0 +1,307 @@
+//! The WGSL splat rasterizer: project (shaders/splat_project.wgsl) → exclusive scan of the
+//! tiles each splat touches → one (tile, depth) key per covered tile → LSD radix sort, 8
+//! bits a pass, in which no workgroup waits on another → each tile's range → per-tile
+//! front-to-back blending with early stop. Everything is recorded into one command
+//! encoder; only the caller reads the image back.
+
+use glam::{Mat4, Vec3};
+
+use super::ply::Splat;
+use super::project::SplatCamera;
+use crate::gpu::kernel::{Grid, PipelineCache, Precision, dispatch, uniform};
+use crate::gpu::shaders::{self, Shader};
+use crate::gpu::{GpuContext, GpuError};
+use crate::gpu_struct;
+
+gpu_struct! {
+    /// The camera and sizes of one rasterized frame.
+    pub struct SplatFrame {
+        pub view: Mat4,
+        pub fx: f32,
+        pub fy: f32,
+        pub width: u32,
+        pub height: u32,
+        pub near: f32,
+        pub depth_range: f32,
+        pub tiles_x: u32,
+        pub tiles_y: u32,
+        pub splats: u32,
+        pub capacity: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
+        pub background: [f32; 4],
+    }
+}
+
+gpu_struct! {
+    /// A Gaussian as the rasterizer reads it: xyz + opacity (activated), linear scales,
+    /// rotation (x y z w), SH degree-0 coefficients.
+    pub struct GpuSplat {
+        pub position_opacity: [f32; 4],
+        pub scale: [f32; 4],
+        pub rotation: [f32; 4],
+        pub f_dc: [f32; 4],
+    }
+}
+
+gpu_struct! {
+    /// A projected Gaussian: centre, depth, radius; conic and opacity; colour; tiles.
+    pub struct ProjectedSplat {
+        pub center_depth: [f32; 4],
+        pub conic_opacity: [f32; 4],
+        pub color: [f32; 4],
+        pub tiles: [u32; 4],
+    }
+}
+
+gpu_struct! {
+    /// An exclusive scan of `len` values in `blocks` blocks of 256.
+    pub struct ScanParams {
+        pub len: u32,
+        pub blocks: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
+    }
+}
+
+gpu_struct! {
+    /// One radix pass over the digit at `shift`, `blocks` blocks of 256 keys.
+    pub struct RadixParams {
+        pub shift: u32,
+        pub blocks: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
+    }
+}
+
+impl From<&Splat> for GpuSplat {
+    fn from(s: &Splat) -> Self {
+        Self {
+            position_opacity: s.position.extend(s.opacity).to_array(),
+            scale: s.scale.extend(0.0).to_array(),
+            rotation: s.rotation.to_array(),
+            f_dc: s.f_dc.extend(0.0).to_array(),
+        }
+    }
+}
+
+/// Sort entries allowed per splat before entries are dropped (and counted).
+pub const ENTRIES_PER_SPLAT: usize = 16;
+
+/// What one rasterized frame leaves on the GPU.
+pub struct Raster {
+    /// `width × height` linear RGBA f32, row-major.
+    pub image: wgpu::Buffer,
+    /// [sort entries kept, sort entries wanted].
+    pub info: wgpu::Buffer,
+}
+
+#[derive(Default)]
+pub struct Rasterizer {
+    pipelines: PipelineCache,
+}
+
+const STORAGE: wgpu::BufferUsages = wgpu::BufferUsages::STORAGE
+    .union(wgpu::BufferUsages::COPY_SRC)
+    .union(wgpu::BufferUsages::COPY_DST);
+
+impl Rasterizer {
+    /// Uploads splats for [`Rasterizer::record`].
+    pub fn upload(gpu: &GpuContext, splats: &[Splat]) -> Result<wgpu::Buffer, GpuError> {
+        let data: Vec<GpuSplat> = splats.iter().map(GpuSplat::from).collect();
+        gpu.storage_buffer_init(
+            "splats",
+            bytemuck::cast_slice(&data),
+            wgpu::BufferUsages::empty(),
+        )
+    }
+
+    /// Records the rasterization of `count` splats from `camera` over `background`.
+    pub fn record(
+        &mut self,
+        gpu: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        splats: &wgpu::Buffer,
+        count: usize,
+        camera: &SplatCamera,
+        background: Vec3,
+    ) -> Result<Raster, GpuError> {
+        let (tiles_x, tiles_y) = camera.tiles();
+        assert!(
+            tiles_x * tiles_y <= 1 << 16,
+            "at most 65,536 tiles (4096 × 4096 pixels)"
+        );
+        let count = count.max(1);
+        let capacity = (count * ENTRIES_PER_SPLAT).next_multiple_of(256);
+        let frame = SplatFrame {
+            view: camera.view,
+            fx: camera.fx,
+            fy: camera.fy,
+            width: camera.width,
+            height: camera.height,
+            near: camera.near,
+            depth_range: camera.depth_range,
+            tiles_x,
+            tiles_y,
+            splats: count as u32,
+            capacity: capacity as u32,
+            reserved0: 0,
+            reserved1: 0,
+            background: background.extend(1.0).to_array(),
+        };
+        let frame = uniform(&gpu.device, &frame);
+        let buffer =
+            |label: &str, bytes: usize| gpu.storage_buffer(label, bytes.max(4) as u64, STORAGE);
+        let projected = buffer(
+            "splat.projected",
+            count * std::mem::size_of::<ProjectedSplat>(),
+        )?;
+        let touched = buffer("splat.touched", 4 * count)?;
+        let offsets = buffer("splat.offsets", 4 * count)?;
+        let keys = [
+            buffer("splat.keys", 4 * capacity)?,
+            buffer("splat.keys2", 4 * capacity)?,
+        ];
+        let values = [
+            buffer("splat.values", 4 * capacity)?,
+            buffer("splat.values2", 4 * capacity)?,
+        ];
+        let info = buffer("splat.info", 8)?;
+        let ranges = buffer("splat.ranges", 8 * (tiles_x * tiles_y) as usize)?;
+        let image = buffer("splat.image", 16 * (camera.width * camera.height) as usize)?;
+        let blocks = capacity / 256;
+        let hist = buffer("splat.hist", 4 * 256 * blocks)?;
+
+        let max = gpu.device.limits().max_compute_workgroups_per_dimension;
+        let threads = |n: usize| Grid::for_elements(n as u32, max);
+        let groups = |n: usize| Grid::for_workgroups(n as u32, max);
+        self.run(
+            gpu,
+            encoder,
+            &shaders::SPLAT_PROJECT,
+            &[&frame, splats, &projected, &touched],
+            threads(count),
+        );
+        encoder.copy_buffer_to_buffer(&touched, 0, &offsets, 0, 4 * count as u64);
+        self.scan(gpu, encoder, &offsets, count)?;
+        let bindings = [
+            &frame, &projected, &touched, &offsets, &keys[0], &values[0], &info,
+        ];
+        self.run(
+            gpu,
+            encoder,
+            &shaders::SPLAT_KEYS,
+            &bindings,
+            threads(count),
+        );
+        for pass in 0..4 {
+            let (from, to) = (pass % 2, 1 - pass % 2);
+            let params = uniform(
+                &gpu.device,
+                &RadixParams {
+                    shift: 8 * pass as u32,
+                    blocks: blocks as u32,
+                    reserved0: 0,
+                    reserved1: 0,
+                },
+            );
+            let bindings = [&params, &keys[from], &info, &hist];
+            self.run(
+                gpu,
+                encoder,
+                &shaders::RADIX_HISTOGRAM,
+                &bindings,
+                groups(blocks),
+            );
+            self.scan(gpu, encoder, &hist, 256 * blocks)?;
+            let bindings = [
+                &params,
+                &keys[from],
+                &values[from],
+                &info,
+                &hist,
+                &keys[to],
+                &values[to],
+            ];
+            self.run(
+                gpu,
+                encoder,
+                &shaders::RADIX_SCATTER,
+                &bindings,
+                groups(blocks),
+            );
+        }
+        encoder.clear_buffer(&ranges, 0, None);
+        self.run(
+            gpu,
+            encoder,
+            &shaders::SPLAT_RANGES,
+            &[&keys[0], &info, &ranges],
+            threads(capacity),
+        );
+        let bindings = [&frame, &projected, &values[0], &ranges, &image];
+        self.run(
+            gpu,
+            encoder,
+            &shaders::SPLAT_RENDER,
+            &bindings,
+            groups((tiles_x * tiles_y) as usize),
+        );
+        Ok(Raster { image, info })
+    }
+
+    /// Records an exclusive prefix sum of the first `len` u32 of `data`, in place.
+    fn scan(
+        &mut self,
+        gpu: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        data: &wgpu::Buffer,
+        len: usize,
+    ) -> Result<(), GpuError> {
+        let blocks = len.div_ceil(256);
+        let sums = gpu.storage_buffer("scan.sums", 4 * blocks as u64, STORAGE)?;
+        let params = uniform(
+            &gpu.device,
+            &ScanParams {
+                len: len as u32,
+                blocks: blocks as u32,
+                reserved0: 0,
+                reserved1: 0,
+            },
+        );
+        let grid = Grid::for_workgroups(
+            blocks as u32,
+            gpu.device.limits().max_compute_workgroups_per_dimension,
+        );
+        self.run(
+            gpu,
+            encoder,
+            &shaders::SCAN_BLOCKS,
+            &[&params, data, &sums],
+            grid,
+        );
+        if blocks > 1 {
+            self.scan(gpu, encoder, &sums, blocks)?;
+            self.run(
+                gpu,
+                encoder,
+                &shaders::SCAN_ADD,
+                &[&params, data, &sums],
+                grid,
+            );
+        }
+        Ok(())
+    }
+
+    fn run(
+        &mut self,
+        gpu: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        shader: &Shader,
+        buffers: &[&wgpu::Buffer],
+        grid: Grid,
+    ) {
+        let pipeline = self.pipelines.get(&gpu.device, shader, Precision::F32);
+        dispatch(&gpu.device, encoder, pipeline, buffers, grid, None);
+    }
+}
