@@ -34,6 +34,8 @@ pub struct BenchOptions {
     pub repeat: usize,
     /// Precisions to time (f16 only where the adapter has SHADER_F16).
     pub precisions: Vec<Precision>,
+    /// Splats for the rasterizer rows at 1280×720 and 1920×1080 (0: none).
+    pub splats: usize,
 }
 
 impl Default for BenchOptions {
@@ -48,6 +50,7 @@ impl Default for BenchOptions {
             },
             repeat: 3,
             precisions: vec![Precision::F32, Precision::F16],
+            splats: 250_000,
         }
     }
 }
@@ -67,7 +70,86 @@ pub fn run(gpu: &GpuContext, options: &BenchOptions, out: &mut impl Write) -> an
         .filter(|&p| p == Precision::F32 || gpu.caps.shader_f16)
         .collect();
     kernels(gpu, &precisions, out)?;
-    models(gpu, options, &precisions, out)
+    models(gpu, options, &precisions, out)?;
+    if options.splats > 0 {
+        raster(gpu, options.splats, options.repeat, out)?;
+    }
+    Ok(())
+}
+
+/// The splat rasterizer on a cloud of `count` Gaussians filling a person-sized box in
+/// front of the camera, at two screen sizes.
+fn raster(
+    gpu: &GpuContext,
+    count: usize,
+    repeat: usize,
+    out: &mut impl Write,
+) -> anyhow::Result<()> {
+    use crate::render::OrbitCamera;
+    use crate::splat::ply::Splat;
+    use crate::splat::project::SplatCamera;
+    use crate::splat::raster::Rasterizer;
+    use glam::{Quat, Vec3};
+    writeln!(
+        out,
+        "\nsplat rasterizer: {count} splats in a 0.6 × 1.8 × 0.4 m box, median of {repeat} after a warm-up"
+    )?;
+    writeln!(
+        out,
+        "{:<12} {:>10} {:>14}",
+        "size", "median ms", "sort entries"
+    )?;
+    let mut noise = 0x2545_f491_4f6c_dd1du64;
+    let mut next = move || {
+        noise ^= noise << 13;
+        noise ^= noise >> 7;
+        noise ^= noise << 17;
+        (noise >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let splats: Vec<Splat> = (0..count)
+        .map(|_| Splat {
+            position: Vec3::new(next() * 0.6 - 0.3, next() * 1.8, next() * 0.4 - 0.2),
+            f_dc: Vec3::new(next(), next(), next()) - Vec3::splat(0.5),
+            opacity: 0.5 + 0.5 * next(),
+            scale: Vec3::new(0.004, 0.004, 0.001) * (1.0 + next()),
+            rotation: Quat::from_rotation_y(next() * 6.0),
+        })
+        .collect();
+    let buffer = Rasterizer::upload(gpu, &splats)?;
+    let orbit = OrbitCamera {
+        target: Vec3::new(0.0, 0.9, 0.0),
+        yaw: 0.3,
+        pitch: 0.1,
+        distance: 2.6,
+    };
+    let mut rasterizer = Rasterizer::default();
+    for (width, height) in [(1280, 720), (1920, 1080)] {
+        let camera = SplatCamera::new(&orbit, width, height);
+        let mut ms = Vec::new();
+        let mut entries = 0;
+        for run in 0..=repeat.max(1) {
+            let start = Instant::now();
+            let mut encoder = gpu.device.create_command_encoder(&Default::default());
+            let raster =
+                rasterizer.record(gpu, &mut encoder, &buffer, count, &camera, Vec3::ZERO)?;
+            gpu.queue.submit([encoder.finish()]);
+            gpu.wait_idle();
+            if run > 0 {
+                ms.push(start.elapsed().as_secs_f64() * 1e3);
+            } else {
+                let info = crate::gpu::readback::buffer(gpu, &raster.info, "info")?;
+                entries = u32::from_le_bytes(info[..4].try_into().expect("4 bytes"));
+            }
+        }
+        ms.sort_by(f64::total_cmp);
+        writeln!(
+            out,
+            "{:<12} {:>10.2} {entries:>14}",
+            format!("{width}x{height}"),
+            ms[ms.len() / 2]
+        )?;
+    }
+    Ok(())
 }
 
 fn kernels(gpu: &GpuContext, precisions: &[Precision], out: &mut impl Write) -> anyhow::Result<()> {

@@ -122,6 +122,9 @@ struct BenchArgs {
     /// Storage precision: f32, f16 (needs SHADER_F16) or both
     #[arg(long, value_enum, default_value = "both")]
     precision: BenchPrecision,
+    /// Splats for the rasterizer rows (1280×720 and 1920×1080); 0 leaves them out
+    #[arg(long, default_value_t = 250_000)]
+    splats: usize,
     /// Instead of the tables: run the live loop of --bundle for N frames (geometry
     /// only) and report speed, clamped and non-finite values, memory and path headings
     #[arg(long, value_name = "N", requires = "bundle")]
@@ -268,6 +271,7 @@ fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
             cfg_scale: args.cfg_scale,
         },
         repeat: args.repeat,
+        splats: args.splats,
         precisions: match args.precision {
             BenchPrecision::F32 => vec![Precision::F32],
             BenchPrecision::F16 => vec![Precision::F16],

@@ -129,7 +129,9 @@ fn adapters_lists_the_one_in_use() {
 
 #[test]
 fn bench_prints_its_table() {
-    let args = ["bench", "--models", "tiny", "--repeat", "1", "--steps", "2"];
+    let args = [
+        "bench", "--models", "tiny", "--repeat", "1", "--steps", "2", "--splats", "2000",
+    ];
     let out = unica(&args, &[("UNICA_FORCE_FALLBACK", "1")]);
     assert!(out.status.success(), "{}", stderr(&out));
     let text = String::from_utf8_lossy(&out.stdout);
@@ -151,6 +153,10 @@ fn bench_prints_its_table() {
         .unwrap();
     assert!((gflop - 0.242).abs() < 1e-3, "{group}");
     assert!(text.contains("generated frame: 2 steps + decode"), "{text}");
+    assert!(
+        text.contains("splat rasterizer: 2000 splats") && text.contains("1920x1080"),
+        "{text}"
+    );
     assert!(
         text.contains("f16 false"),
         "forced fallback shows no f16: {text}"
