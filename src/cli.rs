@@ -191,6 +191,9 @@ struct RenderArgs {
     /// Also write each frame's points as frame_NNNNN.ply (--bundle)
     #[arg(long)]
     points: bool,
+    /// Draw the neural avatar as its triangulated map surface instead of splats
+    #[arg(long)]
+    surface: bool,
     /// Key script, e.g. "60W 60S 60A 20I" (one action per frame at 30 fps)
     #[arg(long, value_name = "SCRIPT")]
     keys: String,
@@ -364,6 +367,7 @@ fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         size: args.size,
         views: args.views,
         points: args.points,
+        surface: args.surface,
     };
     let gpu = gpu_context;
     let bar = indicatif::ProgressBar::new(0).with_style(

@@ -22,6 +22,7 @@ use crate::mesh::Mesh;
 use crate::render::OrbitCamera;
 use crate::render::offscreen::Offscreen;
 use crate::render::scene::DrawOptions;
+use crate::splat::ply::Splat;
 
 /// Who is rendered.
 pub enum Avatar {
@@ -43,6 +44,8 @@ pub struct RenderJob {
     pub views: u32,
     /// Also write each frame's points as frame_NNNNN.ply (neural avatar only).
     pub points: bool,
+    /// Draw the neural avatar as its triangulated map surface instead of splats.
+    pub surface: bool,
 }
 
 #[derive(serde::Serialize)]
@@ -62,10 +65,11 @@ enum Driver {
     Neural(Box<Engine>, Option<MapSurface>),
 }
 
-/// One step's result: the mesh to draw, the root, and for the neural avatar its points,
-/// clamped values and (gpu, cpu) milliseconds.
+/// One step's result: the mesh to draw (and for the neural avatar its base splats), the
+/// root, and for the neural avatar its points, clamped values and (gpu, cpu) ms.
 struct Step {
     mesh: Mesh,
+    splats: Vec<Splat>,
     root: Vec3,
     neural: Option<(Vec<Vec3>, usize, f64, f64)>,
 }
@@ -94,16 +98,24 @@ impl Driver {
                 teacher.step(action);
                 Step {
                     mesh: teacher.mesh(),
+                    splats: Vec::new(),
                     root: teacher.root(),
                     neural: None,
                 }
             }
             Driver::Neural(engine, surface) => {
                 let frame = engine.step(action)?;
-                let surface = surface
-                    .get_or_insert_with(|| MapSurface::new(&engine.bundle.pixels, &frame.points));
+                let surface = surface.get_or_insert_with(|| {
+                    MapSurface::new(
+                        &engine.bundle.pixels,
+                        &frame.points,
+                        engine.bundle.colors.as_deref(),
+                    )
+                });
+                let mesh = surface.mesh(&frame.points);
                 Step {
-                    mesh: surface.mesh(&frame.points),
+                    splats: surface.splats(&mesh),
+                    mesh,
                     root: frame.root,
                     neural: Some((frame.points, frame.clamped, frame.gpu_ms, frame.cpu_ms)),
                 }
@@ -147,7 +159,11 @@ pub fn render(
                 distance,
             };
             let clock = Instant::now();
-            let image = offscreen.render(&step.mesh, &camera, &DrawOptions::default())?;
+            let image = if step.splats.is_empty() || job.surface {
+                offscreen.render(&step.mesh, &camera, &DrawOptions::default())?
+            } else {
+                offscreen.render_splats(&step.splats, &camera, &DrawOptions::default())?
+            };
             render_ms += clock.elapsed().as_secs_f64() * 1e3;
             let clock = Instant::now();
             let file = format!("frame_{index:05}_v{k}.png");

@@ -100,6 +100,11 @@ impl TensorFile {
         &self.path
     }
 
+    /// Whether the file holds a tensor called `name`.
+    pub fn contains(&self, name: &str) -> bool {
+        self.parsed().is_ok_and(|t| t.tensor(name).is_ok())
+    }
+
     fn fail(&self, problem: String) -> TensorError {
         TensorError {
             path: self.path.clone(),

@@ -540,7 +540,10 @@ impl eframe::App for UnicaApp {
             .frame(egui::Frame::NONE)
             .show(ui, |ui| {
                 let meshes = self.shown.gpu_meshes();
-                self.timings = self.viewport.show(ui, &self.gpu, &state.renderer, &meshes);
+                let splats = self.shown.splats();
+                self.timings = self
+                    .viewport
+                    .show(ui, &self.gpu, &state.renderer, &meshes, splats);
             });
         self.record_frame();
         self.frame += 1;
@@ -624,6 +627,7 @@ fn neural_hud(ui: &mut egui::Ui, neural: &mut shown::Neural) {
     ui.add(egui::Slider::new(&mut settings.sampling.steps, 1..=50).text("DDIM steps"));
     ui.add(egui::Slider::new(&mut settings.sampling.cfg_scale, 0.0..=5.0).text("CFG scale"));
     ui.checkbox(&mut settings.pca, "PCA clean-up");
+    ui.checkbox(&mut neural.show_splats, "Splats (else the surface)");
     if *settings != before {
         neural.avatar.set_settings(*settings);
     }

@@ -26,9 +26,11 @@ pub struct Settings {
 
 /// What the worker reports.
 pub enum Update {
-    /// Loaded: the foreground pixels, the standing start in world space, the defaults.
+    /// Loaded: the foreground pixels, their colours if the bundle has them, the standing
+    /// start in world space, the defaults.
     Ready {
         pixels: Vec<u32>,
+        colors: Option<Vec<Vec3>>,
         standing: Vec<Vec3>,
         settings: Settings,
     },
@@ -145,6 +147,7 @@ impl Worker {
         };
         let ready = Update::Ready {
             pixels: engine.bundle.pixels.clone(),
+            colors: engine.bundle.colors.clone(),
             standing: engine.standing_points(),
             settings: defaults,
         };

@@ -15,6 +15,7 @@ use crate::engine::surface::MapSurface;
 use crate::gpu::GpuContext;
 use crate::mesh::Mesh;
 use crate::render::{GpuMesh, SceneRenderer};
+use crate::splat::raster::GpuSplat;
 
 /// Where the teacher stands when it runs beside the neural avatar.
 pub const TEACHER_OFFSET: Vec3 = Vec3::new(1.5, 0.0, 0.0);
@@ -26,6 +27,10 @@ pub struct Neural {
     pub settings: Option<Settings>,
     surface: Option<(MapSurface, GpuMesh)>,
     mesh: Mesh,
+    /// The frame's base splats on the GPU, and how many.
+    splats: Option<(wgpu::Buffer, usize)>,
+    /// Draw splats (else the triangulated surface).
+    pub show_splats: bool,
     pub root: Vec3,
     pub frames: u64,
     pub clamped: usize,
@@ -49,20 +54,24 @@ impl Neural {
             match update {
                 Update::Ready {
                     pixels,
+                    colors,
                     standing,
                     settings,
                 } => {
-                    let surface = MapSurface::new(&pixels, &standing);
+                    let surface = MapSurface::new(&pixels, &standing, colors.as_deref());
                     self.mesh = surface.mesh(&standing);
+                    self.upload_splats(gpu, &surface);
                     self.surface = Some((surface, renderer.upload(gpu, &self.mesh)));
                     self.root = standing.iter().sum::<Vec3>() / standing.len().max(1) as f32;
                     self.settings = Some(settings);
                     status = Some(None);
                 }
                 Update::Frame(frame) => {
-                    if let Some((surface, gpu_mesh)) = &self.surface {
+                    if let Some((surface, gpu_mesh)) = self.surface.take() {
                         self.mesh = surface.mesh(&frame.points);
                         gpu_mesh.write_vertices(gpu, &self.mesh);
+                        self.upload_splats(gpu, &surface);
+                        self.surface = Some((surface, gpu_mesh));
                     }
                     self.root = frame.root;
                     self.frames = frame.index + 1;
@@ -76,6 +85,29 @@ impl Neural {
             }
         }
         status
+    }
+
+    /// The current mesh's base splats into the splat buffer.
+    fn upload_splats(&mut self, gpu: &GpuContext, surface: &MapSurface) {
+        let splats: Vec<GpuSplat> = surface
+            .splats(&self.mesh)
+            .iter()
+            .map(GpuSplat::from)
+            .collect();
+        match &self.splats {
+            Some((buffer, count)) if *count == splats.len() => {
+                gpu.queue
+                    .write_buffer(buffer, 0, bytemuck::cast_slice(&splats))
+            }
+            _ => match gpu.storage_buffer_init(
+                "neural splats",
+                bytemuck::cast_slice(&splats),
+                wgpu::BufferUsages::empty(),
+            ) {
+                Ok(buffer) => self.splats = Some((buffer, splats.len())),
+                Err(e) => log::error!("splats: {e}"),
+            },
+        }
     }
 }
 
@@ -140,6 +172,8 @@ impl Shown {
             settings: None,
             surface: None,
             mesh: Mesh::default(),
+            splats: None,
+            show_splats: true,
             root: Vec3::ZERO,
             frames: 0,
             clamped: 0,
@@ -188,11 +222,21 @@ impl Shown {
         self.gpu_mesh.write_vertices(gpu, &self.mesh);
     }
 
+    /// The splats to draw: the neural avatar's when it shows splats.
+    pub fn splats(&self) -> Option<(&wgpu::Buffer, usize)> {
+        let neural = self.neural.as_ref().filter(|n| n.show_splats)?;
+        neural
+            .splats
+            .as_ref()
+            .map(|(buffer, count)| (buffer, *count))
+    }
+
     /// The meshes to draw.
     pub fn gpu_meshes(&self) -> Vec<&GpuMesh> {
         let neural = self
             .neural
             .as_ref()
+            .filter(|n| !n.show_splats)
             .and_then(|n| n.surface.as_ref())
             .map(|(_, m)| m);
         let other = self.neural.is_none() || (self.show_teacher && self.teacher.is_some());

@@ -7,7 +7,11 @@ use eframe::egui;
 
 use crate::gpu::GpuContext;
 use crate::gpu::timing::{Profiler, StageTiming};
+use crate::render::scene::COLOR_FORMAT;
 use crate::render::{GpuMesh, OrbitCamera, RenderTarget, SceneRenderer};
+use crate::splat::composite::Compositor;
+use crate::splat::project::SplatCamera;
+use crate::splat::raster::Rasterizer;
 
 /// Radians of orbit per point dragged.
 const ORBIT_SPEED: f32 = 0.008;
@@ -19,7 +23,12 @@ pub struct Viewport {
     pub camera: OrbitCamera,
     target: Option<RenderTarget>,
     texture: Option<egui::TextureId>,
+    /// Made when splats are first drawn.
+    splatting: Option<(Rasterizer, Compositor)>,
 }
+
+/// Splats to draw: a buffer of `GpuSplat`s and how many.
+pub type Splats<'a> = (&'a wgpu::Buffer, usize);
 
 impl Viewport {
     pub fn new(gpu: &GpuContext) -> Self {
@@ -28,6 +37,7 @@ impl Viewport {
             camera: OrbitCamera::default(),
             target: None,
             texture: None,
+            splatting: None,
         }
     }
 
@@ -36,14 +46,15 @@ impl Viewport {
         self.target.as_ref()
     }
 
-    /// Renders `meshes` at the size of the available area, shows it, and applies mouse
-    /// input to the camera. Returns the stage timings of the render.
+    /// Renders `meshes` and then `splats` over them at the size of the available area,
+    /// shows it, and applies mouse input to the camera. Returns the stage timings.
     pub fn show(
         &mut self,
         ui: &mut egui::Ui,
         gpu: &GpuContext,
         egui_renderer: &egui::mutex::RwLock<eframe::egui_wgpu::Renderer>,
         meshes: &[&GpuMesh],
+        splats: Option<Splats>,
     ) -> Vec<StageTiming> {
         let size = ui.available_size();
         let ppp = ui.ctx().pixels_per_point();
@@ -81,6 +92,18 @@ impl Viewport {
             self.renderer
                 .draw(gpu, encoder, target, &self.camera, meshes, timer)
         });
+        if let Some((buffer, count)) = splats {
+            let (rasterizer, compositor) = self
+                .splatting
+                .get_or_insert_with(|| (Rasterizer::default(), Compositor::new(gpu, COLOR_FORMAT)));
+            let camera = SplatCamera::new(&self.camera, w, h);
+            profiler.stage(gpu, "splats", |encoder, _| {
+                match rasterizer.record(gpu, encoder, buffer, count, &camera, glam::Vec3::ZERO) {
+                    Ok(raster) => compositor.draw(gpu, encoder, target, &raster.image),
+                    Err(e) => log::error!("splats: {e}"),
+                }
+            });
+        }
         let response = ui.add(
             egui::Image::new(egui::load::SizedTexture::new(texture, size))
                 .sense(egui::Sense::click_and_drag()),

@@ -158,6 +158,7 @@ use crate::nn::ops::{
     GroupNormParams, LinearParams, PermuteParams, UpsampleParams,
 };
 use crate::render::SceneUniforms;
+use crate::splat::composite::CompositeParams;
 use crate::splat::raster::{GpuSplat, ProjectedSplat, RadixParams, ScanParams, SplatFrame};
 
 pub const SCALE_ADD: Shader = shader!("scale_add.wgsl", [ElementwiseParams], elem);
@@ -189,6 +190,8 @@ pub const SPLAT_RANGES: Shader =
     shader!("splat_ranges.wgsl", [SplatFrame], f16: false, subgroups: false);
 pub const SPLAT_RENDER: Shader =
     shader!("splat_render.wgsl", [SplatFrame, ProjectedSplat], f16: false, subgroups: false);
+pub const SPLAT_COMPOSITE: Shader =
+    shader!("splat_composite.wgsl", [CompositeParams], f16: false, subgroups: false);
 pub const TIMESTEP_EMBEDDING: Shader = shader!("timestep_embedding.wgsl", [EmbeddingParams], elem);
 
 /// Every shader of the crate; a test checks this covers every file in `shaders/`.
@@ -215,4 +218,5 @@ pub const ALL: &[Shader] = &[
     RADIX_SCATTER,
     SPLAT_RANGES,
     SPLAT_RENDER,
+    SPLAT_COMPOSITE,
 ];

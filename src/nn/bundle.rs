@@ -68,6 +68,9 @@ pub struct Bundle {
     /// 3·pixels] (orthonormal rows), point-major xyz.
     pub pca_mean: Vec<f32>,
     pub pca_basis: Vec<f32>,
+    /// Each foreground pixel's linear RGB (`map.colors`; bundles from before the trainer
+    /// wrote it have none).
+    pub colors: Option<Vec<glam::Vec3>>,
 }
 
 impl Bundle {
@@ -82,7 +85,14 @@ impl Bundle {
         let values = 3 * pixels.len();
         let pca_mean = w.host("pca.mean", &[values])?;
         let pca_basis = w.host("pca.basis", &[manifest.pca.components, values])?;
+        let colors = if file.contains("map.colors") {
+            let rgb = w.host("map.colors", &[pixels.len(), 3])?;
+            Some(rgb.chunks_exact(3).map(glam::Vec3::from_slice).collect())
+        } else {
+            None
+        };
         Ok(Self {
+            colors,
             pixels,
             waist,
             pca_mean,

@@ -1,17 +1,24 @@
-//! Headless rendering of posed meshes to images: one device, one target, one mesh buffer
-//! reused frame after frame (teacher renders, dataset ground truth).
+//! Headless rendering of posed meshes or Gaussian splats to images: one device, one
+//! target, one mesh buffer reused frame after frame (teacher renders, dataset ground
+//! truth, the neural avatar).
 
 use crate::gpu::{GpuContext, GpuError, readback};
 use crate::mesh::Mesh;
 
-use super::scene::DrawOptions;
+use super::scene::{COLOR_FORMAT, DrawOptions};
 use super::{GpuMesh, OrbitCamera, RenderTarget, SceneRenderer};
+use crate::splat::composite::Compositor;
+use crate::splat::ply::Splat;
+use crate::splat::project::SplatCamera;
+use crate::splat::raster::Rasterizer;
 
 pub struct Offscreen {
     gpu: GpuContext,
     renderer: SceneRenderer,
     target: RenderTarget,
     mesh: Option<(usize, GpuMesh)>,
+    /// Made when splats are first drawn.
+    splatting: Option<(Rasterizer, Compositor)>,
 }
 
 impl Offscreen {
@@ -21,7 +28,47 @@ impl Offscreen {
             target: RenderTarget::new(&gpu, width, height),
             gpu,
             mesh: None,
+            splatting: None,
         }
+    }
+
+    /// Draws the grid and `splats` from `camera` and reads the image back.
+    pub fn render_splats(
+        &mut self,
+        splats: &[Splat],
+        camera: &OrbitCamera,
+        options: &DrawOptions,
+    ) -> Result<image::RgbaImage, GpuError> {
+        let buffer = Rasterizer::upload(&self.gpu, splats)?;
+        let (rasterizer, compositor) = self.splatting.get_or_insert_with(|| {
+            (
+                Rasterizer::default(),
+                Compositor::new(&self.gpu, COLOR_FORMAT),
+            )
+        });
+        let (w, h) = self.target.size();
+        let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
+        self.renderer.draw_with(
+            &self.gpu,
+            &mut encoder,
+            &self.target,
+            camera,
+            &[],
+            options,
+            None,
+        );
+        let splat_camera = SplatCamera::new(camera, w, h);
+        let raster = rasterizer.record(
+            &self.gpu,
+            &mut encoder,
+            &buffer,
+            splats.len(),
+            &splat_camera,
+            glam::Vec3::ZERO,
+        )?;
+        compositor.draw(&self.gpu, &mut encoder, &self.target, &raster.image);
+        self.gpu.queue.submit([encoder.finish()]);
+        readback::rgba_texture(&self.gpu, &self.target.color)
     }
 
     /// Draws `mesh` from `camera` and reads the image back.

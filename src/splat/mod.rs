@@ -3,6 +3,7 @@
 //! WGSL tile rasterizer; base splats and the refiner are open work (issue #6).
 
 pub mod align;
+pub mod composite;
 pub mod ply;
 pub mod project;
 pub mod raster;

@@ -58,3 +58,35 @@ def test_bundle_errors_name_the_tensor(tmp_path):
     (tmp_path / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(bundle.BundleError, match="bundle version 99"):
         bundle.load(tmp_path)
+
+
+def test_pixel_colors_interpolate_the_vertex_colours(quick_dataset_dir):
+    from unica_train.dataset import BakedDataset
+
+    ds = BakedDataset(quick_dataset_dir)
+    colors = ds.pixel_colors()
+    assert colors.shape == (len(ds.pixels), 3)
+    # Known answer for one pixel, by hand: Σ_k b_k · colour of the triangle's vertex k.
+    i = len(ds.pixels) // 2
+    tri = ds.triangles[ds.pixel_triangles[i]]
+    expected = sum(ds.barycentrics[i, k] * ds.colors[tri[k]] for k in range(3))
+    torch.testing.assert_close(colors[i], expected)
+    assert colors.min() >= 0 and colors.max() <= 1
+
+
+def test_add_colors_puts_the_pixel_colours_in_a_bundle(tmp_path, quick_dataset_dir):
+    from unica_train.dataset import BakedDataset
+
+    ds = BakedDataset(quick_dataset_dir)
+    vae, unet = PositionVae(VaeConfig(channels=(8, 8, 8, 8))), UNet(UNetConfig(channels=(8, 8), embed=8, heads=2))
+    bundle.save(tmp_path, vae, unet, {"map.pixels": ds.pixels.int()}, {})
+    bundle.add_colors(tmp_path, quick_dataset_dir)
+    tensors = load_file(str(tmp_path / "weights.safetensors"))
+    torch.testing.assert_close(tensors["map.colors"], ds.pixel_colors())
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
+    assert manifest["tensors"]["map.colors"]["shape"] == [len(ds.pixels), 3]
+    bundle.load(tmp_path)  # still a valid bundle
+    # Another character's pixels are refused.
+    bundle.save(tmp_path, vae, unet, {"map.pixels": ds.pixels.int()[:-1]}, {})
+    with pytest.raises(bundle.BundleError, match="not the bundle's"):
+        bundle.add_colors(tmp_path, quick_dataset_dir)

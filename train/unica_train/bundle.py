@@ -1,7 +1,12 @@
 """Bundles (DESIGN §8): what the app loads to play an avatar — `weights.safetensors` and a
 versioned `manifest.json` with the full model config, action names, normalisation, PCA,
-the position-map layout and the initial context of a standing start. Loading checks every
-tensor's name, shape and dtype and names the first that is wrong."""
+the position-map layout, per-pixel colours and the initial context of a standing start.
+Loading checks every tensor's name, shape and dtype and names the first that is wrong.
+
+    python -m unica_train.bundle add-colors --bundle DIR --data DATASET
+
+adds the per-pixel colours (`map.colors`, from the dataset's reference) to a bundle made
+before the trainer wrote them; the models are untouched."""
 
 from __future__ import annotations
 
@@ -80,3 +85,36 @@ def load(directory: str | Path):
     unet.load_state_dict({k[5:]: v for k, v in tensors.items() if k.startswith("unet.")})
     extra = {k: v for k, v in tensors.items() if k not in expected}
     return vae, unet, extra, manifest
+
+
+def add_colors(directory: str | Path, data: str | Path) -> None:
+    """Writes `map.colors` from the dataset's reference into an existing bundle."""
+    from .dataset import BakedDataset
+
+    d = Path(directory)
+    ds = BakedDataset(Path(data))
+    tensors = load_file(str(d / "weights.safetensors"))
+    if not torch.equal(tensors["map.pixels"].long(), ds.pixels):
+        raise BundleError(f"{data}: its position-map pixels are not the bundle's (another character or table)")
+    tensors["map.colors"] = ds.pixel_colors().contiguous()
+    manifest = json.loads((d / "manifest.json").read_text())
+    manifest["tensors"] = {k: {"shape": list(v.shape), "dtype": str(v.dtype).removeprefix("torch.")} for k, v in sorted(tensors.items())}
+    save_file(tensors, str(d / "weights.safetensors"))
+    (d / "manifest.json").write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+
+
+def main(argv=None):
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    colors = sub.add_parser("add-colors", help="add per-pixel colours from a dataset")
+    colors.add_argument("--bundle", required=True, type=Path)
+    colors.add_argument("--data", required=True, type=Path, help="dataset folder written by `unica bake`")
+    args = parser.parse_args(argv)
+    add_colors(args.bundle, args.data)
+    print(f"added map.colors to {args.bundle}")
+
+
+if __name__ == "__main__":
+    main()

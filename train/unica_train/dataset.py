@@ -66,6 +66,7 @@ class BakedDataset:
         self.bind = _check(ref_path, ref, "bind_positions", (v, 3), torch.float32)
         self.joints = _check(ref_path, ref, "joints", (v, 4), torch.int32).long()
         self.weights = _check(ref_path, ref, "weights", (v, 4), torch.float32)
+        self.colors = _check(ref_path, ref, "colors", (v, 3), torch.float32)
         self.triangles = _check(ref_path, ref, "triangles", (None, 3), torch.int32).long()
         self.pixels = _check(ref_path, ref, "pixels", (n,), torch.int32).long()
         self.pixel_triangles = _check(ref_path, ref, "pixel_triangles", (n,), torch.int32).long()
@@ -98,6 +99,12 @@ class BakedDataset:
         posed = torch.einsum("fvij,vj->fvi", blended[..., :3], self.bind) + blended[..., 3]
         corners = posed[:, self.triangles[self.pixel_triangles]]  # [F, N, 3, 3]
         return (corners * self.barycentrics[None, :, :, None]).sum(2)
+
+    def pixel_colors(self) -> torch.Tensor:
+        """Each foreground pixel's linear RGB: the reference's vertex colours interpolated at
+        the pixel's surface point ([N, 3])."""
+        corners = self.colors[self.triangles[self.pixel_triangles]]  # [N, 3, 3]
+        return (corners * self.barycentrics[:, :, None]).sum(1)
 
     def root(self, points: torch.Tensor) -> torch.Tensor:
         """The root of each frame: the mean of its waist points ([..., N, 3] -> [..., 3])."""

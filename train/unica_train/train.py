@@ -398,6 +398,7 @@ def main(argv=None):
             "context.latents": context,
             "map.pixels": run.ds.pixels.int(),
             "map.waist": run.ds.waist.int(),
+            "map.colors": run.ds.pixel_colors(),
         },
         {
             "avatar": m["avatar"],

@@ -1,0 +1,118 @@
+//! Drawing rasterized splats into a render target over what is already there (the
+//! scene's grid and meshes): see shaders/splat_composite.wgsl.
+
+use crate::gpu::GpuContext;
+use crate::gpu::kernel::{Precision, uniform};
+use crate::gpu::shaders;
+use crate::gpu_struct;
+use crate::render::RenderTarget;
+
+gpu_struct! {
+    /// The splat image's size.
+    pub struct CompositeParams {
+        pub width: u32,
+        pub height: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
+    }
+}
+
+pub struct Compositor {
+    pipeline: wgpu::RenderPipeline,
+}
+
+impl Compositor {
+    pub fn new(gpu: &GpuContext, format: wgpu::TextureFormat) -> Self {
+        let module = shaders::SPLAT_COMPOSITE.module(&gpu.device, Precision::F32);
+        let blend = wgpu::BlendComponent {
+            src_factor: wgpu::BlendFactor::One,
+            dst_factor: wgpu::BlendFactor::OneMinusSrcAlpha,
+            operation: wgpu::BlendOperation::Add,
+        };
+        let pipeline = gpu
+            .device
+            .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some("splat composite"),
+                layout: None,
+                vertex: wgpu::VertexState {
+                    module: &module,
+                    entry_point: Some("vs_main"),
+                    buffers: &[],
+                    compilation_options: Default::default(),
+                },
+                fragment: Some(wgpu::FragmentState {
+                    module: &module,
+                    entry_point: Some("fs_main"),
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format,
+                        blend: Some(wgpu::BlendState {
+                            color: blend,
+                            alpha: blend,
+                        }),
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
+                    compilation_options: Default::default(),
+                }),
+                primitive: wgpu::PrimitiveState::default(),
+                depth_stencil: None,
+                multisample: wgpu::MultisampleState::default(),
+                multiview_mask: None,
+                cache: None,
+            });
+        Self { pipeline }
+    }
+
+    /// Records drawing `image` (the rasterizer's output at the target's size) over
+    /// `target`.
+    pub fn draw(
+        &self,
+        gpu: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        target: &RenderTarget,
+        image: &wgpu::Buffer,
+    ) {
+        let (width, height) = target.size();
+        let params = uniform(
+            &gpu.device,
+            &CompositeParams {
+                width,
+                height,
+                reserved0: 0,
+                reserved1: 0,
+            },
+        );
+        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("splat composite"),
+            layout: &self.pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: params.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: image.as_entire_binding(),
+                },
+            ],
+        });
+        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("splat composite"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: &target.color_view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Load,
+                    store: wgpu::StoreOp::Store,
+                },
+            })],
+            depth_stencil_attachment: None,
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, &bind_group, &[]);
+        pass.draw(0..3, 0..1);
+    }
+}
