@@ -95,10 +95,10 @@ enum Command {
     Render(RenderArgs),
     /// Evaluate a bundle against the teacher (not built yet)
     Eval(Later),
-    /// Export splats as a 3DGS PLY (not built yet)
-    Export(Later),
-    /// Open a 3DGS PLY file in the viewer (not built yet)
-    View(Later),
+    /// Export the neural avatar's splats after a key script as a 3DGS PLY
+    Export(ExportArgs),
+    /// Open a 3DGS PLY file (unica's or another program's) in the viewer
+    View(ViewArgs),
 }
 
 #[derive(clap::Args, Debug)]
@@ -214,6 +214,40 @@ struct RenderArgs {
     avatar: Option<PathBuf>,
 }
 
+#[derive(clap::Args, Debug)]
+struct ExportArgs {
+    /// What to export: `ply` (the only format)
+    #[arg(value_parser = ["ply"])]
+    format: String,
+    /// The bundle whose neural avatar is driven
+    #[arg(long, value_name = "DIR")]
+    bundle: PathBuf,
+    /// Key script run before the export, e.g. "30W 10D" (the last frame is exported)
+    #[arg(long, value_name = "SCRIPT", default_value = "1I")]
+    keys: String,
+    /// Output file
+    #[arg(long, value_name = "FILE.ply")]
+    out: PathBuf,
+    /// DDIM steps per generated frame [default: the bundle's]
+    #[arg(long)]
+    steps: Option<usize>,
+    /// Seed of the sampler noise
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+#[derive(clap::Args, Debug)]
+struct ViewArgs {
+    /// A 3DGS PLY file
+    file: PathBuf,
+    /// Render this many frames, then exit
+    #[arg(long, value_name = "N")]
+    exit_after: Option<u64>,
+    /// Save a PNG of the whole window when exiting (needs --exit-after)
+    #[arg(long, value_name = "PNG", requires = "exit_after")]
+    screenshot: Option<PathBuf>,
+}
+
 /// Arguments of a subcommand that later milestones build.
 #[derive(clap::Args, Debug)]
 struct Later {
@@ -238,8 +272,8 @@ pub fn run() -> anyhow::Result<()> {
         }
         Some(Command::Render(args)) => render(args, &gpu_options),
         Some(Command::Eval(_)) => not_built("eval"),
-        Some(Command::Export(_)) => not_built("export"),
-        Some(Command::View(_)) => not_built("view"),
+        Some(Command::Export(args)) => export(args, &gpu_options),
+        Some(Command::View(args)) => view(args, gpu_options),
     }
 }
 
@@ -398,6 +432,53 @@ fn parse_fps(text: &str) -> Result<f64, String> {
     }
 }
 
+fn export(args: ExportArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
+    let keys = KeyScript::parse(&args.keys).context("--keys")?;
+    let gpu = GpuContext::headless(gpu)?;
+    let manifest = crate::nn::bundle::read_manifest(&args.bundle.join("manifest.json"))?;
+    let options = crate::engine::EngineOptions {
+        seed: args.seed,
+        sampling: Some(crate::nn::sampler::Sampling {
+            steps: args.steps.unwrap_or(manifest.sampler.steps),
+            cfg_scale: manifest.sampler.cfg_scale,
+        }),
+        ..Default::default()
+    };
+    let mut engine = crate::engine::Engine::new(&gpu, &args.bundle, &options)?;
+    let bar = indicatif::ProgressBar::new(keys.len() as u64);
+    let mut points = engine.standing_points();
+    for i in 0..keys.len() {
+        points = engine.step(keys.action_at(i))?.points;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let surface = crate::engine::surface::MapSurface::new(
+        &engine.bundle.pixels,
+        &points,
+        engine.bundle.colors.as_deref(),
+    );
+    let splats = surface.splats(&surface.mesh(&points));
+    crate::splat::ply::write(&args.out, &splats)?;
+    println!("wrote {} splats to {}", splats.len(), args.out.display());
+    Ok(())
+}
+
+fn view(args: ViewArgs, gpu: GpuOptions) -> anyhow::Result<()> {
+    if args.exit_after == Some(0) {
+        bail!("--exit-after must be at least 1");
+    }
+    // Refuse an unreadable file before the window opens.
+    crate::splat::ply::read(&args.file)?;
+    app::run(AppOptions {
+        splats: Some(args.file),
+        exit_after: args.exit_after,
+        screenshot: args.screenshot,
+        record_fps: crate::app::recorder::DEFAULT_FPS,
+        gpu,
+        ..Default::default()
+    })
+}
+
 fn not_built(name: &str) -> anyhow::Result<()> {
     bail!("`unica {name}` is not built yet (see README.md, 'Status')")
 }
@@ -430,6 +511,7 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
     });
     app::run(AppOptions {
         bundle,
+        splats: None,
         character,
         keys,
         exit_after: cli.exit_after,

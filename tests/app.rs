@@ -187,6 +187,51 @@ fn the_neural_witch_is_generated_and_drawn() {
 }
 
 #[test]
+fn view_shows_a_3dgs_file_written_by_another_program() {
+    // An ASCII PLY in another property order with doubles and extra SH coefficients:
+    // a 10 × 10 × 10 grid of grey-blue splats 1 m across.
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("other.ply");
+    let mut text = String::from(
+        "ply\nformat ascii 1.0\ncomment written by another tool\nelement vertex 1000\n\
+         property double x\nproperty double y\nproperty double z\nproperty float f_rest_0\n\
+         property float scale_0\nproperty float scale_1\nproperty float scale_2\n\
+         property float rot_0\nproperty float rot_1\nproperty float rot_2\nproperty float rot_3\n\
+         property float opacity\nproperty float f_dc_0\nproperty float f_dc_1\nproperty float f_dc_2\n\
+         end_header\n",
+    );
+    for i in 0..1000 {
+        let (x, y, z) = (
+            (i % 10) as f32 * 0.1,
+            (i / 10 % 10) as f32 * 0.1 + 0.5,
+            (i / 100) as f32 * 0.1,
+        );
+        text += &format!("{x} {y} {z} 0.3 -3.0 -3.0 -3.0 1 0 0 0 2.0 0.2 0.5 0.9\n");
+    }
+    std::fs::write(&file, text).unwrap();
+    let shot = dir.path().join("view.png");
+    let out = unica(
+        &[
+            "view",
+            file.to_str().unwrap(),
+            "--screenshot",
+            shot.to_str().unwrap(),
+            "--exit-after",
+            "5",
+        ],
+        &[],
+    );
+    let stdout = check(&out);
+    assert!(stdout.contains("(1000 splats)"), "{stdout}");
+    let (_, covered) = viewport_stats(&shot);
+    assert!(
+        covered > 0.02,
+        "the splats cover only {:.2}% of the viewport",
+        covered * 100.0
+    );
+}
+
+#[test]
 fn a_missing_character_shows_the_placeholder() {
     let dir = tempfile::tempdir().unwrap();
     let shot = dir.path().join("placeholder.png");

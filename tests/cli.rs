@@ -65,7 +65,7 @@ fn help_explains_the_commands_and_the_gpu_choice() {
 
 #[test]
 fn later_subcommands_say_not_built_yet() {
-    for sub in ["eval", "export", "view"] {
+    for sub in ["eval"] {
         assert_one_line_error(
             &unica(&[sub, "whatever", "--out", "x"], &[]),
             "not built yet",
@@ -161,4 +161,46 @@ fn bench_prints_its_table() {
         text.contains("f16 false"),
         "forced fallback shows no f16: {text}"
     );
+}
+
+#[test]
+fn export_writes_the_neural_avatars_splats_and_view_refuses_bad_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("witch.ply");
+    let bundle = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/witch/bundle");
+    let run = unica(
+        &[
+            "export",
+            "ply",
+            "--bundle",
+            bundle,
+            "--keys",
+            "1W",
+            "--steps",
+            "1",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &[],
+    );
+    assert!(run.status.success(), "{}", stderr(&run));
+    let splats = unica::splat::ply::read(&out).unwrap();
+    assert_eq!(splats.len(), 4414);
+    let (lo, hi) = splats.iter().fold(
+        (glam::Vec3::INFINITY, glam::Vec3::NEG_INFINITY),
+        |(lo, hi), s| (lo.min(s.position), hi.max(s.position)),
+    );
+    let height = hi.y - lo.y;
+    assert!(
+        (1.5..2.5).contains(&height),
+        "a person-sized avatar: {height} m"
+    );
+    // A malformed file is refused before any window opens, naming the file.
+    let bad = dir.path().join("bad.ply");
+    std::fs::write(
+        &bad,
+        b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n",
+    )
+    .unwrap();
+    assert_one_line_error(&unica(&["view", bad.to_str().unwrap()], &[]), "bad.ply");
 }

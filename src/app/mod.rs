@@ -26,6 +26,8 @@ use viewport::Viewport;
 pub struct AppOptions {
     /// Neural avatar bundle to play; `None` shows the character's teacher.
     pub bundle: Option<PathBuf>,
+    /// A 3DGS PLY file to show instead of an avatar (`unica view`).
+    pub splats: Option<PathBuf>,
     /// Character file: the teacher (beside the neural avatar when there is a bundle);
     /// `None` without a bundle shows the placeholder.
     pub character: Option<PathBuf>,
@@ -138,9 +140,10 @@ impl UnicaApp {
     ) -> Self {
         let mut viewport = Viewport::new(&gpu);
         let character = options.character.as_deref();
-        let shown = match &options.bundle {
-            Some(dir) => Shown::neural(&gpu, &viewport.renderer, dir, character),
-            None => Shown::load(&gpu, &viewport.renderer, character),
+        let shown = match (&options.splats, &options.bundle) {
+            (Some(file), _) => Shown::splat_file(&gpu, &viewport.renderer, file),
+            (None, Some(dir)) => Shown::neural(&gpu, &viewport.renderer, dir, character),
+            (None, None) => Shown::load(&gpu, &viewport.renderer, character),
         };
         viewport.camera = behind(&shown);
         log::info!("adapter: {}; {:?}", gpu.adapter_label(), gpu.caps);

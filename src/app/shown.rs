@@ -1,6 +1,6 @@
 //! What the viewport shows: the neural avatar of a bundle (with the teacher beside it
 //! when its character file loads), the teacher alone, a static mesh when the character
-//! cannot be animated, or a placeholder, with the reason.
+//! cannot be animated, the splats of a PLY file, or a placeholder, with the reason.
 
 use std::path::Path;
 
@@ -119,6 +119,8 @@ pub struct Shown {
     pub neural: Option<Neural>,
     /// Draw the teacher beside the neural avatar.
     pub show_teacher: bool,
+    /// Splats from a PLY file: buffer, count, bounds.
+    file_splats: Option<(wgpu::Buffer, usize, (Vec3, Vec3))>,
     mesh: Mesh,
     gpu_mesh: GpuMesh,
 }
@@ -151,7 +153,44 @@ impl Shown {
             teacher,
             neural: None,
             show_teacher: false,
+            file_splats: None,
             problem,
+        }
+    }
+
+    /// The splats of a 3DGS PLY file (a placeholder with the reason if it cannot be read).
+    pub fn splat_file(gpu: &GpuContext, renderer: &SceneRenderer, path: &Path) -> Self {
+        let name = path.display().to_string();
+        let loaded = crate::splat::ply::read(path)
+            .map_err(|e| e.to_string())
+            .and_then(|splats| {
+                let first = splats.first().ok_or(format!("{name}: no splats"))?.position;
+                let bounds = splats.iter().fold((first, first), |(lo, hi), s| {
+                    (lo.min(s.position), hi.max(s.position))
+                });
+                let data: Vec<GpuSplat> = splats.iter().map(GpuSplat::from).collect();
+                let buffer = gpu
+                    .storage_buffer_init(
+                        "ply splats",
+                        bytemuck::cast_slice(&data),
+                        wgpu::BufferUsages::empty(),
+                    )
+                    .map_err(|e| e.to_string())?;
+                Ok((buffer, splats.len(), bounds))
+            });
+        match loaded {
+            Ok(file_splats) => {
+                let mut shown = Self::load(gpu, renderer, None);
+                shown.name = format!("{name} ({} splats)", file_splats.1);
+                shown.problem = None;
+                shown.file_splats = Some(file_splats);
+                shown
+            }
+            Err(problem) => {
+                let mut shown = Self::load(gpu, renderer, None);
+                shown.problem = Some(format!("Showing a placeholder: {problem}"));
+                shown
+            }
         }
     }
 
@@ -222,8 +261,11 @@ impl Shown {
         self.gpu_mesh.write_vertices(gpu, &self.mesh);
     }
 
-    /// The splats to draw: the neural avatar's when it shows splats.
+    /// The splats to draw: a PLY file's, or the neural avatar's when it shows splats.
     pub fn splats(&self) -> Option<(&wgpu::Buffer, usize)> {
+        if let Some((buffer, count, _)) = &self.file_splats {
+            return Some((buffer, *count));
+        }
         let neural = self.neural.as_ref().filter(|n| n.show_splats)?;
         neural
             .splats
@@ -239,7 +281,8 @@ impl Shown {
             .filter(|n| !n.show_splats)
             .and_then(|n| n.surface.as_ref())
             .map(|(_, m)| m);
-        let other = self.neural.is_none() || (self.show_teacher && self.teacher.is_some());
+        let alone = self.neural.is_none() && self.file_splats.is_none();
+        let other = alone || (self.show_teacher && self.teacher.is_some());
         neural
             .into_iter()
             .chain(other.then_some(&self.gpu_mesh))
@@ -256,6 +299,9 @@ impl Shown {
     }
 
     pub fn bounds(&self) -> (Vec3, Vec3) {
+        if let Some((_, _, bounds)) = &self.file_splats {
+            return *bounds;
+        }
         let neural = self
             .neural
             .as_ref()

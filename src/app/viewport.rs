@@ -97,7 +97,7 @@ impl Viewport {
                 .splatting
                 .get_or_insert_with(|| (Rasterizer::default(), Compositor::new(gpu, COLOR_FORMAT)));
             let camera = SplatCamera::new(&self.camera, w, h);
-            profiler.stage(gpu, "splats", |encoder, _| {
+            profiler.cpu_stage(gpu, "splats", |encoder| {
                 match rasterizer.record(gpu, encoder, buffer, count, &camera, glam::Vec3::ZERO) {
                     Ok(raster) => compositor.draw(gpu, encoder, target, &raster.image),
                     Err(e) => log::error!("splats: {e}"),

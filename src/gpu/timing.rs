@@ -109,13 +109,27 @@ impl Profiler {
             self.next_query += 2;
             self.stages.push((name.into(), Measured::Gpu(begin)));
         } else {
-            let start = Instant::now();
-            record(&mut encoder, None);
-            gpu.queue.submit([encoder.finish()]);
-            gpu.wait_idle();
-            let ms = start.elapsed().as_secs_f64() * 1e3;
-            self.stages.push((name.into(), Measured::Cpu(ms)));
+            self.cpu_stage(gpu, name, |encoder| record(encoder, None));
         }
+    }
+
+    /// Records one stage of many passes and times it with the CPU clock around a
+    /// blocking submit (a timestamp pair covers one pass only).
+    pub fn cpu_stage(
+        &mut self,
+        gpu: &GpuContext,
+        name: &str,
+        record: impl FnOnce(&mut wgpu::CommandEncoder),
+    ) {
+        let mut encoder = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(name) });
+        let start = Instant::now();
+        record(&mut encoder);
+        gpu.queue.submit([encoder.finish()]);
+        gpu.wait_idle();
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        self.stages.push((name.into(), Measured::Cpu(ms)));
     }
 
     /// Waits for the stages and returns their timings in order.
