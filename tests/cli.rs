@@ -65,7 +65,10 @@ fn help_explains_the_commands_and_the_gpu_choice() {
 
 #[test]
 fn eval_says_not_built_yet() {
-    assert_one_line_error(&unica(&["eval", "whatever", "--out", "x"], &[]), "not built yet");
+    assert_one_line_error(
+        &unica(&["eval", "whatever", "--out", "x"], &[]),
+        "not built yet",
+    );
 }
 
 #[test]

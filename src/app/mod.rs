@@ -452,7 +452,14 @@ impl UnicaApp {
             return;
         };
         match gpu::readback::rgba_texture(&self.gpu, &target.color) {
-            Ok(image) => recorder.push(image, self.action, self.viewport.camera, due),
+            Ok(image) => {
+                let moment = recorder::Moment {
+                    action: self.action,
+                    camera: self.viewport.camera,
+                    root: self.shown.focus(),
+                };
+                recorder.push(image, moment, due)
+            }
             Err(e) => self.message = Some(format!("Recording: {e}")),
         }
     }

@@ -1,5 +1,6 @@
 //! The recorder: viewport frames at a fixed rate as numbered PNGs, each written atomically
-//! on a background thread, plus manifest.json (frame, time, action, camera); when an
+//! on a background thread, plus manifest.json (frame, time, action, camera, the avatar's
+//! world root); when an
 //! `ffmpeg` binary is on the PATH, also session.mp4 from the frames.
 
 use std::path::{Path, PathBuf};
@@ -17,14 +18,23 @@ const MAX_CATCH_UP: u64 = 30;
 /// The manifest is rewritten after this many frames (and when the recording stops).
 const MANIFEST_EVERY: u64 = 30;
 
+/// What was happening when a frame was taken.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct Moment {
+    pub action: Action,
+    pub camera: OrbitCamera,
+    /// The avatar's world root (none for a static view).
+    pub root: Option<glam::Vec3>,
+}
+
 /// What the manifest says about one frame.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct FrameRecord {
     pub index: u64,
     pub file: String,
     pub time_s: f64,
-    pub action: Action,
-    pub camera: OrbitCamera,
+    #[serde(flatten)]
+    pub moment: Moment,
 }
 
 #[derive(serde::Serialize)]
@@ -59,12 +69,7 @@ impl FrameWriter {
     }
 
     /// Writes the next frame; the manifest follows every [`MANIFEST_EVERY`] frames.
-    pub fn write(
-        &mut self,
-        image: &image::RgbaImage,
-        action: Action,
-        camera: OrbitCamera,
-    ) -> Result<(), WriteError> {
+    pub fn write(&mut self, image: &image::RgbaImage, moment: Moment) -> Result<(), WriteError> {
         let index = self.frames_written();
         let file = format!("frame_{index:06}.png");
         write_png_atomic(&self.dir.join(&file), image)?;
@@ -72,8 +77,7 @@ impl FrameWriter {
             index,
             file,
             time_s: index as f64 / self.fps,
-            action,
-            camera,
+            moment,
         });
         if self.frames_written().is_multiple_of(MANIFEST_EVERY) {
             self.write_manifest()?;
@@ -95,8 +99,7 @@ impl FrameWriter {
 
 struct Job {
     image: image::RgbaImage,
-    action: Action,
-    camera: OrbitCamera,
+    moment: Moment,
     copies: u64,
 }
 
@@ -120,7 +123,7 @@ impl Recorder {
             let run = |writer: &mut FrameWriter| -> Result<(), WriteError> {
                 for job in job_rx {
                     for _ in 0..job.copies {
-                        writer.write(&job.image, job.action, job.camera)?;
+                        writer.write(&job.image, job.moment)?;
                     }
                 }
                 writer.write_manifest()
@@ -154,13 +157,7 @@ impl Recorder {
     }
 
     /// Queues the current viewport image `copies` times (see [`Self::frames_due`]).
-    pub fn push(
-        &mut self,
-        image: image::RgbaImage,
-        action: Action,
-        camera: OrbitCamera,
-        copies: u64,
-    ) {
+    pub fn push(&mut self, image: image::RgbaImage, moment: Moment, copies: u64) {
         if copies == 0 {
             return;
         }
@@ -169,8 +166,7 @@ impl Recorder {
             // A send error means the writer stopped on an error, reported by `poll_error`.
             let _ = jobs.send(Job {
                 image,
-                action,
-                camera,
+                moment,
                 copies,
             });
         }
@@ -256,6 +252,14 @@ mod tests {
         assert!(err.contains("no libx264"), "{err}");
     }
 
+    fn moment(action: Action) -> Moment {
+        Moment {
+            action,
+            camera: OrbitCamera::default(),
+            root: Some(glam::Vec3::new(1.0, 2.0, 3.0)),
+        }
+    }
+
     fn image(v: u8) -> image::RgbaImage {
         image::RgbaImage::from_pixel(4, 3, image::Rgba([v, 0, 0, 255]))
     }
@@ -265,11 +269,11 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut rec = Recorder::start(dir.path(), 30.0).unwrap();
         assert_eq!(rec.frames_due(0.0), 1);
-        rec.push(image(1), Action::Idle, OrbitCamera::default(), 1);
+        rec.push(image(1), moment(Action::Idle), 1);
         assert_eq!(rec.frames_due(0.01), 0, "faster than 30 fps: nothing due");
         assert_eq!(rec.frames_due(0.1), 3, "frames 1, 2 and 3 are due at 0.1 s");
         assert_eq!(rec.frames_due(100.0), MAX_CATCH_UP);
-        rec.push(image(2), Action::Forward, OrbitCamera::default(), 3);
+        rec.push(image(2), moment(Action::Forward), 3);
         assert_eq!(rec.stop().unwrap(), 4);
         let manifest: serde_json::Value =
             serde_json::from_slice(&std::fs::read(dir.path().join("manifest.json")).unwrap())
@@ -278,6 +282,7 @@ mod tests {
         assert_eq!(frames.len(), 4);
         assert_eq!(frames[3]["file"], "frame_000003.png");
         assert_eq!(frames[3]["action"], "Forward");
+        assert_eq!(frames[3]["root"], serde_json::json!([1.0, 2.0, 3.0]));
         assert!((frames[3]["time_s"].as_f64().unwrap() - 0.1).abs() < 1e-9);
         let png = image::open(dir.path().join("frame_000003.png")).unwrap();
         assert_eq!(png.to_rgba8().get_pixel(0, 0).0, [2, 0, 0, 255]);
@@ -289,7 +294,7 @@ mod tests {
         // The temporary name of frame 2 is taken by a directory: that write fails.
         std::fs::create_dir(dir.path().join("frame_000002.png.tmp")).unwrap();
         let mut rec = Recorder::start(dir.path(), 30.0).unwrap();
-        rec.push(image(7), Action::Left, OrbitCamera::default(), 3);
+        rec.push(image(7), moment(Action::Left), 3);
         let err = rec.stop().unwrap_err();
         assert!(err.to_string().contains("frame_000002.png"), "{err}");
         for i in 0..2 {
