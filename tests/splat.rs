@@ -111,3 +111,66 @@ fn the_rasterizer_matches_the_reference_off_the_tile_grid_and_with_deep_scans() 
     // histogram scan needs two levels of block sums.
     compare(&scene(5000), &camera(100, 70));
 }
+
+#[test]
+fn the_gpu_upscale_matches_the_cpu_reference() {
+    // A 128² map with a ragged foreground (a disc with holes) and varied values, ×8 to
+    // 1024² as DESIGN §7. Same f32 arithmetic; the GPU may fuse multiply-adds, so values
+    // agree within 1e-5 and the mask may differ only where the interpolated mask is
+    // within rounding of the 0.25 threshold.
+    use unica::splat::upscale;
+    let (w, h) = (128usize, 128usize);
+    let mask: Vec<f32> = (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as f32 - 64.0, (i / w) as f32 - 64.0);
+            let hole = (x * 0.37).sin() * (y * 0.23).cos() > 0.8;
+            f32::from(x * x + y * y < 50.0 * 50.0 && !hole)
+        })
+        .collect();
+    let map: Vec<f32> = (0..3 * w * h)
+        .map(|i| ((i as f32 * 0.618).fract() * 0.5 + 0.25) * mask[i % (w * h)])
+        .collect();
+    let (want, want_mask) = upscale::upscale_reference(&map, &mask, w, h, 8);
+
+    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
+    let upload = |label, data: &[f32]| {
+        gpu.storage_buffer_init(
+            label,
+            bytemuck::cast_slice(data),
+            wgpu::BufferUsages::empty(),
+        )
+        .unwrap()
+    };
+    let (map_buffer, mask_buffer) = (upload("map", &map), upload("mask", &mask));
+    let mut pipelines = unica::gpu::kernel::PipelineCache::default();
+    let mut encoder = gpu.device.create_command_encoder(&Default::default());
+    let (out, out_mask) = upscale::record(
+        &gpu,
+        &mut pipelines,
+        &mut encoder,
+        &map_buffer,
+        &mask_buffer,
+        w,
+        h,
+        8,
+    )
+    .unwrap();
+    gpu.queue.submit([encoder.finish()]);
+    let got: Vec<f32> = bytemuck::pod_collect_to_vec(&readback::buffer(&gpu, &out, "map").unwrap());
+    let got_mask: Vec<f32> =
+        bytemuck::pod_collect_to_vec(&readback::buffer(&gpu, &out_mask, "mask").unwrap());
+    let mask_differs = got_mask
+        .iter()
+        .zip(&want_mask)
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(mask_differs <= 100, "{mask_differs} mask pixels differ");
+    let kept = want_mask.iter().filter(|&&m| m == 1.0).count();
+    assert!(kept > 300_000, "{kept} foreground pixels at 1024²");
+    let plane = 1024 * 1024;
+    let worst = (0..3 * plane)
+        .filter(|i| got_mask[i % plane] == want_mask[i % plane])
+        .map(|i| (got[i] - want[i]).abs())
+        .fold(0.0f32, f32::max);
+    assert!(worst <= 1e-5, "values differ by {worst}");
+}

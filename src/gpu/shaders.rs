@@ -160,6 +160,7 @@ use crate::nn::ops::{
 use crate::render::SceneUniforms;
 use crate::splat::composite::CompositeParams;
 use crate::splat::raster::{GpuSplat, ProjectedSplat, RadixParams, ScanParams, SplatFrame};
+use crate::splat::upscale::UpscaleParams;
 
 pub const SCALE_ADD: Shader = shader!("scale_add.wgsl", [ElementwiseParams], elem);
 pub const SUM_SHARED: Shader =
@@ -192,6 +193,8 @@ pub const SPLAT_RENDER: Shader =
     shader!("splat_render.wgsl", [SplatFrame, ProjectedSplat], f16: false, subgroups: false);
 pub const SPLAT_COMPOSITE: Shader =
     shader!("splat_composite.wgsl", [CompositeParams], f16: false, subgroups: false);
+pub const UPSCALE_MAP: Shader =
+    shader!("upscale_map.wgsl", [UpscaleParams], f16: false, subgroups: false);
 pub const TIMESTEP_EMBEDDING: Shader = shader!("timestep_embedding.wgsl", [EmbeddingParams], elem);
 
 /// Every shader of the crate; a test checks this covers every file in `shaders/`.
@@ -219,4 +222,5 @@ pub const ALL: &[Shader] = &[
     SPLAT_RANGES,
     SPLAT_RENDER,
     SPLAT_COMPOSITE,
+    UPSCALE_MAP,
 ];
