@@ -279,18 +279,17 @@ pub fn run() -> anyhow::Result<()> {
 
 fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
     use crate::gpu::kernel::Precision;
-    if args.steps == 0 || args.steps > 1000 {
-        bail!("--steps must be between 1 and 1000, got {}", args.steps);
-    }
+    let sampling = crate::nn::sampler::Sampling {
+        steps: args.steps,
+        cfg_scale: args.cfg_scale,
+    };
+    // The random-weight models use the 1000-step schedule; a bundle is checked on load.
+    sampling.check(1000).map_err(anyhow::Error::msg)?;
     if args.repeat == 0 {
         bail!("--repeat must be at least 1");
     }
     let gpu = GpuContext::headless(gpu_options)?;
     if let (Some(frames), Some(dir)) = (args.soak, &args.bundle) {
-        let sampling = crate::nn::sampler::Sampling {
-            steps: args.steps,
-            cfg_scale: args.cfg_scale,
-        };
         return crate::bench::soak(&gpu, dir, frames, Some(sampling), &mut std::io::stdout());
     }
     if matches!(args.precision, BenchPrecision::F16) && !gpu.caps.shader_f16 {
@@ -303,10 +302,7 @@ fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
         tiny: matches!(args.models, BenchModels::Tiny | BenchModels::Both),
         default: matches!(args.models, BenchModels::Default | BenchModels::Both),
         bundle: args.bundle,
-        sampling: crate::nn::sampler::Sampling {
-            steps: args.steps,
-            cfg_scale: args.cfg_scale,
-        },
+        sampling,
         repeat: args.repeat,
         splats: args.splats,
         precisions: match args.precision {
@@ -352,7 +348,7 @@ fn bake(args: BakeArgs) -> anyhow::Result<()> {
 fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     use crate::gpu::kernel::Precision;
     use crate::headless::Avatar;
-    let gpu_context = GpuContext::headless(gpu)?;
+    let keys = KeyScript::parse(&args.keys).context("--keys")?;
     let avatar = match (args.teacher, args.bundle) {
         (Some(character), None) => Avatar::Teacher {
             character,
@@ -365,15 +361,9 @@ fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
                 steps: args.steps.unwrap_or(defaults.steps),
                 cfg_scale: args.cfg_scale.unwrap_or(defaults.cfg_scale),
             };
-            if sampling.steps == 0 || sampling.steps > manifest.diffusion.steps {
-                bail!("--steps must be between 1 and {}", manifest.diffusion.steps);
-            }
-            if args.f16 && !gpu_context.caps.shader_f16 {
-                bail!(
-                    "{} has no SHADER_F16; leave out --f16",
-                    gpu_context.adapter_label()
-                );
-            }
+            sampling
+                .check(manifest.diffusion.steps)
+                .map_err(anyhow::Error::msg)?;
             Avatar::Bundle {
                 dir,
                 options: crate::engine::EngineOptions {
@@ -394,9 +384,16 @@ fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     if args.points && matches!(avatar, Avatar::Teacher { .. }) {
         bail!("--points needs --bundle (the teacher has no position-map points)");
     }
+    let gpu_context = GpuContext::headless(gpu)?;
+    if args.f16 && !gpu_context.caps.shader_f16 {
+        bail!(
+            "{} has no SHADER_F16; leave out --f16",
+            gpu_context.adapter_label()
+        );
+    }
     let job = crate::headless::RenderJob {
         avatar,
-        keys: KeyScript::parse(&args.keys).context("--keys")?,
+        keys,
         out: args.out,
         size: args.size,
         views: args.views,
@@ -452,11 +449,7 @@ fn export(args: ExportArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let surface = crate::engine::surface::MapSurface::new(
-        &engine.bundle.pixels,
-        &points,
-        engine.bundle.colors.as_deref(),
-    );
+    let surface = engine.surface();
     let splats = surface.splats(&surface.mesh(&points));
     crate::splat::ply::write(&args.out, &splats)?;
     println!("wrote {} splats to {}", splats.len(), args.out.display());

@@ -23,6 +23,7 @@ use crate::render::OrbitCamera;
 use crate::render::offscreen::Offscreen;
 use crate::render::scene::DrawOptions;
 use crate::splat::ply::Splat;
+use crate::splat::raster::Rasterizer;
 
 /// Who is rendered.
 pub enum Avatar {
@@ -61,8 +62,7 @@ struct FrameRecord {
 /// The avatar being driven, frame by frame.
 enum Driver {
     Teacher(Box<Teacher>),
-    /// The surface is built from the first generated frame.
-    Neural(Box<Engine>, Option<MapSurface>),
+    Neural(Box<Engine>, MapSurface),
 }
 
 /// One step's result: the mesh to draw (and for the neural avatar its base splats), the
@@ -87,12 +87,14 @@ impl Driver {
             }
             Avatar::Bundle { dir, options } => {
                 let engine = Engine::new(gpu, dir, options)?;
-                Driver::Neural(Box::new(engine), None)
+                let surface = engine.surface();
+                Driver::Neural(Box::new(engine), surface)
             }
         })
     }
 
-    fn step(&mut self, action: Action) -> anyhow::Result<Step> {
+    /// Steps the avatar; the neural one's base splats are made when `splats` is set.
+    fn step(&mut self, action: Action, splats: bool) -> anyhow::Result<Step> {
         Ok(match self {
             Driver::Teacher(teacher) => {
                 teacher.step(action);
@@ -105,16 +107,13 @@ impl Driver {
             }
             Driver::Neural(engine, surface) => {
                 let frame = engine.step(action)?;
-                let surface = surface.get_or_insert_with(|| {
-                    MapSurface::new(
-                        &engine.bundle.pixels,
-                        &frame.points,
-                        engine.bundle.colors.as_deref(),
-                    )
-                });
                 let mesh = surface.mesh(&frame.points);
                 Step {
-                    splats: surface.splats(&mesh),
+                    splats: if splats {
+                        surface.splats(&mesh)
+                    } else {
+                        Vec::new()
+                    },
                     mesh,
                     root: frame.root,
                     neural: Some((frame.points, frame.clamped, frame.gpu_ms, frame.cpu_ms)),
@@ -144,7 +143,10 @@ pub fn render(
     for index in 0..total {
         let action = job.keys.action_at(index);
         let clock = Instant::now();
-        let step = driver.step(action)?;
+        let step = driver.step(action, !job.surface)?;
+        let splats = (!step.splats.is_empty())
+            .then(|| Rasterizer::upload(offscreen.gpu(), &step.splats))
+            .transpose()?;
         step_ms += clock.elapsed().as_secs_f64() * 1e3;
         let distance = *distance.get_or_insert_with(|| {
             let (lo, hi) = step.mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ONE));
@@ -159,10 +161,14 @@ pub fn render(
                 distance,
             };
             let clock = Instant::now();
-            let image = if step.splats.is_empty() || job.surface {
-                offscreen.render(&step.mesh, &camera, &DrawOptions::default())?
-            } else {
-                offscreen.render_splats(&step.splats, &camera, &DrawOptions::default())?
+            let image = match &splats {
+                Some(buffer) => offscreen.render_splats(
+                    buffer,
+                    step.splats.len(),
+                    &camera,
+                    &DrawOptions::default(),
+                )?,
+                None => offscreen.render(&step.mesh, &camera, &DrawOptions::default())?,
             };
             render_ms += clock.elapsed().as_secs_f64() * 1e3;
             let clock = Instant::now();

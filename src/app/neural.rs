@@ -13,6 +13,7 @@ use glam::Vec3;
 
 use crate::action::Action;
 use crate::avatar::locomotion::FRAME_RATE;
+use crate::engine::surface::MapSurface;
 use crate::engine::{Engine, EngineOptions, Frame};
 use crate::gpu::GpuContext;
 use crate::nn::sampler::Sampling;
@@ -26,15 +27,16 @@ pub struct Settings {
 
 /// What the worker reports.
 pub enum Update {
-    /// Loaded: the foreground pixels, their colours if the bundle has them, the standing
-    /// start in world space, the defaults.
+    /// Loaded: the map's surface, the standing start in world space and its root, the
+    /// defaults.
     Ready {
-        pixels: Vec<u32>,
-        colors: Option<Vec<Vec3>>,
+        surface: Box<MapSurface>,
         standing: Vec<Vec3>,
+        root: Vec3,
         settings: Settings,
     },
-    Frame(Box<Frame>),
+    /// A generated frame and the seconds since the one before.
+    Frame(Box<Frame>, f64),
     Failed(String),
 }
 
@@ -44,9 +46,10 @@ pub struct NeuralAvatar {
     settings: Arc<Mutex<Option<Settings>>>,
     stop: Arc<AtomicBool>,
     updates: Receiver<Update>,
-    /// Generated frames per second, measured over the last frames.
+    /// Generated frames per second, smoothed over the last frames.
     pub fps: f64,
-    last_frame: Option<Instant>,
+    /// The worker reported a failure (or vanished).
+    failed: bool,
 }
 
 impl NeuralAvatar {
@@ -79,7 +82,7 @@ impl NeuralAvatar {
             stop,
             updates,
             fps: 0.0,
-            last_frame: None,
+            failed: false,
         }
     }
 
@@ -92,29 +95,41 @@ impl NeuralAvatar {
     }
 
     /// Everything the worker reported since the last call; frames but the newest are
-    /// dropped (the UI shows the latest).
+    /// dropped (the UI shows the latest). A worker that ended without a word (it
+    /// panicked) is reported as stopped.
     pub fn poll(&mut self) -> Vec<Update> {
         let mut out = Vec::new();
         loop {
             match self.updates.try_recv() {
-                Ok(Update::Frame(frame)) => {
-                    let now = Instant::now();
-                    if let Some(last) = self.last_frame {
-                        let rate = 1.0 / now.duration_since(last).as_secs_f64().max(1e-6);
+                Ok(Update::Frame(frame, interval)) => {
+                    if interval > 0.0 {
+                        let rate = 1.0 / interval;
                         self.fps = if self.fps == 0.0 {
                             rate
                         } else {
                             0.8 * self.fps + 0.2 * rate
                         };
                     }
-                    self.last_frame = Some(now);
-                    if let Some(Update::Frame(_)) = out.last() {
+                    if let Some(Update::Frame(..)) = out.last() {
                         out.pop();
                     }
-                    out.push(Update::Frame(frame));
+                    out.push(Update::Frame(frame, interval));
+                }
+                Ok(Update::Failed(e)) => {
+                    self.failed = true;
+                    out.push(Update::Failed(e));
                 }
                 Ok(update) => out.push(update),
-                Err(TryRecvError::Empty | TryRecvError::Disconnected) => return out,
+                Err(TryRecvError::Empty) => return out,
+                Err(TryRecvError::Disconnected) => {
+                    if !self.failed && !self.stop.load(Ordering::Relaxed) {
+                        self.failed = true;
+                        out.push(Update::Failed(
+                            "the model's thread ended unexpectedly".into(),
+                        ));
+                    }
+                    return out;
+                }
             }
         }
     }
@@ -146,9 +161,9 @@ impl Worker {
             pca: true,
         };
         let ready = Update::Ready {
-            pixels: engine.bundle.pixels.clone(),
-            colors: engine.bundle.colors.clone(),
+            surface: Box::new(engine.surface()),
             standing: engine.standing_points(),
+            root: engine.root(),
             settings: defaults,
         };
         if send.send(ready).is_err() {
@@ -156,6 +171,7 @@ impl Worker {
         }
         let period = Duration::from_secs_f64(1.0 / f64::from(FRAME_RATE));
         let mut next = Instant::now();
+        let mut last = next;
         while !self.stop.load(Ordering::Relaxed) {
             if let Some(settings) = self.settings.lock().expect("settings lock").take() {
                 engine.set_sampling(settings.sampling);
@@ -163,7 +179,10 @@ impl Worker {
             }
             let action = Action::from_id(self.action.load(Ordering::Relaxed));
             let frame = engine.step(action)?;
-            if send.send(Update::Frame(Box::new(frame))).is_err() {
+            let now = Instant::now();
+            let interval = now.duration_since(last).as_secs_f64();
+            last = now;
+            if send.send(Update::Frame(Box::new(frame), interval)).is_err() {
                 return Ok(());
             }
             // Never faster than the data rate; when slower, run as fast as it can.

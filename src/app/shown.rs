@@ -15,7 +15,7 @@ use crate::engine::surface::MapSurface;
 use crate::gpu::GpuContext;
 use crate::mesh::Mesh;
 use crate::render::{GpuMesh, SceneRenderer};
-use crate::splat::raster::GpuSplat;
+use crate::splat::raster::Rasterizer;
 
 /// Where the teacher stands when it runs beside the neural avatar.
 pub const TEACHER_OFFSET: Vec3 = Vec3::new(1.5, 0.0, 0.0);
@@ -53,20 +53,19 @@ impl Neural {
         for update in self.avatar.poll() {
             match update {
                 Update::Ready {
-                    pixels,
-                    colors,
+                    surface,
                     standing,
+                    root,
                     settings,
                 } => {
-                    let surface = MapSurface::new(&pixels, &standing, colors.as_deref());
                     self.mesh = surface.mesh(&standing);
                     self.upload_splats(gpu, &surface);
-                    self.surface = Some((surface, renderer.upload(gpu, &self.mesh)));
-                    self.root = standing.iter().sum::<Vec3>() / standing.len().max(1) as f32;
+                    self.surface = Some((*surface, renderer.upload(gpu, &self.mesh)));
+                    self.root = root;
                     self.settings = Some(settings);
                     status = Some(None);
                 }
-                Update::Frame(frame) => {
+                Update::Frame(frame, _) => {
                     if let Some((surface, gpu_mesh)) = self.surface.take() {
                         self.mesh = surface.mesh(&frame.points);
                         gpu_mesh.write_vertices(gpu, &self.mesh);
@@ -75,7 +74,7 @@ impl Neural {
                     }
                     self.root = frame.root;
                     self.frames = frame.index + 1;
-                    self.clamped += frame.clamped;
+                    self.clamped = frame.clamped_total;
                     (self.gpu_ms, self.cpu_ms) = (frame.gpu_ms, frame.cpu_ms);
                 }
                 Update::Failed(e) => {
@@ -89,21 +88,12 @@ impl Neural {
 
     /// The current mesh's base splats into the splat buffer.
     fn upload_splats(&mut self, gpu: &GpuContext, surface: &MapSurface) {
-        let splats: Vec<GpuSplat> = surface
-            .splats(&self.mesh)
-            .iter()
-            .map(GpuSplat::from)
-            .collect();
+        let splats = surface.splats(&self.mesh);
         match &self.splats {
             Some((buffer, count)) if *count == splats.len() => {
-                gpu.queue
-                    .write_buffer(buffer, 0, bytemuck::cast_slice(&splats))
+                Rasterizer::write(gpu, buffer, &splats)
             }
-            _ => match gpu.storage_buffer_init(
-                "neural splats",
-                bytemuck::cast_slice(&splats),
-                wgpu::BufferUsages::empty(),
-            ) {
+            _ => match Rasterizer::upload(gpu, &splats) {
                 Ok(buffer) => self.splats = Some((buffer, splats.len())),
                 Err(e) => log::error!("splats: {e}"),
             },
@@ -168,14 +158,8 @@ impl Shown {
                 let bounds = splats.iter().fold((first, first), |(lo, hi), s| {
                     (lo.min(s.position), hi.max(s.position))
                 });
-                let data: Vec<GpuSplat> = splats.iter().map(GpuSplat::from).collect();
-                let buffer = gpu
-                    .storage_buffer_init(
-                        "ply splats",
-                        bytemuck::cast_slice(&data),
-                        wgpu::BufferUsages::empty(),
-                    )
-                    .map_err(|e| e.to_string())?;
+                Rasterizer::fits(gpu, splats.len()).map_err(|e| format!("{name}: {e}"))?;
+                let buffer = Rasterizer::upload(gpu, &splats).map_err(|e| e.to_string())?;
                 Ok((buffer, splats.len(), bounds))
             });
         match loaded {

@@ -59,8 +59,9 @@ pub struct Frame {
     pub points: Vec<Vec3>,
     /// The world root after this frame.
     pub root: Vec3,
-    /// Map values outside [0, 1] clamped in this frame.
+    /// Map values outside [0, 1] (or NaN) clamped in this frame, and since the start.
     pub clamped: usize,
+    pub clamped_total: usize,
     /// Milliseconds: recording + GPU work + readback, then the CPU's share.
     pub gpu_ms: f64,
     pub cpu_ms: f64,
@@ -88,6 +89,7 @@ pub struct Engine {
     world_root: Vec3,
     noise: Noise,
     frames: u64,
+    clamped_total: usize,
 }
 
 impl Engine {
@@ -95,6 +97,13 @@ impl Engine {
     /// lowest point of that pose.
     pub fn new(gpu: &GpuContext, dir: &Path, options: &EngineOptions) -> Result<Self, LoadError> {
         let bundle = Bundle::load(dir, gpu, options.precision)?;
+        let sampling = options.sampling.unwrap_or(bundle.manifest.sampler);
+        sampling
+            .check(bundle.schedule.steps())
+            .map_err(|problem| LoadError::Manifest {
+                path: dir.display().to_string(),
+                problem,
+            })?;
         let mut pipelines = PipelineCache::default();
         let basis = ShiftBasis::measure(gpu, &mut pipelines, options.precision, &bundle)?;
         let cfg = &bundle.unet.cfg;
@@ -113,7 +122,7 @@ impl Engine {
             gpu: gpu.clone(),
             pipelines,
             precision: options.precision,
-            sampling: options.sampling.unwrap_or(bundle.manifest.sampler),
+            sampling,
             pca: options.pca,
             split: options.split,
             context,
@@ -122,12 +131,22 @@ impl Engine {
             world_root,
             noise: Noise::new(options.seed),
             frames: 0,
+            clamped_total: 0,
             bundle,
         })
     }
 
     pub fn root(&self) -> Vec3 {
         self.world_root
+    }
+
+    /// The surface and base splats of this bundle's map, laid out on the standing start.
+    pub fn surface(&self) -> surface::MapSurface {
+        surface::MapSurface::new(
+            &self.bundle.pixels,
+            &self.standing_points(),
+            self.bundle.colors.as_deref(),
+        )
     }
 
     /// The standing start's last frame in world space (what is shown before the first
@@ -195,9 +214,12 @@ impl Engine {
                     values[plane + p as usize],
                     values[2 * plane + p as usize],
                 );
-                let c = v.clamp(Vec3::ZERO, Vec3::ONE);
-                clamped += (0..3).filter(|&k| c[k] != v[k] || v[k].is_nan()).count();
-                if c.is_nan() { Vec3::splat(0.5) } else { c }
+                // NaN (counted) becomes the cube's centre; the rest is clamped (counted).
+                Vec3::from_array(v.to_array().map(|x| {
+                    let kept = if x.is_nan() { 0.5 } else { x.clamp(0.0, 1.0) };
+                    clamped += usize::from(kept != x);
+                    kept
+                }))
             })
             .collect();
         let root = self
@@ -221,12 +243,14 @@ impl Engine {
         self.world_root += shift / scale;
         self.pending = Some(Pending { latent, shift });
         self.frames += 1;
+        self.clamped_total += clamped;
         Ok(Frame {
             index: self.frames - 1,
             action,
             points,
             root: self.world_root,
             clamped,
+            clamped_total: self.clamped_total,
             gpu_ms,
             cpu_ms: clock.elapsed().as_secs_f64() * 1e3,
         })

@@ -1,16 +1,17 @@
 //! Recentring the window without re-encoding: when the window slides, every context frame
 //! is translated by -δ (the new frame's root shift). A uniform shift of the foreground
 //! along axis k moves the encoder's latents along J_k = ∂E/∂δ_k, measured once per
-//! bundle by central differences around the standing start's last frame; the window then
-//! moves by -Σ δ_k J_k in latent space.
+//! bundle by central differences at the standing start's context frames (averaged; as
+//! `train/unica_train/recentre.py`'s `bundle_basis`, whose rollouts validated it against
+//! re-encoding); the window then moves by -Σ δ_k J_k in latent space.
 
 use crate::gpu::kernel::{PipelineCache, Precision};
 use crate::gpu::{GpuContext, GpuError};
 use crate::nn::{Bundle, LoadError, Recorder, Tensor};
 
-/// The half-width of the central difference, in normalised units (a running frame moves
-/// the root by about 0.03).
-const STEP: f32 = 0.02;
+/// The half-width of the central difference, in normalised units: about the root shift
+/// of one running frame, so J is the secant over the shifts the loop meets.
+const STEP: f32 = 0.03;
 
 pub struct ShiftBasis {
     /// J_x, J_y, J_z, each tiled over the window's frames: [1, F-1, C, h, w].
@@ -47,39 +48,41 @@ impl ShiftBasis {
                 )
             })
             .collect();
-        // The foreground shifted by ±STEP along each axis, background 0.
-        let mut shifted = Vec::with_capacity(6 * 3 * plane);
-        for k in 0..3 {
-            for sign in [1.0, -1.0] {
-                let mut map = vec![0.0; 3 * plane];
-                for &p in &bundle.pixels {
-                    for c in 0..3 {
-                        let i = c * plane + p as usize;
-                        map[i] = last[i] + if c == k { sign * STEP } else { 0.0 };
+        // Every context frame's foreground shifted by ±STEP along each axis, background 0:
+        // batch entry (frame · 3 + k) · 2 + (0: +, 1: −).
+        let mut shifted = Vec::with_capacity(context_frames * 6 * 3 * plane);
+        for frame in maps.chunks_exact(3 * plane) {
+            for k in 0..3 {
+                for sign in [1.0, -1.0] {
+                    let mut map = vec![0.0; 3 * plane];
+                    for &p in &bundle.pixels {
+                        for c in 0..3 {
+                            let i = c * plane + p as usize;
+                            map[i] = frame[i] + if c == k { sign * STEP } else { 0.0 };
+                        }
                     }
+                    shifted.extend(map);
                 }
-                shifted.extend(map);
             }
         }
+        let batch = 6 * context_frames;
         let mut r = Recorder::new(gpu, pipelines, precision);
-        let input = r.upload("recentre.maps", &[6, 3, size, size], &shifted)?;
+        let input = r.upload("recentre.maps", &[batch, 3, size, size], &shifted)?;
         let means = bundle.encoder.forward(&mut r, &input)?;
         r.submit();
         let means = means.read(gpu)?;
-        let frame = means.len() / 6;
-        let factor = bundle.manifest.latent_scale / (2.0 * STEP);
+        let latent = means.len() / batch;
+        let factor = bundle.manifest.latent_scale / (2.0 * STEP * context_frames as f32);
         let side = size / 8;
         let shape = [1, context_frames, cfg.latent, side, side];
         let axis = |k: usize| -> Result<Tensor, GpuError> {
-            let (plus, minus) = (
-                &means[2 * k * frame..][..frame],
-                &means[(2 * k + 1) * frame..][..frame],
-            );
-            let j: Vec<f32> = plus
-                .iter()
-                .zip(minus)
-                .map(|(a, b)| (a - b) * factor)
-                .collect();
+            let mut j = vec![0.0; latent];
+            for frame in 0..context_frames {
+                let entry = |sign: usize| &means[((frame * 3 + k) * 2 + sign) * latent..][..latent];
+                for (v, (a, b)) in j.iter_mut().zip(entry(0).iter().zip(entry(1))) {
+                    *v += (a - b) * factor;
+                }
+            }
             let tiled = j.repeat(context_frames);
             Tensor::upload(gpu, "recentre.axis", &shape, &tiled, precision)
         };

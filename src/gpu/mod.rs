@@ -92,6 +92,8 @@ pub enum GpuError {
     BufferTooLarge { label: String, size: u64, max: u64 },
     #[error("GPU readback of '{label}' failed: {reason}")]
     Readback { label: String, reason: String },
+    #[error("{what} is more than this GPU path handles: {limit}")]
+    TooLarge { what: String, limit: String },
 }
 
 /// The backends to try: `WGPU_BACKEND` if set, else the native APIs (Vulkan, Metal,

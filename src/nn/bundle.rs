@@ -145,6 +145,12 @@ impl Bundle {
 /// A 1-D int32 tensor of indices, each below `bound`.
 fn indices(file: &TensorFile, name: &str, bound: usize) -> Result<Vec<u32>, LoadError> {
     let (values, _) = file.i32(name, &[None])?;
+    if values.is_empty() {
+        return Err(LoadError::Manifest {
+            path: file.path().display().to_string(),
+            problem: format!("'{name}' is empty"),
+        });
+    }
     match values.iter().find(|&&v| v < 0 || v as usize >= bound) {
         Some(bad) => Err(LoadError::Manifest {
             path: file.path().display().to_string(),
@@ -181,21 +187,29 @@ pub fn read_manifest(path: &Path) -> Result<Manifest, LoadError> {
     }
     let manifest: Manifest = serde_json::from_value(value).map_err(|e| fail(e.to_string()))?;
     let (unet, diffusion) = (&manifest.unet, &manifest.diffusion);
+    let names: Vec<String> = crate::action::Action::ALL
+        .iter()
+        .map(|a| a.to_string())
+        .collect();
     let problem = if diffusion.schedule != "scaled_linear" || diffusion.prediction != "epsilon" {
         Some(format!(
             "diffusion '{}' with '{}' prediction; this engine runs scaled_linear with epsilon",
             diffusion.schedule, diffusion.prediction
         ))
-    } else if manifest.actions.len() != unet.actions {
+    } else if manifest.actions != names || unet.actions != names.len() {
         Some(format!(
-            "{} action names for {} actions",
-            manifest.actions.len(),
-            unet.actions
+            "actions {:?} ({} in the UNet); this engine drives {names:?}",
+            manifest.actions, unet.actions
         ))
     } else if unet.frames < 2 {
         Some(format!(
             "groups of {} frames; at least 2 are needed",
             unet.frames
+        ))
+    } else if unet.heads == 0 || unet.embed == 0 || unet.embed % 2 != 0 {
+        Some(format!(
+            "{} heads and a {}-value embedding: at least one head and an even embedding are needed",
+            unet.heads, unet.embed
         ))
     } else if unet
         .channels
@@ -211,13 +225,8 @@ pub fn read_manifest(path: &Path) -> Result<Manifest, LoadError> {
             "position maps of {} pixels; this engine's VAE layout is 128",
             manifest.map_size
         ))
-    } else if manifest.sampler.steps == 0 || manifest.sampler.steps > diffusion.steps {
-        Some(format!(
-            "{} DDIM steps of a {}-step schedule",
-            manifest.sampler.steps, diffusion.steps
-        ))
     } else {
-        None
+        manifest.sampler.check(diffusion.steps).err()
     };
     match problem {
         Some(p) => Err(fail(p)),

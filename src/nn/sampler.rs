@@ -81,6 +81,22 @@ pub struct Sampling {
     pub cfg_scale: f32,
 }
 
+impl Sampling {
+    /// Whether this sampling fits a schedule of `schedule_steps` steps.
+    pub fn check(&self, schedule_steps: usize) -> Result<(), String> {
+        if self.steps == 0 || self.steps > schedule_steps {
+            Err(format!(
+                "{} DDIM steps: between 1 and {schedule_steps} are possible",
+                self.steps
+            ))
+        } else if !self.cfg_scale.is_finite() {
+            Err(format!("CFG scale {} is not a number", self.cfg_scale))
+        } else {
+            Ok(())
+        }
+    }
+}
+
 /// Records the generation of the frame after `context` [N, F-1, C, H, W] under `actions`
 /// (N ids) from `noise` [N, C, H, W]; returns its clean latents [N, C, H, W].
 pub fn sample_next(

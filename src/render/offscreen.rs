@@ -8,7 +8,6 @@ use crate::mesh::Mesh;
 use super::scene::{COLOR_FORMAT, DrawOptions};
 use super::{GpuMesh, OrbitCamera, RenderTarget, SceneRenderer};
 use crate::splat::composite::Compositor;
-use crate::splat::ply::Splat;
 use crate::splat::project::SplatCamera;
 use crate::splat::raster::Rasterizer;
 
@@ -32,14 +31,19 @@ impl Offscreen {
         }
     }
 
-    /// Draws the grid and `splats` from `camera` and reads the image back.
+    pub fn gpu(&self) -> &GpuContext {
+        &self.gpu
+    }
+
+    /// Draws the grid and `count` splats (uploaded with `Rasterizer::upload`) from
+    /// `camera` and reads the image back.
     pub fn render_splats(
         &mut self,
-        splats: &[Splat],
+        splats: &wgpu::Buffer,
+        count: usize,
         camera: &OrbitCamera,
         options: &DrawOptions,
     ) -> Result<image::RgbaImage, GpuError> {
-        let buffer = Rasterizer::upload(&self.gpu, splats)?;
         let (rasterizer, compositor) = self.splatting.get_or_insert_with(|| {
             (
                 Rasterizer::default(),
@@ -61,8 +65,8 @@ impl Offscreen {
         let raster = rasterizer.record(
             &self.gpu,
             &mut encoder,
-            &buffer,
-            splats.len(),
+            splats,
+            count,
             &splat_camera,
             glam::Vec3::ZERO,
         )?;

@@ -229,10 +229,12 @@ fn read_rows(
         .map(|(ty, _)| type_size(ty).expect("checked"))
         .collect();
     let stride: usize = sizes.iter().sum();
-    if body.len() < stride * count {
+    let needed = stride
+        .checked_mul(count)
+        .ok_or(format!("vertex count {count} is too large"))?;
+    if body.len() < needed {
         return Err(format!(
-            "the file is truncated: {count} vertices need {} bytes, {} are there",
-            stride * count,
+            "the file is truncated: {count} vertices need {needed} bytes, {} are there",
             body.len()
         ));
     }
@@ -370,6 +372,12 @@ mod tests {
             (
                 b"ply\nformat ascii 1.0\nelement vertex many\nend_header\n".to_vec(),
                 "bad vertex count",
+            ),
+            (
+                String::from_utf8_lossy(&good)
+                    .replace("element vertex 5", "element vertex 18446744073709551615")
+                    .into_bytes(),
+                "too large",
             ),
         ];
         for (bytes, expected) in cases {

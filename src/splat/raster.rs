@@ -85,8 +85,14 @@ impl From<&Splat> for GpuSplat {
     }
 }
 
-/// Sort entries allowed per splat before entries are dropped (and counted).
+/// Sort entries allowed per splat on average; beyond that, entries are dropped (and
+/// counted in [`Raster::info`]).
 pub const ENTRIES_PER_SPLAT: usize = 16;
+
+/// Sort entries for `count` splats.
+fn capacity(count: usize) -> usize {
+    (count.max(1) * ENTRIES_PER_SPLAT).next_multiple_of(256)
+}
 
 /// What one rasterized frame leaves on the GPU.
 pub struct Raster {
@@ -116,6 +122,30 @@ impl Rasterizer {
         )
     }
 
+    /// Whether `count` splats fit the device's storage bindings (the sort buffers are the
+    /// largest: 4 bytes per entry).
+    pub fn fits(gpu: &GpuContext, count: usize) -> Result<(), GpuError> {
+        let bytes = (4 * capacity(count)).max(count * std::mem::size_of::<ProjectedSplat>()) as u64;
+        if bytes > gpu.max_storage_binding() {
+            return Err(GpuError::TooLarge {
+                what: format!("{count} splats"),
+                limit: format!(
+                    "{} splats on this adapter ({} bytes per storage binding)",
+                    gpu.max_storage_binding() as usize / (4 * ENTRIES_PER_SPLAT),
+                    gpu.max_storage_binding()
+                ),
+            });
+        }
+        Ok(())
+    }
+
+    /// Replaces the splats in a buffer made by [`Rasterizer::upload`] with as many new ones.
+    pub fn write(gpu: &GpuContext, buffer: &wgpu::Buffer, splats: &[Splat]) {
+        let data: Vec<GpuSplat> = splats.iter().map(GpuSplat::from).collect();
+        gpu.queue
+            .write_buffer(buffer, 0, bytemuck::cast_slice(&data));
+    }
+
     /// Records the rasterization of `count` splats from `camera` over `background`.
     pub fn record(
         &mut self,
@@ -127,12 +157,15 @@ impl Rasterizer {
         background: Vec3,
     ) -> Result<Raster, GpuError> {
         let (tiles_x, tiles_y) = camera.tiles();
-        assert!(
-            tiles_x * tiles_y <= 1 << 16,
-            "at most 65,536 tiles (4096 × 4096 pixels)"
-        );
+        if tiles_x * tiles_y > 1 << 16 {
+            return Err(GpuError::TooLarge {
+                what: format!("a {} × {} splat image", camera.width, camera.height),
+                limit: "65,536 tiles of 16 × 16 pixels (e.g. 4096 × 4096)".into(),
+            });
+        }
+        Self::fits(gpu, count)?;
         let count = count.max(1);
-        let capacity = (count * ENTRIES_PER_SPLAT).next_multiple_of(256);
+        let capacity = capacity(count);
         let frame = SplatFrame {
             view: camera.view,
             fx: camera.fx,
