@@ -199,13 +199,18 @@ impl UnicaApp {
                 let dir = recorder.dir.clone();
                 self.message = Some(match recorder.stop() {
                     Ok(n) => {
+                        // Encoding takes seconds: it runs beside the window.
                         let video = match recorder::find_ffmpeg() {
-                            None => String::new(),
+                            None => "",
                             Some(ffmpeg) => {
-                                match recorder::encode_mp4(&ffmpeg, &dir, self.options.record_fps) {
-                                    Ok(mp4) => format!(" and {}", mp4.display()),
-                                    Err(e) => format!(" (no MP4: {e})"),
-                                }
+                                let (dir, fps) = (dir.clone(), self.options.record_fps);
+                                std::thread::spawn(move || {
+                                    match recorder::encode_mp4(&ffmpeg, &dir, fps) {
+                                        Ok(mp4) => log::info!("wrote {}", mp4.display()),
+                                        Err(e) => log::error!("no MP4: {e}"),
+                                    }
+                                });
+                                "; session.mp4 is being encoded"
                             }
                         };
                         format!("Recorded {n} frames to {}{video}", dir.display())
