@@ -49,16 +49,29 @@ fn camera(width: u32, height: u32) -> SplatCamera {
     SplatCamera::new(&orbit, width, height)
 }
 
-/// Renders on the GPU; returns the image and [entries kept, entries wanted].
-fn gpu_render(splats: &[Splat], cam: &SplatCamera, background: Vec3) -> (Vec<[f32; 4]>, [u32; 2]) {
+/// Renders on the GPU; returns the image and [entries kept, entries wanted]. With
+/// `warm_up`, the same rasterizer first draws those splats (same count and size, so its
+/// kept buffers are reused: nothing of that frame may leak into this one).
+fn gpu_render(
+    splats: &[Splat],
+    warm_up: Option<&[Splat]>,
+    cam: &SplatCamera,
+    background: Vec3,
+) -> (Vec<[f32; 4]>, [u32; 2]) {
     let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
-    let buffer = Rasterizer::upload(&gpu, splats).unwrap();
     let mut rasterizer = Rasterizer::default();
-    let mut encoder = gpu.device.create_command_encoder(&Default::default());
-    let raster = rasterizer
-        .record(&gpu, &mut encoder, &buffer, splats.len(), cam, background)
-        .unwrap();
-    gpu.queue.submit([encoder.finish()]);
+    let mut raster = None;
+    for scene in warm_up.into_iter().chain([splats]) {
+        let buffer = Rasterizer::upload(&gpu, scene).unwrap();
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        raster = Some(
+            rasterizer
+                .record(&gpu, &mut encoder, &buffer, scene.len(), cam, background)
+                .unwrap(),
+        );
+        gpu.queue.submit([encoder.finish()]);
+    }
+    let raster = raster.expect("one frame at least");
     let image = readback::buffer(&gpu, &raster.image, "image").unwrap();
     let info = readback::buffer(&gpu, &raster.info, "info").unwrap();
     let info: Vec<u32> = bytemuck::pod_collect_to_vec(&info);
@@ -69,9 +82,9 @@ fn gpu_render(splats: &[Splat], cam: &SplatCamera, background: Vec3) -> (Vec<[f3
     )
 }
 
-fn compare(splats: &[Splat], cam: &SplatCamera) {
+fn compare(splats: &[Splat], warm_up: Option<&[Splat]>, cam: &SplatCamera) {
     let background = Vec3::new(0.1, 0.2, 0.3);
-    let (got, info) = gpu_render(splats, cam, background);
+    let (got, info) = gpu_render(splats, warm_up, cam, background);
     assert_eq!(info[0], info[1], "no sort entry dropped");
     assert!(info[0] > 0, "something is on screen");
     let want = render_reference(splats, cam, background);
@@ -102,14 +115,26 @@ fn compare(splats: &[Splat], cam: &SplatCamera) {
 
 #[test]
 fn the_rasterizer_matches_the_reference_on_a_small_scene() {
-    compare(&scene(300), &camera(64, 48));
+    compare(&scene(300), None, &camera(64, 48));
 }
 
 #[test]
 fn the_rasterizer_matches_the_reference_off_the_tile_grid_and_with_deep_scans() {
     // 100 × 70 pixels (partial tiles) and 5,000 splats: 80,000 sort entries, so the
     // histogram scan needs two levels of block sums.
-    compare(&scene(5000), &camera(100, 70));
+    compare(&scene(5000), None, &camera(100, 70));
+}
+
+#[test]
+fn a_second_frame_reusing_the_buffers_shows_only_its_own_splats() {
+    let first: Vec<Splat> = scene(300)
+        .into_iter()
+        .map(|s| Splat {
+            position: s.position * 0.5 + Vec3::X * 0.4,
+            ..s
+        })
+        .collect();
+    compare(&scene(300), Some(&first), &camera(64, 48));
 }
 
 #[test]

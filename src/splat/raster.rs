@@ -102,9 +102,54 @@ pub struct Raster {
     pub info: wgpu::Buffer,
 }
 
+/// The working buffers of one (splat count, image size), kept between frames.
+struct Buffers {
+    key: (usize, u32, u32),
+    projected: wgpu::Buffer,
+    touched: wgpu::Buffer,
+    offsets: wgpu::Buffer,
+    keys: [wgpu::Buffer; 2],
+    values: [wgpu::Buffer; 2],
+    info: wgpu::Buffer,
+    ranges: wgpu::Buffer,
+    image: wgpu::Buffer,
+    hist: wgpu::Buffer,
+}
+
+impl Buffers {
+    fn new(gpu: &GpuContext, count: usize, camera: &SplatCamera) -> Result<Self, GpuError> {
+        let (tiles_x, tiles_y) = camera.tiles();
+        let capacity = capacity(count);
+        let buffer =
+            |label: &str, bytes: usize| gpu.storage_buffer(label, bytes.max(4) as u64, STORAGE);
+        Ok(Self {
+            key: (count, camera.width, camera.height),
+            projected: buffer(
+                "splat.projected",
+                count * std::mem::size_of::<ProjectedSplat>(),
+            )?,
+            touched: buffer("splat.touched", 4 * count)?,
+            offsets: buffer("splat.offsets", 4 * count)?,
+            keys: [
+                buffer("splat.keys", 4 * capacity)?,
+                buffer("splat.keys2", 4 * capacity)?,
+            ],
+            values: [
+                buffer("splat.values", 4 * capacity)?,
+                buffer("splat.values2", 4 * capacity)?,
+            ],
+            info: buffer("splat.info", 8)?,
+            ranges: buffer("splat.ranges", 8 * (tiles_x * tiles_y) as usize)?,
+            image: buffer("splat.image", 16 * (camera.width * camera.height) as usize)?,
+            hist: buffer("splat.hist", 4 * capacity)?,
+        })
+    }
+}
+
 #[derive(Default)]
 pub struct Rasterizer {
     pipelines: PipelineCache,
+    buffers: Option<Buffers>,
 }
 
 const STORAGE: wgpu::BufferUsages = wgpu::BufferUsages::STORAGE
@@ -183,27 +228,12 @@ impl Rasterizer {
             background: background.extend(1.0).to_array(),
         };
         let frame = uniform(&gpu.device, &frame);
-        let buffer =
-            |label: &str, bytes: usize| gpu.storage_buffer(label, bytes.max(4) as u64, STORAGE);
-        let projected = buffer(
-            "splat.projected",
-            count * std::mem::size_of::<ProjectedSplat>(),
-        )?;
-        let touched = buffer("splat.touched", 4 * count)?;
-        let offsets = buffer("splat.offsets", 4 * count)?;
-        let keys = [
-            buffer("splat.keys", 4 * capacity)?,
-            buffer("splat.keys2", 4 * capacity)?,
-        ];
-        let values = [
-            buffer("splat.values", 4 * capacity)?,
-            buffer("splat.values2", 4 * capacity)?,
-        ];
-        let info = buffer("splat.info", 8)?;
-        let ranges = buffer("splat.ranges", 8 * (tiles_x * tiles_y) as usize)?;
-        let image = buffer("splat.image", 16 * (camera.width * camera.height) as usize)?;
+        let key = (count, camera.width, camera.height);
+        if self.buffers.as_ref().is_none_or(|b| b.key != key) {
+            self.buffers = Some(Buffers::new(gpu, count, camera)?);
+        }
+        let b = self.buffers.take().expect("made above");
         let blocks = capacity / 256;
-        let hist = buffer("splat.hist", 4 * 256 * blocks)?;
 
         let max = gpu.device.limits().max_compute_workgroups_per_dimension;
         let threads = |n: usize| Grid::for_elements(n as u32, max);
@@ -212,13 +242,19 @@ impl Rasterizer {
             gpu,
             encoder,
             &shaders::SPLAT_PROJECT,
-            &[&frame, splats, &projected, &touched],
+            &[&frame, splats, &b.projected, &b.touched],
             threads(count),
         );
-        encoder.copy_buffer_to_buffer(&touched, 0, &offsets, 0, 4 * count as u64);
-        self.scan(gpu, encoder, &offsets, count)?;
+        encoder.copy_buffer_to_buffer(&b.touched, 0, &b.offsets, 0, 4 * count as u64);
+        self.scan(gpu, encoder, &b.offsets, count)?;
         let bindings = [
-            &frame, &projected, &touched, &offsets, &keys[0], &values[0], &info,
+            &frame,
+            &b.projected,
+            &b.touched,
+            &b.offsets,
+            &b.keys[0],
+            &b.values[0],
+            &b.info,
         ];
         self.run(
             gpu,
@@ -238,7 +274,7 @@ impl Rasterizer {
                     reserved1: 0,
                 },
             );
-            let bindings = [&params, &keys[from], &info, &hist];
+            let bindings = [&params, &b.keys[from], &b.info, &b.hist];
             self.run(
                 gpu,
                 encoder,
@@ -246,15 +282,15 @@ impl Rasterizer {
                 &bindings,
                 groups(blocks),
             );
-            self.scan(gpu, encoder, &hist, 256 * blocks)?;
+            self.scan(gpu, encoder, &b.hist, 256 * blocks)?;
             let bindings = [
                 &params,
-                &keys[from],
-                &values[from],
-                &info,
-                &hist,
-                &keys[to],
-                &values[to],
+                &b.keys[from],
+                &b.values[from],
+                &b.info,
+                &b.hist,
+                &b.keys[to],
+                &b.values[to],
             ];
             self.run(
                 gpu,
@@ -264,15 +300,15 @@ impl Rasterizer {
                 groups(blocks),
             );
         }
-        encoder.clear_buffer(&ranges, 0, None);
+        encoder.clear_buffer(&b.ranges, 0, None);
         self.run(
             gpu,
             encoder,
             &shaders::SPLAT_RANGES,
-            &[&keys[0], &info, &ranges],
+            &[&b.keys[0], &b.info, &b.ranges],
             threads(capacity),
         );
-        let bindings = [&frame, &projected, &values[0], &ranges, &image];
+        let bindings = [&frame, &b.projected, &b.values[0], &b.ranges, &b.image];
         self.run(
             gpu,
             encoder,
@@ -280,7 +316,12 @@ impl Rasterizer {
             &bindings,
             groups((tiles_x * tiles_y) as usize),
         );
-        Ok(Raster { image, info })
+        let raster = Raster {
+            image: b.image.clone(),
+            info: b.info.clone(),
+        };
+        self.buffers = Some(b);
+        Ok(raster)
     }
 
     /// Records an exclusive prefix sum of the first `len` u32 of `data`, in place.
