@@ -217,28 +217,25 @@ fn models(
         "{:<8} {:<4} {:<36} {:>8} {:>10} {:>9}",
         "model", "prec", "what", "GFLOP", "median ms", "GFLOP/s"
     )?;
-    let tiny = (
-        UNetConfig {
-            channels: [16, 32],
-            embed: 32,
-            heads: 2,
-            ..default_unet()
-        },
-        tiny_vae(),
-    );
     let mut pipelines = PipelineCache::default();
     for &precision in precisions {
         let mut list = Vec::new();
         if options.tiny {
-            list.push(random_model(gpu, precision, "tiny", &tiny.0, &tiny.1)?);
+            list.push(random_model(
+                gpu,
+                precision,
+                "tiny",
+                &UNetConfig::TINY,
+                &VaeConfig::TINY,
+            )?);
         }
         if options.default {
             list.push(random_model(
                 gpu,
                 precision,
                 "default",
-                &default_unet(),
-                &default_vae(),
+                &UNetConfig::DEFAULT,
+                &VaeConfig::DEFAULT,
             )?);
         }
         if let Some(dir) = &options.bundle {
@@ -267,31 +264,6 @@ fn models(
         }
     }
     Ok(())
-}
-
-fn default_unet() -> UNetConfig {
-    UNetConfig {
-        latent: 4,
-        channels: [64, 128],
-        embed: 128,
-        heads: 4,
-        frames: 4,
-        actions: 5,
-    }
-}
-
-fn default_vae() -> VaeConfig {
-    VaeConfig {
-        channels: [64, 48, 24, 12],
-        latent: 4,
-    }
-}
-
-fn tiny_vae() -> VaeConfig {
-    VaeConfig {
-        channels: [16, 12, 8, 8],
-        latent: 4,
-    }
 }
 
 fn random_model(

@@ -35,22 +35,6 @@ fn tolerances(precision: Precision) -> (f32, f32) {
     }
 }
 
-const TINY_VAE: VaeConfig = VaeConfig {
-    channels: [16, 12, 8, 8],
-    latent: 4,
-};
-
-fn tiny_unet() -> UNetConfig {
-    UNetConfig {
-        latent: 4,
-        channels: [16, 32],
-        embed: 32,
-        heads: 2,
-        frames: 4,
-        actions: 5,
-    }
-}
-
 /// One fixture file, a device and a pipeline cache.
 struct Fixture {
     file: TensorFile,
@@ -321,7 +305,7 @@ fn the_vae_encoder_mean_matches_pytorch() {
         "io.out.mean",
         Scope::Model,
         |r, w, x| {
-            let mean = Encoder::load(w, &TINY_VAE)
+            let mean = Encoder::load(w, &VaeConfig::TINY)
                 .unwrap()
                 .forward(r, &x[0])
                 .unwrap();
@@ -339,7 +323,7 @@ fn the_vae_decoder_matches_pytorch() {
         "io.out.y",
         Scope::Model,
         |r, w, z| {
-            let y = Decoder::load(w, &TINY_VAE)
+            let y = Decoder::load(w, &VaeConfig::TINY)
                 .unwrap()
                 .forward(r, &z[0])
                 .unwrap();
@@ -360,7 +344,7 @@ fn a_whole_unet_step_matches_pytorch() {
         let mut f = Fixture::open("unet_step", precision);
         let (x, t, a) = (f.input("io.in.x"), f.stored("io.in.t").0, action(&f));
         let (mut r, w) = f.recorder();
-        let unet = UNet::load(&w, &tiny_unet()).unwrap();
+        let unet = UNet::load(&w, &UNetConfig::TINY).unwrap();
         let eps = unet.groups(&mut r, &x, &t, &[a]).unwrap();
         r.submit();
         assert_eq!(eps.shape, [1, 4, 4, 16, 16]);
@@ -393,7 +377,7 @@ fn the_cached_context_path_gives_the_whole_groups_target_noise() {
     assert_eq!(shape, [1, 4, 4, 16, 16]);
     let (t, a) = (f.stored("io.in.t").0, action(&f));
     let (mut r, w) = f.recorder();
-    let unet = UNet::load(&w, &tiny_unet()).unwrap();
+    let unet = UNet::load(&w, &UNetConfig::TINY).unwrap();
     let cache = unet.context(&mut r, &context, &[a]).unwrap();
     let eps = unet.next(&mut r, &target, t[3], &cache).unwrap();
     r.submit();
@@ -453,7 +437,7 @@ fn a_ddim_step_with_classifier_free_guidance_matches_pytorch() {
         );
         let t = f.stored("io.in.t").0[3] as i64;
         let (mut r, w) = f.recorder();
-        let unet = UNet::load(&w, &tiny_unet()).unwrap();
+        let unet = UNet::load(&w, &UNetConfig::TINY).unwrap();
         let both = r.concat(&context, &context, 0).unwrap();
         let cache = unet
             .context(&mut r, &both, &[a, unet.cfg.null_action()])
@@ -478,7 +462,7 @@ fn a_four_step_ddim_sample_matches_pytorch() {
             cfg_scale: f.scalar("io.in.cfg_scale"),
         };
         let (mut r, w) = f.recorder();
-        let unet = UNet::load(&w, &tiny_unet()).unwrap();
+        let unet = UNet::load(&w, &UNetConfig::TINY).unwrap();
         let x0 = sampler::sample_next(&mut r, &unet, &schedule(), &context, &[a], &noise, sampling)
             .unwrap();
         r.submit();
@@ -585,7 +569,7 @@ fn the_recorded_flops_agree_with_the_trainers_counter() {
     let mut f = Fixture::open("unet_step", Precision::F32);
     let (x, t, a) = (f.input("io.in.x"), f.stored("io.in.t").0, action(&f));
     let (mut r, w) = f.recorder();
-    let unet = UNet::load(&w, &tiny_unet()).unwrap();
+    let unet = UNet::load(&w, &UNetConfig::TINY).unwrap();
     unet.groups(&mut r, &x, &t, &[a]).unwrap();
     let unet_flops = r.flops() as f64;
     assert!(
@@ -596,7 +580,7 @@ fn the_recorded_flops_agree_with_the_trainers_counter() {
     let mut f = Fixture::open("vae_decoder", Precision::F32);
     let z = f.input("io.in.z");
     let (mut r, w) = f.recorder();
-    Decoder::load(&w, &TINY_VAE)
+    Decoder::load(&w, &VaeConfig::TINY)
         .unwrap()
         .forward(&mut r, &z)
         .unwrap();

@@ -26,6 +26,24 @@ pub struct UNetConfig {
 }
 
 impl UNetConfig {
+    /// The trainer's default (`UNetConfig()` in train/unica_train/unet.py).
+    pub const DEFAULT: Self = Self {
+        latent: 4,
+        channels: [64, 128],
+        embed: 128,
+        heads: 4,
+        frames: 4,
+        actions: 5,
+    };
+
+    /// The parity fixtures' tiny UNet (`TINY_UNET` in train/unica_train/fixtures.py).
+    pub const TINY: Self = Self {
+        channels: [16, 32],
+        embed: 32,
+        heads: 2,
+        ..Self::DEFAULT
+    };
+
     /// The action id of the unconditional (null) token used by classifier-free guidance.
     pub fn null_action(&self) -> usize {
         self.actions

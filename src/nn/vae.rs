@@ -18,6 +18,20 @@ pub struct VaeConfig {
     pub latent: usize,
 }
 
+impl VaeConfig {
+    /// The trainer's default (`VaeConfig()` in train/unica_train/vae.py).
+    pub const DEFAULT: Self = Self {
+        channels: [64, 48, 24, 12],
+        latent: 4,
+    };
+
+    /// The parity fixtures' tiny VAE (`TINY_VAE` in train/unica_train/fixtures.py).
+    pub const TINY: Self = Self {
+        channels: [16, 12, 8, 8],
+        latent: 4,
+    };
+}
+
 pub struct Encoder {
     conv_in: Conv,
     down: Vec<Conv>,
