@@ -35,6 +35,19 @@ fn tolerances(precision: Precision) -> (f32, f32) {
     }
 }
 
+/// The largest absolute difference.
+fn worst_difference(got: &[f32], want: &[f32]) -> f32 {
+    got.iter()
+        .zip(want)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max)
+}
+
+/// The error measure of the module header: worst difference / max(1, max |want|).
+fn relative_error(got: &[f32], want: &[f32]) -> f32 {
+    worst_difference(got, want) / want.iter().fold(1.0f32, |m, v| m.max(v.abs()))
+}
+
 /// One fixture file, a device and a pipeline cache.
 struct Fixture {
     file: TensorFile,
@@ -88,14 +101,7 @@ impl Fixture {
             "{name}: {:?} vs {shape:?}",
             got.shape
         );
-        let got = got.read(&self.gpu).unwrap();
-        let worst = got
-            .iter()
-            .zip(&want)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max);
-        let scale = want.iter().fold(1.0f32, |m, v| m.max(v.abs()));
-        worst / scale
+        relative_error(&got.read(&self.gpu).unwrap(), &want)
     }
 
     fn assert_close(&self, got: &Tensor, name: &str, tolerance: f32) {
@@ -276,11 +282,7 @@ fn the_last_frame_from_cached_rows_equals_the_whole_group() {
             .flat_map(|g| out[(4 * g + 3) * frame..(4 * g + 4) * frame].to_vec())
             .collect()
     };
-    let worst = got
-        .iter()
-        .zip(&want)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0f32, f32::max);
+    let worst = worst_difference(&got, &want);
     assert!(worst <= 1e-4, "{worst}");
 }
 
@@ -383,13 +385,8 @@ fn the_cached_context_path_gives_the_whole_groups_target_noise() {
     r.submit();
     let got = eps.read(&f.gpu).unwrap();
     let want = &f.stored("io.out.eps").0[3 * frame..];
-    let scale = want.iter().fold(1.0f32, |m, v| m.max(v.abs()));
-    let worst = got
-        .iter()
-        .zip(want)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0f32, f32::max);
-    assert!(worst / scale <= 1e-4, "{}", worst / scale);
+    let error = relative_error(&got, want);
+    assert!(error <= 1e-4, "{error}");
 }
 
 fn schedule() -> Schedule {

@@ -89,14 +89,14 @@ impl Profiler {
         name: &str,
         record: impl FnOnce(&mut wgpu::CommandEncoder, Option<PassTimer<'_>>),
     ) {
-        let mut encoder = gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(name) });
         let slot = self
             .queries
             .as_ref()
             .filter(|_| self.next_query < MAX_TIMESTAMP_STAGES * 2);
         if let Some(queries) = slot {
+            let mut encoder = gpu
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(name) });
             let begin = self.next_query;
             record(
                 &mut encoder,
