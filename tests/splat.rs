@@ -199,3 +199,52 @@ fn the_gpu_upscale_matches_the_cpu_reference() {
         .fold(0.0f32, f32::max);
     assert!(worst <= 1e-5, "values differ by {worst}");
 }
+
+/// The trainer's base splats of a real map (the Witch bundle's mean PCA frame, fixture
+/// `base_splats`) against src/splat/base.rs. Tolerances: positions, scales, normals and
+/// features come from the same f32 arithmetic in another order (errors ~1e-7 of values
+/// ≤ 1; 1e-5 absolute). Quaternion components come from square roots of 1 ± diagonal
+/// sums, which turn a 1e-7 rounding near zero into ~3e-4, so rotations are compared as
+/// the rotated axes (1e-4) instead.
+#[test]
+fn base_splats_match_the_trainer_on_a_real_map() {
+    use unica::splat::base;
+    use unica::tensors::TensorFile;
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/nn/base_splats.safetensors");
+    let file = TensorFile::open(&path).unwrap();
+    let get = |name: &str, rank: usize| file.f32(name, &vec![None; rank]).unwrap().0;
+    let vec3s =
+        |name: &str| -> Vec<Vec3> { get(name, 2).chunks_exact(3).map(Vec3::from_slice).collect() };
+    let unit = vec3s("io.in.unit");
+    let colors = vec3s("io.in.colors");
+    let pixels: Vec<u32> = get("io.in.pixels", 1).iter().map(|&p| p as u32).collect();
+    let neighbours = base::neighbours(&pixels, 128);
+    let t = base::tangents(&unit, &neighbours);
+    assert!((t.median - get("io.out.median", 1)[0]).abs() < 1e-7);
+    let (splats, normals) = base::base_splats(&unit, &colors, &t);
+    let worst = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max)
+    };
+    let flat = |v: &[Vec3]| -> Vec<f32> { v.iter().flat_map(|p| p.to_array()).collect() };
+    let scales: Vec<Vec3> = splats.iter().map(|s| s.scale).collect();
+    assert!(worst(&flat(&scales), &get("io.out.scales", 2)) < 1e-5);
+    assert!(worst(&flat(&normals), &get("io.out.normals", 2)) < 1e-5);
+    let features = base::features(&unit, &splats, &normals, t.median);
+    let error = worst(&features, &get("io.out.features", 2));
+    println!("features: worst difference {error:.1e}");
+    assert!(error < 1e-4);
+    let rotations = get("io.out.rotations", 2);
+    let mut worst_axis = 0.0f32;
+    for (s, q) in splats.iter().zip(rotations.chunks_exact(4)) {
+        let want = Quat::from_xyzw(q[0], q[1], q[2], q[3]).normalize();
+        for axis in [Vec3::X, Vec3::Y, Vec3::Z] {
+            worst_axis = worst_axis.max((s.rotation * axis).distance(want * axis));
+        }
+    }
+    println!("rotated axes: worst difference {worst_axis:.1e}");
+    assert!(worst_axis < 1e-4);
+}

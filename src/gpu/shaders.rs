@@ -155,7 +155,7 @@ macro_rules! shader {
 use super::kernel::{ElementwiseParams, Precision, ReduceParams};
 use crate::nn::ops::{
     AddParams, AttentionParams, AxpbyParams, ConcatParams, Conv2dParams, EmbeddingParams,
-    GroupNormParams, LinearParams, PermuteParams, UpsampleParams,
+    GatherParams, GroupNormParams, LinearParams, PermuteParams, SegmentParams, UpsampleParams,
 };
 use crate::render::SceneUniforms;
 use crate::splat::composite::CompositeParams;
@@ -196,6 +196,8 @@ pub const SPLAT_COMPOSITE: Shader =
 pub const UPSCALE_MAP: Shader =
     shader!("upscale_map.wgsl", [UpscaleParams], f16: false, subgroups: false);
 pub const TIMESTEP_EMBEDDING: Shader = shader!("timestep_embedding.wgsl", [EmbeddingParams], elem);
+pub const GATHER: Shader = shader!("gather.wgsl", [GatherParams], elem);
+pub const SEGMENT_MEAN: Shader = shader!("segment_mean.wgsl", [SegmentParams], elem);
 
 /// Every shader of the crate; a test checks this covers every file in `shaders/`.
 pub const ALL: &[Shader] = &[
@@ -223,4 +225,6 @@ pub const ALL: &[Shader] = &[
     SPLAT_RENDER,
     SPLAT_COMPOSITE,
     UPSCALE_MAP,
+    GATHER,
+    SEGMENT_MEAN,
 ];

@@ -5,7 +5,9 @@
 pub mod bundle;
 pub mod layers;
 pub mod ops;
+pub mod refiner;
 pub mod sampler;
+pub mod serialise;
 mod tensor;
 pub mod unet;
 pub mod vae;

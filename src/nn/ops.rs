@@ -132,6 +132,24 @@ gpu_struct! {
     }
 }
 
+gpu_struct! {
+    pub struct GatherParams {
+        pub rows: u32,
+        pub width: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
+    }
+}
+
+gpu_struct! {
+    pub struct SegmentParams {
+        pub rows: u32,
+        pub width: u32,
+        pub stride: u32,
+        pub reserved: u32,
+    }
+}
+
 /// The epsilon of every group norm in the trainer's models.
 pub const GROUP_NORM_EPS: f32 = 1e-5;
 
@@ -152,6 +170,12 @@ pub enum Broadcast {
 /// panic; running out of buffer space is a [`GpuError`]. It counts the FLOPs it records
 /// as the trainer's counter does (2 per multiply-add of convolutions, linear layers and
 /// both attention products over all keys; norms and element-wise work not counted).
+/// Row indices in a u32 storage buffer (for [`Recorder::gather`]).
+pub struct Indices {
+    buffer: wgpu::Buffer,
+    len: usize,
+}
+
 pub struct Recorder<'a> {
     gpu: &'a GpuContext,
     pipelines: &'a mut PipelineCache,
@@ -255,9 +279,21 @@ impl<'a> Recorder<'a> {
         grid: Grid,
     ) {
         self.check(buffers);
+        let buffers: Vec<&wgpu::Buffer> = buffers.iter().map(|t| &t.buffer).collect();
+        self.launch_buffers(shader, params, &buffers, grid);
+    }
+
+    /// Records one dispatch of `shader` with `params` at binding 0, then `buffers`.
+    fn launch_buffers<P: bytemuck::Pod>(
+        &mut self,
+        shader: &Shader,
+        params: &P,
+        buffers: &[&wgpu::Buffer],
+        grid: Grid,
+    ) {
         let params = uniform(&self.gpu.device, params);
         let bindings: Vec<&wgpu::Buffer> = std::iter::once(&params)
-            .chain(buffers.iter().map(|t| &t.buffer))
+            .chain(buffers.iter().copied())
             .collect();
         let pipeline = self.pipelines.get(&self.gpu.device, shader, self.precision);
         dispatch(
@@ -598,6 +634,65 @@ impl<'a> Recorder<'a> {
                 row_bytes,
             );
         }
+        Ok(y)
+    }
+
+    /// Host row indices uploaded for [`Recorder::gather`].
+    pub fn indices(&self, label: &str, values: &[u32]) -> Result<Indices, GpuError> {
+        let bytes = (values.len().max(1) * 4) as u64;
+        let buffer = self
+            .gpu
+            .storage_buffer(label, bytes, wgpu::BufferUsages::COPY_DST)?;
+        self.gpu
+            .queue
+            .write_buffer(&buffer, 0, bytemuck::cast_slice(values));
+        Ok(Indices {
+            buffer,
+            len: values.len(),
+        })
+    }
+
+    /// `y[i, :] = x[index[i], :]` for a [R, D] `x`; the caller keeps indices below R.
+    pub fn gather(&mut self, x: &Tensor, index: &Indices) -> Result<Tensor, GpuError> {
+        let [_, width] = x.shape[..] else {
+            panic!("gather needs a [rows, width] tensor, got {:?}", x.shape)
+        };
+        self.check(&[x]);
+        let y = self.output("gather.y", &[index.len, width])?;
+        let params = GatherParams {
+            rows: index.len as u32,
+            width: width as u32,
+            reserved0: 0,
+            reserved1: 0,
+        };
+        let grid = self.grid(y.len());
+        self.launch_buffers(
+            &shaders::GATHER,
+            &params,
+            &[&index.buffer, &x.buffer, &y.buffer],
+            grid,
+        );
+        Ok(y)
+    }
+
+    /// The mean of each run of `stride` consecutive rows of a [R, D] `x` (the last run
+    /// may be shorter): [ceil(R / stride), D].
+    pub fn segment_mean(&mut self, x: &Tensor, stride: usize) -> Result<Tensor, GpuError> {
+        let [rows, width] = x.shape[..] else {
+            panic!(
+                "segment mean needs a [rows, width] tensor, got {:?}",
+                x.shape
+            )
+        };
+        let y = self.output("segment_mean.y", &[rows.div_ceil(stride), width])?;
+        let params = SegmentParams {
+            rows: rows as u32,
+            width: width as u32,
+            stride: stride as u32,
+            reserved: 0,
+        };
+        let grid = self.grid(y.len());
+        self.launch(&shaders::SEGMENT_MEAN, &params, &[x, &y], grid);
         Ok(y)
     }
 }

@@ -4,6 +4,7 @@
 //! refiner are open work (issue #6).
 
 pub mod align;
+pub mod base;
 pub mod composite;
 pub mod ply;
 pub mod project;

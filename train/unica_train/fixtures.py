@@ -18,8 +18,10 @@ from pathlib import Path
 import torch
 from safetensors.torch import save_file
 
-from . import bundle, pca
+from . import bundle, pca, splats
 from .diffusion import Schedule, ddim_step, guided_eps, sample_next
+from .refiner import Refiner, RefinerConfig, features
+from .refiner import apply as apply_residuals
 from .layers import CrossAttention, Down, ResBlock, SpatialAttention, TemporalAttention, Up, timestep_embedding
 from .unet import UNet, UNetConfig
 from .vae import PositionVae, VaeConfig
@@ -27,6 +29,8 @@ from .vae import PositionVae, VaeConfig
 WITCH_BUNDLE = Path(__file__).resolve().parents[2] / "assets" / "witch" / "bundle"
 TINY_VAE = VaeConfig(channels=(16, 12, 8, 8))
 TINY_UNET = UNetConfig(channels=(16, 32), embed=32, heads=2)
+# 300 points: 18 full patches of 16 and a tail of 12; 75 pooled points: 4 patches + 11.
+TINY_REFINER = RefinerConfig(channels=[16, 32], depths=[1, 1], heads=[2, 2], decoder_depth=1, patch=16, stride=4)
 
 
 def _randomise(module: torch.nn.Module, gen: torch.Generator) -> None:
@@ -83,6 +87,9 @@ def build() -> dict[str, dict[str, torch.Tensor]]:
     files["pca_projection"] = {"io.in.x": query, "io.in.mean": mean, "io.in.basis": basis, "io.out.y": pca.project(query, mean, basis)}
     files["alphas_cumprod"] = {"io.out.alphas_cumprod": schedule.alphas_cumprod}
     files["witch_frame"] = witch_frame(rand(1, 4, 16, 16))
+    unit, feats = rand(300, 3).sigmoid(), rand(300, 11)
+    module_file("refiner", Refiner(TINY_REFINER), {"features": feats, "unit": unit}, lambda m, features, unit: m(features, unit))
+    files["base_splats"], files["witch_refiner"] = witch_splats()
     return {name: {k: v.float().contiguous() for k, v in tensors.items()} for name, tensors in files.items()}
 
 
@@ -96,6 +103,30 @@ def witch_frame(noise: torch.Tensor) -> dict[str, torch.Tensor]:
         z = sample_next(unet, Schedule(), extra["context.latents"][None], action, sampler["ddim_steps"], sampler["cfg_scale"], noise)
         decoded = vae.decode(z / scale)
     return {"io.in.noise": noise, "io.in.action": action.float(), "io.out.z": z, "io.out.map": decoded}
+
+
+def witch_splats() -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+    """Base splats of the Witch bundle's mean PCA frame (a real map: six views, depth
+    jumps) in normalised units, with the refiner's features; and the bundle's trained
+    refiner on them, raw and applied."""
+    _, _, extra, manifest = bundle.load(WITCH_BUNDLE)
+    pixels = extra["map.pixels"].long()
+    unit = extra["pca.mean"].reshape(-1, 3)
+    nbrs = splats.neighbours(pixels, 128)
+    base, normals = splats.base_splats(unit, extra["map.colors"], nbrs)
+    median = splats.median_spacing(unit, nbrs)
+    feats = features(unit, base, normals, median)
+    base_file = {"io.in.unit": unit, "io.in.pixels": pixels.float(), "io.in.colors": extra["map.colors"], "io.out.scales": base.scales,
+                 "io.out.rotations": base.rotations, "io.out.normals": normals, "io.out.median": median[None], "io.out.features": feats}
+    cfg = RefinerConfig(**manifest["refiner"])
+    model = Refiner(cfg)
+    model.load_state_dict({k.removeprefix("refiner."): v for k, v in extra.items() if k.startswith("refiner.")})
+    with torch.no_grad():
+        raw = model(feats, unit)
+        refined = apply_residuals(base, raw, cfg.mean_bound)
+    refined_file = {"io.in.features": feats, "io.in.unit": unit, "io.out.y": raw, "io.out.means": refined.means,
+                    "io.out.scales": refined.scales, "io.out.opacities": refined.opacities}
+    return base_file, refined_file
 
 
 def main(argv=None):

@@ -1,0 +1,21 @@
+// Rows by index (Elem storage): y[i, :] = x[index[i], :] — sorting points into a curve's
+// order, back again, and copying a pooled group's features to its points.
+
+@group(0) @binding(0) var<uniform> p: GatherParams;
+@group(0) @binding(1) var<storage, read> index: array<u32>;
+@group(0) @binding(2) var<storage, read> x: array<Elem>;
+@group(0) @binding(3) var<storage, read_write> y: array<Elem>;
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let i = (group.x + group.y * groups.x) * 64u + lane;
+    if i >= p.rows * p.width {
+        return;
+    }
+    let row = i / p.width;
+    y[i] = x[index[row] * p.width + i % p.width];
+}

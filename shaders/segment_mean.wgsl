@@ -1,0 +1,27 @@
+// Strided pooling (Elem storage, f32 sums): y[g, :] is the mean of rows g·stride ..
+// min((g + 1)·stride, rows) of x, summed in row order (the last group may be shorter).
+
+@group(0) @binding(0) var<uniform> p: SegmentParams;
+@group(0) @binding(1) var<storage, read> x: array<Elem>;
+@group(0) @binding(2) var<storage, read_write> y: array<Elem>;
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let i = (group.x + group.y * groups.x) * 64u + lane;
+    let segments = (p.rows + p.stride - 1u) / p.stride;
+    if i >= segments * p.width {
+        return;
+    }
+    let g = i / p.width;
+    let c = i % p.width;
+    let end = min((g + 1u) * p.stride, p.rows);
+    var total = 0.0;
+    for (var r = g * p.stride; r < end; r++) {
+        total += f32(x[r * p.width + c]);
+    }
+    y[i] = Elem(total / f32(end - g * p.stride));
+}

@@ -1,0 +1,285 @@
+//! The splat refiner (DESIGN §7) on the GPU: a small point transformer (PTv3-style) that
+//! predicts 14 residuals per base splat. Serialisation orders and pooling groups come
+//! from [`super::serialise`] on the CPU; the network — linear layers, layer norms,
+//! attention inside patches of each order, strided pooling and unpooling — runs as WGSL
+//! kernels, pinned to train/unica_train/refiner.py by parity tests.
+
+use glam::Vec3;
+use serde::Deserialize;
+
+use super::ops::{AttentionParams, Indices, Recorder};
+use super::serialise::{self, ORDERS};
+use super::{LoadError, Tensor, Weights};
+use crate::gpu::GpuError;
+use crate::splat::base::RESIDUALS;
+
+/// Inputs per point (see [`crate::splat::base::features`]).
+pub const FEATURES: usize = 11;
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct RefinerConfig {
+    pub channels: [usize; 2],
+    pub depths: [usize; 2],
+    pub heads: [usize; 2],
+    pub decoder_depth: usize,
+    pub patch: usize,
+    pub stride: usize,
+    /// Bound of the mean offsets in normalised units.
+    pub mean_bound: f32,
+}
+
+impl RefinerConfig {
+    /// A config the engine can run, or what is wrong with it.
+    pub fn check(&self) -> Result<(), String> {
+        for (c, h) in self.channels.iter().zip(&self.heads) {
+            if *h == 0 || c % h != 0 || c / h > super::ops::MAX_HEAD_SIZE {
+                return Err(format!(
+                    "refiner: {c} channels in {h} heads (each head at most {} channels)",
+                    super::ops::MAX_HEAD_SIZE
+                ));
+            }
+        }
+        if self.patch == 0 || self.stride == 0 {
+            return Err("refiner: patch and stride must be positive".into());
+        }
+        Ok(())
+    }
+}
+
+/// A layer norm over the last axis: the group-norm kernel with one group per row.
+struct LayerNorm {
+    gamma: Tensor,
+    beta: Tensor,
+}
+
+impl LayerNorm {
+    fn load(w: &Weights, channels: usize) -> Result<Self, LoadError> {
+        Ok(Self {
+            gamma: w.tensor("weight", &[channels])?,
+            beta: w.tensor("bias", &[channels])?,
+        })
+    }
+
+    fn forward(&self, r: &mut Recorder, x: &Tensor) -> Result<Tensor, GpuError> {
+        let [rows, channels] = x.shape[..] else {
+            panic!("layer norm of {:?}", x.shape)
+        };
+        let y = r.group_norm(
+            &x.reshaped(&[rows, channels, 1, 1]),
+            &self.gamma,
+            &self.beta,
+            1,
+            false,
+        )?;
+        Ok(y.reshaped(&[rows, channels]))
+    }
+}
+
+struct Linear {
+    weight: Tensor,
+    bias: Tensor,
+}
+
+impl Linear {
+    fn load(w: &Weights, inputs: usize, outputs: usize) -> Result<Self, LoadError> {
+        Ok(Self {
+            weight: w.tensor("weight", &[outputs, inputs])?,
+            bias: w.tensor("bias", &[outputs])?,
+        })
+    }
+
+    fn forward(&self, r: &mut Recorder, x: &Tensor, silu: bool) -> Result<Tensor, GpuError> {
+        r.linear(x, &self.weight, &self.bias, silu)
+    }
+}
+
+/// One serialisation order on the GPU: the order and its inverse.
+struct Order {
+    sort: Indices,
+    unsort: Indices,
+}
+
+impl Order {
+    fn new(r: &Recorder, order: &[u32]) -> Result<Self, GpuError> {
+        Ok(Self {
+            sort: r.indices("refiner.order", order)?,
+            unsort: r.indices("refiner.unsort", &serialise::inverse(order))?,
+        })
+    }
+}
+
+/// Attention inside patches along an order, then an MLP; both residual.
+struct Block {
+    heads: usize,
+    norm1: LayerNorm,
+    qkv: Linear,
+    proj: Linear,
+    norm2: LayerNorm,
+    fc1: Linear,
+    fc2: Linear,
+}
+
+impl Block {
+    fn load(w: &Weights, channels: usize, heads: usize) -> Result<Self, LoadError> {
+        Ok(Self {
+            heads,
+            norm1: LayerNorm::load(&w.at("norm1"), channels)?,
+            qkv: Linear::load(&w.at("qkv"), channels, 3 * channels)?,
+            proj: Linear::load(&w.at("proj"), channels, channels)?,
+            norm2: LayerNorm::load(&w.at("norm2"), channels)?,
+            fc1: Linear::load(&w.at("fc1"), channels, 2 * channels)?,
+            fc2: Linear::load(&w.at("fc2"), 2 * channels, channels)?,
+        })
+    }
+
+    fn forward(
+        &self,
+        r: &mut Recorder,
+        x: &Tensor,
+        order: &Order,
+        patch: usize,
+    ) -> Result<Tensor, GpuError> {
+        let normed = self.norm1.forward(r, x)?;
+        let qkv = self.qkv.forward(r, &normed, false)?;
+        let sorted = r.gather(&qkv, &order.sort)?;
+        let attended = patch_attention(r, &sorted, self.heads, patch)?;
+        let unsorted = r.gather(&attended, &order.unsort)?;
+        let a = self.proj.forward(r, &unsorted, false)?;
+        let x = r.add(x, &a, super::Broadcast::Trailing)?;
+        let normed = self.norm2.forward(r, &x)?;
+        let h = self.fc1.forward(r, &normed, false)?;
+        let m = self.fc2.forward(r, &h, true)?;
+        r.add(&x, &m, super::Broadcast::Trailing)
+    }
+}
+
+/// Attention within consecutive patches of `patch` rows of packed qkv rows [n, 3C] (the
+/// last patch is shorter): the full patches as one batch of sequences, the rest as one
+/// more, joined.
+fn patch_attention(
+    r: &mut Recorder,
+    qkv: &Tensor,
+    heads: usize,
+    patch: usize,
+) -> Result<Tensor, GpuError> {
+    let [n, c3] = qkv.shape[..] else {
+        panic!("packed qkv of {:?}", qkv.shape)
+    };
+    let c = c3 / 3;
+    let full = n / patch;
+    let tail = n - full * patch;
+    let params = |sequences: usize, length: usize, first_row: usize| AttentionParams {
+        sequences: sequences as u32,
+        heads: heads as u32,
+        queries: length as u32,
+        keys: length as u32,
+        channels: c as u32,
+        q_stride: c3 as u32,
+        q_offset: (first_row * c3) as u32,
+        kv_stride: c3 as u32,
+        k_offset: (first_row * c3 + c) as u32,
+        v_offset: (first_row * c3 + 2 * c) as u32,
+        causal: 0,
+        kv_share: 1,
+    };
+    let body = (full > 0)
+        .then(|| r.attention(qkv, qkv, params(full, patch, 0)))
+        .transpose()?
+        .map(|t| t.reshaped(&[full * patch, c]));
+    let rest = (tail > 0)
+        .then(|| r.attention(qkv, qkv, params(1, tail, full * patch)))
+        .transpose()?
+        .map(|t| t.reshaped(&[tail, c]));
+    match (body, rest) {
+        (Some(a), Some(b)) => r.concat(&a, &b, 0),
+        (Some(a), None) | (None, Some(a)) => Ok(a),
+        (None, None) => panic!("patch attention over no points"),
+    }
+}
+
+pub struct Refiner {
+    pub cfg: RefinerConfig,
+    embed: Linear,
+    encoder: Vec<Block>,
+    down: Linear,
+    middle: Vec<Block>,
+    up: Linear,
+    decoder: Vec<Block>,
+    norm: LayerNorm,
+    head: Linear,
+}
+
+impl Refiner {
+    /// Loads the weights under `w` (the trainer's state-dict names).
+    pub fn load(w: &Weights, cfg: &RefinerConfig) -> Result<Self, LoadError> {
+        let [c0, c1] = cfg.channels;
+        let blocks = |prefix: &str, count: usize, channels: usize, heads: usize| {
+            (0..count)
+                .map(|i| Block::load(&w.at(&format!("{prefix}.{i}")), channels, heads))
+                .collect::<Result<Vec<_>, _>>()
+        };
+        Ok(Self {
+            embed: Linear::load(&w.at("embed"), FEATURES, c0)?,
+            encoder: blocks("encoder", cfg.depths[0], c0, cfg.heads[0])?,
+            down: Linear::load(&w.at("down"), c0, c1)?,
+            middle: blocks("middle", cfg.depths[1], c1, cfg.heads[1])?,
+            up: Linear::load(&w.at("up"), c1, c0)?,
+            decoder: blocks("decoder", cfg.decoder_depth, c0, cfg.heads[0])?,
+            norm: LayerNorm::load(&w.at("norm"), c0)?,
+            head: Linear::load(&w.at("head"), c0, RESIDUALS)?,
+            cfg: cfg.clone(),
+        })
+    }
+
+    /// Records the residuals [N, 14] of `features` [N, 11] for points at `unit`
+    /// (normalised, the frame's root at 0.5).
+    pub fn forward(
+        &self,
+        r: &mut Recorder,
+        features: &Tensor,
+        unit: &[Vec3],
+    ) -> Result<Tensor, GpuError> {
+        let stride = self.cfg.stride;
+        let fine_orders: Vec<Vec<u32>> = ORDERS
+            .iter()
+            .map(|&curve| serialise::serialise(unit, curve))
+            .collect();
+        let coarse_unit = serialise::pooled_positions(unit, &fine_orders[0], stride);
+        let fine = fine_orders
+            .iter()
+            .map(|o| Order::new(r, o))
+            .collect::<Result<Vec<_>, _>>()?;
+        let coarse = ORDERS
+            .iter()
+            .map(|&curve| Order::new(r, &serialise::serialise(&coarse_unit, curve)))
+            .collect::<Result<Vec<_>, _>>()?;
+        let groups = r.indices(
+            "refiner.groups",
+            &serialise::groups(&fine_orders[0], stride),
+        )?;
+        let patch = self.cfg.patch;
+        let mut block = 0;
+        let mut x = self.embed.forward(r, features, false)?;
+        for b in &self.encoder {
+            x = b.forward(r, &x, &fine[block % 4], patch)?;
+            block += 1;
+        }
+        let skip = x;
+        let sorted = r.gather(&skip, &fine[0].sort)?;
+        let pooled = r.segment_mean(&sorted, stride)?;
+        let mut y = self.down.forward(r, &pooled, false)?;
+        for b in &self.middle {
+            y = b.forward(r, &y, &coarse[block % 4], patch)?;
+            block += 1;
+        }
+        let up = self.up.forward(r, &y, false)?;
+        let unpooled = r.gather(&up, &groups)?;
+        let mut x = r.add(&skip, &unpooled, super::Broadcast::Trailing)?;
+        for b in &self.decoder {
+            x = b.forward(r, &x, &fine[block % 4], patch)?;
+            block += 1;
+        }
+        let normed = self.norm.forward(r, &x)?;
+        self.head.forward(r, &normed, false)
+    }
+}

@@ -1,0 +1,78 @@
+"""The refiner: serialisation with known answers, patch attention, identity at start,
+and a bundle round trip."""
+
+import itertools
+
+import torch
+
+from unica_train import refiner as R
+from unica_train import splats as S
+
+
+def test_z_order_interleaves_x_then_y_then_z():
+    cells = torch.tensor([[1, 0, 0], [0, 1, 0], [0, 0, 1], [2, 0, 0], [1023, 1023, 1023]])
+    assert R.z_order(cells).tolist() == [4, 2, 1, 32, (1 << 30) - 1]
+
+
+def test_the_hilbert_curve_walks_its_first_block_cell_by_cell():
+    cells = torch.tensor(list(itertools.product(range(4), repeat=3)))
+    code = R.hilbert(cells)
+    order = torch.argsort(code)
+    assert code[order].tolist() == list(range(64))
+    steps = (cells[order][1:] - cells[order][:-1]).abs().sum(1)
+    assert (steps == 1).all()
+
+
+def test_transposed_orders_swap_x_and_y():
+    unit = torch.tensor([[0.9, 0.1, 0.1], [0.1, 0.1, 0.1], [0.1, 0.1, 0.1], [0.1, 0.9, 0.1]])
+    assert R.serialise(unit, "z").tolist() == [1, 2, 3, 0]
+    assert R.serialise(unit, "z-trans").tolist() == [1, 2, 0, 3]
+
+
+def test_patch_attention_with_one_patch_is_plain_attention():
+    gen = torch.Generator().manual_seed(0)
+    qkv = torch.randn(10, 3 * 8, generator=gen)
+    order = torch.randperm(10, generator=gen)
+    got = R.patch_attention(qkv, order, 16, 2)
+    q, k, v = qkv.reshape(10, 3, 2, 4).permute(1, 2, 0, 3)
+    want = torch.softmax(q @ k.transpose(1, 2) / 2.0, -1) @ v  # [2, 10, 4]
+    assert torch.allclose(got, want.transpose(0, 1).reshape(10, 8), atol=1e-6)
+    # Patches of 4 along the order: a point only sees its own patch.
+    part = R.patch_attention(qkv, order, 4, 2)
+    first = order[:4]
+    alone = R.patch_attention(qkv[first], torch.arange(4), 4, 2)
+    assert torch.allclose(part[first], alone, atol=1e-6)
+
+
+def test_pooling_averages_runs_along_the_order():
+    x = torch.tensor([[1.0], [2.0], [3.0], [4.0], [5.0]])
+    order = torch.tensor([4, 0, 1, 2, 3])
+    assert R.segment_mean(x, order, 2).flatten().tolist() == [3.0, 2.5, 4.0]
+    group, count = R.pool_groups(order, 2)
+    assert group.tolist() == [0, 1, 1, 2, 0] and count == 3
+
+
+def test_a_new_refiner_is_the_identity_and_can_learn():
+    gen = torch.Generator().manual_seed(0)
+    unit = torch.rand(200, 3, generator=gen)
+    feats = torch.randn(200, R.FEATURES, generator=gen)
+    model = R.Refiner(R.RefinerConfig(patch=16))
+    raw = model(feats, unit)
+    assert torch.equal(raw, torch.zeros_like(raw))
+    base = S.Splats(unit, torch.rand(200, 3, generator=gen), torch.full((200, 3), 0.01),
+                    torch.tensor([[0.0, 0, 0, 1]]).expand(200, 4), torch.full((200,), S.OPACITY))
+    same = R.apply(base, raw, 0.01)
+    for f in ("means", "colors", "scales", "rotations"):
+        assert torch.allclose(getattr(same, f), getattr(base, f))
+    assert torch.allclose(same.opacities, base.opacities)
+    raw.sum().backward()
+    assert model.head.weight.grad.abs().sum() > 0
+
+
+def test_flops_count_the_linear_layers_and_attention():
+    cfg = R.RefinerConfig(channels=[8, 16], depths=[1, 0], heads=[1, 1], decoder_depth=0, patch=4, stride=2)
+    # embed 2·N·11·8, one block at 8 channels, down 2·(N/2)·8·16, up 2·(N/2)·16·8, head 2·N·8·14.
+    n = 10
+    block = 2 * n * 8 * 8 * 8 + 4 * n * 4 * 8
+    want = 2 * n * 11 * 8 + block + 2 * 5 * 8 * 16 + 2 * 5 * 16 * 8 + 2 * n * 8 * 14
+    assert R.flops(cfg, n) == want

@@ -1,0 +1,455 @@
+"""The splat refiner (DESIGN §7): a small point transformer in the spirit of PTv3 that
+predicts per-Gaussian residuals of every attribute from the base splats of a frame.
+
+- Serialisation: positions quantised to 1024 bins per axis, ordered along a z-order and a
+  Hilbert curve and their transposes (x and y swapped); attention block i uses order i % 4.
+- Attention inside fixed-size patches of the order (the last patch is shorter).
+- Strided pooling between stages: groups of `stride` consecutive points along the stage's
+  z-order are averaged (features and positions); unpooling copies a group's features
+  back to its points and adds them to the skip connection.
+- Per-attribute heads in one zero-initialised linear layer, so the refiner starts as the
+  identity; mean offsets are tanh-bounded.
+
+It runs on the 128² point set; the app upscales its residual maps to the 1024² splats.
+Train it on a baked dataset's renders (L1 + SSIM over random black or white backgrounds):
+
+    python -m unica_train.refiner --bundle B --data DATA --out RUN [--steps N] [--resume]
+
+which writes RUN/refiner.safetensors, losses, eval.json (PSNR/SSIM of base vs refined
+splats on the held-out clips) and adds `refiner.*` to the bundle."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from safetensors.torch import load_file, save_file
+from torch import nn
+
+from . import bundle as bundle_io
+from . import pca, splats
+from .dataset import BakedDataset
+
+BITS = 10
+ORDERS = ("z", "z-trans", "hilbert", "hilbert-trans")
+FEATURES = 11
+OUTPUTS = 14  # mean 3, colour 3, log-scale 3, rotation 4, opacity logit 1
+LN_EPS = 1e-5
+
+
+# ---- serialisation ------------------------------------------------------------------
+
+
+def quantise(unit: torch.Tensor) -> torch.Tensor:
+    """Unit-cube positions [N, 3] -> integer cells [N, 3] in [0, 1023]."""
+    return (unit * (1 << BITS)).floor().clamp(0, (1 << BITS) - 1).long()
+
+
+def _interleave(x: torch.Tensor, y: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+    """Bits of x, y, z interleaved from the most significant: x_9 y_9 z_9 x_8 ..."""
+    code = torch.zeros_like(x)
+    for b in range(BITS - 1, -1, -1):
+        for axis in (x, y, z):
+            code = (code << 1) | ((axis >> b) & 1)
+    return code
+
+
+def z_order(cells: torch.Tensor) -> torch.Tensor:
+    return _interleave(cells[:, 0], cells[:, 1], cells[:, 2])
+
+
+def hilbert(cells: torch.Tensor) -> torch.Tensor:
+    """Hilbert index of 3-D cells (Skilling's transpose algorithm, then interleaved)."""
+    x = [cells[:, 0].clone(), cells[:, 1].clone(), cells[:, 2].clone()]
+    q = 1 << (BITS - 1)
+    while q > 1:
+        p = q - 1
+        for i in range(3):
+            on = (x[i] & q) != 0
+            if i == 0:
+                x[0] = torch.where(on, x[0] ^ p, x[0])
+                continue
+            t = (x[0] ^ x[i]) & p
+            x[0], x[i] = torch.where(on, x[0] ^ p, x[0] ^ t), torch.where(on, x[i], x[i] ^ t)
+        q >>= 1
+    for i in (1, 2):
+        x[i] = x[i] ^ x[i - 1]
+    t = torch.zeros_like(x[0])
+    q = 1 << (BITS - 1)
+    while q > 1:
+        t = torch.where((x[2] & q) != 0, t ^ (q - 1), t)
+        q >>= 1
+    return _interleave(*(v ^ t for v in x))
+
+
+def serialise(unit: torch.Tensor, kind: str) -> torch.Tensor:
+    """The order (a permutation [N]) of points along curve `kind`; ties keep index order."""
+    cells = quantise(unit)
+    if kind.endswith("-trans"):
+        cells = cells[:, [1, 0, 2]]
+    code = z_order(cells) if kind.startswith("z") else hilbert(cells)
+    return torch.argsort(code, stable=True)
+
+
+# ---- the model ----------------------------------------------------------------------
+
+
+@dataclass
+class RefinerConfig:
+    channels: list = field(default_factory=lambda: [32, 64])
+    depths: list = field(default_factory=lambda: [2, 2])
+    heads: list = field(default_factory=lambda: [2, 4])
+    decoder_depth: int = 1
+    patch: int = 64
+    stride: int = 4
+    # Bound of the mean offsets in normalised units (the Witch: 0.004 ≈ 11 mm).
+    mean_bound: float = 0.004
+
+    def to_dict(self):
+        return asdict(self)
+
+
+def patch_attention(qkv: torch.Tensor, order: torch.Tensor, patch: int, heads: int) -> torch.Tensor:
+    """qkv [N, 3C] (q, k, v, each head's channels together) -> [N, C]: each point attends
+    to the points of its patch of `order`."""
+    n, c3 = qkv.shape
+    c = c3 // 3
+    d = c // heads
+    patches = -(-n // patch)
+    pad = patches * patch - n
+    rows = torch.cat([order, order.new_zeros(pad)])
+    x = qkv[rows].reshape(patches, patch, 3, heads, d).permute(2, 0, 3, 1, 4)  # [3, P, H, T, d]
+    valid = torch.arange(patches * patch) < n
+    bias = torch.where(valid, 0.0, float("-inf")).reshape(patches, 1, 1, patch)
+    att = (x[0] @ x[1].transpose(-1, -2)) / math.sqrt(d) + bias
+    out = (att.softmax(-1) @ x[2]).permute(0, 2, 1, 3).reshape(patches * patch, c)[:n]
+    result = torch.empty_like(out)
+    result[order] = out
+    return result
+
+
+class Block(nn.Module):
+    def __init__(self, channels: int, heads: int):
+        super().__init__()
+        self.heads = heads
+        self.norm1 = nn.LayerNorm(channels, eps=LN_EPS)
+        self.qkv = nn.Linear(channels, 3 * channels)
+        self.proj = nn.Linear(channels, channels)
+        self.norm2 = nn.LayerNorm(channels, eps=LN_EPS)
+        self.fc1 = nn.Linear(channels, 2 * channels)
+        self.fc2 = nn.Linear(2 * channels, channels)
+
+    def forward(self, x, order, patch):
+        x = x + self.proj(patch_attention(self.qkv(self.norm1(x)), order, patch, self.heads))
+        return x + self.fc2(F.silu(self.fc1(self.norm2(x))))
+
+
+def pool_groups(order: torch.Tensor, stride: int) -> tuple[torch.Tensor, int]:
+    """Each point's group ([N]: its rank along `order` // stride) and the group count."""
+    group = torch.empty_like(order)
+    group[order] = torch.arange(len(order)) // stride
+    return group, -(-len(order) // stride)
+
+
+def segment_mean(x: torch.Tensor, order: torch.Tensor, stride: int) -> torch.Tensor:
+    """The mean of each run of `stride` consecutive rows along `order` (summed in order)."""
+    groups = -(-len(order) // stride)
+    index = torch.arange(len(order)) // stride
+    total = torch.zeros(groups, x.shape[1], dtype=x.dtype).index_add(0, index, x[order])
+    count = torch.zeros(groups, dtype=x.dtype).index_add(0, index, torch.ones(len(order), dtype=x.dtype))
+    return total / count[:, None]
+
+
+class Refiner(nn.Module):
+    def __init__(self, cfg: RefinerConfig | None = None):
+        super().__init__()
+        self.cfg = cfg = cfg or RefinerConfig()
+        c0, c1 = cfg.channels
+        self.embed = nn.Linear(FEATURES, c0)
+        self.encoder = nn.ModuleList(Block(c0, cfg.heads[0]) for _ in range(cfg.depths[0]))
+        self.down = nn.Linear(c0, c1)
+        self.middle = nn.ModuleList(Block(c1, cfg.heads[1]) for _ in range(cfg.depths[1]))
+        self.up = nn.Linear(c1, c0)
+        self.decoder = nn.ModuleList(Block(c0, cfg.heads[0]) for _ in range(cfg.decoder_depth))
+        self.norm = nn.LayerNorm(c0, eps=LN_EPS)
+        self.head = nn.Linear(c0, OUTPUTS)
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
+
+    def forward(self, features: torch.Tensor, unit: torch.Tensor) -> torch.Tensor:
+        """features [N, 11], unit positions [N, 3] -> raw residuals [N, 14]."""
+        cfg = self.cfg
+        fine = [serialise(unit, k) for k in ORDERS]
+        coarse_unit = segment_mean(unit, fine[0], cfg.stride)
+        coarse = [serialise(coarse_unit, k) for k in ORDERS]
+        group, _ = pool_groups(fine[0], cfg.stride)
+        block = 0
+        x = self.embed(features)
+        for b in self.encoder:
+            x = b(x, fine[block % 4], cfg.patch)
+            block += 1
+        skip = x
+        y = self.down(segment_mean(x, fine[0], cfg.stride))
+        for b in self.middle:
+            y = b(y, coarse[block % 4], cfg.patch)
+            block += 1
+        x = skip + self.up(y)[group]
+        for b in self.decoder:
+            x = b(x, fine[block % 4], cfg.patch)
+            block += 1
+        return self.head(self.norm(x))
+
+
+def parameter_count(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())
+
+
+def flops(cfg: RefinerConfig, points: int) -> int:
+    """Multiply-adds × 2 of the linear layers and the patch attention for `points`."""
+    c0, c1 = cfg.channels
+    coarse = -(-points // cfg.stride)
+
+    def block(n, c):
+        return 2 * n * (3 * c * c + c * c + 4 * c * c) + 2 * 2 * n * cfg.patch * c
+
+    total = 2 * points * FEATURES * c0 + cfg.depths[0] * block(points, c0)
+    total += 2 * coarse * c0 * c1 + cfg.depths[1] * block(coarse, c1) + 2 * coarse * c1 * c0
+    total += cfg.decoder_depth * block(points, c0) + 2 * points * c0 * OUTPUTS
+    return total
+
+
+# ---- inputs and outputs ---------------------------------------------------------------
+
+
+def features(unit: torch.Tensor, base: splats.Splats, normals: torch.Tensor, median: torch.Tensor) -> torch.Tensor:
+    """[N, 11]: position about the root (unit − 0.5), linear colour, normal, and the log
+    of the two footprints over the median spacing."""
+    footprint = (base.scales[:, :2] / splats.SPREAD / median).clamp_min(1e-6).log()
+    return torch.cat([unit - 0.5, base.colors, normals, footprint], 1)
+
+
+def apply(base: splats.Splats, raw: torch.Tensor, mean_bound_world: float) -> splats.Splats:
+    """Base splats + the refiner's residuals (the heads' activations)."""
+    logit = math.log(splats.OPACITY / (1 - splats.OPACITY))
+    return splats.Splats(
+        means=base.means + torch.tanh(raw[:, 0:3]) * mean_bound_world,
+        colors=base.colors + raw[:, 3:6],
+        scales=base.scales * raw[:, 6:9].exp(),
+        rotations=base.rotations + raw[:, 9:13],
+        opacities=torch.sigmoid(logit + raw[:, 13]),
+    )
+
+
+# ---- training -----------------------------------------------------------------------
+
+
+@dataclass
+class RefinerTrainConfig:
+    model: dict = field(default_factory=lambda: RefinerConfig().to_dict())
+    steps: int = 1500
+    lr: float = 2e-3
+    views_per_step: int = 2
+    image_size: int = 128
+    ssim_weight: float = 0.2
+    held_out_clips: list = field(default_factory=lambda: [4, 13])
+    eval_frames: int = 24
+    checkpoint_every: int = 100
+    seed: int = 0
+
+
+class Frames:
+    """Rendered dataset frames as the refiner sees them at run time: the VAE's
+    reconstruction of the ground-truth map, PCA-cleaned, in world space, with the
+    ground-truth RGBA renders (downsampled) and their cameras."""
+
+    def __init__(self, data: Path, bundle_dir: Path, size: int):
+        self.ds = ds = BakedDataset(data)
+        vae, _, extra, manifest = bundle_io.load(bundle_dir)
+        if not torch.equal(extra["map.pixels"].long(), ds.pixels):
+            raise bundle_io.BundleError(f"{data}: its position-map pixels are not the bundle's")
+        self.scale = ds.scale
+        self.colors = ds.pixel_colors()
+        self.nbrs = splats.neighbours(ds.pixels, 128)
+        cams = json.loads((Path(data) / "renders" / "cameras.json").read_text())["cameras"]
+        self.views: dict[tuple[int, int], list] = {}
+        for c in cams:
+            if c.get("clip_frame"):
+                self.views.setdefault(tuple(c["clip_frame"]), []).append(c)
+        self.keys = sorted(self.views)
+        self.dir = Path(data) / "renders"
+        self.size = size
+        self.unit, self.root = {}, {}
+        mean, basis = extra["pca.mean"], extra["pca.basis"]
+        with torch.no_grad():
+            for start in range(0, len(self.keys), 64):
+                chunk = self.keys[start:start + 64]
+                world = torch.stack([ds.positions(c, [f])[0] for c, f in chunk])
+                root = ds.root(world)
+                unit = (world - root[:, None]) * ds.scale + 0.5
+                recon = vae.decode(vae.encoder(ds.to_maps(unit))[0]).flatten(2)[:, :, ds.pixels].transpose(1, 2)
+                recon = recon.clamp(0, 1)
+                shift = ds.root(recon) - 0.5
+                cleaned = pca.project((recon - shift[:, None]).flatten(1), mean, basis).reshape(recon.shape) + shift[:, None]
+                for k, u, r in zip(chunk, cleaned, root):
+                    self.unit[k], self.root[k] = u, r
+
+    def inputs(self, key):
+        """(base splats in world space, features, unit positions)."""
+        unit = self.unit[key]
+        world = (unit - 0.5) / self.scale + self.root[key]
+        base, normals = splats.base_splats(world, self.colors, self.nbrs)
+        median = splats.median_spacing(world, self.nbrs)
+        return base, features(unit, base, normals, median), unit
+
+    def target(self, view: dict) -> tuple[splats.Camera, torch.Tensor]:
+        """The view's camera at `size` and its render (linear RGB premultiplied, alpha)."""
+        from PIL import Image
+
+        path = self.dir / view["file"]
+        try:
+            rgba = torch.from_numpy(np.array(Image.open(path).convert("RGBA"))).float() / 255
+        except OSError as e:
+            raise FileNotFoundError(f"{path}: {e}") from e
+        factor = rgba.shape[0] // self.size
+        rgba = F.avg_pool2d(rgba.permute(2, 0, 1)[None], factor)[0].permute(1, 2, 0)
+        k = view["camera"]
+        cam = splats.Camera.orbit(k["target"], k["yaw"], k["pitch"], k["distance"], self.size, self.size)
+        return cam, torch.cat([splats.linear(rgba[..., :3]) * rgba[..., 3:], rgba[..., 3:]], -1)
+
+
+def composite(target: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
+    return target[..., :3] + (1 - target[..., 3:]) * background
+
+
+@torch.no_grad()
+def evaluate(model: Refiner, frames: Frames, keys: list) -> dict:
+    """PSNR and SSIM (sRGB, black background) of base and refined splats."""
+    bound = model.cfg.mean_bound / frames.scale
+    sums = {"base": [0.0, 0.0], "refined": [0.0, 0.0]}
+    count = 0
+    for key in keys:
+        base, feats, unit = frames.inputs(key)
+        refined = apply(base, model(feats, unit), bound)
+        for view in frames.views[key]:
+            cam, target = frames.target(view)
+            want = splats.srgb(target[..., :3])
+            for name, s in (("base", base), ("refined", refined)):
+                image, _ = splats.render(s, cam, torch.zeros(3))
+                got = splats.srgb(image)
+                sums[name][0] += splats.psnr(got, want)
+                sums[name][1] += splats.ssim(got, want).item()
+            count += 1
+    return {name: {"psnr": v[0] / count, "ssim": v[1] / count} for name, v in sums.items()} | {"views": count}
+
+
+def train(args) -> dict:
+    cfg = RefinerTrainConfig(**json.loads(args.config.read_text())) if args.config else RefinerTrainConfig()
+    if args.steps is not None:
+        cfg.steps = args.steps
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "refiner_config.json").write_text(json.dumps(asdict(cfg), indent=2) + "\n")
+    torch.manual_seed(cfg.seed)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    frames = Frames(args.data, args.bundle, cfg.image_size)
+    train_keys = [k for k in frames.keys if k[0] not in cfg.held_out_clips]
+    test_keys = [k for k in frames.keys if k[0] in cfg.held_out_clips]
+    test_keys = test_keys[:: max(1, len(test_keys) // cfg.eval_frames)][: cfg.eval_frames]
+    model = Refiner(RefinerConfig(**cfg.model))
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.steps)
+    start = 0
+    ckpt = out / "refiner_checkpoint.pt"
+    log_path = out / "refiner_losses.csv"
+    if args.resume and ckpt.exists():
+        state = torch.load(ckpt)
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["opt"])
+        sched.load_state_dict(state["sched"])
+        gen.set_state(state["gen"])
+        start = state["step"]
+        print(f"resumed at step {start}")
+    elif log_path.exists():
+        log_path.unlink()
+    bound = model.cfg.mean_bound / frames.scale
+    began = time.time()
+    for step in range(start, cfg.steps):
+        key = train_keys[int(torch.randint(len(train_keys), (1,), generator=gen))]
+        base, feats, unit = frames.inputs(key)
+        refined = apply(base, model(feats, unit), bound)
+        views = frames.views[key]
+        chosen = torch.randperm(len(views), generator=gen)[: cfg.views_per_step]
+        loss_l1, loss_ssim = 0.0, 0.0
+        for v in chosen:
+            cam, target = frames.target(views[int(v)])
+            bg = torch.ones(3) if torch.rand(1, generator=gen).item() < 0.5 else torch.zeros(3)
+            image, _ = splats.render(refined, cam, bg)
+            got, want = splats.srgb(image), splats.srgb(composite(target, bg))
+            loss_l1 = loss_l1 + (got - want).abs().mean()
+            loss_ssim = loss_ssim + 1 - splats.ssim(got, want)
+        loss = ((1 - cfg.ssim_weight) * loss_l1 + cfg.ssim_weight * loss_ssim) / len(chosen)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        with log_path.open("a", newline="") as f:
+            csv.writer(f).writerow([step, f"{loss.item():.6f}", f"{loss_l1.item() / len(chosen):.6f}"])
+        done = step + 1
+        if done % 10 == 0 or done == cfg.steps:
+            rate = (done - start) / (time.time() - began)
+            print(f"step {done}/{cfg.steps} loss {loss.item():.4f} ({rate:.2f} steps/s, {(cfg.steps - done) / rate / 60:.1f} min left)", flush=True)
+        if done % cfg.checkpoint_every == 0 or done == cfg.steps:
+            torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "gen": gen.get_state(), "step": done}, ckpt)
+    model.eval()
+    metrics = evaluate(model, frames, test_keys)
+    metrics.update({
+        "parameters": parameter_count(model),
+        "gflop_per_frame": flops(model.cfg, len(frames.ds.pixels)) / 1e9,
+        "held_out_clips": cfg.held_out_clips,
+        "image_size": cfg.image_size,
+        "minutes": (time.time() - began) / 60,
+    })
+    (out / "refiner_eval.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    save_file({f"refiner.{k}": v.contiguous() for k, v in model.state_dict().items()}, str(out / "refiner.safetensors"))
+    if args.write_bundle:
+        add_to_bundle(args.bundle, model)
+    return metrics
+
+
+def add_to_bundle(directory: Path, model: Refiner) -> None:
+    """Writes `refiner.*` and the manifest's `refiner` config into a bundle (the geometry
+    models are untouched)."""
+    d = Path(directory)
+    tensors = load_file(str(d / "weights.safetensors"))
+    tensors = {k: v for k, v in tensors.items() if not k.startswith("refiner.")}
+    tensors.update({f"refiner.{k}": v.detach().contiguous() for k, v in model.state_dict().items()})
+    manifest = json.loads((d / "manifest.json").read_text())
+    manifest["refiner"] = model.cfg.to_dict()
+    manifest["tensors"] = {k: {"shape": list(v.shape), "dtype": str(v.dtype).removeprefix("torch.")} for k, v in sorted(tensors.items())}
+    save_file(tensors, str(d / "weights.safetensors"))
+    (d / "manifest.json").write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--bundle", required=True, type=Path, help="the bundle whose VAE and PCA make the inputs")
+    parser.add_argument("--data", required=True, type=Path, help="dataset folder written by `unica bake` (with renders)")
+    parser.add_argument("--out", required=True, type=Path, help="run folder (checkpoint, losses, eval)")
+    parser.add_argument("--config", type=Path, help="JSON with RefinerTrainConfig fields")
+    parser.add_argument("--steps", type=int)
+    parser.add_argument("--resume", action="store_true")
+    parser.add_argument("--write-bundle", action="store_true", help="add the trained refiner to --bundle")
+    metrics = train(parser.parse_args(argv))
+    print(json.dumps(metrics, indent=2))
+
+
+if __name__ == "__main__":
+    main()
