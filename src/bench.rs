@@ -2,7 +2,8 @@
 //! Numbers come from stage timings (GPU timestamps where available) or wall-clock time to
 //! GPU idle, never from tests. Rows: the element-wise kernel, then for each model
 //! configuration and precision the UNet (a whole 4-frame group, the cached context pass,
-//! one target-only step), the VAE decoder and a whole generated frame.
+//! one target-only step), the VAE decoder and a whole generated frame; the rasterizer;
+//! and for a bundle the live frame by stage, model to pixels.
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -36,6 +37,8 @@ pub struct BenchOptions {
     pub precisions: Vec<Precision>,
     /// Splats for the rasterizer rows at 1280×720 and 1920×1080 (0: none).
     pub splats: usize,
+    /// The splat level of the bundle's live-frame rows (`None`: the adapter's default).
+    pub splat_level: Option<usize>,
 }
 
 impl Default for BenchOptions {
@@ -51,6 +54,7 @@ impl Default for BenchOptions {
             repeat: 3,
             precisions: vec![Precision::F32, Precision::F16],
             splats: 250_000,
+            splat_level: None,
         }
     }
 }
@@ -73,6 +77,12 @@ pub fn run(gpu: &GpuContext, options: &BenchOptions, out: &mut impl Write) -> an
     models(gpu, options, &precisions, out)?;
     if options.splats > 0 {
         raster(gpu, options.splats, options.repeat, out)?;
+    }
+    if let Some(dir) = &options.bundle {
+        let level = options
+            .splat_level
+            .unwrap_or_else(|| crate::engine::appearance::default_level(gpu));
+        frame_stages(gpu, dir, Some(options.sampling), level, options.repeat, out)?;
     }
     Ok(())
 }
@@ -523,4 +533,109 @@ fn resident_mib() -> Option<f64> {
     let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
     let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib / 1024.0)
+}
+
+/// The whole live frame of a bundle on this adapter, by stage: the model (DDIM steps and
+/// decode, with the map's readback), the CPU share (clamping, root, PCA), the 128² base
+/// splats, the refiner, the upscale to the splat level with its base splats, and the
+/// rasterizer (projection, sort, blending) at 1280×720; then generated frames per second.
+pub fn frame_stages(
+    gpu: &GpuContext,
+    dir: &std::path::Path,
+    sampling: Option<Sampling>,
+    level: usize,
+    repeat: usize,
+    out: &mut impl Write,
+) -> anyhow::Result<()> {
+    use crate::action::Action;
+    use crate::engine::appearance::Appearance;
+    use crate::engine::{Engine, EngineOptions};
+    use crate::render::OrbitCamera;
+    use crate::splat::project::SplatCamera;
+    use crate::splat::raster::Rasterizer;
+    let options = EngineOptions {
+        sampling,
+        ..EngineOptions::default()
+    };
+    let mut engine = Engine::new(gpu, dir, &options)?;
+    let mut look = Appearance::new(gpu, &engine.bundle, options.precision, level)?;
+    let s = engine.sampling();
+    writeln!(
+        out,
+        "\nlive frame of {}: {} DDIM steps, CFG {}, splat level {level} ({} splats), \
+         refiner {}; median ms of {repeat} frames after a warm-up",
+        dir.display(),
+        s.steps,
+        s.cfg_scale,
+        look.count(),
+        if look.refine {
+            "on"
+        } else {
+            "off (none in the bundle)"
+        },
+    )?;
+    let mut rasterizer = Rasterizer::default();
+    let stages = [
+        "model (UNet steps, decode)",
+        "CPU: clamp, root, PCA",
+        "base splats (128²)",
+        "refiner",
+        "upscale + base splats",
+        "upload splats",
+        "raster 1280x720",
+    ];
+    let mut times: Vec<Vec<f64>> = vec![Vec::new(); stages.len()];
+    for run in 0..=repeat.max(1) {
+        let frame = engine.step(Action::Forward)?;
+        let splats = look.splats(&engine.bundle, &frame.points)?;
+        let clock = Instant::now();
+        let buffer = Rasterizer::upload(gpu, &splats)?;
+        let upload = clock.elapsed().as_secs_f64() * 1e3;
+        let orbit = OrbitCamera {
+            target: frame.root,
+            ..OrbitCamera::default()
+        };
+        let camera = SplatCamera::new(&orbit, 1280, 720);
+        let clock = Instant::now();
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        rasterizer.record(
+            gpu,
+            &mut encoder,
+            &buffer,
+            splats.len(),
+            &camera,
+            glam::Vec3::ZERO,
+        )?;
+        gpu.queue.submit([encoder.finish()]);
+        gpu.wait_idle();
+        let raster = clock.elapsed().as_secs_f64() * 1e3;
+        if run > 0 {
+            let t = look.times;
+            let row = [
+                frame.gpu_ms,
+                frame.cpu_ms,
+                t.base,
+                t.refiner,
+                t.upscale,
+                upload,
+                raster,
+            ];
+            for (list, ms) in times.iter_mut().zip(row) {
+                list.push(ms);
+            }
+        }
+    }
+    let median = |list: &mut Vec<f64>| {
+        list.sort_by(f64::total_cmp);
+        list[list.len() / 2]
+    };
+    let mut total = 0.0;
+    for (name, list) in stages.iter().zip(&mut times) {
+        let ms = median(list);
+        total += ms;
+        writeln!(out, "{name:<32} {ms:>10.2}")?;
+    }
+    writeln!(out, "{:<32} {total:>10.2}", "whole frame")?;
+    writeln!(out, "generated frames per second: {:.2}", 1e3 / total)?;
+    Ok(())
 }

@@ -129,6 +129,10 @@ struct BenchArgs {
     /// only) and report speed, clamped and non-finite values, memory and path headings
     #[arg(long, value_name = "N", requires = "bundle")]
     soak: Option<usize>,
+    /// Splat level of the --bundle live-frame rows (128, 256, 512 or 1024) [default: 1024
+    /// on a GPU, 256 on a CPU driver]
+    #[arg(long, value_name = "SIZE", value_parser = parse_level)]
+    splat_level: Option<usize>,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug)]
@@ -168,6 +172,26 @@ struct BakeArgs {
     avatar: Option<PathBuf>,
 }
 
+/// How the neural avatar's splats are made.
+#[derive(clap::Args, Debug)]
+struct SplatArgs {
+    /// Splat level: one splat per foreground pixel of the position map upscaled to this
+    /// size (128, 256, 512 or 1024) [default: 1024 on a GPU, 256 on a CPU driver]
+    #[arg(long, value_name = "SIZE", value_parser = parse_level)]
+    splat_level: Option<usize>,
+    /// Draw the base splats without the bundle's refiner
+    #[arg(long)]
+    no_refiner: bool,
+}
+
+fn parse_level(text: &str) -> Result<usize, String> {
+    let levels = crate::engine::appearance::LEVELS;
+    text.parse::<usize>()
+        .ok()
+        .filter(|l| levels.contains(l))
+        .ok_or_else(|| format!("'{text}' is not one of the splat levels {levels:?}"))
+}
+
 #[derive(clap::Args, Debug)]
 struct RenderArgs {
     /// Render the teacher (the rigged character driven by the locomotion controller)
@@ -194,6 +218,8 @@ struct RenderArgs {
     /// Draw the neural avatar as its triangulated map surface instead of splats
     #[arg(long)]
     surface: bool,
+    #[command(flatten)]
+    look: SplatArgs,
     /// Key script, e.g. "60W 60S 60A 20I" (one action per frame at 30 fps)
     #[arg(long, value_name = "SCRIPT")]
     keys: String,
@@ -234,6 +260,8 @@ struct ExportArgs {
     /// Seed of the sampler noise
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    #[command(flatten)]
+    look: SplatArgs,
 }
 
 #[derive(clap::Args, Debug)]
@@ -305,6 +333,7 @@ fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
         sampling,
         repeat: args.repeat,
         splats: args.splats,
+        splat_level: args.splat_level,
         precisions: match args.precision {
             BenchPrecision::F32 => vec![Precision::F32],
             BenchPrecision::F16 => vec![Precision::F16],
@@ -399,6 +428,8 @@ fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         views: args.views,
         points: args.points,
         surface: args.surface,
+        splat_level: args.look.splat_level,
+        refine: !args.look.no_refiner,
     };
     let gpu = gpu_context;
     let bar = indicatif::ProgressBar::new(0).with_style(
@@ -449,8 +480,14 @@ fn export(args: ExportArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let surface = engine.surface();
-    let splats = surface.splats(&surface.mesh(&points));
+    let level = args
+        .look
+        .splat_level
+        .unwrap_or_else(|| crate::engine::appearance::default_level(&gpu));
+    let mut look =
+        crate::engine::appearance::Appearance::new(&gpu, &engine.bundle, options.precision, level)?;
+    look.refine &= !args.look.no_refiner;
+    let splats = look.splats(&engine.bundle, &points)?;
     crate::splat::ply::write(&args.out, &splats)?;
     println!("wrote {} splats to {}", splats.len(), args.out.display());
     Ok(())

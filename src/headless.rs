@@ -14,6 +14,7 @@ use crate::action::{Action, KeyScript};
 use crate::avatar::description::Description;
 use crate::avatar::load_character;
 use crate::avatar::teacher::Teacher;
+use crate::engine::appearance::{self, Appearance};
 use crate::engine::surface::MapSurface;
 use crate::engine::{Engine, EngineOptions};
 use crate::files::{write_atomic, write_png_atomic};
@@ -47,6 +48,11 @@ pub struct RenderJob {
     pub points: bool,
     /// Draw the neural avatar as its triangulated map surface instead of splats.
     pub surface: bool,
+    /// The neural avatar's splat level (see `engine::appearance`); `None` picks the
+    /// adapter's default.
+    pub splat_level: Option<usize>,
+    /// Apply the bundle's refiner (when it has one).
+    pub refine: bool,
 }
 
 #[derive(serde::Serialize)]
@@ -62,20 +68,21 @@ struct FrameRecord {
 /// The avatar being driven, frame by frame.
 enum Driver {
     Teacher(Box<Teacher>),
-    Neural(Box<Engine>, MapSurface),
+    Neural(Box<Engine>, MapSurface, Box<Appearance>),
 }
 
-/// One step's result: the mesh to draw (and for the neural avatar its base splats), the
-/// root, and for the neural avatar its points, clamped values and (gpu, cpu) ms.
+/// One step's result: the mesh to draw (and for the neural avatar its splats), the
+/// root, and for the neural avatar its points, clamped values and (gpu, cpu, splats) ms.
 struct Step {
     mesh: Mesh,
     splats: Vec<Splat>,
     root: Vec3,
-    neural: Option<(Vec<Vec3>, usize, f64, f64)>,
+    neural: Option<(Vec<Vec3>, usize, [f64; 3])>,
 }
 
 impl Driver {
-    fn new(avatar: &Avatar, gpu: &GpuContext) -> anyhow::Result<Self> {
+    fn new(job: &RenderJob, gpu: &GpuContext) -> anyhow::Result<Self> {
+        let avatar = &job.avatar;
         Ok(match avatar {
             Avatar::Teacher {
                 character,
@@ -88,7 +95,12 @@ impl Driver {
             Avatar::Bundle { dir, options } => {
                 let engine = Engine::new(gpu, dir, options)?;
                 let surface = engine.surface();
-                Driver::Neural(Box::new(engine), surface)
+                let level = job
+                    .splat_level
+                    .unwrap_or_else(|| appearance::default_level(gpu));
+                let mut look = Appearance::new(gpu, &engine.bundle, options.precision, level)?;
+                look.refine = job.refine && engine.bundle.refiner.is_some();
+                Driver::Neural(Box::new(engine), surface, Box::new(look))
             }
         })
     }
@@ -105,18 +117,24 @@ impl Driver {
                     neural: None,
                 }
             }
-            Driver::Neural(engine, surface) => {
+            Driver::Neural(engine, surface, look) => {
                 let frame = engine.step(action)?;
-                let mesh = surface.mesh(&frame.points);
+                let clock = Instant::now();
+                let splats = if splats {
+                    look.splats(&engine.bundle, &frame.points)?
+                } else {
+                    Vec::new()
+                };
+                let splat_ms = clock.elapsed().as_secs_f64() * 1e3;
                 Step {
-                    splats: if splats {
-                        surface.splats(&mesh)
-                    } else {
-                        Vec::new()
-                    },
-                    mesh,
+                    splats,
+                    mesh: surface.mesh(&frame.points),
                     root: frame.root,
-                    neural: Some((frame.points, frame.clamped, frame.gpu_ms, frame.cpu_ms)),
+                    neural: Some((
+                        frame.points,
+                        frame.clamped,
+                        [frame.gpu_ms, frame.cpu_ms, splat_ms],
+                    )),
                 }
             }
         })
@@ -129,14 +147,14 @@ pub fn render(
     gpu: GpuContext,
     progress: &dyn Fn(u64, u64),
 ) -> anyhow::Result<usize> {
-    let mut driver = Driver::new(&job.avatar, &gpu)?;
+    let mut driver = Driver::new(job, &gpu)?;
     std::fs::create_dir_all(&job.out).map_err(|e| anyhow::anyhow!("{}: {e}", job.out.display()))?;
     let mut offscreen = Offscreen::new(gpu, job.size, job.size);
     let yaws: Vec<f32> = (0..job.views)
         .map(|k| std::f32::consts::PI + std::f32::consts::TAU * k as f32 / job.views as f32)
         .collect();
     let (mut step_ms, mut render_ms, mut write_ms) = (0.0, 0.0, 0.0);
-    let (mut gpu_ms, mut cpu_ms, mut clamped_total) = (0.0, 0.0, 0);
+    let (mut model_ms, mut clamped_total) = ([0.0; 3], 0);
     let mut distance = None;
     let mut frames = Vec::new();
     let total = job.keys.len();
@@ -178,8 +196,10 @@ pub fn render(
             files.push(file);
         }
         let mut clamped = None;
-        if let Some((points, frame_clamped, g, c)) = &step.neural {
-            (gpu_ms, cpu_ms) = (gpu_ms + g, cpu_ms + c);
+        if let Some((points, frame_clamped, ms)) = &step.neural {
+            for (total, part) in model_ms.iter_mut().zip(ms) {
+                *total += part;
+            }
             clamped_total += frame_clamped;
             clamped = Some(*frame_clamped);
             if job.points {
@@ -201,12 +221,15 @@ pub fn render(
         (Avatar::Teacher { character, .. }, _) => {
             serde_json::json!({ "teacher": character.display().to_string() })
         }
-        (Avatar::Bundle { dir, options }, Driver::Neural(engine, _)) => serde_json::json!({
+        (Avatar::Bundle { dir, options }, Driver::Neural(engine, _, look)) => serde_json::json!({
             "bundle": dir.display().to_string(),
             "seed": options.seed,
             "ddim_steps": engine.sampling().steps,
             "cfg_scale": engine.sampling().cfg_scale,
             "pca": options.pca,
+            "splat_level": look.level(),
+            "splats_per_frame": look.count(),
+            "refiner": look.refine,
             "clamped_values": clamped_total,
         }),
         _ => unreachable!("the driver follows the avatar"),
@@ -220,7 +243,7 @@ pub fn render(
         "frames": frames,
         "timings_ms": {
             "step": step_ms, "render": render_ms, "write": write_ms,
-            "model_gpu": gpu_ms, "model_cpu": cpu_ms,
+            "model_gpu": model_ms[0], "model_cpu": model_ms[1], "splats": model_ms[2],
         },
     });
     write_atomic(

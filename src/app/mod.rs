@@ -619,15 +619,16 @@ fn movement(key: egui::Key) -> Option<Action> {
 }
 
 /// The neural avatar's part of the HUD: generation rate, lag, model timings, clamped
-/// values, and the live settings (DDIM steps, CFG scale, PCA).
+/// values, and the live settings (DDIM steps, CFG scale, PCA, splats or surface, the
+/// refiner, the splat level).
 fn neural_hud(ui: &mut egui::Ui, neural: &mut shown::Neural) {
     ui.label(format!(
         "Neural: {:.1} generated fps (data rate {FRAME_RATE}), frame {}",
         neural.avatar.fps, neural.frames
     ));
     ui.label(format!(
-        "Model: {:.0} ms GPU + {:.1} ms CPU per frame",
-        neural.gpu_ms, neural.cpu_ms
+        "Model: {:.0} ms GPU + {:.1} ms CPU per frame; splats {:.0} ms",
+        neural.gpu_ms, neural.cpu_ms, neural.splat_ms
     ));
     if neural.clamped > 0 {
         ui.colored_label(
@@ -635,6 +636,7 @@ fn neural_hud(ui: &mut egui::Ui, neural: &mut shown::Neural) {
             format!("{} values clamped to [0, 1]", neural.clamped),
         );
     }
+    let has_refiner = neural.has_refiner;
     let Some(settings) = &mut neural.settings else {
         return;
     };
@@ -642,7 +644,18 @@ fn neural_hud(ui: &mut egui::Ui, neural: &mut shown::Neural) {
     ui.add(egui::Slider::new(&mut settings.sampling.steps, 1..=50).text("DDIM steps"));
     ui.add(egui::Slider::new(&mut settings.sampling.cfg_scale, 0.0..=5.0).text("CFG scale"));
     ui.checkbox(&mut settings.pca, "PCA clean-up");
-    ui.checkbox(&mut neural.show_splats, "Splats (else the surface)");
+    ui.checkbox(&mut settings.splats, "Splats (else the surface)");
+    ui.add_enabled(
+        has_refiner,
+        egui::Checkbox::new(&mut settings.refine, "Refiner"),
+    );
+    egui::ComboBox::from_label("Splat level")
+        .selected_text(format!("{0}² map", settings.level))
+        .show_ui(ui, |ui| {
+            for level in crate::engine::appearance::LEVELS {
+                ui.selectable_value(&mut settings.level, level, format!("{level}² map"));
+            }
+        });
     if *settings != before {
         neural.avatar.set_settings(*settings);
     }

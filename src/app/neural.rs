@@ -13,16 +13,31 @@ use glam::Vec3;
 
 use crate::action::Action;
 use crate::avatar::locomotion::FRAME_RATE;
+use crate::engine::appearance::{self, Appearance};
 use crate::engine::surface::MapSurface;
 use crate::engine::{Engine, EngineOptions, Frame};
 use crate::gpu::GpuContext;
 use crate::nn::sampler::Sampling;
+use crate::splat::ply::Splat;
 
 /// What the UI may change while the avatar runs.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Settings {
     pub sampling: Sampling,
     pub pca: bool,
+    /// Draw splats (made on the worker), else the triangulated surface.
+    pub splats: bool,
+    /// Apply the bundle's refiner (when it has one).
+    pub refine: bool,
+    /// Splat level: the map size whose foreground pixels become splats.
+    pub level: usize,
+}
+
+/// A generated frame with its splats (when they are drawn) and their time, ms.
+pub struct Drawn {
+    pub frame: Frame,
+    pub splats: Option<Vec<Splat>>,
+    pub splat_ms: f64,
 }
 
 /// What the worker reports.
@@ -32,11 +47,14 @@ pub enum Update {
     Ready {
         surface: Box<MapSurface>,
         standing: Vec<Vec3>,
+        splats: Vec<Splat>,
         root: Vec3,
         settings: Settings,
+        /// The bundle has a refiner.
+        refiner: bool,
     },
     /// A generated frame and the seconds since the one before.
-    Frame(Box<Frame>, f64),
+    Frame(Box<Drawn>, f64),
     Failed(String),
 }
 
@@ -156,15 +174,23 @@ impl Worker {
             ..EngineOptions::default()
         };
         let mut engine = Engine::new(&self.gpu, &self.dir, &options)?;
-        let defaults = Settings {
+        let level = appearance::default_level(&self.gpu);
+        let mut look = Appearance::new(&self.gpu, &engine.bundle, options.precision, level)?;
+        let mut settings = Settings {
             sampling: engine.sampling(),
             pca: true,
+            splats: true,
+            refine: look.refine,
+            level,
         };
+        let standing = engine.standing_points();
         let ready = Update::Ready {
             surface: Box::new(engine.surface()),
-            standing: engine.standing_points(),
+            splats: look.splats(&engine.bundle, &standing)?,
+            standing,
             root: engine.root(),
-            settings: defaults,
+            settings,
+            refiner: engine.bundle.refiner.is_some(),
         };
         if send.send(ready).is_err() {
             return Ok(());
@@ -173,16 +199,34 @@ impl Worker {
         let mut next = Instant::now();
         let mut last = next;
         while !self.stop.load(Ordering::Relaxed) {
-            if let Some(settings) = self.settings.lock().expect("settings lock").take() {
-                engine.set_sampling(settings.sampling);
-                engine.set_pca(settings.pca);
+            if let Some(new) = self.settings.lock().expect("settings lock").take() {
+                engine.set_sampling(new.sampling);
+                engine.set_pca(new.pca);
+                if new.level != settings.level {
+                    look =
+                        Appearance::new(&self.gpu, &engine.bundle, options.precision, new.level)?;
+                }
+                look.refine = new.refine;
+                settings = new;
             }
             let action = Action::from_id(self.action.load(Ordering::Relaxed));
             let frame = engine.step(action)?;
+            let clock = Instant::now();
+            let splats = if settings.splats {
+                Some(look.splats(&engine.bundle, &frame.points)?)
+            } else {
+                None
+            };
+            let splat_ms = clock.elapsed().as_secs_f64() * 1e3;
             let now = Instant::now();
             let interval = now.duration_since(last).as_secs_f64();
             last = now;
-            if send.send(Update::Frame(Box::new(frame), interval)).is_err() {
+            let drawn = Drawn {
+                frame,
+                splats,
+                splat_ms,
+            };
+            if send.send(Update::Frame(Box::new(drawn), interval)).is_err() {
                 return Ok(());
             }
             // Never faster than the data rate; when slower, run as fast as it can.

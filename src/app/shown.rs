@@ -15,6 +15,7 @@ use crate::engine::surface::MapSurface;
 use crate::gpu::GpuContext;
 use crate::mesh::Mesh;
 use crate::render::{GpuMesh, SceneRenderer};
+use crate::splat::ply::Splat;
 use crate::splat::raster::Rasterizer;
 
 /// Where the teacher stands when it runs beside the neural avatar.
@@ -27,16 +28,17 @@ pub struct Neural {
     pub settings: Option<Settings>,
     surface: Option<(MapSurface, GpuMesh)>,
     mesh: Mesh,
-    /// The frame's base splats on the GPU, and how many.
+    /// The frame's splats on the GPU, and how many.
     splats: Option<(wgpu::Buffer, usize)>,
-    /// Draw splats (else the triangulated surface).
-    pub show_splats: bool,
+    /// The bundle has a refiner (the HUD offers it).
+    pub has_refiner: bool,
     pub root: Vec3,
     pub frames: u64,
     pub clamped: usize,
-    /// The last frame's model time on the GPU and the CPU, ms.
+    /// The last frame's model time on the GPU and the CPU, and its splats' time, ms.
     pub gpu_ms: f64,
     pub cpu_ms: f64,
+    pub splat_ms: f64,
 }
 
 impl Neural {
@@ -55,23 +57,30 @@ impl Neural {
                 Update::Ready {
                     surface,
                     standing,
+                    splats,
                     root,
                     settings,
+                    refiner,
                 } => {
                     self.mesh = surface.mesh(&standing);
-                    self.upload_splats(gpu, &surface);
+                    self.upload_splats(gpu, &splats);
                     self.surface = Some((*surface, renderer.upload(gpu, &self.mesh)));
                     self.root = root;
                     self.settings = Some(settings);
+                    self.has_refiner = refiner;
                     status = Some(None);
                 }
-                Update::Frame(frame, _) => {
+                Update::Frame(drawn, _) => {
+                    let frame = &drawn.frame;
                     if let Some((surface, gpu_mesh)) = self.surface.take() {
                         self.mesh = surface.mesh(&frame.points);
                         gpu_mesh.write_vertices(gpu, &self.mesh);
-                        self.upload_splats(gpu, &surface);
                         self.surface = Some((surface, gpu_mesh));
                     }
+                    if let Some(splats) = &drawn.splats {
+                        self.upload_splats(gpu, splats);
+                    }
+                    self.splat_ms = drawn.splat_ms;
                     self.root = frame.root;
                     self.frames = frame.index + 1;
                     self.clamped = frame.clamped_total;
@@ -86,14 +95,13 @@ impl Neural {
         status
     }
 
-    /// The current mesh's base splats into the splat buffer.
-    fn upload_splats(&mut self, gpu: &GpuContext, surface: &MapSurface) {
-        let splats = surface.splats(&self.mesh);
+    /// A frame's splats into the splat buffer.
+    fn upload_splats(&mut self, gpu: &GpuContext, splats: &[Splat]) {
         match &self.splats {
             Some((buffer, count)) if *count == splats.len() => {
-                Rasterizer::write(gpu, buffer, &splats)
+                Rasterizer::write(gpu, buffer, splats)
             }
-            _ => match Rasterizer::upload(gpu, &splats) {
+            _ => match Rasterizer::upload(gpu, splats) {
                 Ok(buffer) => self.splats = Some((buffer, splats.len())),
                 Err(e) => log::error!("splats: {e}"),
             },
@@ -196,12 +204,13 @@ impl Shown {
             surface: None,
             mesh: Mesh::default(),
             splats: None,
-            show_splats: true,
+            has_refiner: false,
             root: Vec3::ZERO,
             frames: 0,
             clamped: 0,
             gpu_ms: 0.0,
             cpu_ms: 0.0,
+            splat_ms: 0.0,
         });
         shown
     }
@@ -250,7 +259,10 @@ impl Shown {
         if let Some((buffer, count, _)) = &self.file_splats {
             return Some((buffer, *count));
         }
-        let neural = self.neural.as_ref().filter(|n| n.show_splats)?;
+        let neural = self
+            .neural
+            .as_ref()
+            .filter(|n| n.settings.is_none_or(|s| s.splats))?;
         neural
             .splats
             .as_ref()
@@ -262,7 +274,7 @@ impl Shown {
         let neural = self
             .neural
             .as_ref()
-            .filter(|n| !n.show_splats)
+            .filter(|n| n.settings.is_some_and(|s| !s.splats))
             .and_then(|n| n.surface.as_ref())
             .map(|(_, m)| m);
         let alone = self.neural.is_none() && self.file_splats.is_none();

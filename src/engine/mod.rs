@@ -6,6 +6,7 @@
 //! beside a window (`EngineOptions::split`) it is submitted step by step, so the
 //! window's frames never wait for more than one step.
 
+pub mod appearance;
 mod noise;
 pub mod pca;
 mod recentre;

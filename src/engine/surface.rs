@@ -1,17 +1,15 @@
 //! Drawing a generated frame as a surface: neighbouring foreground pixels of the same
 //! view become two triangles (oriented toward that view), so the map's points draw as the
 //! six views' sheets with the scene renderer. Triangles with an edge over three times the
-//! median neighbour distance in the given pose (across depth jumps) are left out. The
-//! same points become base splats: flat discs as wide as the pixel footprint, turned to
-//! each frame's surface normal, coloured by the bundle's per-pixel colours (else one
-//! colour).
+//! median neighbour distance in the given pose (across depth jumps) are left out.
+//! Coloured by the bundle's per-pixel colours (else one colour). Splats are made by
+//! `engine::appearance`.
 
-use glam::{Quat, Vec3};
+use glam::Vec3;
 
 use crate::mesh::Mesh;
 use crate::posmap::table::VIEWS;
 use crate::posmap::{MAP_SIZE, SurfaceTable};
-use crate::splat::ply::{SH_C0, Splat};
 
 /// The colour of bundles without per-pixel colours (a light violet).
 pub const COLOR: Vec3 = Vec3::new(0.55, 0.5, 0.7);
@@ -21,8 +19,6 @@ pub const COLOR: Vec3 = Vec3::new(0.55, 0.5, 0.7);
 pub struct MapSurface {
     indices: Vec<u32>,
     colors: Vec<Vec3>,
-    /// Each point's distance to its map neighbours in the given pose (its footprint).
-    spacing: Vec<f32>,
 }
 
 impl MapSurface {
@@ -41,20 +37,6 @@ impl MapSurface {
         edges.sort_by(f32::total_cmp);
         let median = edges.get(edges.len() / 2).copied().unwrap_or(0.0);
         let max_edge = 3.0 * median;
-        let mut spacing = vec![(0.0f32, 0u32); rest.len()];
-        for &[a, b, c, _] in &quads {
-            for n in [b, c] {
-                let d = rest[a as usize].distance(rest[n as usize]);
-                if d <= max_edge {
-                    spacing[a as usize].0 += d;
-                    spacing[a as usize].1 += 1;
-                }
-            }
-        }
-        let spacing = spacing
-            .into_iter()
-            .map(|(sum, n)| if n == 0 { median } else { sum / n as f32 })
-            .collect();
         let mut indices = Vec::new();
         for (view, [a, b, c, d]) in quads
             .into_iter()
@@ -74,29 +56,7 @@ impl MapSurface {
             }
         }
         let colors = colors.map_or_else(|| vec![COLOR; rest.len()], <[Vec3]>::to_vec);
-        Self {
-            indices,
-            colors,
-            spacing,
-        }
-    }
-
-    /// One splat per point of a frame's mesh (see [`MapSurface::mesh`]): a disc of
-    /// radius ~0.6 × the footprint, 0.1 of it thick, facing the point's normal.
-    pub fn splats(&self, mesh: &Mesh) -> Vec<Splat> {
-        mesh.positions
-            .iter()
-            .zip(&mesh.normals)
-            .zip(&self.spacing)
-            .zip(&self.colors)
-            .map(|(((&position, &normal), &spacing), &color)| Splat {
-                position,
-                f_dc: (color - Vec3::splat(0.5)) / SH_C0,
-                opacity: 0.95,
-                scale: Vec3::new(0.6, 0.6, 0.1) * spacing,
-                rotation: Quat::from_rotation_arc(Vec3::Z, normal.normalize_or(Vec3::Z)),
-            })
-            .collect()
+        Self { indices, colors }
     }
 
     pub fn triangles(&self) -> usize {

@@ -9,6 +9,7 @@ use serde::Deserialize;
 
 use super::Tensor;
 use super::ops::Recorder;
+use super::refiner::{Refiner, RefinerConfig};
 use super::sampler::{self, DiffusionConfig, Sampling, Schedule};
 use super::unet::{UNet, UNetConfig};
 use super::vae::{Decoder, Encoder, VaeConfig};
@@ -37,6 +38,9 @@ pub struct Manifest {
     pub map_size: usize,
     pub normalisation: Normalisation,
     pub pca: PcaConfig,
+    /// The splat refiner's config; bundles without one draw base splats only.
+    #[serde(default)]
+    pub refiner: Option<RefinerConfig>,
 }
 
 /// Group normalisation (DESIGN §4): normalised = (world - root) · scale + 0.5.
@@ -71,6 +75,7 @@ pub struct Bundle {
     /// Each foreground pixel's linear RGB (`map.colors`; bundles from before the trainer
     /// wrote it have none).
     pub colors: Option<Vec<glam::Vec3>>,
+    pub refiner: Option<Refiner>,
 }
 
 impl Bundle {
@@ -91,8 +96,14 @@ impl Bundle {
         } else {
             None
         };
+        let refiner = manifest
+            .refiner
+            .as_ref()
+            .map(|cfg| Refiner::load(&w.at("refiner"), cfg))
+            .transpose()?;
         Ok(Self {
             colors,
+            refiner,
             pixels,
             waist,
             pca_mean,
@@ -225,6 +236,8 @@ pub fn read_manifest(path: &Path) -> Result<Manifest, LoadError> {
             "position maps of {} pixels; this engine's VAE layout is 128",
             manifest.map_size
         ))
+    } else if let Some(Err(problem)) = manifest.refiner.as_ref().map(RefinerConfig::check) {
+        Some(problem)
     } else {
         manifest.sampler.check(diffusion.steps).err()
     };

@@ -299,7 +299,7 @@ mod tests {
             .map(|p| turn * Vec3::new(p.x * 2.0, p.y, p.z))
             .collect();
         let n = neighbours(&pixels, 128);
-        let (splats, _) = base_splats(&moved, &vec![Vec3::ONE; 12], &tangents(&moved, &n));
+        let (splats, _) = base_splats(&moved, &[Vec3::ONE; 12], &tangents(&moved, &n));
         for s in &splats {
             assert!((s.rotation * Vec3::X).distance(turn * Vec3::X) < 1e-5);
             assert!((s.scale.x - 0.012).abs() < 1e-6 && (s.scale.y - 0.006).abs() < 1e-6);
@@ -320,7 +320,7 @@ mod tests {
     fn zero_residuals_leave_the_splats_unchanged() {
         let (pixels, points) = patch();
         let n = neighbours(&pixels, 128);
-        let (splats, _) = base_splats(&points, &vec![Vec3::ONE * 0.3; 12], &tangents(&points, &n));
+        let (splats, _) = base_splats(&points, &[Vec3::ONE * 0.3; 12], &tangents(&points, &n));
         let mut refined = splats.clone();
         refine(&mut refined, &vec![0.0; 12 * RESIDUALS], 0.01);
         for (a, b) in splats.iter().zip(&refined) {
