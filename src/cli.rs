@@ -93,8 +93,10 @@ enum Command {
     /// Headless scripted session to numbered PNGs per view + manifest.json (today with
     /// --teacher CHARACTER; the neural --bundle arrives with the live model)
     Render(RenderArgs),
-    /// Evaluate a bundle against the teacher (not built yet)
-    Eval(Later),
+    /// Evaluate a bundle against the teacher: image, sequence, long-run and ablation
+    /// metrics in OUT/report.md with plots (runs the trainer's evaluation: python3 with
+    /// `pip install -e ./train`)
+    Eval(EvalArgs),
     /// Export the neural avatar's splats after a key script as a 3DGS PLY
     Export(ExportArgs),
     /// Open a 3DGS PLY file (unica's or another program's) in the viewer
@@ -276,11 +278,26 @@ struct ViewArgs {
     screenshot: Option<PathBuf>,
 }
 
-/// Arguments of a subcommand that later milestones build.
 #[derive(clap::Args, Debug)]
-struct Later {
-    #[arg(trailing_var_arg = true, allow_hyphen_values = true, hide = true)]
-    args: Vec<String>,
+struct EvalArgs {
+    /// The bundle to evaluate (e.g. assets/witch/bundle)
+    #[arg(long, value_name = "DIR")]
+    bundle: PathBuf,
+    /// The dataset baked from the bundle's character, with renders (`unica bake`)
+    #[arg(long, value_name = "DIR")]
+    data: PathBuf,
+    /// Output folder for report.md, results.json and the plots (created)
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// The teacher's character file [default: the one the dataset was baked from]
+    #[arg(long, value_name = "FILE")]
+    character: Option<PathBuf>,
+    /// A short script and fewer frames (a few minutes; CI)
+    #[arg(long)]
+    quick: bool,
+    /// Seed of the sampler noise
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
 }
 
 /// Parses the process arguments and runs the command.
@@ -299,7 +316,7 @@ pub fn run() -> anyhow::Result<()> {
             Ok(())
         }
         Some(Command::Render(args)) => render(args, &gpu_options),
-        Some(Command::Eval(_)) => not_built("eval"),
+        Some(Command::Eval(args)) => eval(args),
         Some(Command::Export(args)) => export(args, &gpu_options),
         Some(Command::View(args)) => view(args, gpu_options),
     }
@@ -509,8 +526,67 @@ fn view(args: ViewArgs, gpu: GpuOptions) -> anyhow::Result<()> {
     })
 }
 
-fn not_built(name: &str) -> anyhow::Result<()> {
-    bail!("`unica {name}` is not built yet (see README.md, 'Status')")
+/// The evaluation's key script (the paper's), and the quick one.
+const EVAL_KEYS: &str = "60W 60S 60A 20I";
+const EVAL_KEYS_QUICK: &str = "20W 20S 20A 10I";
+
+/// Drives the teacher on the evaluation's key script (geometry only), then runs the
+/// trainer's evaluation (`python3 -m unica_train.eval`, or $UNICA_PYTHON) on it.
+fn eval(args: EvalArgs) -> anyhow::Result<()> {
+    let manifest_path = args.data.join("manifest.json");
+    let manifest: crate::dataset::Manifest = serde_json::from_slice(
+        &std::fs::read(&manifest_path).with_context(|| manifest_path.display().to_string())?,
+    )
+    .with_context(|| format!("{}: not a dataset manifest", manifest_path.display()))?;
+    let character = args
+        .character
+        .unwrap_or_else(|| PathBuf::from(&manifest.character));
+    if !character.is_file() {
+        bail!(
+            "{}: the dataset's character file is not there; give it with --character",
+            character.display()
+        );
+    }
+    std::fs::create_dir_all(&args.out).with_context(|| args.out.display().to_string())?;
+    let keys = KeyScript::parse(if args.quick {
+        EVAL_KEYS_QUICK
+    } else {
+        EVAL_KEYS
+    })?;
+    let roots = crate::headless::teacher_roots(&character, &keys)?;
+    let teacher = args.out.join("teacher.json");
+    let frames: Vec<_> = roots
+        .iter()
+        .map(|r| serde_json::json!({ "root": r.to_array() }))
+        .collect();
+    crate::files::write_atomic(
+        &teacher,
+        serde_json::to_string(&serde_json::json!({ "frames": frames }))?.as_bytes(),
+    )?;
+    let python = std::env::var("UNICA_PYTHON").unwrap_or_else(|_| "python3".into());
+    let mut command = std::process::Command::new(&python);
+    command
+        .args(["-m", "unica_train.eval", "--bundle"])
+        .arg(&args.bundle)
+        .arg("--data")
+        .arg(&args.data)
+        .arg("--teacher")
+        .arg(&teacher)
+        .arg("--out")
+        .arg(&args.out)
+        .args(["--seed", &args.seed.to_string()]);
+    if args.quick {
+        command.arg("--quick");
+    }
+    let status = command.status().with_context(|| {
+        format!(
+            "running {python}: unica eval needs Python 3 with the trainer (pip install -e ./train)"
+        )
+    })?;
+    if !status.success() {
+        bail!("the evaluation failed ({python} -m unica_train.eval exited with {status})");
+    }
+    Ok(())
 }
 
 fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {

@@ -253,6 +253,19 @@ pub fn render(
     Ok(total)
 }
 
+/// The teacher's world root after each step of `keys` (geometry only, no pictures).
+pub fn teacher_roots(character: &std::path::Path, keys: &KeyScript) -> anyhow::Result<Vec<Vec3>> {
+    let loaded = load_character(character)?;
+    let description = Description::find(&loaded, None)?;
+    let mut teacher = Teacher::new(loaded, description)?;
+    Ok((0..keys.len())
+        .map(|i| {
+            teacher.step(keys.action_at(i));
+            teacher.root()
+        })
+        .collect())
+}
+
 /// A binary little-endian PLY with x y z per point.
 fn ply(points: &[Vec3]) -> Vec<u8> {
     let mut out = Vec::new();

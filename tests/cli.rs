@@ -1,5 +1,5 @@
 //! The binary's contract: help and version, one-line errors with non-zero exit for bad
-//! input and for a machine without any GPU adapter, and the subcommands not built yet.
+//! input and for a machine without any GPU adapter.
 
 use std::process::{Command, Output};
 
@@ -64,10 +64,52 @@ fn help_explains_the_commands_and_the_gpu_choice() {
 }
 
 #[test]
-fn eval_says_not_built_yet() {
+fn eval_names_a_missing_dataset_or_character() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("report");
+    let out = out.to_str().unwrap();
+    let missing = dir.path().join("nothing");
+    let missing = missing.to_str().unwrap();
     assert_one_line_error(
-        &unica(&["eval", "whatever", "--out", "x"], &[]),
-        "not built yet",
+        &unica(
+            &[
+                "eval",
+                "--bundle",
+                "assets/witch/bundle",
+                "--data",
+                missing,
+                "--out",
+                out,
+            ],
+            &[],
+        ),
+        &format!("{missing}/manifest.json"),
+    );
+    // A dataset whose character file has gone: named, with the way out.
+    let data = dir.path().join("data");
+    std::fs::create_dir(&data).unwrap();
+    let manifest = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures/dataset_quick/manifest.json"),
+    )
+    .unwrap();
+    let mut value: serde_json::Value = serde_json::from_str(&manifest).unwrap();
+    value["character"] = "/no/such/Witch.gltf".into();
+    std::fs::write(data.join("manifest.json"), value.to_string()).unwrap();
+    assert_one_line_error(
+        &unica(
+            &[
+                "eval",
+                "--bundle",
+                "assets/witch/bundle",
+                "--data",
+                data.to_str().unwrap(),
+                "--out",
+                out,
+            ],
+            &[],
+        ),
+        "/no/such/Witch.gltf: the dataset's character file is not there; give it with --character",
     );
 }
 

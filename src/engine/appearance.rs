@@ -55,8 +55,9 @@ pub struct Appearance {
 /// Milliseconds of the last [`Appearance::splats`], by stage (readbacks included).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct StageTimes {
-    /// Base splats and features of the 128² points.
+    /// Base splats of the 128² points.
     pub base: f64,
+    /// The refiner's features, network and readback.
     pub refiner: f64,
     /// Upscaling positions and residuals to the splat level, and the fine base splats.
     pub upscale: f64,
@@ -138,14 +139,10 @@ impl Appearance {
             .collect();
         let t = base::tangents(points, &coarse.neighbours);
         let (mut splats, normals) = base::base_splats(points, &coarse.colors, &t);
-        let refiner = bundle.refiner.as_ref().filter(|_| self.refine);
-        let mut features = None;
-        if refiner.is_some() {
-            features = Some(base::features(&unit, &splats, &normals, t.median));
-        }
         self.times.base = lap();
-        let residuals = match refiner.zip(features) {
-            Some((refiner, features)) => {
+        let residuals = match bundle.refiner.as_ref().filter(|_| self.refine) {
+            Some(refiner) => {
+                let features = base::features(&unit, &splats, &normals, t.median);
                 let mut r = Recorder::new(&self.gpu, &mut self.pipelines, self.precision);
                 let x = r.upload("refiner.features", &[unit.len(), 11], &features)?;
                 let y: Tensor = refiner.forward(&mut r, &x, &unit)?;

@@ -98,3 +98,27 @@ def test_srgb_encoding_round_trips():
     x = torch.linspace(0, 1, 101)
     assert torch.allclose(S.linear(S.srgb(x)), x, atol=1e-5)
     assert abs(S.srgb(torch.tensor(0.2140)).item() - 0.5) < 1e-3
+
+
+def test_the_upscale_keeps_constants_and_grows_the_mask_by_three_quarters_of_a_pixel():
+    # A 2×2 block (rows and columns 60-61) of value (1, 2, 3) upscaled ×4 to 512²: every
+    # kept pixel is exactly (1, 2, 3); along a row the interpolated mask exceeds 0.25
+    # from source x 59.25 to 61.75, i.e. output columns 239..=248 (src/splat/upscale.rs's
+    # known answer, moved to this block).
+    pixels = torch.tensor([60 * 128 + 60, 60 * 128 + 61, 61 * 128 + 60, 61 * 128 + 61])
+    fine, values = S.upscale(torch.tensor([[1.0, 2.0, 3.0]]).expand(4, 3), pixels, 512)
+    assert torch.allclose(values, torch.tensor([1.0, 2.0, 3.0]).expand(len(fine), 3))
+    row = 4 * 60 + 4
+    cols = sorted(int(p) % 512 for p in fine if int(p) // 512 == row)
+    assert cols == list(range(239, 249))
+
+
+def test_a_finer_level_has_more_smaller_splats():
+    pixels, points = flat_patch()
+    level = S.Level(pixels, torch.full((12, 3), 0.5), 256)
+    splats, residuals = level.splats(points, torch.ones(12, 2))
+    assert len(level.fine) > 3 * 12 and residuals.shape == (len(level.fine), 2)
+    assert torch.allclose(residuals, torch.ones_like(residuals))
+    # Inside the patch a fine step is half a pixel: half the footprint (0.6 × 0.005);
+    # at its rim the extrapolated values repeat, so splats there are smaller still.
+    assert torch.allclose(splats.scales[:, :2].max(0).values, torch.tensor([0.003, 0.003]), atol=1e-5)

@@ -150,7 +150,8 @@ def keys_text(actions: list[int]) -> str:
 @torch.no_grad()
 def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, pixels, waist, norm_scale, shift_mode,
             frames: int | None = None, basis: torch.Tensor | None = None, window: torch.Tensor | None = None,
-            start_root: torch.Tensor | None = None, diagnose: bool = False, log_every: int = 0) -> dict:
+            start_root: torch.Tensor | None = None, diagnose: bool = False, log_every: int = 0,
+            on_frame=None) -> dict:
     """The live loop of train.py's `Run.rollout` from the clean context latents [3, C, h, w]
     (scaled), recentring each frame either by re-encoding the translated window
     ("reencode", the reference) or by the latent shift context − Σ δ_k J_k ("latent", no
@@ -161,7 +162,8 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
 
     With `diagnose` the window is also tracked in the other modes and every frame records
     the relative RMS gap between the carried context and the re-encoded window (the
-    re-encoding is measured, never fed back)."""
+    re-encoding is measured, never fed back). `on_frame(i, points, shift)` sees each new
+    frame's normalised points [N, 3] (its root at 0.5 + shift)."""
     if shift_mode not in MODES:
         raise ValueError(f"shift_mode {shift_mode!r}: expected one of {MODES}")
     if shift_mode == "latent" and basis is None:
@@ -185,6 +187,8 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
         z = sample_next(unet, schedule, context[None], torch.tensor([a]), steps, cfg_scale, generator=gen)
         new = decode_points(vae, z, scale, pixels)[0]  # [N, 3]
         shift = root(new, waist) - 0.5
+        if on_frame is not None:
+            on_frame(i, new, shift)
         world_root = world_root + shift / norm_scale
         if track:
             window = torch.cat([window[1:], new[None]]) - shift

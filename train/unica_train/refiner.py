@@ -270,7 +270,9 @@ class Frames:
     reconstruction of the ground-truth map, PCA-cleaned, in world space, with the
     ground-truth RGBA renders (downsampled) and their cameras."""
 
-    def __init__(self, data: Path, bundle_dir: Path, size: int):
+    def __init__(self, data: Path, bundle_dir: Path, size: int, reconstruct: bool = True):
+        """`reconstruct`: make every rendered frame's inputs now (training); without it
+        only the renders and cameras are read (evaluation)."""
         self.ds = ds = BakedDataset(data)
         vae, _, extra, manifest = bundle_io.load(bundle_dir)
         if not torch.equal(extra["map.pixels"].long(), ds.pixels):
@@ -289,7 +291,7 @@ class Frames:
         self.unit, self.root = {}, {}
         mean, basis = extra["pca.mean"], extra["pca.basis"]
         with torch.no_grad():
-            for start in range(0, len(self.keys), 64):
+            for start in range(0, len(self.keys) if reconstruct else 0, 64):
                 chunk = self.keys[start:start + 64]
                 world = torch.stack([ds.positions(c, [f])[0] for c, f in chunk])
                 root = ds.root(world)

@@ -24,6 +24,8 @@ OPACITY = 0.95
 VIEWS = [(0, 0, 96, 48), (0, 48, 96, 48), (0, 96, 96, 32), (96, 0, 32, 96), (96, 96, 16, 32), (112, 96, 16, 32)]
 FOV_Y = 0.8
 TILE = 16
+# Tiles blended at once (bounds the renderer's memory).
+TILE_CHUNK = 32
 
 
 def view_of(row: torch.Tensor, col: torch.Tensor) -> torch.Tensor:
@@ -239,24 +241,13 @@ def render(splats: Splats, cam: Camera, background: torch.Tensor) -> tuple[torch
     alpha_image = torch.zeros(cam.height, cam.width)
     if k == 0:
         return image, alpha_image
-    with torch.no_grad():
-        # Per busy tile, its splats in depth order first, padded with the nearest splat.
-        rank = torch.argsort((~cover[busy]).to(torch.int8), dim=1, stable=True)[:, :k]
-        valid = torch.gather(cover[busy], 1, rank)
-        py, px = torch.meshgrid(torch.arange(TILE), torch.arange(TILE), indexing="ij")
-        px = tx[busy][:, None] * TILE + px.flatten()[None] + 0.5  # [T, 256]
-        py = ty[busy][:, None] * TILE + py.flatten()[None] + 0.5
-    dx = center[rank][:, None, :, 0] - px[:, :, None]  # [T, 256, K]
-    dy = center[rank][:, None, :, 1] - py[:, :, None]
-    q = conic[rank][:, None]  # [T, 1, K, 3]
-    power = -0.5 * (q[..., 0] * dx * dx + q[..., 2] * dy * dy) - q[..., 1] * dx * dy
-    alpha = (opacity[rank][:, None] * power.clamp_max(0).exp()).clamp_max(0.99)
-    alpha = torch.where((power <= 0) & (alpha >= 1 / 255) & valid[:, None], alpha, torch.zeros_like(alpha))
-    trans = torch.cumprod(torch.cat([torch.ones_like(alpha[..., :1]), 1 - alpha[..., :-1]], -1), -1)
-    weight = alpha * trans  # [T, 256, K]
-    color = weight @ colors[rank]  # [T, 256, 3]
-    left = trans[..., -1] * (1 - alpha[..., -1])
-    color = color + left[..., None] * background
+    colors_out, alphas_out = [], []
+    for chunk in busy.split(TILE_CHUNK):
+        k = int(counts[chunk].max())
+        c, a = _blend_tiles(chunk, cover, k, tx, ty, center, conic, opacity, colors, background)
+        colors_out.append(c)
+        alphas_out.append(a)
+    color, left = torch.cat(colors_out), torch.cat(alphas_out)
     # Scatter the tiles into the image (tiles past the edge are cropped).
     full = torch.zeros(tiles_y * tiles_x, TILE * TILE, 4)
     full[:, :, :3] = background
@@ -264,6 +255,59 @@ def render(splats: Splats, cam: Camera, background: torch.Tensor) -> tuple[torch
     full = full.reshape(tiles_y, tiles_x, TILE, TILE, 4).permute(0, 2, 1, 3, 4).reshape(tiles_y * TILE, tiles_x * TILE, 4)
     full = full[: cam.height, : cam.width]
     return full[..., :3], full[..., 3]
+
+
+def _blend_tiles(tiles, cover, k, tx, ty, center, conic, opacity, colors, background):
+    """Front-to-back blending of the pixels of `tiles`: (colour [T, 256, 3], the
+    transmittance left [T, 256])."""
+    with torch.no_grad():
+        # Per tile, its splats in depth order first, padded with splats it does not cover.
+        rank = torch.argsort((~cover[tiles]).to(torch.int8), dim=1, stable=True)[:, :k]
+        valid = torch.gather(cover[tiles], 1, rank)
+        py, px = torch.meshgrid(torch.arange(TILE), torch.arange(TILE), indexing="ij")
+        px = tx[tiles][:, None] * TILE + px.flatten()[None] + 0.5  # [T, 256]
+        py = ty[tiles][:, None] * TILE + py.flatten()[None] + 0.5
+    dx = center[rank][:, None, :, 0] - px[:, :, None]  # [T, 256, K]
+    dy = center[rank][:, None, :, 1] - py[:, :, None]
+    q = conic[rank][:, None]  # [T, 1, K, 3]
+    power = -0.5 * (q[..., 0] * dx * dx + q[..., 2] * dy * dy) - q[..., 1] * dx * dy
+    alpha = (opacity[rank][:, None] * power.clamp_max(0).exp()).clamp_max(0.99)
+    alpha = torch.where((power <= 0) & (alpha >= 1 / 255) & valid[:, None], alpha, torch.zeros_like(alpha))
+    trans = torch.cumprod(torch.cat([torch.ones_like(alpha[..., :1]), 1 - alpha[..., :-1]], -1), -1)
+    color = (alpha * trans) @ colors[rank]  # [T, 256, 3]
+    left = trans[..., -1] * (1 - alpha[..., -1])
+    return color + left[..., None] * background, left
+
+
+def upscale(values: torch.Tensor, pixels: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-pixel values [N, C] of the 128² map's foreground `pixels`, upscaled to a size²
+    map as src/splat/upscale.rs does (mask-weighted values and the mask interpolated
+    bilinearly, divided, kept where the interpolated mask > 0.25): (pixels [M], [M, C])."""
+    mask = torch.zeros(128 * 128)
+    mask[pixels] = 1
+    maps = torch.zeros(values.shape[1], 128 * 128)
+    maps[:, pixels] = values.T
+    stack = torch.cat([maps * mask, mask[None]]).reshape(1, -1, 128, 128)
+    up = F.interpolate(stack, size=(size, size), mode="bilinear", align_corners=False)[0].flatten(1)
+    keep = torch.nonzero(up[-1] > 0.25).squeeze(1)
+    return keep, (up[:-1, keep] / up[-1, keep]).T
+
+
+class Level:
+    """Splats at a finer level (as src/engine/appearance.rs): the 128² points, colours and
+    any per-point residuals upscaled to the level's map, whose pixels become the splats."""
+
+    def __init__(self, pixels: torch.Tensor, colors: torch.Tensor, size: int):
+        self.pixels, self.size = pixels, size
+        self.fine, self.colors = upscale(colors, pixels, size)
+        self.nbrs = neighbours(self.fine, size)
+
+    def splats(self, points: torch.Tensor, residuals: torch.Tensor | None = None) -> tuple[Splats, torch.Tensor | None]:
+        """(base splats at this level, the residuals upscaled to it)."""
+        values = points if residuals is None else torch.cat([points, residuals], 1)
+        _, up = upscale(values, self.pixels, self.size)
+        base, _ = base_splats(up[:, :3], self.colors, self.nbrs)
+        return base, (None if residuals is None else up[:, 3:])
 
 
 def srgb(linear: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,190 @@
+"""Evaluation metrics (DESIGN §10), each on cases with known answers."""
+
+import math
+
+import pytest
+import torch
+
+from unica_train import metrics as M
+
+
+def grid(n: int, spacing: float) -> torch.Tensor:
+    """n³ points on a cubic grid, about a metre from the origin."""
+    r = torch.arange(n, dtype=torch.float32) * spacing
+    x, y, z = torch.meshgrid(r, r, r, indexing="ij")
+    return torch.stack([x, y, z], dim=-1).reshape(-1, 3) + torch.tensor([0.3, 0.9, -0.5])
+
+
+def path_from_steps(dirs_deg: list[float], step: float | list[float], y: float = 1.0) -> torch.Tensor:
+    """A path [len + 1, 3] from per-step headings (degrees, atan2(dx, dz)) and lengths."""
+    lengths = step if isinstance(step, list) else [step] * len(dirs_deg)
+    points = [(0.0, y, 0.0)]
+    for h, s in zip(dirs_deg, lengths):
+        x, _, z = points[-1]
+        points.append((x + s * math.sin(math.radians(h)), y, z + s * math.cos(math.radians(h))))
+    return torch.tensor(points, dtype=torch.float64)
+
+
+# Chamfer
+
+
+def test_chamfer_of_identical_clouds_is_zero():
+    a = grid(6, 0.05)
+    assert M.chamfer(a, a.clone()) == 0.0
+
+
+def test_chamfer_of_a_small_shift_is_its_length_across_chunks():
+    a = grid(15, 0.02)  # 3375 points: four chunks of rows
+    d = torch.tensor([0.001, -0.002, 0.0015])
+    assert M.chamfer(a, a + d) == pytest.approx(d.norm().item(), rel=1e-3)
+
+
+def test_chamfer_is_symmetric_and_halved():
+    # From a: the origin is on b (0). From b: 0 and 1, mean 0.5. Halved sum: 0.25.
+    a = torch.tensor([[0.0, 0.0, 0.0]])
+    b = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    assert M.chamfer(a, b) == pytest.approx(0.25)
+    assert M.chamfer(b, a) == pytest.approx(0.25)
+
+
+def test_nearest_pose_chamfer_finds_the_pose_wherever_it_stands():
+    g = torch.Generator().manual_seed(0)
+    poses = torch.randn(12, 200, 3, generator=g) * 0.3
+    frame = poses[7] + torch.tensor([2.0, 0.0, -3.0])
+    distance, index = M.nearest_pose_chamfer(frame, poses)
+    assert index == 7
+    assert distance == pytest.approx(0.0, abs=1e-6)
+    # Without centring the same frame is metres away from every pose.
+    distance, _ = M.nearest_pose_chamfer(frame, poses, centre=False)
+    assert distance > 1.0
+
+
+# Fréchet distance
+
+
+def test_frechet_of_identical_sets_is_zero():
+    x = torch.randn(300, 5, generator=torch.Generator().manual_seed(1))
+    assert abs(M.frechet_distance(x, x.clone())) < 1e-6
+
+
+def test_frechet_of_a_constant_shift_is_its_squared_length():
+    x = torch.randn(300, 5, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    c = torch.tensor([0.5, -1.0, 0.25, 0.0, 2.0], dtype=torch.float64)
+    assert M.frechet_distance(x, x + c) == pytest.approx(c.square().sum().item(), rel=1e-9)
+
+
+def test_frechet_of_one_dimensional_gaussians_is_the_squared_sigma_difference():
+    g = torch.Generator().manual_seed(3)
+    u = torch.randn(500, 1, generator=g, dtype=torch.float64)
+    v = torch.randn(400, 1, generator=g, dtype=torch.float64)
+    u = (u - u.mean()) / u.std()  # unbiased standard deviation 1 exactly
+    v = (v - v.mean()) / v.std()
+    s1, s2 = 0.7, 1.9
+    assert M.frechet_distance(s1 * u, s2 * v) == pytest.approx((s1 - s2) ** 2, rel=1e-9)
+
+
+def test_windows_flatten_frame_by_frame():
+    seq = torch.arange(20.0).reshape(10, 2)
+    w = M.windows(seq, length=3, stride=2)
+    assert w.shape == (4, 6)
+    assert torch.equal(w[0], torch.tensor([0.0, 1, 2, 3, 4, 5]))
+    assert torch.equal(w[3], seq[6:9].reshape(-1))
+
+
+# Paths
+
+
+def test_speeds_are_horizontal():
+    # 0.02 m a frame along +X at 30 fps, with a vertical bob that must not count.
+    t = torch.arange(11, dtype=torch.float64)
+    path = torch.stack([0.02 * t, 1.0 + 0.05 * torch.sin(t), torch.zeros_like(t)], dim=1)
+    assert torch.allclose(M.speeds(path, 30.0), torch.full((10,), 0.6, dtype=torch.float64))
+
+
+def test_headings_follow_the_convention():
+    path = path_from_steps([0.0, 90.0, 180.0, -90.0, 45.0], 0.1)
+    assert torch.allclose(M.headings(path), torch.tensor([0.0, 90.0, 180.0, -90.0, 45.0], dtype=torch.float64), atol=1e-9)
+
+
+def test_heading_difference_wraps_to_the_half_open_interval():
+    a = torch.tensor([170.0, -170.0, 180.0, 0.0, 30.0])
+    b = torch.tensor([-170.0, 170.0, -180.0, 180.0, 10.0])
+    assert torch.allclose(M.heading_difference(a, b), torch.tensor([-20.0, 20.0, 0.0, 180.0, 20.0], dtype=torch.float64))
+    assert M.heading_difference(-90.0, 90.0).item() == 180.0
+
+
+def test_segment_summary_reports_settled_speed_and_heading():
+    # Forward 40 steps along +Z at 0.03 m; Left 30 steps: 15 settling steps wandering at
+    # 0.01 m, then 15 steps along -X at 0.02 m; Idle 10 steps, too short to report.
+    dirs = [0.0] * 40 + [-45.0] * 15 + [-90.0] * 15 + [0.0] * 10
+    steps = [0.03] * 40 + [0.01] * 15 + [0.02] * 15 + [0.0] * 10
+    path = path_from_steps(dirs, steps)
+    keys = [1] * 40 + [3] * 30 + [0] * 10
+    runs = M.segment_summary(path, keys, frame_rate=30.0)
+    assert [(r["action"], r["start"], r["frames"]) for r in runs] == [(1, 0, 40), (3, 40, 30)]
+    assert runs[0]["speed"] == pytest.approx(0.9)
+    assert runs[0]["heading"] == pytest.approx(0.0, abs=1e-9)
+    assert runs[1]["speed"] == pytest.approx(0.6)
+    assert runs[1]["heading"] == pytest.approx(-90.0)
+    with pytest.raises(ValueError):
+        M.segment_summary(path, keys[:-1], frame_rate=30.0)
+
+
+# Responsiveness
+
+
+def test_turn_frames_of_a_half_turn_over_twelve_frames():
+    # 20 frames along +Z, then the key switches: the 12 steps under the new key turn by 15°
+    # each (15°, 30°, ..., 180°) and the path then runs along -Z. The 11th step (165°) is
+    # 15° off; the 12th (180°) is the first within 10°, and it stays: 12 frames.
+    dirs = [0.0] * 20 + [15.0 * m for m in range(1, 13)] + [180.0] * 10
+    path = path_from_steps(dirs, 0.05)
+    switch = 21  # path[21] is the first frame the new key generates
+    assert M.turn_frames(path, switch, 180.0) == 12
+    # A wider tolerance takes the 165° step (the 11th) too.
+    assert M.turn_frames(path, switch, 180.0, tolerance=20.0) == 11
+
+
+def test_turn_frames_of_a_quarter_turn_over_nine_frames():
+    # Steps of 10° (10°, ..., 90°): with a 5° tolerance only the 9th, at 90°, is on target.
+    dirs = [0.0] * 20 + [10.0 * m for m in range(1, 10)] + [90.0] * 10
+    path = path_from_steps(dirs, 0.05)
+    assert M.turn_frames(path, 21, 90.0, tolerance=5.0) == 9
+    assert M.turn_frames(path, 21, -90.0, tolerance=5.0) is None
+
+
+def test_turn_frames_needs_the_heading_to_hold_and_the_body_to_move():
+    # Passes through the target for two steps, leaves, then holds it from the 6th step.
+    dirs = [0.0] * 5 + [90.0, 90.0, 0.0, 0.0, 0.0] + [90.0] * 6
+    path = path_from_steps(dirs, 0.05)
+    assert M.turn_frames(path, 6, 90.0) == 6
+    # Standing still never reaches a heading, even one that atan2(0, 0) = 0° would give.
+    still = torch.zeros(20, 3)
+    assert M.turn_frames(still, 5, 0.0) is None
+
+
+# Drift
+
+
+def test_student_t_quantiles_match_the_tables():
+    assert M.student_t_quantile(0.975, 10) == pytest.approx(2.228139, abs=1e-3)
+    assert M.student_t_quantile(0.975, 100) == pytest.approx(1.983972, abs=1e-3)
+    # One degree of freedom is Cauchy: tan(π (p - ½)).
+    assert M.student_t_quantile(0.975, 1) == pytest.approx(math.tan(math.pi * 0.475), rel=1e-9)
+    assert M.student_t_quantile(0.025, 10) == pytest.approx(-2.228139, abs=1e-3)
+    assert M.student_t_cdf(0.0, 7) == 0.5
+
+
+def test_drift_slope_of_an_exact_line():
+    starts = torch.arange(0, 200, 16, dtype=torch.float32)
+    d = M.drift_slope(0.25 + 0.003 * starts, starts)
+    assert d["slope"] == pytest.approx(0.003, rel=1e-5)
+    lo, hi = d["ci95"]
+    assert hi - lo < 1e-6 and lo <= d["slope"] <= hi
+
+
+def test_drift_slope_of_noise_has_zero_in_its_interval():
+    starts = torch.arange(0, 640, 16, dtype=torch.float64)
+    values = 0.1 + 0.01 * torch.randn(40, generator=torch.Generator().manual_seed(4), dtype=torch.float64)
+    lo, hi = M.drift_slope(values, starts)["ci95"]
+    assert lo < 0.0 < hi

@@ -1,0 +1,312 @@
+"""The evaluation report (DESIGN §10): the neural avatar of a bundle measured against the
+teacher on the UNICA paper's protocol, with honest stand-ins for what needs pretrained
+networks (LPIPS, FVD).
+
+    python -m unica_train.eval --bundle B --data DATA --teacher TEACHER.json --out OUT [--quick]
+
+(`unica eval --bundle B --data DATA --out OUT` first drives the teacher headless on the
+key script to make TEACHER.json, then runs this.) The live loop is the trainer's
+reference of the WGSL engine (recentre.rollout with the latent shift, parity-tested
+against it), run in PyTorch because a 2-core CPU runs it there ~20× faster than lavapipe.
+
+1. Image level: held-out dataset frames, each generated from its three ground-truth
+   context frames and the true action, drawn as splats from the dataset's four cardinal
+   cameras against the teacher's renders: PSNR and SSIM, base splats and refined. The
+   same with the ground-truth geometry isolates appearance (what the refiner buys).
+2. Sequence level on `60W 60S 60A 20I` from the standing start: (a) Chamfer distance of
+   each frame to the nearest teacher pose in the dataset, mm; (b) the Fréchet distance
+   between 16-frame windows of PCA coefficients, generated vs the dataset's (the FVD
+   stand-in); (c) per key segment the speed and heading against the teacher's;
+   (d) frames to complete the 180° and 90° turns, on the direction of movement between
+   consecutive frames, as the paper measures.
+3. Long run: the script ten times (2,000 frames); (b) on sliding 200-frame windows with a
+   fitted slope and its 95 % interval (drift shows as a positive slope).
+4. Ablations: DDIM steps, CFG scale, PCA on/off, refiner on/off.
+5. report.md, results.json and PNG plots in OUT."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import torch
+
+from . import bundle as bundle_io
+from . import metrics, pca, recentre, splats
+from .dataset import ANCHOR, BakedDataset
+from .diffusion import Schedule, sample_next
+from .refiner import Frames, Refiner, RefinerConfig, apply, features
+from .train import parse_keys
+
+KEYS = "60W 60S 60A 20I"
+FRAME_RATE = 30.0
+# PCA components in the windows of the FVD stand-in: the leading ones carry the motion.
+FVD_COMPONENTS = 8
+WINDOW = 16
+NAMES = "IWSAD"
+# Headings of the keys (W +Z, S -Z, A +X, D -X), degrees.
+KEY_HEADINGS = {1: 0.0, 2: 180.0, 3: 90.0, 4: -90.0}
+
+
+class Avatar:
+    """The bundle's models, the dataset, and what the loop and the splats need."""
+
+    def __init__(self, bundle_dir: Path, data: Path, level: int):
+        self.bundle_dir = bundle_dir
+        self.vae, self.unet, self.extra, self.manifest = bundle_io.load(bundle_dir)
+        self.vae.eval()
+        self.unet.eval()
+        self.ds = BakedDataset(data)
+        self.pixels = self.extra["map.pixels"].long()
+        if not torch.equal(self.pixels, self.ds.pixels):
+            raise bundle_io.BundleError(f"{data}: its position-map pixels are not the bundle's")
+        self.waist = self.extra["map.waist"].long()
+        self.scale = self.manifest["normalisation"]["scale"]
+        self.latent_scale = self.manifest["latent_scale"]
+        self.schedule = Schedule()
+        self.pca_mean, self.pca_basis = self.extra["pca.mean"], self.extra["pca.basis"]
+        self.colors = self.extra.get("map.colors", self.ds.pixel_colors())
+        self.nbrs = splats.neighbours(self.pixels, 128)
+        self.level = splats.Level(self.pixels, self.colors, level)
+        self.refiner = None
+        if "refiner" in self.manifest:
+            cfg = RefinerConfig(**self.manifest["refiner"])
+            self.refiner = Refiner(cfg)
+            self.refiner.load_state_dict({k.removeprefix("refiner."): v for k, v in self.extra.items() if k.startswith("refiner.")})
+            self.refiner.eval()
+        self.basis = recentre.bundle_basis(self.vae, self.extra, self.manifest)
+
+    def clean(self, unit: torch.Tensor) -> torch.Tensor:
+        """PCA clean-up of normalised points [N, 3] (the root's shift kept)."""
+        shift = unit[self.waist].mean(0) - 0.5
+        flat = (unit - shift).flatten()
+        return pca.project(flat[None], self.pca_mean, self.pca_basis)[0].reshape(-1, 3) + shift
+
+    def coefficients(self, unit: torch.Tensor) -> torch.Tensor:
+        """Leading PCA coefficients of root-centred frames [F, N, 3] -> [F, K]."""
+        shift = unit[:, self.waist].mean(1, keepdim=True) - 0.5
+        flat = (unit - shift).flatten(1)
+        return pca.coefficients(flat, self.pca_mean, self.pca_basis[:FVD_COMPONENTS])
+
+    @torch.no_grad()
+    def draw(self, world: torch.Tensor, refine: bool) -> splats.Splats:
+        """Splats of world points [N, 3] at the evaluation level, refined or not."""
+        root = world[self.waist].mean(0)
+        unit = (world - root) * self.scale + 0.5
+        residuals = None
+        if refine and self.refiner is not None:
+            base, normals = splats.base_splats(world, self.colors, self.nbrs)
+            median = splats.median_spacing(world, self.nbrs)
+            residuals = self.refiner(features(unit, base, normals, median), unit)
+        fine, up = self.level.splats(world, residuals)
+        if up is None:
+            return fine
+        return apply(fine, up, self.refiner.cfg.mean_bound / self.scale)
+
+    @torch.no_grad()
+    def rollout(self, keys, setting: dict, seed: int, frames: int | None = None) -> dict:
+        """The live loop from the standing start: world path and drawn points per frame."""
+        drawn = []
+
+        def keep(i, new, shift):
+            drawn.append(self.clean(new) if setting["pca"] else new.clone())
+
+        started = time.time()
+        out = recentre.rollout(
+            self.vae, self.unet, self.schedule, self.latent_scale, self.extra["context.latents"], keys,
+            setting["steps"], setting["cfg_scale"], seed, self.pixels, self.waist, self.scale, "latent",
+            frames=frames, basis=self.basis, on_frame=keep)
+        out["unit"] = torch.stack(drawn)
+        out["ms_per_frame"] = (time.time() - started) * 1e3 / max(1, len(drawn))
+        return out
+
+
+# ---- 1. image level -------------------------------------------------------------------
+
+
+@torch.no_grad()
+def image_level(av: Avatar, data: Path, count: int, size: int, seed: int, sheet: list) -> dict:
+    """PSNR/SSIM over the 4 cardinal views of `count` held-out rendered frames: generated
+    geometry and ground-truth geometry, each as base and refined splats."""
+    frames = Frames(data, av.bundle_dir, size, reconstruct=False)
+    held = [k for k in frames.keys if k[0] in (4, 13) and k[1] >= 3]
+    chosen = held[:: max(1, len(held) // count)][:count]
+    gen = torch.Generator().manual_seed(seed)
+    sums: dict[str, list[float]] = {}
+    views = 0
+    for clip, f in chosen:
+        world = av.ds.positions(clip, list(range(f - 3, f + 1)))  # 3 context frames + the truth
+        unit, root = av.ds.normalise(world, anchor=ANCHOR)
+        context = av.vae.encoder(av.ds.to_maps(unit[:3]))[0] * av.latent_scale
+        action = int(av.ds.clips[clip]["actions"][f - 1])
+        z = sample_next(av.unet, av.schedule, context[None], torch.tensor([action]), av.manifest["sampler"]["ddim_steps"],
+                        av.manifest["sampler"]["cfg_scale"], generator=gen)
+        new = recentre.decode_points(av.vae, z, av.latent_scale, av.pixels)[0]
+        generated = (av.clean(new) - 0.5) / av.scale + root
+        truth = world[3]
+        drawn = {
+            "generated, base": av.draw(generated, False),
+            "generated, refined": av.draw(generated, True),
+            "ground truth, base": av.draw(truth, False),
+            "ground truth, refined": av.draw(truth, True),
+        }
+        for view in frames.views[(clip, f)]:
+            cam, target = frames.target(view)
+            want = splats.srgb(target[..., :3])
+            for name, s in drawn.items():
+                got = splats.srgb(splats.render(s, cam, torch.zeros(3))[0])
+                acc = sums.setdefault(name, [0.0, 0.0])
+                acc[0] += splats.psnr(got, want)
+                acc[1] += splats.ssim(got, want).item()
+                if name == "generated, refined" and len(sheet) < 4 and view["file"].endswith("front.png"):
+                    sheet.append((want, got))
+            views += 1
+    return {"frames": len(chosen), "views": views, "size": size, "level": av.level.size,
+            "metrics": {name: {"psnr": v[0] / views, "ssim": v[1] / views} for name, v in sums.items()}}
+
+
+# ---- 2. sequence level ----------------------------------------------------------------
+
+
+def teacher_reference(av: Avatar, window_stride: int, pose_stride: int, clips: list[int] | None = None):
+    """From the dataset's clips (the teacher's motion): 16-frame windows of the leading
+    PCA coefficients (every `window_stride` frames), and every `pose_stride`-th pose
+    centred on its root, in metres [P, N, 3]. Frames are made 32 at a time."""
+    windows_out, poses = [], []
+    for c in clips if clips is not None else range(len(av.ds.clips)):
+        count = av.ds.clips[c]["actions"].shape[0]
+        coeffs = []
+        for start in range(0, count, 32):
+            world = av.ds.positions(c, list(range(start, min(start + 32, count))))
+            root = av.ds.root(world)[:, None]
+            coeffs.append(av.coefficients((world - root) * av.scale + 0.5))
+            keep = [i for i in range(len(world)) if (start + i) % pose_stride == 0]
+            poses.append((world - root)[keep])
+        windows_out.append(metrics.windows(torch.cat(coeffs), WINDOW, window_stride))
+    return torch.cat(windows_out), torch.cat(poses)
+
+
+def sequence_level(av: Avatar, run: dict, teacher_path: list, keys: str, poses: torch.Tensor, reference: torch.Tensor) -> dict:
+    unit = run["unit"]
+    world = (unit - unit[:, av.waist].mean(1, keepdim=True)) / av.scale
+    chamfers = [metrics.nearest_pose_chamfer(w, poses, centre=False)[0] * 1000 for w in world]
+    fd = metrics.frechet_distance(metrics.windows(av.coefficients(unit), WINDOW), reference)
+    actions = parse_keys(keys, run["frames"])
+    path = torch.tensor(run["root_path"])
+    teacher = torch.tensor(teacher_path[: len(path)])
+    segments = []
+    for gen_seg, teach_seg in zip(metrics.segment_summary(path, actions, FRAME_RATE),
+                                  metrics.segment_summary(teacher, actions[: len(teacher) - 1], FRAME_RATE)):
+        segments.append({"key": NAMES[gen_seg["action"]], "speed": gen_seg["speed"], "heading": gen_seg["heading"],
+                         "teacher_speed": teach_seg["speed"], "teacher_heading": teach_seg["heading"]})
+    turns = {}
+    for label, switch, target in turn_points(actions):
+        turns[label] = {"generated": metrics.turn_frames(path, switch, target),
+                        "teacher": metrics.turn_frames(teacher, switch, target)}
+    return {"chamfer_mm": sum(chamfers) / len(chamfers), "chamfer_mm_per_frame": chamfers, "fvd_pca": fd,
+            "segments": segments, "turns": turns, "ms_per_frame": run["ms_per_frame"]}
+
+
+def turn_points(actions: list[int]) -> list[tuple[str, int, float]]:
+    """(label, switch frame, target heading) of each change between movement keys."""
+    out = []
+    for i in range(1, len(actions)):
+        a, b = actions[i - 1], actions[i]
+        if a != b and a in KEY_HEADINGS and b in KEY_HEADINGS:
+            turn = abs(metrics.heading_difference(torch.tensor(KEY_HEADINGS[b]), torch.tensor(KEY_HEADINGS[a])).item())
+            out.append((f"{NAMES[a]}→{NAMES[b]} ({turn:.0f}°)", i, KEY_HEADINGS[b]))
+    return out
+
+
+# ---- 3. long run ----------------------------------------------------------------------
+
+
+def long_run(av: Avatar, run: dict, reference: torch.Tensor, window: int, stride: int) -> dict:
+    coeffs = av.coefficients(run["unit"])
+    starts, values = [], []
+    for s in range(0, coeffs.shape[0] - window + 1, stride):
+        starts.append(s)
+        values.append(metrics.frechet_distance(metrics.windows(coeffs[s:s + window], WINDOW), reference))
+    fit = metrics.drift_slope(torch.tensor(values), torch.tensor(starts, dtype=torch.float64))
+    finite = bool(torch.isfinite(run["unit"]).all())
+    return {"frames": run["frames"], "window": window, "stride": stride, "starts": starts, "fvd_pca": values,
+            "slope_per_1000_frames": fit["slope"] * 1000, "ci95_per_1000_frames": [c * 1000 for c in fit["ci95"]],
+            "finite": finite}
+
+
+# ---- the report -----------------------------------------------------------------------
+
+
+def evaluate(args) -> dict:
+    quick = args.quick
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    av = Avatar(args.bundle, args.data, args.level)
+    # The teacher's manifest has the root after each frame's step; its start (standing,
+    # the first step barely moves) is taken as its first root.
+    roots = [f["root"] for f in json.loads(args.teacher.read_text())["frames"]]
+    teacher = roots[:1] + roots
+    defaults = {"steps": av.manifest["sampler"]["ddim_steps"], "cfg_scale": av.manifest["sampler"]["cfg_scale"], "pca": True}
+    keys = "20W 20S 20A 10I" if quick else KEYS
+    frames = sum(int(t[:-1]) for t in keys.split())
+    began = time.time()
+    results: dict = {"bundle": str(args.bundle), "data": str(args.data), "quick": quick, "keys": keys, "seed": args.seed,
+                     "defaults": defaults}
+    print("image level …", flush=True)
+    sheet: list = []
+    results["image"] = image_level(av, args.data, 2 if quick else 12, args.size, args.seed, sheet)
+    print(f"reference windows and poses … ({time.time() - began:.0f} s)", flush=True)
+    clips = list(range(0, len(av.ds.clips), 4)) if quick else None
+    reference, poses = teacher_reference(av, 8 if quick else 4, 8 if quick else 2, clips)
+    print(f"sequence … ({time.time() - began:.0f} s)", flush=True)
+    run = av.rollout(keys, defaults, args.seed)
+    results["sequence"] = sequence_level(av, run, teacher, keys, poses, reference)
+    results["sequence"]["path"] = run["root_path"]
+    results["sequence"]["teacher_headings"] = metrics.headings(torch.tensor(teacher[: frames + 1])).tolist()
+    repeats = 2 if quick else 10
+    print(f"long run ({repeats} × the script) … ({time.time() - began:.0f} s)", flush=True)
+    long = av.rollout(" ".join([keys] * repeats), defaults, args.seed)
+    window = 50 if quick else 200
+    results["long_run"] = long_run(av, long, reference, window, window // 2)
+    print(f"ablations … ({time.time() - began:.0f} s)", flush=True)
+    ablations = []
+    step_list = [1, 2] if quick else [1, 2, 4, 10, 20]
+    cfg_list = [1.0] if quick else [1.0, 2.0, 3.0]
+    variants = [dict(defaults, steps=s) for s in step_list]
+    variants += [dict(defaults, cfg_scale=c) for c in cfg_list if c != defaults["cfg_scale"]]
+    variants.append(dict(defaults, pca=False))
+    for v in variants:
+        r = av.rollout(keys, v, args.seed)
+        seq = sequence_level(av, r, teacher, keys, poses, reference)
+        seq.pop("chamfer_mm_per_frame")
+        ablations.append({"setting": v, **seq})
+        print(f"  {v}: chamfer {seq['chamfer_mm']:.1f} mm, FVD-PCA {seq['fvd_pca']:.2f}", flush=True)
+    results["ablations"] = ablations
+    results["minutes"] = (time.time() - began) / 60
+    (out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
+    from .report import write_report
+
+    write_report(out, results, sheet)
+    return results
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--bundle", required=True, type=Path)
+    parser.add_argument("--data", required=True, type=Path, help="dataset folder written by `unica bake` (with renders)")
+    parser.add_argument("--teacher", required=True, type=Path, help="manifest.json of `unica render --teacher` on the key script")
+    parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--quick", action="store_true", help="a short script and fewer frames (CI, a few minutes)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--size", type=int, default=256, help="image size of the image-level metrics")
+    parser.add_argument("--level", type=int, default=256, choices=[128, 256, 512], help="splat level of the image-level metrics")
+    args = parser.parse_args(argv)
+    results = evaluate(args)
+    print(f"wrote {args.out / 'report.md'} ({results['minutes']:.1f} min)")
+
+
+if __name__ == "__main__":
+    main()
