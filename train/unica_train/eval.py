@@ -47,6 +47,8 @@ FRAME_RATE = 30.0
 FVD_COMPONENTS = 8
 WINDOW = 16
 NAMES = "IWSAD"
+# The clips the bundle's models never saw (a short dataset without them: its last clip).
+HELD_OUT_CLIPS = (4, 13)
 # Headings of the keys (W +Z, S -Z, A +X, D -X), degrees.
 KEY_HEADINGS = {1: 0.0, 2: 180.0, 3: 90.0, 4: -90.0}
 
@@ -132,7 +134,9 @@ def image_level(av: Avatar, data: Path, count: int, size: int, seed: int, sheet:
     """PSNR/SSIM over the 4 cardinal views of `count` held-out rendered frames: generated
     geometry and ground-truth geometry, each as base and refined splats."""
     frames = Frames(data, av.bundle_dir, size, reconstruct=False)
-    held = [k for k in frames.keys if k[0] in (4, 13) and k[1] >= 3]
+    clips = {k[0] for k in frames.keys}
+    held_out = [c for c in HELD_OUT_CLIPS if c in clips] or [max(clips)]
+    held = [k for k in frames.keys if k[0] in held_out and k[1] >= 3]
     chosen = held[:: max(1, len(held) // count)][:count]
     gen = torch.Generator().manual_seed(seed)
     sums: dict[str, list[float]] = {}
@@ -164,7 +168,7 @@ def image_level(av: Avatar, data: Path, count: int, size: int, seed: int, sheet:
                 if name == "generated, refined" and len(sheet) < 4 and view["file"].endswith("front.png"):
                     sheet.append((want, got))
             views += 1
-    return {"frames": len(chosen), "views": views, "size": size, "level": av.level.size,
+    return {"frames": len(chosen), "views": views, "clips": held_out, "size": size, "level": av.level.size,
             "metrics": {name: {"psnr": v[0] / views, "ssim": v[1] / views} for name, v in sums.items()}}
 
 
@@ -189,7 +193,8 @@ def teacher_reference(av: Avatar, window_stride: int, pose_stride: int, clips: l
     return torch.cat(windows_out), torch.cat(poses)
 
 
-def sequence_level(av: Avatar, run: dict, teacher_path: list, keys: str, poses: torch.Tensor, reference: torch.Tensor) -> dict:
+def sequence_level(av: Avatar, run: dict, teacher_path: list, keys: str, poses: torch.Tensor, reference: torch.Tensor,
+                   settle: int = 15) -> dict:
     unit = run["unit"]
     world = (unit - unit[:, av.waist].mean(1, keepdim=True)) / av.scale
     chamfers = [metrics.nearest_pose_chamfer(w, poses, centre=False)[0] * 1000 for w in world]
@@ -198,8 +203,8 @@ def sequence_level(av: Avatar, run: dict, teacher_path: list, keys: str, poses: 
     path = torch.tensor(run["root_path"])
     teacher = torch.tensor(teacher_path[: len(path)])
     segments = []
-    for gen_seg, teach_seg in zip(metrics.segment_summary(path, actions, FRAME_RATE),
-                                  metrics.segment_summary(teacher, actions[: len(teacher) - 1], FRAME_RATE)):
+    for gen_seg, teach_seg in zip(metrics.segment_summary(path, actions, FRAME_RATE, settle),
+                                  metrics.segment_summary(teacher, actions[: len(teacher) - 1], FRAME_RATE, settle)):
         segments.append({"key": NAMES[gen_seg["action"]], "speed": gen_seg["speed"], "heading": gen_seg["heading"],
                          "teacher_speed": teach_seg["speed"], "teacher_heading": teach_seg["heading"]})
     turns = {}
@@ -263,7 +268,8 @@ def evaluate(args) -> dict:
     reference, poses = teacher_reference(av, 8 if quick else 4, 8 if quick else 2, clips)
     print(f"sequence … ({time.time() - began:.0f} s)", flush=True)
     run = av.rollout(keys, defaults, args.seed)
-    results["sequence"] = sequence_level(av, run, teacher, keys, poses, reference)
+    settle = 5 if quick else 15
+    results["sequence"] = sequence_level(av, run, teacher, keys, poses, reference, settle)
     results["sequence"]["path"] = run["root_path"]
     results["sequence"]["teacher_headings"] = metrics.headings(torch.tensor(teacher[: frames + 1])).tolist()
     repeats = 2 if quick else 10
@@ -280,7 +286,7 @@ def evaluate(args) -> dict:
     variants.append(dict(defaults, pca=False))
     for v in variants:
         r = av.rollout(keys, v, args.seed)
-        seq = sequence_level(av, r, teacher, keys, poses, reference)
+        seq = sequence_level(av, r, teacher, keys, poses, reference, settle)
         seq.pop("chamfer_mm_per_frame")
         ablations.append({"setting": v, **seq})
         print(f"  {v}: chamfer {seq['chamfer_mm']:.1f} mm, FVD-PCA {seq['fvd_pca']:.2f}", flush=True)

@@ -20,14 +20,14 @@ PAPER_TURNS = {"180": (13.4, 12), "90": (9.8, 9)}
 
 def _turn_plot(path: Path, results: dict) -> None:
     seq = results["sequence"]
-    gen = metrics.headings(torch.tensor(seq["path"])).numpy()
+    # Unwrapped, so a heading near ±180° does not jump across the plot.
+    gen = np.degrees(np.unwrap(np.radians(metrics.headings(torch.tensor(seq["path"])).numpy())))
     fig, ax = plt.subplots(figsize=(8, 3.2))
     ax.plot(gen, label="generated", lw=1.2)
     if "teacher_headings" in seq:
-        ax.plot(seq["teacher_headings"], label="teacher", lw=1.2)
+        ax.plot(np.degrees(np.unwrap(np.radians(seq["teacher_headings"]))), label="teacher", lw=1.2)
     ax.set_xlabel("frame")
     ax.set_ylabel("direction of movement (°)")
-    ax.set_ylim(-200, 200)
     ax.set_title(f"direction of movement under {results['keys']}")
     ax.legend()
     fig.tight_layout()
@@ -100,7 +100,7 @@ def write_report(out: Path, results: dict, sheet: list) -> None:
         "",
         "## Image level",
         "",
-        f"{img['frames']} held-out frames × 4 cardinal views ({img['views']} images, {img['size']}² px, black background), "
+        f"{img['frames']} frames of held-out clips {', '.join(map(str, img.get('clips', [])))} × 4 cardinal views ({img['views']} images, {img['size']}² px, black background), "
         f"splats at the {img['level']}² level against the teacher's renders. Each frame is generated from its three "
         "ground-truth context frames and the true action; the ground-truth rows draw the teacher's own geometry and so "
         "measure appearance alone.",
