@@ -218,6 +218,8 @@ fn export_writes_the_neural_avatars_splats_and_view_refuses_bad_files() {
             "1W",
             "--steps",
             "1",
+            "--splat-level",
+            "128",
             "--out",
             out.to_str().unwrap(),
         ],
@@ -225,7 +227,7 @@ fn export_writes_the_neural_avatars_splats_and_view_refuses_bad_files() {
     );
     assert!(run.status.success(), "{}", stderr(&run));
     let splats = unica::splat::ply::read(&out).unwrap();
-    assert_eq!(splats.len(), 4414);
+    assert_eq!(splats.len(), 4414, "one splat per pixel of the 128² map");
     let (lo, hi) = splats.iter().fold(
         (glam::Vec3::INFINITY, glam::Vec3::NEG_INFINITY),
         |(lo, hi), s| (lo.min(s.position), hi.max(s.position)),

@@ -4,7 +4,8 @@
 //! drawn (never fed back). No readback inside a generated frame: the only one is the
 //! decoded map at its end, which the caller draws. Headless, a frame is one submission;
 //! beside a window (`EngineOptions::split`) it is submitted step by step, so the
-//! window's frames never wait for more than one step.
+//! window's frames never wait for more than one step. `appearance` turns a frame's
+//! points into splats.
 
 pub mod appearance;
 mod noise;

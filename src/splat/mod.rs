@@ -1,7 +1,8 @@
-//! Appearance (DESIGN §7): Gaussian splats from position maps. Built so far: the world
-//! alignment, the 3DGS PLY format, the projection with a CPU reference renderer, the
-//! WGSL tile rasterizer and the foreground-aware map upscale; fitted base splats and the
-//! refiner are open work (issue #6).
+//! Appearance (DESIGN §7): Gaussian splats from position maps — base splats in each
+//! pixel's local surface frame, the foreground-aware map upscale, the projection with a
+//! CPU reference renderer, the WGSL tile rasterizer, compositing, world alignment and the
+//! 3DGS PLY format. The refiner is in `nn::refiner`; `engine::appearance` puts it all
+//! together per frame.
 
 pub mod align;
 pub mod base;
