@@ -7,6 +7,7 @@
 use glam::Vec3;
 use serde::Deserialize;
 
+use super::layers::Linear;
 use super::ops::{AttentionParams, Indices, Recorder};
 use super::serialise::{self, ORDERS};
 use super::{LoadError, Tensor, Weights};
@@ -72,24 +73,6 @@ impl LayerNorm {
             false,
         )?;
         Ok(y.reshaped(&[rows, channels]))
-    }
-}
-
-struct Linear {
-    weight: Tensor,
-    bias: Tensor,
-}
-
-impl Linear {
-    fn load(w: &Weights, inputs: usize, outputs: usize) -> Result<Self, LoadError> {
-        Ok(Self {
-            weight: w.tensor("weight", &[outputs, inputs])?,
-            bias: w.tensor("bias", &[outputs])?,
-        })
-    }
-
-    fn forward(&self, r: &mut Recorder, x: &Tensor, silu: bool) -> Result<Tensor, GpuError> {
-        r.linear(x, &self.weight, &self.bias, silu)
     }
 }
 
