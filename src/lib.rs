@@ -3,6 +3,7 @@
 
 pub mod action;
 pub mod app;
+pub mod autorig;
 pub mod avatar;
 pub mod bench;
 pub mod cli;
@@ -14,6 +15,7 @@ pub mod headless;
 pub mod mesh;
 pub mod nn;
 pub mod posmap;
+pub mod random;
 pub mod render;
 pub mod splat;
 pub mod tensors;

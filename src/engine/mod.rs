@@ -8,7 +8,6 @@
 //! points into splats.
 
 pub mod appearance;
-mod noise;
 pub mod pca;
 mod recentre;
 pub mod surface;
@@ -23,7 +22,7 @@ use crate::gpu::GpuContext;
 use crate::gpu::kernel::{PipelineCache, Precision};
 use crate::nn::sampler::Sampling;
 use crate::nn::{Bundle, LoadError, Recorder, Tensor};
-use noise::Noise;
+use crate::random::Rng;
 use recentre::ShiftBasis;
 
 /// How the engine runs.
@@ -89,7 +88,7 @@ pub struct Engine {
     pending: Option<Pending>,
     basis: ShiftBasis,
     world_root: Vec3,
-    noise: Noise,
+    noise: Rng,
     frames: u64,
     clamped_total: usize,
 }
@@ -131,7 +130,7 @@ impl Engine {
             pending: None,
             basis,
             world_root,
-            noise: Noise::new(options.seed),
+            noise: Rng::new(options.seed),
             frames: 0,
             clamped_total: 0,
             bundle,

@@ -1,12 +1,13 @@
-//! The sampler's Gaussian noise, reproducible from a seed (SplitMix64 + Box-Muller).
+//! Reproducible random numbers from a seed (SplitMix64; Gaussians by Box-Muller): the
+//! sampler's noise and the auto-rigger's synthetic characters.
 
 use std::f64::consts::TAU;
 
-pub struct Noise {
+pub struct Rng {
     state: u64,
 }
 
-impl Noise {
+impl Rng {
     pub fn new(seed: u64) -> Self {
         Self { state: seed }
     }
@@ -20,8 +21,23 @@ impl Noise {
     }
 
     /// Uniform in (0, 1].
-    fn uniform(&mut self) -> f64 {
+    pub fn uniform(&mut self) -> f64 {
         ((self.next_u64() >> 11) + 1) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Uniform in [lo, hi).
+    pub fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * (1.0 - self.uniform()) as f32
+    }
+
+    /// An integer in 0..n (n > 0).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next_u64() % n as u64) as usize
+    }
+
+    /// True with probability p.
+    pub fn chance(&mut self, p: f32) -> bool {
+        self.uniform() <= p as f64
     }
 
     /// `count` standard normal values.
@@ -41,8 +57,8 @@ mod tests {
 
     #[test]
     fn noise_is_standard_normal_and_reproducible() {
-        let values = Noise::new(7).gaussian(200_000);
-        assert_eq!(values[..10], Noise::new(7).gaussian(10)[..]);
+        let values = Rng::new(7).gaussian(200_000);
+        assert_eq!(values[..10], Rng::new(7).gaussian(10)[..]);
         let n = values.len() as f64;
         let mean = values.iter().map(|&v| v as f64).sum::<f64>() / n;
         let var = values

@@ -1,0 +1,7 @@
+//! The auto-rigger (UniRig): from a static character mesh to a rigged, animated glTF the
+//! teacher can bake — skeleton-tree tokens, synthetic training characters, the voxel
+//! geodesic prior, the skeleton and skin models, retargeting and the glTF writer. Part
+//! of the teacher side: the live path never imports it.
+
+pub mod skeleton;
+pub mod tokens;
