@@ -101,6 +101,52 @@ enum Command {
     Export(ExportArgs),
     /// Open a 3DGS PLY file (unica's or another program's) in the viewer
     View(ViewArgs),
+    /// Write the auto-rigger's training pairs: synthetic characters (humanoids,
+    /// quadrupeds, creatures in random poses) with their skeleton tokens, skin weights and
+    /// voxel geodesic distances; with --character, one pair from a rigged file instead
+    /// (for held-out evaluation)
+    RigData(RigDataArgs),
+    /// Rig a static mesh (.obj, .gltf, .glb; any skin it has is ignored): skeleton, skin
+    /// weights, the template's idle/walk/run clips and spring chains, written as a .glb
+    /// plus OUT.avatar.json, ready for `unica bake`
+    Rig(RigArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct RigArgs {
+    /// The character mesh
+    mesh: PathBuf,
+    /// The rigged file to write (.glb)
+    #[arg(long)]
+    out: PathBuf,
+    /// Folder of the trained auto-rig models (skeleton.* and skin.*)
+    #[arg(long, value_name = "DIR", default_value = "assets/autorig")]
+    models: PathBuf,
+    /// Use the geometric baselines (template fit, geodesic prior) instead of the models
+    #[arg(long)]
+    baseline: bool,
+    /// The rigged humanoid whose clips are retargeted [default: the default character]
+    #[arg(long, value_name = "FILE")]
+    clips_from: Option<PathBuf>,
+    /// Seed of the surface sampling
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+#[derive(clap::Args, Debug)]
+struct RigDataArgs {
+    /// Output folder (sample_NNNNN.safetensors + manifest.json)
+    #[arg(long)]
+    out: PathBuf,
+    /// Synthetic characters to write
+    #[arg(long, default_value_t = 2000)]
+    count: usize,
+    /// Seed of the first character (character i uses seed + i)
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// A rigged character (.gltf, .glb) to write as OUT/sample_00000.safetensors instead
+    #[arg(long, value_name = "FILE")]
+    character: Option<PathBuf>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -319,6 +365,8 @@ pub fn run() -> anyhow::Result<()> {
         Some(Command::Eval(args)) => eval(args),
         Some(Command::Export(args)) => export(args, &gpu_options),
         Some(Command::View(args)) => view(args, gpu_options),
+        Some(Command::RigData(args)) => rig_data(args),
+        Some(Command::Rig(args)) => rig(args),
     }
 }
 
@@ -358,6 +406,90 @@ fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
         },
     };
     crate::bench::run(&gpu, &options, &mut std::io::stdout())
+}
+
+fn rig(args: RigArgs) -> anyhow::Result<()> {
+    use crate::autorig::pipeline::{Models, rig_file};
+    if args
+        .out
+        .extension()
+        .is_none_or(|e| !e.eq_ignore_ascii_case("glb"))
+    {
+        bail!(
+            "{}: the rigged output must be a .glb file",
+            args.out.display()
+        );
+    }
+    let models = if args.baseline {
+        Models::none()
+    } else {
+        let dir = if args.models.is_dir() {
+            args.models.clone()
+        } else {
+            Path::new(env!("CARGO_MANIFEST_DIR")).join(&args.models)
+        };
+        Models::load(&dir)?
+    };
+    let clips_from = args.clips_from.or_else(default_character).ok_or_else(|| {
+        anyhow::anyhow!("no rigged humanoid to take clips from; give --clips-from FILE")
+    })?;
+    let start = std::time::Instant::now();
+    let summary = rig_file(
+        &args.mesh,
+        &args.out,
+        &models,
+        &clips_from,
+        args.seed,
+        &|stage| eprintln!("rig: {stage}…"),
+    )?;
+    println!(
+        "rigged {} into {} in {:.1} s: {} joints ({:?} skeleton), {:?} skin, {} spring chains, {} clips; description {}",
+        args.mesh.display(),
+        args.out.display(),
+        start.elapsed().as_secs_f64(),
+        summary.joints,
+        summary.skeleton,
+        summary.skin,
+        summary.spring_chains,
+        summary.clips,
+        summary.description.display()
+    );
+    Ok(())
+}
+
+fn rig_data(args: RigDataArgs) -> anyhow::Result<()> {
+    use crate::autorig::{data, skeleton};
+    if let Some(path) = &args.character {
+        let character = crate::avatar::load_character(path)?;
+        let skeleton = skeleton::of_character(&character);
+        let skin = data::skin_of_character(&character, &skeleton);
+        let pair = data::sample(&skeleton, &character.rest_mesh(), &skin, args.seed)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        std::fs::create_dir_all(&args.out)?;
+        pair.write(&data::sample_path(&args.out, 0))?;
+        println!(
+            "wrote {} ({} joints)",
+            data::sample_path(&args.out, 0).display(),
+            skeleton.len()
+        );
+        return Ok(());
+    }
+    let bar = indicatif::ProgressBar::new(args.count as u64).with_style(
+        indicatif::ProgressStyle::with_template("characters {bar:40} {pos}/{len}, {eta} left")
+            .expect("valid template"),
+    );
+    let start = std::time::Instant::now();
+    data::write_synthetic(&args.out, args.count, args.seed, &|done, _| {
+        bar.set_position(done as u64)
+    })?;
+    bar.finish_and_clear();
+    println!(
+        "wrote {} synthetic characters into {} in {:.1} s",
+        args.count,
+        args.out.display(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
 }
 
 fn bake(args: BakeArgs) -> anyhow::Result<()> {

@@ -3,5 +3,12 @@
 //! geodesic prior, the skeleton and skin models, retargeting and the glTF writer. Part
 //! of the teacher side: the live path never imports it.
 
+pub mod data;
+pub mod gltf_out;
+pub mod model;
+pub mod pipeline;
+pub mod retarget;
 pub mod skeleton;
+pub mod synth;
 pub mod tokens;
+pub mod voxel;

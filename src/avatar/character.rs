@@ -312,7 +312,8 @@ fn read_primitive(
     })
 }
 
-/// Linear base colour per vertex: the material's factor times its texture at the vertex UV.
+/// Linear base colour per vertex: the material's factor times its texture at the vertex UV
+/// times the vertex colour `COLOR_0`, where the primitive has them.
 fn vertex_colours<'a, 's, F>(
     primitive: &gltf::Primitive,
     reader: &gltf::mesh::Reader<'a, 's, F>,
@@ -331,12 +332,22 @@ where
             .unwrap_or_default();
         (&images[info.texture().source().index()], uvs)
     });
-    match texture {
+    let mut colours: Vec<Vec3> = match texture {
         Some((image, uvs)) if uvs.len() == n => {
             uvs.iter().map(|&uv| factor * texel(image, uv)).collect()
         }
         _ => vec![factor; n],
+    };
+    let vertex: Vec<Vec3> = reader
+        .read_colors(0)
+        .map(|c| c.into_rgb_f32().map(Vec3::from).collect())
+        .unwrap_or_default();
+    if vertex.len() == n {
+        for (colour, v) in colours.iter_mut().zip(vertex) {
+            *colour *= v;
+        }
     }
+    colours
 }
 
 /// The linear colour of the texel nearest to `uv` (repeat wrapping), white if the

@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use super::Character;
 use super::character::{LoadError, fail};
@@ -15,7 +15,7 @@ const SHIPPED: &[(&str, &str)] = &[(
     include_str!("../../assets/avatars/witch.avatar.json"),
 )];
 
-#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Description {
     pub clips: ClipNames,
@@ -35,9 +35,26 @@ pub struct Description {
     pub loose_parts: Vec<LoosePart>,
     #[serde(default)]
     pub colliders: Vec<ColliderSpec>,
+    /// Spring chains already in the rig (as `unica rig` writes them).
+    #[serde(default)]
+    pub spring_chains: Vec<SpringChain>,
 }
 
-#[derive(Clone, Debug, Deserialize, PartialEq)]
+/// A chain of existing rig nodes driven by spring physics: `root` and its descendants
+/// through first children down to a leaf.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SpringChain {
+    pub root: String,
+    #[serde(default = "default_stiffness")]
+    pub stiffness: f32,
+    #[serde(default = "default_drag")]
+    pub drag: f32,
+    #[serde(default = "default_gravity")]
+    pub gravity: f32,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ClipNames {
     pub idle: String,
@@ -46,7 +63,7 @@ pub struct ClipNames {
 }
 
 /// How spring chains are laid out over a loose part.
-#[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
 #[serde(rename_all = "lowercase")]
 pub enum ChainLayout {
     /// Chains hang around a vertical axis (skirt, long hair): from the part's top to its
@@ -56,7 +73,7 @@ pub enum ChainLayout {
     Tip,
 }
 
-#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct LoosePart {
     pub name: String,
@@ -96,7 +113,7 @@ fn default_gravity() -> f32 {
 
 /// A collider around a bone: a sphere at `bone`, or a capsule from `bone` to `to`.
 /// The radius is measured from the vertices the bone moves when absent.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ColliderSpec {
     pub bone: String,
@@ -216,6 +233,7 @@ impl Description {
             run_speed: None,
             loose_parts: Vec::new(),
             colliders: Vec::new(),
+            spring_chains: Vec::new(),
         })
     }
 }

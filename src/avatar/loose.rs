@@ -8,7 +8,7 @@ use glam::{Mat4, Vec3};
 
 use super::Character;
 use super::character::{LoadError, fail};
-use super::description::{ChainLayout, Description, LoosePart};
+use super::description::{ChainLayout, Description, LoosePart, SpringChain};
 use super::locomotion::{angle_difference, heading};
 use super::rig::{Bone, Node, Transform};
 use super::springs::{Chain, Collider, SpringParams, SpringSystem};
@@ -145,6 +145,11 @@ pub fn add_spring_chains(
             part.segments,
         );
     }
+    for spec in &description.spring_chains {
+        system
+            .chains
+            .push(existing_chain(character, &world, spec, height)?);
+    }
     for spec in &description.colliders {
         let node = |name: &str| {
             character
@@ -166,6 +171,52 @@ pub fn add_spring_chains(
         chain.choose_colliders(&system.colliders, &world);
     }
     Ok(system)
+}
+
+/// A spring chain over nodes already in the rig: `spec.root` down through first
+/// children; the tail runs on past the last node by half its parent segment.
+fn existing_chain(
+    character: &Character,
+    world: &[Mat4],
+    spec: &SpringChain,
+    height: f32,
+) -> Result<Chain, LoadError> {
+    let rig = &character.rig;
+    let root = rig
+        .find(&spec.root)
+        .filter(|&n| rig.nodes[n].parent.is_some())
+        .ok_or_else(|| {
+            fail(
+                &character.path,
+                format!(
+                    "spring chain root '{}' is not a node with a parent",
+                    spec.root
+                ),
+            )
+        })?;
+    let mut nodes = vec![root];
+    while let Some(child) =
+        (0..rig.nodes.len()).find(|&c| rig.nodes[c].parent == nodes.last().copied())
+    {
+        nodes.push(child);
+    }
+    let last = *nodes.last().expect("the root");
+    let before = rig.nodes[last].parent.expect("checked above");
+    let head = world[last].w_axis.truncate();
+    let tip = head + 0.5 * (head - world[before].w_axis.truncate());
+    let params = SpringParams {
+        stiffness: spec.stiffness,
+        drag: spec.drag,
+        gravity: spec.gravity,
+        hit_radius: 0.01 * height,
+    };
+    Ok(Chain::new(
+        rig,
+        world,
+        &nodes,
+        world[last].inverse().transform_point3(tip),
+        params,
+    ))
 }
 
 /// Chains around a vertical axis through the part, over `arc_degrees` centred on the
