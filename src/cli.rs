@@ -110,6 +110,29 @@ enum Command {
     /// weights, the template's idle/walk/run clips and spring chains, written as a .glb
     /// plus OUT.avatar.json, ready for `unica bake`
     Rig(RigArgs),
+    /// Measure the auto-rigger on held-out synthetic pairs and a rigged file with its skin
+    /// removed (J2J, J2B, B2B, skin L1, motion L2; learned vs the geometric baselines)
+    RigEval(RigEvalArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct RigEvalArgs {
+    /// The rig-data folder the models were trained on (its last --holdout pairs are unseen)
+    #[arg(long)]
+    data: PathBuf,
+    /// Pairs at the end of --data held out of training
+    #[arg(long, default_value_t = 100)]
+    holdout: usize,
+    /// Folder of the trained models (skeleton.*, skin.*)
+    #[arg(long, value_name = "DIR", default_value = "assets/autorig")]
+    models: PathBuf,
+    /// A rigged character to rig from its mesh alone and compare with its own rig
+    /// [default: the default character]
+    #[arg(long, value_name = "FILE")]
+    character: Option<PathBuf>,
+    /// Where results.json goes
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(clap::Args, Debug)]
@@ -367,6 +390,7 @@ pub fn run() -> anyhow::Result<()> {
         Some(Command::View(args)) => view(args, gpu_options),
         Some(Command::RigData(args)) => rig_data(args),
         Some(Command::Rig(args)) => rig(args),
+        Some(Command::RigEval(args)) => rig_eval(args),
     }
 }
 
@@ -454,6 +478,49 @@ fn rig(args: RigArgs) -> anyhow::Result<()> {
         summary.clips,
         summary.description.display()
     );
+    Ok(())
+}
+
+fn rig_eval(args: RigEvalArgs) -> anyhow::Result<()> {
+    use crate::autorig::{evaluate::evaluate, pipeline::Models};
+    let manifest_path = args.data.join("manifest.json");
+    let manifest: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(&manifest_path)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", manifest_path.display()))?,
+    )
+    .map_err(|e| anyhow::anyhow!("{}: {e}", manifest_path.display()))?;
+    let count = manifest["count"]
+        .as_u64()
+        .ok_or_else(|| anyhow::anyhow!("{}: no count", manifest_path.display()))?
+        as usize;
+    if args.holdout == 0 || args.holdout > count {
+        bail!(
+            "--holdout must be between 1 and the {count} pairs of {}",
+            args.data.display()
+        );
+    }
+    let models = Models::load(&args.models)?;
+    let character = args.character.or_else(default_character);
+    let bar = indicatif::ProgressBar::new(args.holdout as u64).with_style(
+        indicatif::ProgressStyle::with_template(
+            "held-out characters {bar:40} {pos}/{len}, {eta} left",
+        )
+        .expect("valid template"),
+    );
+    let report = evaluate(
+        &args.data,
+        args.holdout,
+        count,
+        character.as_deref(),
+        &models,
+        &|done, _| bar.set_position(done as u64),
+    )?;
+    bar.finish_and_clear();
+    std::fs::create_dir_all(&args.out)?;
+    let path = args.out.join("results.json");
+    crate::files::write_atomic(&path, serde_json::to_string_pretty(&report)?.as_bytes())?;
+    println!("{}", serde_json::to_string_pretty(&report)?);
+    println!("wrote {}", path.display());
     Ok(())
 }
 

@@ -243,3 +243,47 @@ pub fn skin_of_character(
         })
         .collect()
 }
+
+impl Sample {
+    /// Reads a pair written by [`Sample::write`]; the skeleton's class comes from its
+    /// tokens, names and spring flags are not stored.
+    pub fn read(path: &Path) -> Result<Self, crate::tensors::TensorError> {
+        use crate::tensors::TensorFile;
+        let file = TensorFile::open(path)?;
+        let vec3 = |name: &str| -> Result<Vec<Vec3>, crate::tensors::TensorError> {
+            let (values, _) = file.f32(name, &[None, Some(3)])?;
+            Ok(values.chunks_exact(3).map(Vec3::from_slice).collect())
+        };
+        let (tokens, _) = file.i32("tokens", &[None])?;
+        let (parents, _) = file.i32("parents", &[None])?;
+        let joints = vec3("joints")?;
+        let vertices = vec3("vertices")?;
+        let (j, v) = (joints.len(), vertices.len());
+        let rows = |name: &str| -> Result<Vec<Vec<f32>>, crate::tensors::TensorError> {
+            let (values, _) = file.f32(name, &[Some(v), Some(j)])?;
+            Ok(values.chunks_exact(j.max(1)).map(<[f32]>::to_vec).collect())
+        };
+        let class = match tokens.get(1).map(|&t| t as u32) {
+            Some(super::tokens::CLASS_HUMANOID) => super::skeleton::Class::Humanoid,
+            Some(super::tokens::CLASS_QUADRUPED) => super::skeleton::Class::Quadruped,
+            _ => super::skeleton::Class::Other,
+        };
+        Ok(Self {
+            points: vec3("points")?,
+            normals: vec3("normals")?,
+            tokens: tokens.iter().map(|&t| t as u32).collect(),
+            skeleton: Skeleton {
+                class,
+                parents: parents.iter().map(|&p| usize::try_from(p).ok()).collect(),
+                names: (0..j).map(|k| format!("joint{k}")).collect(),
+                spring: vec![false; j],
+                joints,
+            },
+            tails: vec3("bone_tails")?,
+            vertex_normals: vec3("vertex_normals")?,
+            skin: rows("skin")?,
+            geodesic: rows("geodesic")?,
+            vertices,
+        })
+    }
+}

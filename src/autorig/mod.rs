@@ -4,7 +4,9 @@
 //! of the teacher side: the live path never imports it.
 
 pub mod data;
+pub mod evaluate;
 pub mod gltf_out;
+pub mod metrics;
 pub mod model;
 pub mod pipeline;
 pub mod retarget;

@@ -1,0 +1,222 @@
+//! `unica rig-eval`: the auto-rigger measured on characters its models never saw —
+//! held-out synthetic pairs and a rigged file (the Witch) with its skin removed — for the
+//! learned models and the geometric baselines side by side (results.json, report.md).
+
+use std::path::Path;
+
+use glam::{Mat4, Vec3};
+use serde_json::{Value, json};
+
+use super::data::VOXELS;
+use super::data::{Sample, sample_path, skin_of_character};
+use super::metrics::{b2b, j2b, j2j, motion_l2, random_poses, skin_l1};
+use super::model::{baseline_weights, top4};
+use super::pipeline::{Models, skeleton_for, template_fit};
+use super::skeleton::{Class, Skeleton, UnitCube, of_character};
+use super::voxel::{Voxels, bone_tails};
+use crate::avatar::load_character;
+use crate::mesh::Mesh;
+
+/// Random poses per synthetic character for motion L2, and their largest turn.
+const POSES: usize = 8;
+const POSE_DEGREES: f32 = 30.0;
+
+/// Full rows `[vertex][joint]` keeping only each vertex's top four, renormalised.
+fn top4_rows(weights: &[Vec<f32>]) -> Vec<Vec<f32>> {
+    weights
+        .iter()
+        .map(|w| {
+            let (joints, values) = top4(w);
+            let mut row = vec![0.0; w.len()];
+            for (j, v) in joints.iter().zip(values) {
+                row[*j as usize] += v;
+            }
+            row
+        })
+        .collect()
+}
+
+/// Skeleton distances as JSON.
+fn skeleton_scores(predicted: &Skeleton, truth: &Skeleton) -> [f32; 3] {
+    [
+        j2j(predicted, truth),
+        j2b(predicted, truth),
+        b2b(predicted, truth),
+    ]
+}
+
+fn mean(rows: &[[f32; 3]]) -> Value {
+    let n = rows.len().max(1) as f32;
+    let m = |k: usize| rows.iter().map(|r| r[k]).sum::<f32>() / n;
+    json!({"count": rows.len(), "j2j": m(0), "j2b": m(1), "b2b": m(2)})
+}
+
+fn average(values: &[f32]) -> f32 {
+    values.iter().sum::<f32>() / values.len().max(1) as f32
+}
+
+/// Skin weights of a skeleton on vertices from the model (if any) and the prior alone.
+fn skin_pair(
+    models: &Models,
+    vertices: &[Vec3],
+    normals: &[Vec3],
+    skeleton: &Skeleton,
+    geodesic: &[f32],
+) -> (Option<Vec<Vec<f32>>>, Vec<Vec<f32>>) {
+    let learned = models.skin.as_ref().map(|m| {
+        let tails = bone_tails(&skeleton.joints, &skeleton.parents);
+        top4_rows(&m.weights(vertices, normals, &skeleton.joints, &tails, geodesic))
+    });
+    let prior = top4_rows(&baseline_weights(models.beta, geodesic, skeleton.len()));
+    (learned, prior)
+}
+
+/// Evaluates on the last `holdout` pairs of `data` and, when given, the rigged `witch`.
+pub fn evaluate(
+    data: &Path,
+    holdout: usize,
+    count: usize,
+    witch: Option<&Path>,
+    models: &Models,
+    progress: &dyn Fn(usize, usize),
+) -> anyhow::Result<Value> {
+    let mut learned_all = Vec::new();
+    let (mut learned_humanoid, mut fit_humanoid) = (Vec::new(), Vec::new());
+    let (mut l1_learned, mut l1_prior, mut motion_learned, mut motion_prior) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let first = count.saturating_sub(holdout);
+    for (done, index) in (first..count).enumerate() {
+        let sample = Sample::read(&sample_path(data, index))?;
+        let truth = &sample.skeleton;
+        let outline = Mesh {
+            positions: sample.points.clone(),
+            ..Default::default()
+        };
+        if let Some(model) = &models.skeleton {
+            let predicted = model.predict(&sample.points, &sample.normals, 0.0, index as u64)?;
+            let scores = skeleton_scores(&predicted, truth);
+            learned_all.push(scores);
+            if truth.class == Class::Humanoid {
+                learned_humanoid.push(scores);
+            }
+        }
+        if truth.class == Class::Humanoid {
+            fit_humanoid.push(skeleton_scores(&template_fit(&outline), truth));
+        }
+        let geodesic = sample.geodesic.concat();
+        let (learned, prior) = skin_pair(
+            models,
+            &sample.vertices,
+            &sample.vertex_normals,
+            truth,
+            &geodesic,
+        );
+        let poses = random_poses(truth, POSES, POSE_DEGREES, index as u64);
+        if let Some(learned) = &learned {
+            l1_learned.push(skin_l1(learned, &sample.skin));
+            motion_learned.push(motion_l2(&sample.vertices, learned, &sample.skin, &poses));
+        }
+        l1_prior.push(skin_l1(&prior, &sample.skin));
+        motion_prior.push(motion_l2(&sample.vertices, &prior, &sample.skin, &poses));
+        progress(done + 1, holdout);
+    }
+    let mut report = json!({
+        "synthetic": {
+            "samples": holdout,
+            "skeleton": {
+                "learned_all": mean(&learned_all),
+                "learned_humanoid": mean(&learned_humanoid),
+                "template_fit_humanoid": mean(&fit_humanoid),
+            },
+            "skin": {
+                "learned": {"l1": average(&l1_learned), "motion_l2": average(&motion_learned), "count": l1_learned.len()},
+                "geodesic_prior": {"l1": average(&l1_prior), "motion_l2": average(&motion_prior), "count": l1_prior.len()},
+            },
+            "motion": format!("{POSES} random poses per character, each joint turned up to {POSE_DEGREES}°"),
+        }
+    });
+    if let Some(path) = witch {
+        report["witch"] = evaluate_rigged(path, models)?;
+    }
+    report["beta"] = json!(models.beta);
+    Ok(report)
+}
+
+/// A rigged character against its own rig: skeletons from its mesh alone, skins on its
+/// own skeleton, motion from its own walk clip.
+fn evaluate_rigged(path: &Path, models: &Models) -> anyhow::Result<Value> {
+    let character = load_character(path)?;
+    let mesh = character.rest_mesh();
+    let cube = UnitCube::of_points(&mesh.positions);
+    let truth_world = of_character(&character);
+    let truth = truth_world.map_joints(|p| cube.to_unit(p));
+    let to_unit = |s: &Skeleton| s.map_joints(|p| cube.to_unit(p));
+    let mut out = json!({
+        "file": path.display().to_string(),
+        "vertices": mesh.positions.len(),
+        "joints": truth.len(),
+    });
+    let [a, b, c] = skeleton_scores(&to_unit(&template_fit(&mesh)), &truth);
+    out["template_fit"] = json!({"j2j": a, "j2b": b, "b2b": c});
+    if models.skeleton.is_some() {
+        let (predicted, _) = skeleton_for(&mesh, models.skeleton.as_ref(), 0)?;
+        let predicted = to_unit(&predicted);
+        let [a, b, c] = skeleton_scores(&predicted, &truth);
+        out["learned"] = json!({"j2j": a, "j2b": b, "b2b": c, "joints": predicted.len(),
+            "spring_joints": predicted.spring.iter().filter(|&&s| s).count(),
+            "class": format!("{:?}", predicted.class)});
+    }
+    // Skins on the true skeleton.
+    let mut unit_mesh = mesh.clone();
+    unit_mesh.positions = mesh.positions.iter().map(|&p| cube.to_unit(p)).collect();
+    let geodesic = Voxels::new(&unit_mesh, VOXELS)
+        .geodesic(&unit_mesh.positions, &truth.joints, &truth.parents)
+        .concat();
+    let (learned, prior) = skin_pair(
+        models,
+        &unit_mesh.positions,
+        &unit_mesh.normals,
+        &truth,
+        &geodesic,
+    );
+    let truth_skin: Vec<Vec<f32>> = skin_of_character(&character, &truth_world)
+        .iter()
+        .map(|pairs| {
+            let mut row = vec![0.0; truth.len()];
+            for &(j, w) in pairs {
+                row[j] += w;
+            }
+            row
+        })
+        .collect();
+    // The walk clip through her own rig: skinning matrices per skeleton joint.
+    let rig = &character.rig;
+    let walk = character.clip("Walk")?;
+    let poses: Vec<Vec<Mat4>> = (0..10)
+        .map(|f| {
+            let mut local = rig.rest_pose();
+            walk.sample(walk.duration * f as f32 / 10.0, &mut local);
+            let world = rig.world(&local, Mat4::IDENTITY);
+            truth_world
+                .names
+                .iter()
+                .map(|name| {
+                    let node = rig.find(name).expect("a joint of the rig");
+                    let bone = rig.bones.iter().find(|b| b.node == node);
+                    bone.map_or(world[node], |b| world[node] * b.inverse_bind)
+                })
+                .collect()
+        })
+        .collect();
+    let motion = |weights: &[Vec<f32>]| {
+        motion_l2(&mesh.positions, weights, &truth_skin, &poses) / cube.half_extent
+    };
+    out["geodesic_prior"] =
+        json!({"l1": skin_l1(&prior, &truth_skin), "motion_l2": motion(&prior)});
+    if let Some(learned) = &learned {
+        out["learned_skin"] =
+            json!({"l1": skin_l1(learned, &truth_skin), "motion_l2": motion(learned)});
+    }
+    out["unit"] = json!({"half_extent": cube.half_extent});
+    Ok(out)
+}
