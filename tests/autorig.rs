@@ -61,3 +61,89 @@ fn the_witch_rig_round_trips_through_tokens() {
     let round = decode(&chains).unwrap();
     assert_eq!(round.len(), unit.len());
 }
+
+/// `unica rig` with the geometric baselines on the Witch's mesh (her skin ignored): the
+/// written .glb and description load, the teacher drives the rig with finite vertices
+/// that move, and a quick bake of it succeeds.
+#[test]
+fn a_rigged_mesh_bakes_and_plays_in_teacher_mode() {
+    use unica::action::Action;
+    use unica::autorig::pipeline::{Models, SkeletonSource, SkinSource, rig_file};
+    use unica::avatar::description::Description;
+    use unica::avatar::teacher::Teacher;
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rigged.glb");
+    let summary = rig_file(&witch(), &out, &Models::none(), &witch(), 0, &|_| {}).unwrap();
+    assert_eq!(summary.skeleton, SkeletonSource::TemplateFit);
+    assert_eq!(summary.skin, SkinSource::GeodesicPrior);
+    assert_eq!((summary.joints, summary.clips), (20, 3));
+    let rigged = load_character(&out).unwrap();
+    assert_eq!(rigged.rest_mesh().positions.len(), 13_884);
+    let description = Description::find(&rigged, None).unwrap();
+    assert_eq!(description.clips.walk, "Walk");
+    let mut teacher = Teacher::new(rigged, description).unwrap();
+    let rest = teacher.mesh();
+    for _ in 0..20 {
+        teacher.step(Action::Forward);
+    }
+    let walked = teacher.mesh();
+    assert!(walked.positions.iter().all(|p| p.is_finite()));
+    let moved = rest
+        .positions
+        .iter()
+        .zip(&walked.positions)
+        .map(|(a, b)| a.distance(*b))
+        .fold(0.0, f32::max);
+    assert!(moved > 0.1, "the walk moves the mesh ({moved})");
+    let options = unica::dataset::bake::BakeOptions {
+        quick: true,
+        no_renders: true,
+        ..Default::default()
+    };
+    let manifest =
+        unica::dataset::bake::bake(&out, &dir.path().join("data"), &options, &|_, _| {}).unwrap();
+    assert_eq!(manifest.clips.len(), 4);
+}
+
+#[test]
+fn rig_errors_name_the_file_and_the_problem() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |args: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_unica"))
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "{args:?} should fail");
+        String::from_utf8_lossy(&out.stderr).to_string()
+    };
+    let glb = dir.path().join("out.glb");
+    let missing = dir.path().join("missing.obj");
+    let err = run(&[
+        "rig",
+        missing.to_str().unwrap(),
+        "--out",
+        glb.to_str().unwrap(),
+    ]);
+    assert!(err.contains("missing.obj"), "{err}");
+    let err = run(&["rig", witch().to_str().unwrap(), "--out", "rigged.gltf"]);
+    assert!(err.contains("rigged.gltf") && err.contains(".glb"), "{err}");
+    let broken = dir.path().join("broken.obj");
+    std::fs::write(&broken, "v 0 0 0\nf 1 2 3\n").unwrap();
+    let err = run(&[
+        "rig",
+        broken.to_str().unwrap(),
+        "--out",
+        glb.to_str().unwrap(),
+        "--baseline",
+    ]);
+    assert!(err.contains("broken.obj"), "{err}");
+    assert!(!glb.exists(), "nothing is written on failure");
+    let err = run(&[
+        "rig-eval",
+        "--data",
+        dir.path().to_str().unwrap(),
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert!(err.contains("manifest.json"), "{err}");
+}

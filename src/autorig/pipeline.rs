@@ -49,8 +49,15 @@ pub struct Models {
 pub const DEFAULT_BETA: f32 = 40.0;
 
 impl Models {
-    /// Loads `dir/skeleton.*` and `dir/skin.*` where present (either may be missing).
+    /// Loads `dir/skeleton.*` and `dir/skin.*` where present (either may be missing,
+    /// not both).
     pub fn load(dir: &Path) -> anyhow::Result<Self> {
+        if !dir.join("skeleton.safetensors").is_file() && !dir.join("skin.safetensors").is_file() {
+            anyhow::bail!(
+                "{}: no auto-rig models (skeleton.safetensors, skin.safetensors); train them (see assets/autorig/README.md) or use the baselines",
+                dir.display()
+            );
+        }
         let skeleton = dir
             .join("skeleton.safetensors")
             .is_file()
