@@ -519,8 +519,10 @@ fn rig_eval(args: RigEvalArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)?;
     let path = args.out.join("results.json");
     crate::files::write_atomic(&path, serde_json::to_string_pretty(&report)?.as_bytes())?;
-    println!("{}", serde_json::to_string_pretty(&report)?);
-    println!("wrote {}", path.display());
+    let markdown = crate::autorig::evaluate::markdown(&report);
+    crate::files::write_atomic(&args.out.join("report.md"), markdown.as_bytes())?;
+    println!("{markdown}");
+    println!("wrote {} and report.md", path.display());
     Ok(())
 }
 

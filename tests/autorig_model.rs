@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 use unica::autorig::model::{ModelError, SkeletonModel, SkinModel, baseline_weights, top4};
+use unica::autorig::skeleton::Class;
 use unica::autorig::tokens::{self, EOS, VOCAB};
 use unica::tensors::TensorFile;
 
@@ -121,7 +122,7 @@ fn predictions_are_complete_skeletons_within_max_len() {
     for (temperature, seed) in [(0.0, 0), (1.0, 1), (1.0, 2), (2.0, 3), (4.0, 4), (8.0, 5)] {
         let tokens = c
             .model
-            .predict_tokens(&c.points, &c.normals, temperature, seed)
+            .predict_tokens(&c.points, &c.normals, None, temperature, seed)
             .unwrap();
         assert!(
             tokens.len() <= max_len && tokens.last() == Some(&EOS),
@@ -131,13 +132,21 @@ fn predictions_are_complete_skeletons_within_max_len() {
         assert!(!skeleton.is_empty());
         let again = c
             .model
-            .predict(&c.points, &c.normals, temperature, seed)
+            .predict(&c.points, &c.normals, None, temperature, seed)
             .unwrap();
         assert_eq!(again, skeleton, "a seed gives one skeleton");
         longest = longest.max(tokens.len());
     }
     // Random weights seldom pick eos: the runs end because the remaining room forces it.
     assert!(longest >= max_len - 3, "{longest}");
+    // A requested class is the one decoded, whatever the model prefers.
+    for class in [Class::Quadruped, Class::Other] {
+        let skeleton = c
+            .model
+            .predict(&c.points, &c.normals, Some(class), 1.0, 7)
+            .unwrap();
+        assert_eq!(skeleton.class, class);
+    }
 }
 
 #[test]

@@ -13,6 +13,7 @@ use super::metrics::{b2b, j2b, j2j, motion_l2, random_poses, skin_l1};
 use super::model::{baseline_weights, top4};
 use super::pipeline::{Models, skeleton_for, template_fit};
 use super::skeleton::{Class, Skeleton, UnitCube, of_character};
+use super::tokens::{encode, naive_length};
 use super::voxel::{Voxels, bone_tails};
 use crate::avatar::load_character;
 use crate::mesh::Mesh;
@@ -84,6 +85,7 @@ pub fn evaluate(
     let (mut learned_humanoid, mut fit_humanoid) = (Vec::new(), Vec::new());
     let (mut l1_learned, mut l1_prior, mut motion_learned, mut motion_prior) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut token_lengths: Vec<[f32; 3]> = Vec::new();
     let first = count.saturating_sub(holdout);
     for (done, index) in (first..count).enumerate() {
         let sample = Sample::read(&sample_path(data, index))?;
@@ -93,7 +95,8 @@ pub fn evaluate(
             ..Default::default()
         };
         if let Some(model) = &models.skeleton {
-            let predicted = model.predict(&sample.points, &sample.normals, 0.0, index as u64)?;
+            let predicted =
+                model.predict(&sample.points, &sample.normals, None, 0.0, index as u64)?;
             let scores = skeleton_scores(&predicted, truth);
             learned_all.push(scores);
             if truth.class == Class::Humanoid {
@@ -103,6 +106,13 @@ pub fn evaluate(
         if truth.class == Class::Humanoid {
             fit_humanoid.push(skeleton_scores(&template_fit(&outline), truth));
         }
+        let mut chains_only = truth.clone();
+        chains_only.class = Class::Other;
+        token_lengths.push([
+            naive_length(truth) as f32,
+            encode(&chains_only)?.len() as f32,
+            sample.tokens.len() as f32,
+        ]);
         let geodesic = sample.geodesic.concat();
         let (learned, prior) = skin_pair(
             models,
@@ -120,9 +130,17 @@ pub fn evaluate(
         motion_prior.push(motion_l2(&sample.vertices, &prior, &sample.skin, &poses));
         progress(done + 1, holdout);
     }
+    let total = |k: usize| token_lengths.iter().map(|t| t[k]).sum::<f32>();
     let mut report = json!({
         "synthetic": {
             "samples": holdout,
+            "tokens": {
+                "naive": total(0) / holdout as f32,
+                "chains": total(1) / holdout as f32,
+                "with_templates": total(2) / holdout as f32,
+                "chains_reduction": 1.0 - total(1) / total(0),
+                "templates_reduction": 1.0 - total(2) / total(0),
+            },
             "skeleton": {
                 "learned_all": mean(&learned_all),
                 "learned_humanoid": mean(&learned_humanoid),
@@ -219,4 +237,79 @@ fn evaluate_rigged(path: &Path, models: &Models) -> anyhow::Result<Value> {
     }
     out["unit"] = json!({"half_extent": cube.half_extent});
     Ok(out)
+}
+
+/// The report as Markdown tables (the numbers of `results.json`).
+pub fn markdown(report: &Value) -> String {
+    let f = |v: &Value| v.as_f64().map_or("–".into(), |x| format!("{x:.4}"));
+    let s = &report["synthetic"];
+    let k = &s["skeleton"];
+    let mut out = String::from(
+        "# Auto-rig evaluation\n\nDistances in the unit cube of each character's mesh ([-1, 1] on its longest side). Skin L1: per vertex, summed over bones (0-2), top 4 bones per vertex. Motion L2: mean vertex distance after posing with predicted vs true weights under the same motion.\n\n",
+    );
+    out += &format!(
+        "## Held-out synthetic characters ({} pairs)\n\n| skeleton | characters | J2J | J2B | B2B |\n| --- | --- | --- | --- | --- |\n",
+        s["samples"]
+    );
+    for (name, key) in [
+        ("learned, all classes", "learned_all"),
+        ("learned, humanoids", "learned_humanoid"),
+        (
+            "template fit (baseline), humanoids",
+            "template_fit_humanoid",
+        ),
+    ] {
+        let r = &k[key];
+        out += &format!(
+            "| {name} | {} | {} | {} | {} |\n",
+            r["count"],
+            f(&r["j2j"]),
+            f(&r["j2b"]),
+            f(&r["b2b"])
+        );
+    }
+    out += &format!(
+        "\n| skin (on the true skeleton) | L1 | motion L2 |\n| --- | --- | --- |\n| learned | {} | {} |\n| geodesic prior alone (baseline, β = {}) | {} | {} |\n\n{}.\n",
+        f(&s["skin"]["learned"]["l1"]),
+        f(&s["skin"]["learned"]["motion_l2"]),
+        f(&report["beta"]),
+        f(&s["skin"]["geodesic_prior"]["l1"]),
+        f(&s["skin"]["geodesic_prior"]["motion_l2"]),
+        s["motion"].as_str().unwrap_or("")
+    );
+    let t = &s["tokens"];
+    out += &format!(
+        "\nTokens per skeleton: naive (6 per bone) {}, chains {} ({:.1} % fewer), chains with templates {} ({:.1} % fewer).\n",
+        f(&t["naive"]),
+        f(&t["chains"]),
+        100.0 * t["chains_reduction"].as_f64().unwrap_or(0.0),
+        f(&t["with_templates"]),
+        100.0 * t["templates_reduction"].as_f64().unwrap_or(0.0)
+    );
+    if let Some(w) = report.get("witch") {
+        out += &format!(
+            "\n## The Witch, rigged from her mesh alone, against her own rig ({} joints, {} vertices)\n\n| skeleton | J2J | J2B | B2B |\n| --- | --- | --- | --- |\n",
+            w["joints"], w["vertices"]
+        );
+        for (name, key) in [
+            ("learned", "learned"),
+            ("template fit (baseline)", "template_fit"),
+        ] {
+            let r = &w[key];
+            out += &format!(
+                "| {name} | {} | {} | {} |\n",
+                f(&r["j2j"]),
+                f(&r["j2b"]),
+                f(&r["b2b"])
+            );
+        }
+        out += &format!(
+            "\n| skin (on her own skeleton) | L1 | motion L2 (her Walk clip, 10 frames) |\n| --- | --- | --- |\n| learned | {} | {} |\n| geodesic prior alone | {} | {} |\n",
+            f(&w["learned_skin"]["l1"]),
+            f(&w["learned_skin"]["motion_l2"]),
+            f(&w["geodesic_prior"]["l1"]),
+            f(&w["geodesic_prior"]["motion_l2"])
+        );
+    }
+    out
 }

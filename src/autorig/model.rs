@@ -14,7 +14,7 @@ use glam::Vec3;
 use serde::Deserialize;
 use serde::de::DeserializeOwned;
 
-use super::skeleton::Skeleton;
+use super::skeleton::{Class, Skeleton};
 use super::tokens::{self, BINS, BOS, CLASS_OTHER, Decoder, EOS, TokenError, VOCAB};
 use crate::random::Rng;
 use crate::tensors::{TensorError, TensorFile};
@@ -503,11 +503,13 @@ impl SkeletonModel {
     /// A token sequence for the point cloud, bos to eos, that the grammar accepts and that
     /// fits in `max_len`: the best token at each step (temperature 0) or samples of
     /// softmax(logits / temperature) from `seed`, among the tokens the grammar allows
-    /// and after which the shortest way to finish still fits.
+    /// and after which the shortest way to finish still fits. `class`, when given, is
+    /// the only class token allowed.
     pub fn predict_tokens(
         &self,
         points: &[Vec3],
         normals: &[Vec3],
+        class: Option<Class>,
         temperature: f32,
         seed: u64,
     ) -> Result<Vec<u32>, ModelError> {
@@ -520,7 +522,11 @@ impl SkeletonModel {
         while !grammar.is_done() {
             let logits = decoding.step(last)?;
             let room = self.config.max_len.saturating_sub(tokens.len());
-            let fits = fitting(&grammar, room);
+            let mut fits = fitting(&grammar, room);
+            if let Some(class) = class.filter(|_| tokens.len() == 1) {
+                let only = tokens::class_token(class) as usize;
+                fits = std::array::from_fn(|t| t == only && fits[t]);
+            }
             last = pick(&logits, &fits, temperature, &mut rng)
                 .ok_or(ModelError::NoRoom(self.config.max_len))?;
             grammar.push(last)?;
@@ -534,12 +540,14 @@ impl SkeletonModel {
         &self,
         points: &[Vec3],
         normals: &[Vec3],
+        class: Option<Class>,
         temperature: f32,
         seed: u64,
     ) -> Result<Skeleton, ModelError> {
         Ok(tokens::decode(&self.predict_tokens(
             points,
             normals,
+            class,
             temperature,
             seed,
         )?)?)

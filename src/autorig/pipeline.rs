@@ -130,7 +130,7 @@ pub fn skeleton_for(
     let mut unit = mesh.clone();
     unit.positions = mesh.positions.iter().map(|&p| cube.to_unit(p)).collect();
     let (points, normals) = surface_samples(&unit, POINTS, &mut Rng::new(seed));
-    let skeleton = model.predict(&points, &normals, 0.0, seed)?;
+    let skeleton = model.predict(&points, &normals, Some(Class::Humanoid), 0.0, seed)?;
     Ok((
         skeleton.map_joints(|p| cube.from_unit(p)),
         SkeletonSource::Learned,

@@ -52,7 +52,7 @@ pub fn quantised(skeleton: &Skeleton) -> Skeleton {
     skeleton.map_joints(|p| dequantise3(quantise3(p)))
 }
 
-fn class_token(class: Class) -> u32 {
+pub fn class_token(class: Class) -> u32 {
     match class {
         Class::Humanoid => CLASS_HUMANOID,
         Class::Quadruped => CLASS_QUADRUPED,

@@ -33,6 +33,7 @@ from safetensors.torch import load_file, save_file
 from torch import nn
 
 from .layers import attention
+from .plot import curves
 
 VOCAB = 265
 BOS, EOS = 256, 257
@@ -497,6 +498,7 @@ def train(args) -> dict:
             if done % CHECKPOINT_EVERY == 0 or done == args.steps:
                 torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "gen": gen.get_state(), "step": done, "extra": extra}, checkpoint)
     export(model, run, kind, extra)
+    write_curve(losses, run / f"{kind}_curve.png")
     result = {}
     if held_idx:
         if kind == "skeleton":
@@ -506,6 +508,15 @@ def train(args) -> dict:
         (run / f"{kind}_eval.json").write_text(json.dumps(result, indent=2) + "\n")
         print(json.dumps(result, indent=2))
     return result
+
+
+def write_curve(losses: Path, png: Path) -> None:
+    """The training curve: training loss (mean of each 50 steps) and held-out loss."""
+    rows = list(csv.DictReader(losses.open()))
+    train = [(int(r["step"]), float(r["loss"])) for r in rows]
+    smooth = [(train[i + 49][0], sum(v for _, v in train[i:i + 50]) / 50) for i in range(0, len(train) - 49, 50)]
+    held = [(int(r["step"]), float(r["heldout_loss"])) for r in rows if r["heldout_loss"]]
+    curves(png, {"training loss (50-step mean)": smooth, "held-out loss": held})
 
 
 # -------------------------------------------------------------------------- fixtures
