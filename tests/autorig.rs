@@ -62,26 +62,27 @@ fn the_witch_rig_round_trips_through_tokens() {
     assert_eq!(round.len(), unit.len());
 }
 
-/// `unica rig` with the geometric baselines on the Witch's mesh (her skin ignored): the
-/// written .glb and description load, the teacher drives the rig with finite vertices
-/// that move, and a quick bake of it succeeds.
-#[test]
-fn a_rigged_mesh_bakes_and_plays_in_teacher_mode() {
+/// Rigs the Witch's mesh (her skin ignored) with `models`, then checks that the written
+/// .glb and description load, the teacher walks the rig with finite vertices that move,
+/// and a quick bake of it succeeds.
+fn rig_bake_and_walk(
+    models: &unica::autorig::pipeline::Models,
+) -> unica::autorig::pipeline::Summary {
     use unica::action::Action;
-    use unica::autorig::pipeline::{Models, SkeletonSource, SkinSource, rig_file};
+    use unica::autorig::pipeline::rig_file;
     use unica::avatar::description::Description;
     use unica::avatar::teacher::Teacher;
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("rigged.glb");
-    let summary = rig_file(&witch(), &out, &Models::none(), &witch(), 0, &|_| {}).unwrap();
-    assert_eq!(summary.skeleton, SkeletonSource::TemplateFit);
-    assert_eq!(summary.skin, SkinSource::GeodesicPrior);
-    assert_eq!((summary.joints, summary.clips), (20, 3));
+    let summary = rig_file(&witch(), &out, models, &witch(), 0, &|_| {}).unwrap();
+    assert_eq!(summary.clips, 3);
     let rigged = load_character(&out).unwrap();
     assert_eq!(rigged.rest_mesh().positions.len(), 13_884);
     let description = Description::find(&rigged, None).unwrap();
     assert_eq!(description.clips.walk, "Walk");
+    assert_eq!(description.spring_chains.len(), summary.spring_chains);
     let mut teacher = Teacher::new(rigged, description).unwrap();
+    assert_eq!(teacher.springs.chains.len(), summary.spring_chains);
     let rest = teacher.mesh();
     for _ in 0..20 {
         teacher.step(Action::Forward);
@@ -103,6 +104,28 @@ fn a_rigged_mesh_bakes_and_plays_in_teacher_mode() {
     let manifest =
         unica::dataset::bake::bake(&out, &dir.path().join("data"), &options, &|_, _| {}).unwrap();
     assert_eq!(manifest.clips.len(), 4);
+    summary
+}
+
+#[test]
+fn the_baselines_rig_a_mesh_that_bakes_and_walks() {
+    use unica::autorig::pipeline::{Models, SkeletonSource, SkinSource};
+    let summary = rig_bake_and_walk(&Models::none());
+    assert_eq!(summary.skeleton, SkeletonSource::TemplateFit);
+    assert_eq!(summary.skin, SkinSource::GeodesicPrior);
+    assert_eq!(summary.joints, 20);
+}
+
+#[test]
+fn the_shipped_models_rig_a_mesh_that_bakes_and_walks() {
+    use unica::autorig::pipeline::{Models, SkeletonSource, SkinSource};
+    let models =
+        Models::load(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/autorig"))
+            .unwrap();
+    let summary = rig_bake_and_walk(&models);
+    assert_eq!(summary.skeleton, SkeletonSource::Learned);
+    assert_eq!(summary.skin, SkinSource::Learned);
+    assert!(summary.joints >= 20);
 }
 
 #[test]

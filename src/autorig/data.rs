@@ -1,7 +1,7 @@
 //! Training pairs for the auto-rigger's models: a character (synthetic, or a rigged file
 //! held out for evaluation) in the unit cube as surface samples, its skeleton's tokens,
 //! bones, skin weights and voxel geodesic distances, one safetensors file per character
-//! (format in train/unica_train/rig.py), written by `unica rig-data`.
+//! (format in docs/autorig/models.md), written by `unica rig-data`.
 
 use std::path::{Path, PathBuf};
 
@@ -76,8 +76,7 @@ pub fn sample(
     seed: u64,
 ) -> Result<Sample, TokenError> {
     let cube = UnitCube::of_points(&mesh.positions);
-    let mut unit_mesh = mesh.clone();
-    unit_mesh.positions = mesh.positions.iter().map(|&p| cube.to_unit(p)).collect();
+    let unit_mesh = cube.mesh_to_unit(mesh);
     let skeleton = skeleton.map_joints(|p| cube.to_unit(p));
     let tokens = encode(&skeleton)?;
     let mut rng = Rng::new(seed);

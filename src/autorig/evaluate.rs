@@ -12,7 +12,7 @@ use super::data::{Sample, sample_path, skin_of_character};
 use super::metrics::{b2b, j2b, j2j, motion_l2, random_poses, skin_l1};
 use super::model::{baseline_weights, top4};
 use super::pipeline::{Models, skeleton_for, template_fit};
-use super::skeleton::{Class, Skeleton, UnitCube, of_character};
+use super::skeleton::{BODY, Class, Skeleton, UnitCube, of_character};
 use super::tokens::{encode, naive_length};
 use super::voxel::{Voxels, bone_tails};
 use crate::avatar::load_character;
@@ -160,6 +160,21 @@ pub fn evaluate(
     Ok(report)
 }
 
+/// The 20 body joints of the humanoid template (by name), if all are present.
+fn body_of(skeleton: &Skeleton) -> Option<Skeleton> {
+    let index: Vec<usize> = BODY
+        .iter()
+        .map(|(name, _)| skeleton.names.iter().position(|n| n == name))
+        .collect::<Option<_>>()?;
+    Some(Skeleton {
+        class: Class::Humanoid,
+        joints: index.iter().map(|&j| skeleton.joints[j]).collect(),
+        parents: BODY.iter().map(|(_, p)| *p).collect(),
+        names: BODY.iter().map(|(n, _)| n.to_string()).collect(),
+        spring: vec![false; BODY.len()],
+    })
+}
+
 /// A rigged character against its own rig: skeletons from its mesh alone, skins on its
 /// own skeleton, motion from its own walk clip.
 fn evaluate_rigged(path: &Path, models: &Models) -> anyhow::Result<Value> {
@@ -174,19 +189,24 @@ fn evaluate_rigged(path: &Path, models: &Models) -> anyhow::Result<Value> {
         "vertices": mesh.positions.len(),
         "joints": truth.len(),
     });
-    let [a, b, c] = skeleton_scores(&to_unit(&template_fit(&mesh)), &truth);
-    out["template_fit"] = json!({"j2j": a, "j2b": b, "b2b": c});
+    let truth_body = body_of(&truth);
+    let score = |predicted: &Skeleton| {
+        let [a, b, c] = skeleton_scores(predicted, &truth);
+        let body = body_of(predicted)
+            .zip(truth_body.as_ref())
+            .map(|(p, t)| skeleton_scores(&p, t));
+        json!({"j2j": a, "j2b": b, "b2b": c, "joints": predicted.len(),
+            "body": body.map(|[a, b, c]| json!({"j2j": a, "j2b": b, "b2b": c}))})
+    };
+    out["template_fit"] = score(&to_unit(&template_fit(&mesh)));
     if models.skeleton.is_some() {
         let (predicted, _) = skeleton_for(&mesh, models.skeleton.as_ref(), 0)?;
         let predicted = to_unit(&predicted);
-        let [a, b, c] = skeleton_scores(&predicted, &truth);
-        out["learned"] = json!({"j2j": a, "j2b": b, "b2b": c, "joints": predicted.len(),
-            "spring_joints": predicted.spring.iter().filter(|&&s| s).count(),
-            "class": format!("{:?}", predicted.class)});
+        out["learned"] = score(&predicted);
+        out["learned"]["spring_joints"] = json!(predicted.spring.iter().filter(|&&s| s).count());
     }
     // Skins on the true skeleton.
-    let mut unit_mesh = mesh.clone();
-    unit_mesh.positions = mesh.positions.iter().map(|&p| cube.to_unit(p)).collect();
+    let unit_mesh = cube.mesh_to_unit(&mesh);
     let geodesic = Voxels::new(&unit_mesh, VOXELS)
         .geodesic(&unit_mesh.positions, &truth.joints, &truth.parents)
         .concat();
@@ -288,19 +308,23 @@ pub fn markdown(report: &Value) -> String {
     );
     if let Some(w) = report.get("witch") {
         out += &format!(
-            "\n## The Witch, rigged from her mesh alone, against her own rig ({} joints, {} vertices)\n\n| skeleton | J2J | J2B | B2B |\n| --- | --- | --- | --- |\n",
+            "\n## The Witch, rigged from her mesh alone, against her own rig ({} joints, {} vertices)\n\nAll joints (hers include 38 finger joints), then the 20 body-template joints alone.\n\n| skeleton | joints | J2J | J2B | B2B | body J2J | body J2B | body B2B |\n| --- | --- | --- | --- | --- | --- | --- | --- |\n",
             w["joints"], w["vertices"]
         );
         for (name, key) in [
             ("learned", "learned"),
             ("template fit (baseline)", "template_fit"),
         ] {
-            let r = &w[key];
+            let (r, b) = (&w[key], &w[key]["body"]);
             out += &format!(
-                "| {name} | {} | {} | {} |\n",
+                "| {name} | {} | {} | {} | {} | {} | {} | {} |\n",
+                r["joints"],
                 f(&r["j2j"]),
                 f(&r["j2b"]),
-                f(&r["b2b"])
+                f(&r["b2b"]),
+                f(&b["j2j"]),
+                f(&b["j2b"]),
+                f(&b["b2b"])
             );
         }
         out += &format!(

@@ -127,8 +127,7 @@ pub fn skeleton_for(
         return Ok((template_fit(mesh), SkeletonSource::TemplateFit));
     };
     let cube = UnitCube::of_points(&mesh.positions);
-    let mut unit = mesh.clone();
-    unit.positions = mesh.positions.iter().map(|&p| cube.to_unit(p)).collect();
+    let unit = cube.mesh_to_unit(mesh);
     let (points, normals) = surface_samples(&unit, POINTS, &mut Rng::new(seed));
     let skeleton = model.predict(&points, &normals, Some(Class::Humanoid), 0.0, seed)?;
     Ok((
@@ -141,8 +140,7 @@ pub fn skeleton_for(
 /// units), from the skin model or the geodesic prior alone.
 pub fn skin_for(mesh: &Mesh, skeleton: &Skeleton, models: &Models) -> (Vec<Vec<f32>>, SkinSource) {
     let cube = UnitCube::of_points(&mesh.positions);
-    let mut unit = mesh.clone();
-    unit.positions = mesh.positions.iter().map(|&p| cube.to_unit(p)).collect();
+    let unit = cube.mesh_to_unit(mesh);
     let joints: Vec<Vec3> = skeleton.joints.iter().map(|&p| cube.to_unit(p)).collect();
     let geodesic = Voxels::new(&unit, VOXELS).geodesic(&unit.positions, &joints, &skeleton.parents);
     let flat: Vec<f32> = geodesic.concat();

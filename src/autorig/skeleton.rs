@@ -123,6 +123,14 @@ impl UnitCube {
     pub fn from_unit(&self, p: Vec3) -> Vec3 {
         p * self.half_extent + self.centre
     }
+
+    /// `mesh` moved into the cube (normals keep their directions: the map is uniform).
+    pub fn mesh_to_unit(&self, mesh: &crate::mesh::Mesh) -> crate::mesh::Mesh {
+        crate::mesh::Mesh {
+            positions: mesh.positions.iter().map(|&p| self.to_unit(p)).collect(),
+            ..mesh.clone()
+        }
+    }
 }
 
 impl Skeleton {

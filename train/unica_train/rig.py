@@ -1,4 +1,4 @@
-"""The auto-rigger's two models (see the shared spec in the Rust crate, src/autorig/model.rs
+"""The auto-rigger's two models (specified in docs/autorig/models.md; src/autorig/model.rs
 mirrors this file for CPU inference): the skeleton-token predictor (a point-cloud encoder
 to M latents, then a causal transformer over [latents; tokens]) and the skin-weight model
 (vertex and bone embeddings, a dot-product score plus geodesic and bone-distance priors,
