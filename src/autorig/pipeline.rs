@@ -88,24 +88,34 @@ impl Models {
     }
 }
 
+/// The body joints of the mean synthetic humanoid at rest, each axis as a fraction of
+/// its mesh's bounds (computed once).
+fn mean_humanoid() -> &'static [Vec3] {
+    static MEAN: std::sync::OnceLock<Vec<Vec3>> = std::sync::OnceLock::new();
+    MEAN.get_or_init(|| {
+        const SAMPLES: u64 = 24;
+        let mut mean = vec![Vec3::ZERO; BODY.len()];
+        for seed in 0..SAMPLES {
+            let c = synth::of_class(seed, Class::Humanoid, 0.0);
+            let (lo, hi) = c.mesh.bounds().expect("a synthetic mesh");
+            for (k, (name, _)) in BODY.iter().enumerate() {
+                let j = c
+                    .skeleton
+                    .names
+                    .iter()
+                    .position(|n| n == name)
+                    .expect("body joint");
+                mean[k] += (c.skeleton.joints[j] - lo) / (hi - lo) / SAMPLES as f32;
+            }
+        }
+        mean
+    })
+}
+
 /// The template-fit baseline: the mean synthetic humanoid's body joints, each axis
 /// scaled into the mesh's bounds (what a bounding-box template fit gives).
 pub fn template_fit(mesh: &Mesh) -> Skeleton {
-    const SAMPLES: u64 = 24;
-    let mut mean = vec![Vec3::ZERO; BODY.len()];
-    for seed in 0..SAMPLES {
-        let c = synth::of_class(seed, Class::Humanoid, 0.0);
-        let (lo, hi) = c.mesh.bounds().expect("a synthetic mesh");
-        for (k, (name, _)) in BODY.iter().enumerate() {
-            let j = c
-                .skeleton
-                .names
-                .iter()
-                .position(|n| n == name)
-                .expect("body joint");
-            mean[k] += (c.skeleton.joints[j] - lo) / (hi - lo) / SAMPLES as f32;
-        }
-    }
+    let mean = mean_humanoid();
     let (lo, hi) = mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ONE));
     Skeleton {
         class: Class::Humanoid,
