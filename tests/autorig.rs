@@ -62,10 +62,11 @@ fn the_witch_rig_round_trips_through_tokens() {
     assert_eq!(round.len(), unit.len());
 }
 
-/// Rigs the Witch's mesh (her skin ignored) with `models`, then checks that the written
-/// .glb and description load, the teacher walks the rig with finite vertices that move,
-/// and a quick bake of it succeeds.
+/// Rigs the mesh of `input` (any skin ignored) with `models`, then checks that the
+/// written .glb and description load, the teacher walks the rig with finite vertices that
+/// move, and a quick bake of it succeeds.
 fn rig_bake_and_walk(
+    input: &std::path::Path,
     models: &unica::autorig::pipeline::Models,
 ) -> unica::autorig::pipeline::Summary {
     use unica::action::Action;
@@ -74,10 +75,20 @@ fn rig_bake_and_walk(
     use unica::avatar::teacher::Teacher;
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("rigged.glb");
-    let summary = rig_file(&witch(), &out, models, &witch(), 0, &|_| {}).unwrap();
+    let summary = rig_file(input, &out, models, &witch(), 0, &|_| {}).unwrap();
     assert_eq!(summary.clips, 3);
     let rigged = load_character(&out).unwrap();
-    assert_eq!(rigged.rest_mesh().positions.len(), 13_884);
+    let source = load_character(input).unwrap().rest_mesh();
+    let rest = rigged.rest_mesh();
+    assert_eq!(rest.positions.len(), source.positions.len());
+    let worst = rest
+        .positions
+        .iter()
+        .zip(&source.positions)
+        .map(|(a, b)| a.distance(*b))
+        .fold(0.0, f32::max);
+    // Bind matrices times their inverses are the identity up to rounding.
+    assert!(worst < 1e-5, "the rest pose moved a vertex by {worst}");
     let description = Description::find(&rigged, None).unwrap();
     assert_eq!(description.clips.walk, "Walk");
     assert_eq!(description.spring_chains.len(), summary.spring_chains);
@@ -110,7 +121,7 @@ fn rig_bake_and_walk(
 #[test]
 fn the_baselines_rig_a_mesh_that_bakes_and_walks() {
     use unica::autorig::pipeline::{Models, SkeletonSource, SkinSource};
-    let summary = rig_bake_and_walk(&Models::none());
+    let summary = rig_bake_and_walk(&witch(), &Models::none());
     assert_eq!(summary.skeleton, SkeletonSource::TemplateFit);
     assert_eq!(summary.skin, SkinSource::GeodesicPrior);
     assert_eq!(summary.joints, 20);
@@ -122,7 +133,20 @@ fn the_shipped_models_rig_a_mesh_that_bakes_and_walks() {
     let models =
         Models::load(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/autorig"))
             .unwrap();
-    let summary = rig_bake_and_walk(&models);
+    // Her mesh alone, as an OBJ: no rig, no skin, no clips.
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("witch_mesh.obj");
+    let mesh = load_character(&witch()).unwrap().rest_mesh();
+    let mut text = String::new();
+    for p in &mesh.positions {
+        text += &format!("v {} {} {}\n", p.x, p.y, p.z);
+    }
+    for t in mesh.indices.chunks_exact(3) {
+        text += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    std::fs::write(&obj, text).unwrap();
+    assert!(load_character(&obj).unwrap().clips.is_empty());
+    let summary = rig_bake_and_walk(&obj, &models);
     assert_eq!(summary.skeleton, SkeletonSource::Learned);
     assert_eq!(summary.skin, SkinSource::Learned);
     assert!(summary.joints >= 20);
