@@ -447,12 +447,7 @@ fn rig(args: RigArgs) -> anyhow::Result<()> {
     let models = if args.baseline {
         Models::none()
     } else {
-        let dir = if args.models.is_dir() {
-            args.models.clone()
-        } else {
-            Path::new(env!("CARGO_MANIFEST_DIR")).join(&args.models)
-        };
-        Models::load(&dir)?
+        Models::load(&models_dir(&args.models))?
     };
     let clips_from = args.clips_from.or_else(default_character).ok_or_else(|| {
         anyhow::anyhow!("no rigged humanoid to take clips from; give --clips-from FILE")
@@ -499,7 +494,7 @@ fn rig_eval(args: RigEvalArgs) -> anyhow::Result<()> {
             args.data.display()
         );
     }
-    let models = Models::load(&args.models)?;
+    let models = Models::load(&models_dir(&args.models))?;
     let character = args.character.or_else(default_character);
     let bar = indicatif::ProgressBar::new(args.holdout as u64).with_style(
         indicatif::ProgressStyle::with_template(
@@ -838,6 +833,16 @@ pub fn default_bundle() -> Option<PathBuf> {
     ]
     .into_iter()
     .find(|p| p.join("manifest.json").is_file())
+}
+
+/// The auto-rig models folder: as given, else (for the default relative path run from
+/// elsewhere) the same path in the source tree.
+fn models_dir(dir: &Path) -> PathBuf {
+    if dir.is_dir() {
+        dir.to_path_buf()
+    } else {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(dir)
+    }
 }
 
 /// `$UNICA_CHARACTER`, else the shared Witch beside the working directory or beside the

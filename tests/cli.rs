@@ -246,3 +246,37 @@ fn export_writes_the_neural_avatars_splats_and_view_refuses_bad_files() {
     .unwrap();
     assert_one_line_error(&unica(&["view", bad.to_str().unwrap()], &[]), "bad.ply");
 }
+
+#[test]
+fn rig_errors_name_the_file_and_the_problem() {
+    let dir = tempfile::tempdir().unwrap();
+    let glb = dir.path().join("out.glb");
+    let glb = glb.to_str().unwrap();
+    let missing = dir.path().join("missing.obj");
+    assert_one_line_error(
+        &unica(&["rig", missing.to_str().unwrap(), "--out", glb], &[]),
+        "missing.obj",
+    );
+    assert_one_line_error(
+        &unica(&["rig", "any.obj", "--out", "rigged.gltf"], &[]),
+        "rigged.gltf: the rigged output must be a .glb file",
+    );
+    let broken = dir.path().join("broken.obj");
+    std::fs::write(&broken, "v 0 0 0\nf 1 2 3\n").unwrap();
+    assert_one_line_error(
+        &unica(
+            &["rig", broken.to_str().unwrap(), "--out", glb, "--baseline"],
+            &[],
+        ),
+        "broken.obj",
+    );
+    assert!(
+        !dir.path().join("out.glb").exists(),
+        "nothing is written on failure"
+    );
+    let here = dir.path().to_str().unwrap();
+    assert_one_line_error(
+        &unica(&["rig-eval", "--data", here, "--out", here], &[]),
+        "manifest.json",
+    );
+}

@@ -89,13 +89,7 @@ pub fn sample(
         Voxels::new(&unit_mesh, VOXELS).geodesic(&vertices, &skeleton.joints, &skeleton.parents);
     let skin = picked
         .iter()
-        .map(|&v| {
-            let mut row = vec![0.0; skeleton.len()];
-            for &(j, w) in &skin[v] {
-                row[j] += w;
-            }
-            row
-        })
+        .map(|&v| dense(skin[v].iter().copied(), skeleton.len()))
         .collect();
     Ok(Sample {
         points,
@@ -108,6 +102,15 @@ pub fn sample(
         geodesic,
         skeleton,
     })
+}
+
+/// Sparse (joint, weight) pairs as a row over all `joints`.
+pub fn dense(pairs: impl IntoIterator<Item = (usize, f32)>, joints: usize) -> Vec<f32> {
+    let mut row = vec![0.0; joints];
+    for (j, w) in pairs {
+        row[j] += w;
+    }
+    row
 }
 
 fn flat(vectors: &[Vec3]) -> Vec<f32> {

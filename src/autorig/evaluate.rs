@@ -8,7 +8,7 @@ use glam::{Mat4, Vec3};
 use serde_json::{Value, json};
 
 use super::data::VOXELS;
-use super::data::{Sample, sample_path, skin_of_character};
+use super::data::{Sample, dense, sample_path, skin_of_character};
 use super::metrics::{b2b, j2b, j2j, motion_l2, random_poses, skin_l1};
 use super::model::{baseline_weights, top4};
 use super::pipeline::{Models, skeleton_for, template_fit};
@@ -28,11 +28,7 @@ fn top4_rows(weights: &[Vec<f32>]) -> Vec<Vec<f32>> {
         .iter()
         .map(|w| {
             let (joints, values) = top4(w);
-            let mut row = vec![0.0; w.len()];
-            for (j, v) in joints.iter().zip(values) {
-                row[*j as usize] += v;
-            }
-            row
+            dense(joints.iter().map(|&j| j as usize).zip(values), w.len())
         })
         .collect()
 }
@@ -219,13 +215,7 @@ fn evaluate_rigged(path: &Path, models: &Models) -> anyhow::Result<Value> {
     );
     let truth_skin: Vec<Vec<f32>> = skin_of_character(&character, &truth_world)
         .iter()
-        .map(|pairs| {
-            let mut row = vec![0.0; truth.len()];
-            for &(j, w) in pairs {
-                row[j] += w;
-            }
-            row
-        })
+        .map(|pairs| dense(pairs.iter().copied(), truth.len()))
         .collect();
     // The walk clip through her own rig: skinning matrices per skeleton joint.
     let rig = &character.rig;
