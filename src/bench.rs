@@ -142,7 +142,7 @@ fn raster(
             let mut encoder = gpu.device.create_command_encoder(&Default::default());
             let raster =
                 rasterizer.record(gpu, &mut encoder, &buffer, count, &camera, Vec3::ZERO)?;
-            gpu.queue.submit([encoder.finish()]);
+            gpu.submit([encoder.finish()]);
             gpu.wait_idle();
             if run > 0 {
                 ms.push(start.elapsed().as_secs_f64() * 1e3);
@@ -606,7 +606,7 @@ pub fn frame_stages(
             &camera,
             glam::Vec3::ZERO,
         )?;
-        gpu.queue.submit([encoder.finish()]);
+        gpu.submit([encoder.finish()]);
         gpu.wait_idle();
         let raster = clock.elapsed().as_secs_f64() * 1e3;
         if run > 0 {
@@ -637,5 +637,128 @@ pub fn frame_stages(
     }
     writeln!(out, "{:<32} {total:>10.2}", "whole frame")?;
     writeln!(out, "generated frames per second: {:.2}", 1e3 / total)?;
+    Ok(())
+}
+
+/// `unica bench --live N`: N generated frames after a warm-up frame, made as the app
+/// makes them — the engine's frame (recorded and submitted, no wait), then the splats of
+/// its points at `level` written into the rasterizer's splat buffer — with the GPU
+/// layer's counts per frame. cpu_ms is the time spent recording and preparing on this
+/// thread; while the appearance stage still runs on the CPU (it reads the points back)
+/// its waits are inside it too, and are named on the line after. wall_ms is the whole
+/// run, ended by waiting for the GPU, per frame.
+pub fn live(
+    gpu: &GpuContext,
+    dir: &std::path::Path,
+    sampling: Sampling,
+    level: usize,
+    frames: usize,
+    out: &mut impl Write,
+) -> anyhow::Result<()> {
+    use crate::action::Action;
+    use crate::engine::appearance::Appearance;
+    use crate::engine::{Engine, EngineOptions};
+    use crate::splat::raster::Rasterizer;
+    let options = EngineOptions {
+        sampling: Some(sampling),
+        ..EngineOptions::default()
+    };
+    let mut engine = Engine::new(gpu, dir, &options)?;
+    let mut look = Appearance::new(gpu, &engine.bundle, options.precision, level)?;
+    let standing = engine.standing_points();
+    let splat_buffer = Rasterizer::upload(gpu, &look.splats(&engine.bundle, &standing)?)?;
+    writeln!(out, "adapter: {}", gpu.adapter_label())?;
+    let (dispatches, flops) = engine.plan_counts();
+    writeln!(
+        out,
+        "live: {} DDIM steps, CFG {}, splat level {level} ({} splats); geometry plan: {dispatches} \
+         dispatches, {:.2} GFLOP",
+        sampling.steps,
+        sampling.cfg_scale,
+        look.count(),
+        flops as f64 / 1e9
+    )?;
+    let keys = [
+        Action::Forward,
+        Action::Forward,
+        Action::Right,
+        Action::Idle,
+    ];
+    let mut one = |engine: &mut Engine,
+                   i: usize,
+                   geometry_ms: &mut f64,
+                   look_ms: &mut f64|
+     -> anyhow::Result<()> {
+        let clock = Instant::now();
+        engine.frame(keys[i % keys.len()])?;
+        *geometry_ms += clock.elapsed().as_secs_f64() * 1e3;
+        let clock = Instant::now();
+        let values: Vec<f32> = bytemuck::pod_collect_to_vec(&crate::gpu::readback::buffer(
+            gpu,
+            engine.points_buffer(),
+            "points",
+        )?);
+        let points: Vec<glam::Vec3> = values
+            .chunks_exact(3)
+            .map(|v| glam::Vec3::new(v[0], v[1], v[2]))
+            .collect();
+        let splats = look.splats(&engine.bundle, &points)?;
+        Rasterizer::write(gpu, &splat_buffer, &splats);
+        *look_ms += clock.elapsed().as_secs_f64() * 1e3;
+        Ok(())
+    };
+    let (mut warm_geometry, mut warm_look) = (0.0, 0.0);
+    one(&mut engine, 0, &mut warm_geometry, &mut warm_look)?;
+    engine.finish();
+    let before = gpu.counts();
+    let (mut geometry_ms, mut look_ms) = (0.0, 0.0);
+    let bar = indicatif::ProgressBar::new(frames as u64);
+    let start = Instant::now();
+    for i in 1..=frames {
+        one(&mut engine, i, &mut geometry_ms, &mut look_ms)?;
+        bar.inc(1);
+    }
+    engine.finish();
+    let wall_ms = start.elapsed().as_secs_f64() * 1e3 / frames as f64;
+    bar.finish_and_clear();
+    let c = gpu.counts() - before;
+    let n = frames as f64;
+    let per = |v: u64| v as f64 / n;
+    let fmt = |v: u64| {
+        let x = per(v);
+        if x.fract() == 0.0 {
+            format!("{x:.0}")
+        } else {
+            format!("{x:.1}")
+        }
+    };
+    writeln!(
+        out,
+        "per generated frame: dispatches={} submissions={} readbacks={} readback_bytes={} \
+         buffers_created={} bind_groups_created={} cpu_ms={:.1} wall_ms={:.1} fps={:.2}",
+        fmt(c.dispatches),
+        fmt(c.submissions),
+        fmt(c.readbacks),
+        fmt(c.readback_bytes),
+        fmt(c.buffers),
+        fmt(c.bind_groups),
+        (geometry_ms + look_ms) / n,
+        wall_ms,
+        1e3 / wall_ms
+    )?;
+    writeln!(
+        out,
+        "of which: geometry engine frame (recorded and submitted, no wait) cpu_ms={:.2}; \
+         appearance on the CPU (points read back, base splats, refiner, upscale, splat \
+         write; waits included) ms={:.1}",
+        geometry_ms / n,
+        look_ms / n
+    )?;
+    let state = engine.state();
+    writeln!(
+        out,
+        "after {} frames: world root ({:.3}, {:.3}, {:.3}) m, {} values clamped",
+        state.frames, state.root[0], state.root[1], state.root[2], state.clamped_total
+    )?;
     Ok(())
 }

@@ -200,6 +200,12 @@ struct BenchArgs {
     /// only) and report speed, clamped and non-finite values, memory and path headings
     #[arg(long, value_name = "N", requires = "bundle")]
     soak: Option<usize>,
+    /// Instead of the tables: N generated frames of --bundle after a warm-up, as the app
+    /// makes them (key to splat buffer), and the GPU work counted per frame: dispatches,
+    /// submissions, readbacks and their bytes, buffers and bind groups created, CPU and
+    /// wall milliseconds
+    #[arg(long, value_name = "N", requires = "bundle", conflicts_with = "soak")]
+    live: Option<usize>,
     /// Splat level of the --bundle live-frame rows (128, 256, 512 or 1024) [default: 1024
     /// on a GPU, 256 on a CPU driver]
     #[arg(long, value_name = "SIZE", value_parser = parse_level)]
@@ -408,6 +414,15 @@ fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
     let gpu = GpuContext::headless(gpu_options)?;
     if let (Some(frames), Some(dir)) = (args.soak, &args.bundle) {
         return crate::bench::soak(&gpu, dir, frames, Some(sampling), &mut std::io::stdout());
+    }
+    if let (Some(frames), Some(dir)) = (args.live, &args.bundle) {
+        if frames == 0 {
+            bail!("--live must be at least 1 frame");
+        }
+        let level = args
+            .splat_level
+            .unwrap_or_else(|| crate::engine::appearance::default_level(&gpu));
+        return crate::bench::live(&gpu, dir, sampling, level, frames, &mut std::io::stdout());
     }
     if matches!(args.precision, BenchPrecision::F16) && !gpu.caps.shader_f16 {
         bail!(

@@ -5,8 +5,26 @@
 use std::collections::BTreeSet;
 
 use unica::gpu::kernel::Precision;
-use unica::gpu::shaders::{ALL, Shader};
+use unica::gpu::shaders::Shader;
 use wgpu::naga;
+
+/// Every shader of the crate: the GPU layer's and each stage's own.
+fn all() -> Vec<Shader> {
+    [unica::gpu::shaders::ALL, unica::engine::kernels::ALL].concat()
+}
+
+/// The `.wgsl` files under `dir`, named relative to `shaders/` (one level of stage folders).
+fn wgsl_files(dir: &std::path::Path, prefix: &str, out: &mut Vec<String>) {
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let entry = entry.unwrap();
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if entry.file_type().unwrap().is_dir() {
+            wgsl_files(&entry.path(), &format!("{prefix}{name}/"), out);
+        } else if name.ends_with(".wgsl") {
+            out.push(format!("{prefix}{name}"));
+        }
+    }
+}
 
 fn parse(shader: &Shader, precision: Precision) -> naga::Module {
     let source = shader.source(precision);
@@ -33,7 +51,7 @@ fn variants(shader: &Shader) -> Vec<Precision> {
 
 #[test]
 fn every_shader_parses_and_validates_with_only_the_features_it_declares() {
-    for shader in ALL {
+    for shader in &all() {
         for precision in variants(shader) {
             let module = parse(shader, precision);
             let source = shader.source(precision);
@@ -66,12 +84,10 @@ fn the_f32_variant_of_an_elem_shader_needs_no_f16() {
 #[test]
 fn every_file_in_shaders_is_registered_once() {
     let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/shaders");
-    let on_disk: BTreeSet<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .filter(|n| n.ends_with(".wgsl"))
-        .collect();
-    let registered: Vec<String> = ALL.iter().map(|s| s.file.to_string()).collect();
+    let mut files = Vec::new();
+    wgsl_files(std::path::Path::new(dir), "", &mut files);
+    let on_disk: BTreeSet<String> = files.into_iter().collect();
+    let registered: Vec<String> = all().iter().map(|s| s.file.to_string()).collect();
     let unique: BTreeSet<String> = registered.iter().cloned().collect();
     assert_eq!(
         unique.len(),
@@ -84,7 +100,7 @@ fn every_file_in_shaders_is_registered_once() {
 #[test]
 fn shared_structs_have_the_host_layout() {
     let mut checked = 0;
-    for shader in ALL {
+    for shader in &all() {
         let module = parse(shader, Precision::F32);
         for shared in shader.structs {
             let (span, members) = module

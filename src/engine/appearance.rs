@@ -223,7 +223,7 @@ fn upscale(
         MAP_SIZE,
         size / MAP_SIZE,
     )?;
-    gpu.queue.submit([encoder.finish()]);
+    gpu.submit([encoder.finish()]);
     let values = bytemuck::pod_collect_to_vec(&readback::buffer(gpu, &out, "upscaled map")?);
     let mask = bytemuck::pod_collect_to_vec(&readback::buffer(gpu, &out_mask, "upscaled mask")?);
     Ok((values, mask))

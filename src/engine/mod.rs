@@ -1,28 +1,35 @@
 //! The live neural avatar (DESIGN §6): a ring of three context latents on the GPU → the
-//! UNet + DDIM with CFG → decode → the new frame's root shift is real motion (world root
-//! accumulated) → the window is recentred in latent space and slid → PCA cleans what is
-//! drawn (never fed back). No readback inside a generated frame: the only one is the
-//! decoded map at its end, which the caller draws. Headless, a frame is one submission;
-//! beside a window (`EngineOptions::split`) it is submitted step by step, so the
-//! window's frames never wait for more than one step. `appearance` turns a frame's
-//! points into splats.
+//! UNet + DDIM with CFG → decode → clamping and the new frame's root shift → PCA cleans
+//! what is drawn (never fed back) → world-space points, while the window is recentred in
+//! latent space and slid and the world root accumulates. All of it is one captured
+//! [`Plan`] made at load (and again when the sampling or PCA setting changes): a generated
+//! frame writes its noise and action ids, submits the plan and creates nothing. The only
+//! readback is the 48-byte [`FrameState`] (world root, shift, clamp counts), mapped
+//! asynchronously and picked up by [`Engine::poll`]. Beside a window
+//! (`EngineOptions::split`) the plan is submitted part by part (context pass, each step,
+//! decode), each part waited for on the caller's thread, so the window's own submissions
+//! interleave. `appearance` turns a frame's points into splats.
 
 pub mod appearance;
+pub mod kernels;
 pub mod pca;
 mod recentre;
 pub mod surface;
 
 use std::path::Path;
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use glam::Vec3;
 
 use crate::action::Action;
-use crate::gpu::GpuContext;
 use crate::gpu::kernel::{PipelineCache, Precision};
+use crate::gpu::{GpuContext, GpuError, readback};
+use crate::nn::ops::{Indices, Plan};
 use crate::nn::sampler::Sampling;
 use crate::nn::{Bundle, LoadError, Recorder, Tensor};
 use crate::random::Rng;
+use kernels::{FrameState, PostParams};
 use recentre::ShiftBasis;
 
 /// How the engine runs.
@@ -68,11 +75,43 @@ pub struct Frame {
     pub cpu_ms: f64,
 }
 
-/// A generated frame's latent and root shift, applied to the window when the next frame
-/// is recorded (so each frame is one submission).
-struct Pending {
-    latent: Tensor,
-    shift: Vec3,
+/// The loop's buffers, made once at load.
+struct Live {
+    /// [1, F-1, C, h, w]: the window of clean context latents (the engine's own copy).
+    context: Tensor,
+    /// The slid window, copied into `context` at the end of each frame.
+    window: Tensor,
+    /// [1, C, h, w]: the frame's starting noise, written before each frame.
+    noise: Tensor,
+    pixels: wgpu::Buffer,
+    waist: wgpu::Buffer,
+    /// 3N clamped normalised values.
+    unit: wgpu::Buffer,
+    mean: wgpu::Buffer,
+    basis: wgpu::Buffer,
+    coefficients: wgpu::Buffer,
+    /// 3N world-space values: the frame's drawn points.
+    points: wgpu::Buffer,
+    jacobian: wgpu::Buffer,
+    state: wgpu::Buffer,
+    components: usize,
+}
+
+/// A captured frame and the action ids it reads.
+struct FramePlan {
+    plan: Plan,
+    actions: Indices,
+    guided: bool,
+    sampling: Sampling,
+    pca: bool,
+}
+
+/// A mapped readback of the frame state in flight.
+struct Slot {
+    staging: wgpu::Buffer,
+    /// Set by the map callback: Ok when the bytes can be read.
+    arrived: Arc<Mutex<Option<Result<(), wgpu::BufferAsyncError>>>>,
+    busy: bool,
 }
 
 pub struct Engine {
@@ -83,15 +122,19 @@ pub struct Engine {
     sampling: Sampling,
     pca: bool,
     split: bool,
-    /// [1, F-1, C, h, w]: the window of clean context latents.
-    context: Tensor,
-    pending: Option<Pending>,
+    live: Live,
+    plan: Option<FramePlan>,
     basis: ShiftBasis,
-    world_root: Vec3,
+    slots: Vec<Slot>,
+    /// The latest frame state read back, and the frames submitted.
+    state: FrameState,
+    start_root: Vec3,
     noise: Rng,
     frames: u64,
-    clamped_total: usize,
 }
+
+/// Frame-state readbacks in flight at most (older ones are skipped, not waited for).
+const SLOTS: usize = 3;
 
 impl Engine {
     /// Loads the bundle in `dir` and starts from its standing start, the floor under the
@@ -107,38 +150,60 @@ impl Engine {
             })?;
         let mut pipelines = PipelineCache::default();
         let basis = ShiftBasis::measure(gpu, &mut pipelines, options.precision, &bundle)?;
-        let cfg = &bundle.unet.cfg;
-        let side = bundle.manifest.map_size / 8;
-        let context = bundle
-            .context
-            .reshaped(&[1, cfg.frames - 1, cfg.latent, side, side]);
         let scale = bundle.manifest.normalisation.scale;
         let lowest = basis
             .standing
             .iter()
             .map(|p| p.y)
             .fold(f32::INFINITY, f32::min);
-        let world_root = Vec3::new(0.0, (0.5 - lowest) / scale, 0.0);
-        Ok(Self {
+        let start_root = Vec3::new(0.0, (0.5 - lowest) / scale, 0.0);
+        let live = Live::new(gpu, &bundle, &basis, options.precision, start_root)?;
+        let slots = (0..SLOTS)
+            .map(|_| Slot {
+                staging: gpu.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("engine.state readback"),
+                    size: std::mem::size_of::<FrameState>() as u64,
+                    usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+                    mapped_at_creation: false,
+                }),
+                arrived: Arc::new(Mutex::new(None)),
+                busy: false,
+            })
+            .collect();
+        let mut engine = Self {
             gpu: gpu.clone(),
             pipelines,
             precision: options.precision,
             sampling,
             pca: options.pca,
             split: options.split,
-            context,
-            pending: None,
+            live,
+            plan: None,
             basis,
-            world_root,
+            slots,
+            state: initial_state(start_root),
+            start_root,
             noise: Rng::new(options.seed),
             frames: 0,
-            clamped_total: 0,
             bundle,
-        })
+        };
+        engine.prepare()?;
+        Ok(engine)
     }
 
+    /// The world root after the latest frame whose state has been read back.
     pub fn root(&self) -> Vec3 {
-        self.world_root
+        Vec3::from_slice(&self.state.root[..3])
+    }
+
+    /// The latest frame state read back (see [`Engine::poll`]).
+    pub fn state(&self) -> FrameState {
+        self.state
+    }
+
+    /// Frames submitted so far.
+    pub fn frames(&self) -> u64 {
+        self.frames
     }
 
     /// The surface and base splats of this bundle's map, laid out on the standing start.
@@ -157,7 +222,7 @@ impl Engine {
         self.basis
             .standing
             .iter()
-            .map(|&p| (p - Vec3::splat(0.5)) / scale + self.world_root)
+            .map(|&p| (p - Vec3::splat(0.5)) / scale + self.start_root)
             .collect()
     }
 
@@ -165,95 +230,341 @@ impl Engine {
         self.sampling
     }
 
+    /// Takes effect from the next frame (the plan is captured again then).
     pub fn set_sampling(&mut self, sampling: Sampling) {
         self.sampling = sampling;
     }
 
+    /// Takes effect from the next frame (the plan is captured again then).
     pub fn set_pca(&mut self, on: bool) {
         self.pca = on;
     }
 
-    /// Generates the next frame under `action`.
-    pub fn step(&mut self, action: Action) -> Result<Frame, crate::gpu::GpuError> {
-        let clock = Instant::now();
-        let cfg = &self.bundle.unet.cfg;
-        let side = self.bundle.manifest.map_size / 8;
-        let noise_values = self.noise.gaussian(cfg.latent * side * side);
-        let mut r = if self.split {
-            Recorder::split(&self.gpu, &mut self.pipelines, self.precision)
-        } else {
-            Recorder::new(&self.gpu, &mut self.pipelines, self.precision)
-        };
-        if let Some(pending) = self.pending.take() {
-            self.context =
-                self.basis
-                    .slide(&mut r, &self.context, &pending.latent, pending.shift)?;
-        }
-        let noise = r.upload("engine.noise", &[1, cfg.latent, side, side], &noise_values)?;
-        let latent = self.bundle.generate(
-            &mut r,
-            &self.context,
-            action.id() as usize,
-            &noise,
-            self.sampling,
-        )?;
-        let map = self.bundle.decode(&mut r, &latent)?;
-        r.submit();
-        let values = map.read(&self.gpu)?;
-        let gpu_ms = clock.elapsed().as_secs_f64() * 1e3;
+    /// The latent response to a uniform shift of the frame, J_x, J_y, J_z one after the
+    /// other ([3, C·h·w], see `recentre`): what the window's slide subtracts.
+    pub fn shift_jacobian(&self) -> &[f32] {
+        &self.basis.jacobian
+    }
 
-        let clock = Instant::now();
-        let plane = values.len() / 3;
-        let mut clamped = 0;
-        let unit: Vec<Vec3> = self
-            .bundle
-            .pixels
-            .iter()
-            .map(|&p| {
-                let v = Vec3::new(
-                    values[p as usize],
-                    values[plane + p as usize],
-                    values[2 * plane + p as usize],
-                );
-                // NaN (counted) becomes the cube's centre; the rest is clamped (counted).
-                Vec3::from_array(v.to_array().map(|x| {
-                    let kept = if x.is_nan() { 0.5 } else { x.clamp(0.0, 1.0) };
-                    clamped += usize::from(kept != x);
-                    kept
-                }))
-            })
-            .collect();
-        let root = self
-            .bundle
-            .waist
-            .iter()
-            .map(|&w| unit[w as usize])
-            .sum::<Vec3>()
-            / self.bundle.waist.len() as f32;
-        let shift = root - Vec3::splat(0.5);
-        let scale = self.bundle.manifest.normalisation.scale;
-        let drawn = if self.pca {
-            pca::project_points(&unit, shift, &self.bundle.pca_mean, &self.bundle.pca_basis)
-        } else {
-            unit
+    /// The frame plan's compute dispatches and FLOPs.
+    pub fn plan_counts(&self) -> (usize, u64) {
+        self.plan
+            .as_ref()
+            .map_or((0, 0), |p| (p.plan.dispatches(), p.plan.flops()))
+    }
+
+    /// The buffer of the latest frame's drawn points: 3N f32, world space (N =
+    /// `bundle.pixels.len()`), in the bundle's pixel order. Valid once that frame's work
+    /// has run (later submissions see it).
+    pub fn points_buffer(&self) -> &wgpu::Buffer {
+        &self.live.points
+    }
+
+    /// Captures the frame plan for the current settings if it is missing or stale (at
+    /// load, and after a settings change; never otherwise).
+    pub fn prepare(&mut self) -> Result<(), GpuError> {
+        let fresh = self
+            .plan
+            .as_ref()
+            .is_some_and(|p| p.sampling == self.sampling && p.pca == self.pca);
+        if !fresh {
+            self.plan = Some(self.capture()?);
+        }
+        Ok(())
+    }
+
+    fn capture(&mut self) -> Result<FramePlan, GpuError> {
+        let live = &self.live;
+        let bundle = &self.bundle;
+        let guided = self.sampling.cfg_scale != 1.0;
+        let mut r = Recorder::capture(&self.gpu, &mut self.pipelines, self.precision);
+        let actions = r.indices("engine.actions", &vec![0; if guided { 2 } else { 1 }])?;
+        let latent =
+            bundle.generate_with(&mut r, &live.context, &actions, &live.noise, self.sampling)?;
+        r.boundary();
+        let map = bundle.decode(&mut r, &latent)?;
+        let cfg = &bundle.unet.cfg;
+        let points = bundle.pixels.len();
+        let params = PostParams {
+            points: points as u32,
+            plane: (bundle.manifest.map_size * bundle.manifest.map_size) as u32,
+            waist: bundle.waist.len() as u32,
+            components: if self.pca { live.components as u32 } else { 0 },
+            scale: bundle.manifest.normalisation.scale,
+            latent: (live.noise.len()) as u32,
+            frames: (cfg.frames - 1) as u32,
+            reserved: 0,
         };
-        let points = drawn
-            .iter()
-            .map(|&p| (p - Vec3::splat(0.5)) / scale + self.world_root)
-            .collect();
-        self.world_root += shift / scale;
-        self.pending = Some(Pending { latent, shift });
+        let one = crate::gpu::kernel::Grid { x: 1, y: 1 };
+        r.dispatch(
+            &kernels::FRAME_UNIT,
+            &params,
+            &[
+                &map.buffer,
+                &live.pixels,
+                &live.waist,
+                &live.unit,
+                &live.state,
+            ],
+            one,
+        );
+        if self.pca {
+            let grid = r.grid(live.components);
+            r.dispatch(
+                &kernels::PCA_COEFFICIENTS,
+                &params,
+                &[
+                    &live.unit,
+                    &live.mean,
+                    &live.basis,
+                    &live.state,
+                    &live.coefficients,
+                ],
+                grid,
+            );
+        }
+        let grid = r.grid(3 * points);
+        r.dispatch(
+            &kernels::FRAME_POINTS,
+            &params,
+            &[
+                &live.unit,
+                &live.mean,
+                &live.basis,
+                &live.state,
+                &live.coefficients,
+                &live.points,
+            ],
+            grid,
+        );
+        let grid = r.grid(live.window.len());
+        r.dispatch(
+            &kernels::SLIDE,
+            &params,
+            &[
+                &live.context.buffer,
+                &latent.buffer,
+                &live.jacobian,
+                &live.state,
+                &live.window.buffer,
+            ],
+            grid,
+        );
+        r.copy(
+            &live.window.buffer,
+            &live.context.buffer,
+            live.window.buffer.size(),
+        );
+        Ok(FramePlan {
+            plan: r.finish(),
+            actions,
+            guided,
+            sampling: self.sampling,
+            pca: self.pca,
+        })
+    }
+
+    /// Records and submits the next frame under `action` and starts reading its state
+    /// back; returns without waiting for the GPU (split: waits for each part but the
+    /// last, on this thread, so other work on the queue interleaves). The frame's points
+    /// are in [`Engine::points_buffer`] once its work has run.
+    pub fn frame(&mut self, action: Action) -> Result<(), GpuError> {
+        self.prepare()?;
+        self.poll();
+        let live = &self.live;
+        let noise = self.noise.gaussian(live.noise.len());
+        let mut bytes = self.precision.encode(&noise);
+        bytes.resize(live.noise.buffer.size() as usize, 0);
+        self.gpu.queue.write_buffer(&live.noise.buffer, 0, &bytes);
+        let plan = self.plan.as_ref().expect("prepared");
+        let null = self.bundle.unet.cfg.null_action() as u32;
+        let ids = if plan.guided {
+            vec![action.id(), null]
+        } else {
+            vec![action.id()]
+        };
+        plan.actions.write(&self.gpu, &ids);
+        let slot = self.slots.iter().position(|s| !s.busy);
+        let new_encoder = || {
+            self.gpu
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("engine frame"),
+                })
+        };
+        let mut encoder = new_encoder();
+        for k in 0..plan.plan.parts() {
+            plan.plan.encode_part(&self.gpu, &mut encoder, k);
+            if self.split && k + 1 < plan.plan.parts() {
+                let done = std::mem::replace(&mut encoder, new_encoder());
+                let index = self.gpu.submit([done.finish()]);
+                let _ = self.gpu.device.poll(wgpu::PollType::Wait {
+                    submission_index: Some(index),
+                    timeout: None,
+                });
+            }
+        }
+        let size = std::mem::size_of::<FrameState>() as u64;
+        if let Some(k) = slot {
+            encoder.copy_buffer_to_buffer(&live.state, 0, &self.slots[k].staging, 0, size);
+        }
+        self.gpu.submit([encoder.finish()]);
+        if let Some(k) = slot {
+            let slot = &mut self.slots[k];
+            slot.busy = true;
+            let arrived = slot.arrived.clone();
+            self.gpu.counters.readback(size);
+            slot.staging
+                .slice(..)
+                .map_async(wgpu::MapMode::Read, move |result| {
+                    *arrived.lock().expect("state slot") = Some(result);
+                });
+        }
         self.frames += 1;
-        self.clamped_total += clamped;
+        Ok(())
+    }
+
+    /// Picks up frame states that have arrived (never waits); true if one did.
+    pub fn poll(&mut self) -> bool {
+        let _ = self.gpu.device.poll(wgpu::PollType::Poll);
+        self.collect()
+    }
+
+    fn collect(&mut self) -> bool {
+        let mut newest: Option<FrameState> = None;
+        for slot in self.slots.iter_mut().filter(|s| s.busy) {
+            let Some(result) = slot.arrived.lock().expect("state slot").take() else {
+                continue;
+            };
+            slot.busy = false;
+            if result.is_ok()
+                && let Ok(view) = slot.staging.slice(..).get_mapped_range()
+            {
+                let state: FrameState = bytemuck::pod_read_unaligned(&view[..]);
+                if newest.is_none_or(|n| state.frames > n.frames) {
+                    newest = Some(state);
+                }
+            }
+            slot.staging.unmap();
+        }
+        match newest {
+            Some(state) if state.frames >= self.state.frames => {
+                self.state = state;
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// Waits until every submitted frame has run and its state, if read back, arrived.
+    pub fn finish(&mut self) {
+        self.gpu.wait_idle();
+        self.collect();
+    }
+
+    /// Generates the next frame under `action` and waits for it, reading its points
+    /// back (tools and tests; the window and the live bench use [`Engine::frame`]).
+    pub fn step(&mut self, action: Action) -> Result<Frame, GpuError> {
+        let clock = Instant::now();
+        self.frame(action)?;
+        let cpu_ms = clock.elapsed().as_secs_f64() * 1e3;
+        let values: Vec<f32> = bytemuck::pod_collect_to_vec(&readback::buffer(
+            &self.gpu,
+            &self.live.points,
+            "points",
+        )?);
+        self.finish();
+        let points = values
+            .chunks_exact(3)
+            .take(self.bundle.pixels.len())
+            .map(|v| Vec3::new(v[0], v[1], v[2]))
+            .collect();
         Ok(Frame {
             index: self.frames - 1,
             action,
             points,
-            root: self.world_root,
-            clamped,
-            clamped_total: self.clamped_total,
-            gpu_ms,
-            cpu_ms: clock.elapsed().as_secs_f64() * 1e3,
+            root: self.root(),
+            clamped: self.state.clamped as usize,
+            clamped_total: self.state.clamped_total as usize,
+            gpu_ms: clock.elapsed().as_secs_f64() * 1e3,
+            cpu_ms,
+        })
+    }
+}
+
+fn initial_state(root: Vec3) -> FrameState {
+    FrameState {
+        root: [root.x, root.y, root.z, 0.0],
+        shift: [0.0; 4],
+        clamped: 0,
+        clamped_total: 0,
+        frames: 0,
+        reserved: 0,
+    }
+}
+
+impl Live {
+    fn new(
+        gpu: &GpuContext,
+        bundle: &Bundle,
+        basis: &ShiftBasis,
+        precision: Precision,
+        start_root: Vec3,
+    ) -> Result<Self, GpuError> {
+        let cfg = &bundle.unet.cfg;
+        let side = bundle.manifest.map_size / 8;
+        let shape = [1, cfg.frames - 1, cfg.latent, side, side];
+        let context = Tensor::empty(gpu, "engine.context", &shape, precision)?;
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        encoder.copy_buffer_to_buffer(
+            &bundle.context.buffer,
+            0,
+            &context.buffer,
+            0,
+            context.buffer.size(),
+        );
+        gpu.submit([encoder.finish()]);
+        let f32s = |label: &str, values: &[f32]| {
+            let mut bytes: Vec<u8> = bytemuck::cast_slice(values).to_vec();
+            bytes.resize(bytes.len().max(4), 0);
+            gpu.storage_buffer_init(label, &bytes, wgpu::BufferUsages::empty())
+        };
+        let u32s = |label: &str, values: &[u32]| {
+            gpu.storage_buffer_init(
+                label,
+                bytemuck::cast_slice(values),
+                wgpu::BufferUsages::empty(),
+            )
+        };
+        let d = 3 * bundle.pixels.len();
+        let components = bundle.pca_basis.len() / d.max(1);
+        let state = initial_state(start_root);
+        Ok(Self {
+            window: Tensor::empty(gpu, "engine.window", &shape, precision)?,
+            noise: Tensor::empty(gpu, "engine.noise", &[1, cfg.latent, side, side], precision)?,
+            context,
+            pixels: u32s("engine.pixels", &bundle.pixels)?,
+            waist: u32s("engine.waist", &bundle.waist)?,
+            unit: gpu.storage_buffer("engine.unit", 4 * d as u64, wgpu::BufferUsages::COPY_SRC)?,
+            mean: f32s("engine.pca_mean", &bundle.pca_mean)?,
+            basis: f32s("engine.pca_basis", &bundle.pca_basis)?,
+            coefficients: gpu.storage_buffer(
+                "engine.pca_coefficients",
+                4 * components.max(1) as u64,
+                wgpu::BufferUsages::empty(),
+            )?,
+            points: gpu.storage_buffer(
+                "engine.points",
+                4 * d as u64,
+                wgpu::BufferUsages::COPY_SRC,
+            )?,
+            jacobian: f32s("engine.jacobian", &basis.jacobian)?,
+            state: gpu.storage_buffer_init(
+                "engine.state",
+                bytemuck::bytes_of(&state),
+                wgpu::BufferUsages::COPY_SRC,
+            )?,
+            components,
         })
     }
 }

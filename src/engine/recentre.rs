@@ -3,19 +3,19 @@
 //! along axis k moves the encoder's latents along J_k = ∂E/∂δ_k, measured once per
 //! bundle by central differences at the standing start's context frames (averaged; as
 //! `train/unica_train/recentre.py`'s `bundle_basis`, whose rollouts validated it against
-//! re-encoding); the window then moves by -Σ δ_k J_k in latent space.
+//! re-encoding); the window then moves by -Σ δ_k J_k in latent space (`slide.wgsl`).
 
+use crate::gpu::GpuContext;
 use crate::gpu::kernel::{PipelineCache, Precision};
-use crate::gpu::{GpuContext, GpuError};
-use crate::nn::{Bundle, LoadError, Recorder, Tensor};
+use crate::nn::{Bundle, LoadError, Recorder};
 
 /// The half-width of the central difference, in normalised units: about the root shift
 /// of one running frame, so J is the secant over the shifts the loop meets.
 const STEP: f32 = 0.03;
 
 pub struct ShiftBasis {
-    /// J_x, J_y, J_z, each tiled over the window's frames: [1, F-1, C, h, w].
-    axes: [Tensor; 3],
+    /// J_x, J_y, J_z one after the other, each one latent frame's values: [3, C·h·w].
+    pub jacobian: Vec<f32>,
     /// The standing start's last frame decoded: its foreground points, normalised.
     pub standing: Vec<glam::Vec3>,
 }
@@ -73,51 +73,15 @@ impl ShiftBasis {
         let means = means.read(gpu)?;
         let latent = means.len() / batch;
         let factor = bundle.manifest.latent_scale / (2.0 * STEP * context_frames as f32);
-        let side = size / 8;
-        let shape = [1, context_frames, cfg.latent, side, side];
-        let axis = |k: usize| -> Result<Tensor, GpuError> {
-            let mut j = vec![0.0; latent];
+        let mut jacobian = vec![0.0; 3 * latent];
+        for (k, j) in jacobian.chunks_exact_mut(latent).enumerate() {
             for frame in 0..context_frames {
                 let entry = |sign: usize| &means[((frame * 3 + k) * 2 + sign) * latent..][..latent];
                 for (v, (a, b)) in j.iter_mut().zip(entry(0).iter().zip(entry(1))) {
                     *v += (a - b) * factor;
                 }
             }
-            let tiled = j.repeat(context_frames);
-            Tensor::upload(gpu, "recentre.axis", &shape, &tiled, precision)
-        };
-        Ok(Self {
-            axes: [axis(0)?, axis(1)?, axis(2)?],
-            standing,
-        })
-    }
-
-    /// Records the next window: frames 1.. of `context` then `latent`, all moved by
-    /// -`shift` in latent space.
-    pub fn slide(
-        &self,
-        r: &mut Recorder,
-        context: &Tensor,
-        latent: &Tensor,
-        shift: glam::Vec3,
-    ) -> Result<Tensor, GpuError> {
-        let [_, frames, c, h, w] = context.shape[..] else {
-            panic!("a window is [1, F, C, H, W], got {:?}", context.shape)
-        };
-        let frame = c * h * w;
-        let older = r.axpby(
-            1.0,
-            context,
-            frame,
-            0.0,
-            context,
-            0,
-            &[1, frames - 1, c, h, w],
-        )?;
-        let mut window = r.concat(&older, &latent.reshaped(&[1, 1, c, h, w]), 1)?;
-        for (k, axis) in self.axes.iter().enumerate() {
-            window = r.axpby(1.0, &window, 0, -shift[k], axis, 0, &context.shape)?;
         }
-        Ok(window)
+        Ok(Self { jacobian, standing })
     }
 }

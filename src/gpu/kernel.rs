@@ -99,26 +99,15 @@ impl PipelineCache {
 
 /// Records one compute dispatch: binds `buffers` in order to group 0 and covers `grid`.
 pub fn dispatch(
-    device: &wgpu::Device,
+    gpu: &GpuContext,
     encoder: &mut wgpu::CommandEncoder,
     pipeline: &wgpu::ComputePipeline,
     buffers: &[&wgpu::Buffer],
     grid: Grid,
     timestamp_writes: Option<wgpu::ComputePassTimestampWrites<'_>>,
 ) {
-    let entries: Vec<wgpu::BindGroupEntry> = buffers
-        .iter()
-        .enumerate()
-        .map(|(i, b)| wgpu::BindGroupEntry {
-            binding: i as u32,
-            resource: b.as_entire_binding(),
-        })
-        .collect();
-    let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: None,
-        layout: &pipeline.get_bind_group_layout(0),
-        entries: &entries,
-    });
+    let bind_group = gpu.bind_buffers(&pipeline.get_bind_group_layout(0), buffers);
+    gpu.counters.dispatches(1);
     let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
         label: None,
         timestamp_writes,
@@ -179,13 +168,16 @@ impl Precision {
 }
 
 /// A uniform buffer holding `value` (kernel parameters).
-pub fn uniform<T: bytemuck::Pod>(device: &wgpu::Device, value: &T) -> wgpu::Buffer {
-    use wgpu::util::DeviceExt;
-    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+pub fn uniform<T: bytemuck::Pod>(gpu: &GpuContext, value: &T) -> wgpu::Buffer {
+    let buffer = gpu.create_buffer(&wgpu::BufferDescriptor {
         label: Some("params"),
-        contents: bytemuck::bytes_of(value),
-        usage: wgpu::BufferUsages::UNIFORM,
-    })
+        size: std::mem::size_of::<T>() as u64,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    gpu.queue
+        .write_buffer(&buffer, 0, bytemuck::bytes_of(value));
+    buffer
 }
 
 /// The example element-wise kernel, `y = scale * x + bias`, prepared on the device in
@@ -227,7 +219,7 @@ impl ScaleAdd {
             pipeline: cache
                 .get(&gpu.device, &shaders::SCALE_ADD, precision)
                 .clone(),
-            params: uniform(&gpu.device, &params),
+            params: uniform(gpu, &params),
             input,
             output,
             grid: Grid::for_elements(
@@ -252,7 +244,7 @@ impl ScaleAdd {
     ) {
         let buffers = [&self.params, &self.input, &self.output];
         dispatch(
-            &gpu.device,
+            gpu,
             encoder,
             &self.pipeline,
             &buffers,
@@ -282,7 +274,7 @@ pub fn scale_add(
     let kernel = ScaleAdd::new(gpu, cache, x, scale, bias, precision)?;
     let mut encoder = gpu.device.create_command_encoder(&Default::default());
     kernel.record(gpu, &mut encoder, None);
-    gpu.queue.submit([encoder.finish()]);
+    gpu.submit([encoder.finish()]);
     kernel.read(gpu)
 }
 
@@ -301,7 +293,7 @@ pub fn sum(gpu: &GpuContext, cache: &mut PipelineCache, x: &[f32]) -> Result<f32
     )?;
     let output = gpu.storage_buffer("sum.out", 4, wgpu::BufferUsages::COPY_SRC)?;
     let params = uniform(
-        &gpu.device,
+        gpu,
         &ReduceParams {
             len: x.len() as u32,
             pad0: 0,
@@ -312,14 +304,14 @@ pub fn sum(gpu: &GpuContext, cache: &mut PipelineCache, x: &[f32]) -> Result<f32
     let pipeline = cache.get(&gpu.device, shader, Precision::F32);
     let mut encoder = gpu.device.create_command_encoder(&Default::default());
     dispatch(
-        &gpu.device,
+        gpu,
         &mut encoder,
         pipeline,
         &[&params, &input, &output],
         Grid { x: 1, y: 1 },
         None,
     );
-    gpu.queue.submit([encoder.finish()]);
+    gpu.submit([encoder.finish()]);
     let raw = readback::buffer(gpu, &output, "sum.out")?;
     Ok(bytemuck::pod_read_unaligned(&raw[..4]))
 }

@@ -1,12 +1,16 @@
 //! GPU context: adapter choice, device creation with optional features and their fallbacks.
 //! Owns everything every other GPU module needs: the device, the queue and what it can do.
 
+pub mod counters;
 pub mod kernel;
 pub mod readback;
 pub mod shaders;
 pub mod timing;
 
 use std::fmt;
+use std::sync::Arc;
+
+pub use counters::{Counters, Counts};
 
 /// Environment variable that picks an adapter by (case-insensitive) substring of its name.
 pub const ADAPTER_ENV: &str = "WGPU_ADAPTER_NAME";
@@ -201,6 +205,8 @@ pub struct GpuContext {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
     pub caps: Capabilities,
+    /// What this device has been asked to do (see [`counters`]).
+    pub counters: Arc<Counters>,
 }
 
 impl fmt::Debug for GpuContext {
@@ -244,7 +250,55 @@ impl GpuContext {
             device,
             queue,
             caps,
+            counters: Arc::new(Counters::default()),
         }
+    }
+
+    /// The counts so far (see [`counters`]).
+    pub fn counts(&self) -> Counts {
+        self.counters.snapshot()
+    }
+
+    /// Creates a buffer (counted).
+    pub fn create_buffer(&self, descriptor: &wgpu::BufferDescriptor) -> wgpu::Buffer {
+        self.counters.buffer();
+        self.device.create_buffer(descriptor)
+    }
+
+    /// Creates a bind group (counted).
+    pub fn create_bind_group(&self, descriptor: &wgpu::BindGroupDescriptor) -> wgpu::BindGroup {
+        self.counters.bind_group();
+        self.device.create_bind_group(descriptor)
+    }
+
+    /// A bind group of `layout` with `buffers` at bindings 0, 1, … (counted).
+    pub fn bind_buffers(
+        &self,
+        layout: &wgpu::BindGroupLayout,
+        buffers: &[&wgpu::Buffer],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        self.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout,
+            entries: &entries,
+        })
+    }
+
+    /// Submits command buffers to the queue (counted as one submission).
+    pub fn submit<I: IntoIterator<Item = wgpu::CommandBuffer>>(
+        &self,
+        buffers: I,
+    ) -> wgpu::SubmissionIndex {
+        self.counters.submission();
+        self.queue.submit(buffers)
     }
 
     /// Human-readable adapter name, backend and device type.
@@ -272,7 +326,7 @@ impl GpuContext {
                 max,
             });
         }
-        Ok(self.device.create_buffer(&wgpu::BufferDescriptor {
+        Ok(self.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
             size,
             usage: usage | wgpu::BufferUsages::STORAGE,

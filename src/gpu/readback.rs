@@ -5,7 +5,7 @@ use super::{GpuContext, GpuError};
 
 /// The whole contents of `buffer` (needs COPY_SRC).
 pub fn buffer(gpu: &GpuContext, buffer: &wgpu::Buffer, label: &str) -> Result<Vec<u8>, GpuError> {
-    let staging = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+    let staging = gpu.create_buffer(&wgpu::BufferDescriptor {
         label: Some("readback staging"),
         size: buffer.size(),
         usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
@@ -13,7 +13,7 @@ pub fn buffer(gpu: &GpuContext, buffer: &wgpu::Buffer, label: &str) -> Result<Ve
     });
     let mut encoder = gpu.device.create_command_encoder(&Default::default());
     encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, buffer.size());
-    gpu.queue.submit([encoder.finish()]);
+    gpu.submit([encoder.finish()]);
     map(gpu, &staging, label)
 }
 
@@ -32,6 +32,7 @@ fn map(gpu: &GpuContext, staging: &wgpu::Buffer, label: &str) -> Result<Vec<u8>,
     rx.recv()
         .map_err(|_| failed("the map callback never ran".into()))?
         .map_err(|e| failed(e.to_string()))?;
+    gpu.counters.readback(staging.size());
     let data = staging
         .slice(..)
         .get_mapped_range()
@@ -49,7 +50,7 @@ pub fn rgba_texture(
     let (width, height) = (texture.width(), texture.height());
     let row = width * 4;
     let padded_row = row.next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
-    let staging = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+    let staging = gpu.create_buffer(&wgpu::BufferDescriptor {
         label: Some("texture readback"),
         size: padded_row as u64 * height as u64,
         usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
@@ -68,7 +69,7 @@ pub fn rgba_texture(
         },
         texture.size(),
     );
-    gpu.queue.submit([encoder.finish()]);
+    gpu.submit([encoder.finish()]);
     let padded = map(gpu, &staging, "texture")?;
     let mut pixels = Vec::with_capacity((row * height) as usize);
     for y in 0..height as usize {

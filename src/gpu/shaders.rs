@@ -133,24 +133,28 @@ impl Shader {
     }
 }
 
-macro_rules! shader {
+/// Declares a [`Shader`] from a file under `shaders/` and the shared structs it uses
+/// (`elem`: built as f32 and f16 variants). Stages declare their own shaders with it.
+#[macro_export]
+macro_rules! wgsl_shader {
     ($file:literal, [$($s:ty),*], elem) => {
-        shader!($file, [$($s),*], f16: false, subgroups: false, elem: true)
+        $crate::wgsl_shader!($file, [$($s),*], f16: false, subgroups: false, elem: true)
     };
     ($file:literal, [$($s:ty),*], f16: $f16:expr, subgroups: $sg:expr) => {
-        shader!($file, [$($s),*], f16: $f16, subgroups: $sg, elem: false)
+        $crate::wgsl_shader!($file, [$($s),*], f16: $f16, subgroups: $sg, elem: false)
     };
     ($file:literal, [$($s:ty),*], f16: $f16:expr, subgroups: $sg:expr, elem: $elem:expr) => {
-        Shader {
+        $crate::gpu::shaders::Shader {
             file: $file,
-            body: include_str!(concat!("../../shaders/", $file)),
-            structs: &[$(SharedStruct::of::<$s>()),*],
+            body: include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/shaders/", $file)),
+            structs: &[$($crate::gpu::shaders::SharedStruct::of::<$s>()),*],
             needs_f16: $f16,
             needs_subgroups: $sg,
             elem: $elem,
         }
     };
 }
+use crate::wgsl_shader as shader;
 
 use super::kernel::{ElementwiseParams, Precision, ReduceParams};
 use crate::nn::ops::{

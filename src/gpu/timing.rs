@@ -67,7 +67,7 @@ impl Profiler {
                 ty: wgpu::QueryType::Timestamp,
                 count: MAX_TIMESTAMP_STAGES * 2,
             }),
-            resolve: gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            resolve: gpu.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("stage timestamps resolve"),
                 size: MAX_TIMESTAMP_STAGES as u64 * 2 * 8,
                 usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
@@ -105,7 +105,7 @@ impl Profiler {
                     begin,
                 }),
             );
-            gpu.queue.submit([encoder.finish()]);
+            gpu.submit([encoder.finish()]);
             self.next_query += 2;
             self.stages.push((name.into(), Measured::Gpu(begin)));
         } else {
@@ -126,7 +126,7 @@ impl Profiler {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(name) });
         let start = Instant::now();
         record(&mut encoder);
-        gpu.queue.submit([encoder.finish()]);
+        gpu.submit([encoder.finish()]);
         gpu.wait_idle();
         let ms = start.elapsed().as_secs_f64() * 1e3;
         self.stages.push((name.into(), Measured::Cpu(ms)));
@@ -138,7 +138,7 @@ impl Profiler {
             (Some(queries), used) if used > 0 => {
                 let mut encoder = gpu.device.create_command_encoder(&Default::default());
                 encoder.resolve_query_set(&queries.set, 0..used, &queries.resolve, 0);
-                gpu.queue.submit([encoder.finish()]);
+                gpu.submit([encoder.finish()]);
                 let raw = readback::buffer(gpu, &queries.resolve, "stage timestamps")?;
                 bytemuck::cast_slice(&raw[..used as usize * 8]).to_vec()
             }

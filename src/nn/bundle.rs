@@ -146,6 +146,27 @@ impl Bundle {
         )
     }
 
+    /// [`Bundle::generate`] with the batch's action ids on the GPU (the action, then the
+    /// null action when `sampling` is guided), so a captured plan takes new actions.
+    pub fn generate_with(
+        &self,
+        r: &mut Recorder,
+        context: &Tensor,
+        actions: &super::ops::Indices,
+        noise: &Tensor,
+        sampling: Sampling,
+    ) -> Result<Tensor, GpuError> {
+        sampler::sample_next(
+            r,
+            &self.unet,
+            &self.schedule,
+            context,
+            actions,
+            noise,
+            sampling,
+        )
+    }
+
     /// Records the decoding of UNet latents [N, C, h, w] into position maps.
     pub fn decode(&self, r: &mut Recorder, z: &Tensor) -> Result<Tensor, GpuError> {
         let unscaled = r.axpby(1.0 / self.manifest.latent_scale, z, 0, 0.0, z, 0, &z.shape)?;

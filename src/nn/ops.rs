@@ -4,7 +4,7 @@
 //! allocates its output and records one dispatch; nothing is read back.
 
 use super::Tensor;
-use crate::gpu::kernel::{Grid, PipelineCache, Precision, dispatch, uniform};
+use crate::gpu::kernel::{Grid, PipelineCache, Precision, uniform};
 use crate::gpu::shaders::{self, Shader};
 use crate::gpu::{GpuContext, GpuError};
 use crate::gpu_struct;
@@ -165,45 +165,196 @@ pub enum Broadcast {
     Trailing,
 }
 
-/// Records kernels in one precision into one command encoder; [`Recorder::submit`] sends
-/// them to the GPU in one submission. Shapes that do not fit are programming errors and
-/// panic; running out of buffer space is a [`GpuError`]. It counts the FLOPs it records
-/// as the trainer's counter does (2 per multiply-add of convolutions, linear layers and
-/// both attention products over all keys; norms and element-wise work not counted).
-/// Row indices in a u32 storage buffer (for [`Recorder::gather`]).
+/// Row indices in a u32 storage buffer (for [`Recorder::gather`]); rewritable in place
+/// (e.g. the action ids of a captured [`Plan`]).
 pub struct Indices {
     buffer: wgpu::Buffer,
     len: usize,
 }
 
+impl Indices {
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Overwrites the indices (same count) before the next submission that reads them.
+    pub fn write(&self, gpu: &GpuContext, values: &[u32]) {
+        assert_eq!(values.len(), self.len, "index count");
+        gpu.queue
+            .write_buffer(&self.buffer, 0, bytemuck::cast_slice(values));
+    }
+}
+
+/// One piece of recorded work: everything it binds was created when it was recorded.
+enum Step {
+    Dispatch {
+        pipeline: wgpu::ComputePipeline,
+        bind_group: wgpu::BindGroup,
+        grid: Grid,
+    },
+    Copy {
+        source: wgpu::Buffer,
+        source_offset: u64,
+        target: wgpu::Buffer,
+        target_offset: u64,
+        size: u64,
+    },
+}
+
+/// Records a run of steps into `encoder`: consecutive dispatches share one compute pass
+/// (wgpu orders each dispatch's storage writes before the next one's reads).
+fn encode_steps(gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, steps: &[Step]) {
+    let mut pass: Option<wgpu::ComputePass> = None;
+    let mut dispatches = 0;
+    for step in steps {
+        match step {
+            Step::Dispatch {
+                pipeline,
+                bind_group,
+                grid,
+            } => {
+                let pass = pass.get_or_insert_with(|| {
+                    encoder
+                        .begin_compute_pass(&wgpu::ComputePassDescriptor {
+                            label: Some("nn"),
+                            timestamp_writes: None,
+                        })
+                        .forget_lifetime()
+                });
+                pass.set_pipeline(pipeline);
+                pass.set_bind_group(0, bind_group, &[]);
+                pass.dispatch_workgroups(grid.x, grid.y, 1);
+                dispatches += 1;
+            }
+            Step::Copy {
+                source,
+                source_offset,
+                target,
+                target_offset,
+                size,
+            } => {
+                pass = None;
+                encoder.copy_buffer_to_buffer(
+                    source,
+                    *source_offset,
+                    target,
+                    *target_offset,
+                    *size,
+                );
+            }
+        }
+    }
+    gpu.counters.dispatches(dispatches);
+}
+
+/// Recorded work kept to run again: its buffers, uniforms and bind groups were made when
+/// it was captured ([`Recorder::capture`]), so running it creates nothing. Inputs that
+/// change between runs live in buffers the owner rewrites with `write_buffer`. The work
+/// is in parts (split at [`Recorder::boundary`]) so a caller can submit it piece by piece.
+pub struct Plan {
+    parts: Vec<Vec<Step>>,
+    flops: u64,
+}
+
+impl Plan {
+    /// The number of parts (submission-sized pieces).
+    pub fn parts(&self) -> usize {
+        self.parts.len()
+    }
+
+    /// Compute dispatches in one run.
+    pub fn dispatches(&self) -> usize {
+        self.parts
+            .iter()
+            .flatten()
+            .filter(|s| matches!(s, Step::Dispatch { .. }))
+            .count()
+    }
+
+    /// FLOPs of one run (as [`Recorder::flops`] counts them).
+    pub fn flops(&self) -> u64 {
+        self.flops
+    }
+
+    /// Records part `k` into `encoder`.
+    pub fn encode_part(&self, gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, k: usize) {
+        encode_steps(gpu, encoder, &self.parts[k]);
+    }
+
+    /// Records every part into `encoder`.
+    pub fn encode(&self, gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder) {
+        for k in 0..self.parts() {
+            self.encode_part(gpu, encoder, k);
+        }
+    }
+
+    /// Runs the whole plan in one submission (nothing is read back).
+    pub fn run(&self, gpu: &GpuContext) {
+        let mut encoder = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("plan"),
+            });
+        self.encode(gpu, &mut encoder);
+        gpu.submit([encoder.finish()]);
+    }
+}
+
+/// What a [`Recorder`] does with its work.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Mode {
+    /// Submitted in one submission by [`Recorder::submit`].
+    Once,
+    /// Submitted at every [`Recorder::boundary`] (so other work on the queue, such as the
+    /// window's frames, waits for at most one part).
+    Split,
+    /// Kept as a [`Plan`] by [`Recorder::finish`].
+    Capture,
+}
+
+/// Records kernels in one precision as steps; [`Recorder::submit`] sends them to the GPU
+/// in one submission, or [`Recorder::finish`] keeps them as a [`Plan`] to run again.
+/// Shapes that do not fit are programming errors and panic; running out of buffer space
+/// is a [`GpuError`]. It counts the FLOPs it records as the trainer's counter does (2 per
+/// multiply-add of convolutions, linear layers and both attention products over all keys;
+/// norms and element-wise work not counted).
 pub struct Recorder<'a> {
     gpu: &'a GpuContext,
     pipelines: &'a mut PipelineCache,
     precision: Precision,
-    encoder: wgpu::CommandEncoder,
+    /// The parts recorded and not yet submitted; the last one is open.
+    parts: Vec<Vec<Step>>,
     flops: u64,
-    /// Submit at every [`Recorder::boundary`] (so other work on the queue, such as the
-    /// window's frames, waits for at most one part).
-    split: bool,
+    mode: Mode,
 }
 
 impl<'a> Recorder<'a> {
+    fn with_mode(
+        gpu: &'a GpuContext,
+        pipelines: &'a mut PipelineCache,
+        precision: Precision,
+        mode: Mode,
+    ) -> Self {
+        Self {
+            gpu,
+            pipelines,
+            precision,
+            parts: vec![Vec::new()],
+            flops: 0,
+            mode,
+        }
+    }
+
     pub fn new(
         gpu: &'a GpuContext,
         pipelines: &'a mut PipelineCache,
         precision: Precision,
     ) -> Self {
-        let encoder = gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nn") });
-        Self {
-            gpu,
-            pipelines,
-            precision,
-            encoder,
-            flops: 0,
-            split: false,
-        }
+        Self::with_mode(gpu, pipelines, precision, Mode::Once)
     }
 
     /// A recorder that submits its work in parts, at every [`Recorder::boundary`].
@@ -212,23 +363,42 @@ impl<'a> Recorder<'a> {
         pipelines: &'a mut PipelineCache,
         precision: Precision,
     ) -> Self {
-        Self {
-            split: true,
-            ..Self::new(gpu, pipelines, precision)
-        }
+        Self::with_mode(gpu, pipelines, precision, Mode::Split)
+    }
+
+    /// A recorder whose work is kept as a [`Plan`] ([`Recorder::finish`]).
+    pub fn capture(
+        gpu: &'a GpuContext,
+        pipelines: &'a mut PipelineCache,
+        precision: Precision,
+    ) -> Self {
+        Self::with_mode(gpu, pipelines, precision, Mode::Capture)
     }
 
     /// A point between stages (e.g. denoising steps): a split recorder submits what it
-    /// has recorded so far; nothing is read back.
+    /// has recorded so far; a capturing one starts a new part; nothing is read back.
     pub fn boundary(&mut self) {
-        if self.split {
-            let next = self
-                .gpu
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nn") });
-            let done = std::mem::replace(&mut self.encoder, next);
-            self.gpu.queue.submit([done.finish()]);
+        match self.mode {
+            Mode::Once => {}
+            Mode::Split => self.submit_parts(),
+            Mode::Capture => {
+                if !self.parts.last().is_some_and(Vec::is_empty) {
+                    self.parts.push(Vec::new());
+                }
+            }
         }
+    }
+
+    fn submit_parts(&mut self) {
+        let parts = std::mem::replace(&mut self.parts, vec![Vec::new()]);
+        let mut encoder = self
+            .gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nn") });
+        for part in &parts {
+            encode_steps(self.gpu, &mut encoder, part);
+        }
+        self.gpu.submit([encoder.finish()]);
     }
 
     /// FLOPs recorded so far (see the type's documentation).
@@ -244,9 +414,20 @@ impl<'a> Recorder<'a> {
         self.precision
     }
 
-    /// Submits everything recorded.
-    pub fn submit(self) {
-        self.gpu.queue.submit([self.encoder.finish()]);
+    /// Submits everything recorded (a capturing recorder's work too, once).
+    pub fn submit(mut self) {
+        self.submit_parts();
+    }
+
+    /// The recorded work as a [`Plan`] (nothing is submitted).
+    pub fn finish(mut self) -> Plan {
+        if self.parts.len() > 1 && self.parts.last().is_some_and(Vec::is_empty) {
+            self.parts.pop();
+        }
+        Plan {
+            parts: std::mem::take(&mut self.parts),
+            flops: self.flops,
+        }
     }
 
     /// A tensor of host values in this recorder's precision (written before the
@@ -291,22 +472,53 @@ impl<'a> Recorder<'a> {
         buffers: &[&wgpu::Buffer],
         grid: Grid,
     ) {
-        let params = uniform(&self.gpu.device, params);
+        let params = uniform(self.gpu, params);
         let bindings: Vec<&wgpu::Buffer> = std::iter::once(&params)
             .chain(buffers.iter().copied())
             .collect();
-        let pipeline = self.pipelines.get(&self.gpu.device, shader, self.precision);
-        dispatch(
-            &self.gpu.device,
-            &mut self.encoder,
+        let pipeline = self
+            .pipelines
+            .get(&self.gpu.device, shader, self.precision)
+            .clone();
+        let bind_group = self
+            .gpu
+            .bind_buffers(&pipeline.get_bind_group_layout(0), &bindings);
+        self.push(Step::Dispatch {
             pipeline,
-            &bindings,
+            bind_group,
             grid,
-            None,
-        );
+        });
     }
 
-    fn grid(&self, threads: usize) -> Grid {
+    fn push(&mut self, step: Step) {
+        self.parts.last_mut().expect("an open part").push(step);
+    }
+
+    /// Records a kernel of another stage (its own shader and parameter struct) into this
+    /// recorder's work: `params` at binding 0, then `buffers`, over `grid`.
+    pub fn dispatch<P: bytemuck::Pod>(
+        &mut self,
+        shader: &Shader,
+        params: &P,
+        buffers: &[&wgpu::Buffer],
+        grid: Grid,
+    ) {
+        self.launch_buffers(shader, params, buffers, grid);
+    }
+
+    /// Records a buffer-to-buffer copy.
+    pub fn copy(&mut self, source: &wgpu::Buffer, target: &wgpu::Buffer, size: u64) {
+        self.push(Step::Copy {
+            source: source.clone(),
+            source_offset: 0,
+            target: target.clone(),
+            target_offset: 0,
+            size,
+        });
+    }
+
+    /// One thread per element at 64 threads per workgroup.
+    pub fn grid(&self, threads: usize) -> Grid {
         Grid::for_elements(
             threads as u32,
             self.gpu
@@ -626,13 +838,13 @@ impl<'a> Recorder<'a> {
         );
         for (k, &r) in rows.iter().enumerate() {
             assert!(r < count, "row {r} of a {count}-row table");
-            self.encoder.copy_buffer_to_buffer(
-                &table.buffer,
-                r as u64 * row_bytes,
-                &y.buffer,
-                k as u64 * row_bytes,
-                row_bytes,
-            );
+            self.push(Step::Copy {
+                source: table.buffer.clone(),
+                source_offset: r as u64 * row_bytes,
+                target: y.buffer.clone(),
+                target_offset: k as u64 * row_bytes,
+                size: row_bytes,
+            });
         }
         Ok(y)
     }

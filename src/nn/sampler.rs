@@ -6,7 +6,7 @@ use serde::Deserialize;
 
 use super::Tensor;
 use super::ops::Recorder;
-use super::unet::UNet;
+use super::unet::{ActionIds, UNet};
 use crate::gpu::GpuError;
 
 /// The training noise schedule, as the bundle manifest's `diffusion` entry.
@@ -98,24 +98,35 @@ impl Sampling {
 }
 
 /// Records the generation of the frame after `context` [N, F-1, C, H, W] under `actions`
-/// (N ids) from `noise` [N, C, H, W]; returns its clean latents [N, C, H, W].
-pub fn sample_next(
+/// (N ids) from `noise` [N, C, H, W]; returns its clean latents [N, C, H, W]. With
+/// guidance, host ids get the null action appended; ids on the GPU must already hold
+/// the whole batch (the N conditional ids, then N null ids).
+pub fn sample_next<'a>(
     r: &mut Recorder,
     unet: &UNet,
     schedule: &Schedule,
     context: &Tensor,
-    actions: &[usize],
+    actions: impl Into<ActionIds<'a>>,
     noise: &Tensor,
     sampling: Sampling,
 ) -> Result<Tensor, GpuError> {
     let guided = sampling.cfg_scale != 1.0;
-    let (context, batch_actions) = if guided {
-        let null = vec![unet.cfg.null_action(); actions.len()];
-        (r.concat(context, context, 0)?, [actions, &null].concat())
+    let actions = actions.into();
+    let context = if guided {
+        r.concat(context, context, 0)?
     } else {
-        (context.clone(), actions.to_vec())
+        context.clone()
     };
-    let cache = unet.context(r, &context, &batch_actions)?;
+    let cache = match actions {
+        ActionIds::Host(ids) if guided => {
+            let null = vec![unet.cfg.null_action(); ids.len()];
+            unet.context(r, &context, &[ids, &null].concat())?
+        }
+        _ => {
+            assert_eq!(actions.len(), context.shape[0], "action ids for the batch");
+            unet.context(r, &context, actions)?
+        }
+    };
     r.boundary();
     let times = schedule.ddim_timesteps(sampling.steps);
     let mut x = noise.clone();

@@ -9,7 +9,7 @@ use super::Tensor;
 use super::layers::{
     Conv, CrossAttention, Frames, Linear, Norm, ResBlock, SpatialAttention, TemporalAttention, Up,
 };
-use super::ops::Recorder;
+use super::ops::{Indices, Recorder};
 use super::weights::{LoadError, Weights};
 use crate::gpu::GpuError;
 
@@ -67,11 +67,57 @@ impl AttentionStack {
     }
 }
 
+/// The action ids of a batch: host values (copied rows) or ids on the GPU (gathered by
+/// a kernel, so a captured plan can take new actions by rewriting them).
+#[derive(Clone, Copy)]
+pub enum ActionIds<'a> {
+    Host(&'a [usize]),
+    Gpu(&'a Indices),
+}
+
+impl ActionIds<'_> {
+    pub fn len(&self) -> usize {
+        match self {
+            Self::Host(ids) => ids.len(),
+            Self::Gpu(ids) => ids.len(),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+impl<'a> From<&'a [usize]> for ActionIds<'a> {
+    fn from(ids: &'a [usize]) -> Self {
+        Self::Host(ids)
+    }
+}
+
+impl<'a, const N: usize> From<&'a [usize; N]> for ActionIds<'a> {
+    fn from(ids: &'a [usize; N]) -> Self {
+        Self::Host(ids)
+    }
+}
+
+impl<'a> From<&'a Vec<usize>> for ActionIds<'a> {
+    fn from(ids: &'a Vec<usize>) -> Self {
+        Self::Host(ids)
+    }
+}
+
+impl<'a> From<&'a Indices> for ActionIds<'a> {
+    fn from(ids: &'a Indices) -> Self {
+        Self::Gpu(ids)
+    }
+}
+
 /// The context frames' temporal-attention rows of one generated frame, for every
-/// denoising step of it; valid for the actions it was made with.
+/// denoising step of it, and the action tokens they were made with.
 pub struct ContextCache {
     rows: Vec<Tensor>,
-    actions: Vec<usize>,
+    /// [N, 1, E]: the batch's action embeddings.
+    token: Tensor,
 }
 
 /// How the batch's frames meet the temporal layers (see [`Frames`]).
@@ -179,28 +225,29 @@ impl UNet {
 
     /// The noise prediction for every frame of whole groups: `x` [N, F, C, H, W],
     /// `timesteps` N·F values, `actions` N ids (as the trainer's forward).
-    pub fn groups(
+    pub fn groups<'a>(
         &self,
         r: &mut Recorder,
         x: &Tensor,
         timesteps: &[f32],
-        actions: &[usize],
+        actions: impl Into<ActionIds<'a>>,
     ) -> Result<Tensor, GpuError> {
         let pass = Pass::Groups {
             count: self.cfg.frames,
             keep: None,
         };
-        let eps = self.run(r, x, timesteps, actions, pass)?;
+        let token = self.token(r, actions.into())?;
+        let eps = self.run(r, x, timesteps, &token, pass)?;
         Ok(eps.reshaped(&x.shape))
     }
 
     /// Runs the clean context frames `context` [N, F-1, C, H, W] (timestep 0) under
     /// `actions` and keeps what the target frame's steps need.
-    pub fn context(
+    pub fn context<'a>(
         &self,
         r: &mut Recorder,
         context: &Tensor,
-        actions: &[usize],
+        actions: impl Into<ActionIds<'a>>,
     ) -> Result<ContextCache, GpuError> {
         let count = self.cfg.frames - 1;
         assert_eq!(context.shape[1], count, "context frames");
@@ -209,11 +256,19 @@ impl UNet {
             count,
             keep: Some(&mut rows),
         };
-        self.run(r, context, &vec![0.0; actions.len() * count], actions, pass)?;
-        Ok(ContextCache {
-            rows,
-            actions: actions.to_vec(),
-        })
+        let token = self.token(r, actions.into())?;
+        let n = token.shape[0];
+        self.run(r, context, &vec![0.0; n * count], &token, pass)?;
+        Ok(ContextCache { rows, token })
+    }
+
+    /// The action embeddings [N, 1, E] of a batch's ids.
+    fn token(&self, r: &mut Recorder, actions: ActionIds) -> Result<Tensor, GpuError> {
+        let token = match actions {
+            ActionIds::Host(ids) => r.gather_rows(&self.action, ids)?,
+            ActionIds::Gpu(ids) => r.gather(&self.action, ids)?,
+        };
+        Ok(token.reshaped(&[actions.len(), 1, self.cfg.embed]))
     }
 
     /// The noise prediction of the frame after the context: `x` [N, C, H, W] at
@@ -226,8 +281,8 @@ impl UNet {
         cache: &ContextCache,
     ) -> Result<Tensor, GpuError> {
         let pass = Pass::Next { cache, layer: 0 };
-        let n = cache.actions.len();
-        self.run(r, x, &vec![timestep; n], &cache.actions, pass)
+        let n = cache.token.shape[0];
+        self.run(r, x, &vec![timestep; n], &cache.token, pass)
     }
 
     fn run(
@@ -235,7 +290,7 @@ impl UNet {
         r: &mut Recorder,
         x: &Tensor,
         timesteps: &[f32],
-        actions: &[usize],
+        token: &Tensor,
         mut pass: Pass,
     ) -> Result<Tensor, GpuError> {
         let (c, h, w) = (
@@ -250,14 +305,16 @@ impl UNet {
             "latents {:?} for {frames} frames",
             x.shape
         );
-        assert_eq!(frames, actions.len() * pass.frames(), "timesteps per frame");
+        assert_eq!(
+            frames,
+            token.shape[0] * pass.frames(),
+            "timesteps per frame"
+        );
         let x = x.reshaped(&[frames, c, h, w]);
         let t = r.upload("unet.timesteps", &[frames], timesteps)?;
         let te = r.timestep_embedding(&t, self.cfg.embed)?;
         let te = self.time_in.forward(r, &te, false)?;
         let emb = self.time_out.forward(r, &te, true)?; // [frames, E]
-        let token = r.gather_rows(&self.action, actions)?;
-        let token = token.reshaped(&[actions.len(), 1, self.cfg.embed]);
         let emb = Some(&emb);
 
         let h0 = self.conv_in.forward(r, &x)?;
@@ -265,13 +322,13 @@ impl UNet {
         let h0 = pass.temporal(r, &self.temporal0, &h0)?;
         let h1 = self.down.forward(r, &h0)?;
         let h1 = self.down1.forward(r, &h1, emb)?;
-        let h1 = self.attend(r, &self.attn1, &h1, &token, &mut pass)?;
+        let h1 = self.attend(r, &self.attn1, &h1, token, &mut pass)?;
         let m = self.mid1.forward(r, &h1, emb)?;
-        let m = self.attend(r, &self.mid_attn, &m, &token, &mut pass)?;
+        let m = self.attend(r, &self.mid_attn, &m, token, &mut pass)?;
         let m = self.mid2.forward(r, &m, emb)?;
         let u1 = r.concat(&m, &h1, 1)?;
         let u1 = self.up1.forward(r, &u1, emb)?;
-        let u1 = self.attend(r, &self.up_attn, &u1, &token, &mut pass)?;
+        let u1 = self.attend(r, &self.up_attn, &u1, token, &mut pass)?;
         let u0 = self.up.forward(r, &u1)?;
         let u0 = r.concat(&u0, &h0, 1)?;
         let u0 = self.up0.forward(r, &u0, emb)?;

@@ -71,7 +71,7 @@ impl Offscreen {
             glam::Vec3::ZERO,
         )?;
         compositor.draw(&self.gpu, &mut encoder, &self.target, &raster.image);
-        self.gpu.queue.submit([encoder.finish()]);
+        self.gpu.submit([encoder.finish()]);
         readback::rgba_texture(&self.gpu, &self.target.color)
     }
 
@@ -99,7 +99,7 @@ impl Offscreen {
             options,
             None,
         );
-        self.gpu.queue.submit([encoder.finish()]);
+        self.gpu.submit([encoder.finish()]);
         readback::rgba_texture(&self.gpu, &self.target.color)
     }
 }

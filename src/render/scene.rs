@@ -2,7 +2,6 @@
 //! [`RenderTarget`] (colour + depth) from an [`OrbitCamera`].
 
 use glam::{Vec3, Vec4};
-use wgpu::util::DeviceExt;
 
 use super::OrbitCamera;
 use crate::gpu::kernel::Precision;
@@ -167,13 +166,13 @@ impl SceneRenderer {
                 cache: None,
             })
         };
-        let uniforms = device.create_buffer(&wgpu::BufferDescriptor {
+        let uniforms = gpu.create_buffer(&wgpu::BufferDescriptor {
             label: Some("scene uniforms"),
             size: std::mem::size_of::<SceneUniforms>() as u64,
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        let bind_group = gpu.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("scene"),
             layout: &layout,
             entries: &[wgpu::BindGroupEntry {
@@ -328,13 +327,17 @@ fn vertices(mesh: &Mesh) -> Vec<Vertex> {
 
 fn upload(gpu: &GpuContext, mesh: &Mesh, label: &str) -> GpuMesh {
     let vertices = vertices(mesh);
-    let buffer = |contents: &[u8], usage| {
-        gpu.device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents,
-                usage,
-            })
+    let buffer = |contents: &[u8], usage: wgpu::BufferUsages| {
+        let buffer = gpu.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: (contents.len() as u64).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT),
+            usage: usage | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut padded = contents.to_vec();
+        padded.resize(buffer.size() as usize, 0);
+        gpu.queue.write_buffer(&buffer, 0, &padded);
+        buffer
     };
     GpuMesh {
         vertices: buffer(

@@ -73,7 +73,7 @@ impl Compositor {
     ) {
         let (width, height) = target.size();
         let params = uniform(
-            &gpu.device,
+            gpu,
             &CompositeParams {
                 width,
                 height,
@@ -81,7 +81,7 @@ impl Compositor {
                 reserved1: 0,
             },
         );
-        let bind_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        let bind_group = gpu.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("splat composite"),
             layout: &self.pipeline.get_bind_group_layout(0),
             entries: &[

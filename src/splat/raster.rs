@@ -227,7 +227,7 @@ impl Rasterizer {
             reserved1: 0,
             background: background.extend(1.0).to_array(),
         };
-        let frame = uniform(&gpu.device, &frame);
+        let frame = uniform(gpu, &frame);
         let key = (count, camera.width, camera.height);
         if self.buffers.as_ref().is_none_or(|b| b.key != key) {
             self.buffers = Some(Buffers::new(gpu, count, camera)?);
@@ -266,7 +266,7 @@ impl Rasterizer {
         for pass in 0..4 {
             let (from, to) = (pass % 2, 1 - pass % 2);
             let params = uniform(
-                &gpu.device,
+                gpu,
                 &RadixParams {
                     shift: 8 * pass as u32,
                     blocks: blocks as u32,
@@ -335,7 +335,7 @@ impl Rasterizer {
         let blocks = len.div_ceil(256);
         let sums = gpu.storage_buffer("scan.sums", 4 * blocks as u64, STORAGE)?;
         let params = uniform(
-            &gpu.device,
+            gpu,
             &ScanParams {
                 len: len as u32,
                 blocks: blocks as u32,
@@ -376,6 +376,6 @@ impl Rasterizer {
         grid: Grid,
     ) {
         let pipeline = self.pipelines.get(&gpu.device, shader, Precision::F32);
-        dispatch(&gpu.device, encoder, pipeline, buffers, grid, None);
+        dispatch(gpu, encoder, pipeline, buffers, grid, None);
     }
 }

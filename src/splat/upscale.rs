@@ -90,14 +90,14 @@ pub fn record(
         factor: factor as u32,
         reserved: 0,
     };
-    let params = uniform(&gpu.device, &params);
+    let params = uniform(gpu, &params);
     let pipeline = pipelines.get(&gpu.device, &shaders::UPSCALE_MAP, Precision::F32);
     let grid = Grid::for_elements(
         pixels as u32,
         gpu.device.limits().max_compute_workgroups_per_dimension,
     );
     dispatch(
-        &gpu.device,
+        gpu,
         encoder,
         pipeline,
         &[&params, map, mask, &out_map, &out_mask],

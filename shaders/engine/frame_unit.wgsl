@@ -1,0 +1,58 @@
+// A decoded map's foreground pixels as normalised points: NaN becomes the cube's centre
+// and the rest is clamped into [0, 1] (both counted); the root shift is the mean of the
+// waist points minus 0.5. One workgroup; every thread clamps a strided share.
+
+@group(0) @binding(0) var<uniform> p: PostParams;
+@group(0) @binding(1) var<storage, read> map: array<Elem>;
+@group(0) @binding(2) var<storage, read> pixels: array<u32>;
+@group(0) @binding(3) var<storage, read> waist: array<u32>;
+@group(0) @binding(4) var<storage, read_write> unit: array<f32>;
+@group(0) @binding(5) var<storage, read_write> state: FrameState;
+
+var<workgroup> clamped: atomic<u32>;
+
+// NaN from its bits: compilers may assume `x != x` is false.
+fn is_nan(x: f32) -> bool {
+    return (bitcast<u32>(x) & 0x7fffffffu) > 0x7f800000u;
+}
+
+fn kept(x: f32) -> f32 {
+    if is_nan(x) {
+        return 0.5;
+    }
+    return clamp(x, 0.0, 1.0);
+}
+
+fn value(point: u32, axis: u32) -> f32 {
+    return f32(map[axis * p.plane + pixels[point]]);
+}
+
+@compute @workgroup_size(256)
+fn main(@builtin(local_invocation_index) lane: u32) {
+    if lane == 0u {
+        atomicStore(&clamped, 0u);
+    }
+    workgroupBarrier();
+    var count = 0u;
+    for (var i = lane; i < 3u * p.points; i += 256u) {
+        let x = value(i / 3u, i % 3u);
+        if is_nan(x) || x < 0.0 || x > 1.0 {
+            count += 1u;
+        }
+        unit[i] = kept(x);
+    }
+    atomicAdd(&clamped, count);
+    workgroupBarrier();
+    if lane == 0u {
+        var root = vec3<f32>(0.0);
+        for (var w = 0u; w < p.waist; w++) {
+            let q = waist[w];
+            root += vec3<f32>(kept(value(q, 0u)), kept(value(q, 1u)), kept(value(q, 2u)));
+        }
+        root /= f32(p.waist);
+        state.shift = vec4<f32>(root - vec3<f32>(0.5), 0.0);
+        let n = atomicLoad(&clamped);
+        state.clamped = n;
+        state.clamped_total += n;
+    }
+}

@@ -1,0 +1,60 @@
+//! The engine's own kernels, which keep a generated frame on the GPU after the decode:
+//! clamping and the root shift (`frame_unit`), the PCA projection (`pca_coefficients`,
+//! `frame_points`) and the window's slide with the world root's update (`slide`). Their
+//! parameter structs are declared once here for Rust and WGSL (`gpu_struct!`); the WGSL
+//! is in `shaders/engine/`. CPU references of the same arithmetic are in this module's
+//! tests and in `tests/engine.rs`.
+
+use crate::gpu::shaders::Shader;
+use crate::gpu_struct;
+use crate::wgsl_shader;
+
+/// Threads of the one workgroup of `frame_unit.wgsl` (`@workgroup_size` there).
+pub const UNIT_THREADS: u32 = 256;
+
+gpu_struct! {
+    /// What the engine's kernels need to know about the bundle and the frame.
+    pub struct PostParams {
+        /// Foreground pixels of the 128² map (points per frame).
+        pub points: u32,
+        /// Pixels per map plane (128²).
+        pub plane: u32,
+        /// Waist pixels (indices into the points).
+        pub waist: u32,
+        /// PCA components (rows of the basis); 0 draws the clamped points as they are.
+        pub components: u32,
+        /// The normalisation scale (normalised units per metre).
+        pub scale: f32,
+        /// Values per latent frame (C·h·w).
+        pub latent: u32,
+        /// Context frames in the window (F-1).
+        pub frames: u32,
+        pub reserved: u32,
+    }
+}
+
+gpu_struct! {
+    /// The state of the live loop on the GPU, and the few bytes read back per frame.
+    pub struct FrameState {
+        /// The world root before the latest frame (xyz, metres).
+        pub root: [f32; 4],
+        /// The latest frame's root shift (xyz, normalised units).
+        pub shift: [f32; 4],
+        /// Map values clamped into [0, 1] (or NaN replaced) in the latest frame.
+        pub clamped: u32,
+        /// The same since the start.
+        pub clamped_total: u32,
+        /// Frames generated.
+        pub frames: u32,
+        pub reserved: u32,
+    }
+}
+
+pub const FRAME_UNIT: Shader =
+    wgsl_shader!("engine/frame_unit.wgsl", [PostParams, FrameState], elem);
+pub const PCA_COEFFICIENTS: Shader = wgsl_shader!("engine/pca_coefficients.wgsl", [PostParams, FrameState], f16: false, subgroups: false);
+pub const FRAME_POINTS: Shader = wgsl_shader!("engine/frame_points.wgsl", [PostParams, FrameState], f16: false, subgroups: false);
+pub const SLIDE: Shader = wgsl_shader!("engine/slide.wgsl", [PostParams, FrameState], elem);
+
+/// Every shader of the engine stage.
+pub const ALL: &[Shader] = &[FRAME_UNIT, PCA_COEFFICIENTS, FRAME_POINTS, SLIDE];

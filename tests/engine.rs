@@ -1,0 +1,276 @@
+//! The live frame on the GPU (src/engine): the captured plan against a CPU reference of
+//! the same loop on the shipped Witch bundle (generate and decode recorded the ordinary
+//! way, then clamping, root shift, PCA projection, world placement and the window's slide
+//! on the host), the frame-state kernel on known values, determinism, and the counts of a
+//! generated frame (nothing created, one readback of at most 256 bytes).
+
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+use unica::action::Action;
+use unica::engine::kernels::{self, FrameState, PostParams};
+use unica::engine::{Engine, EngineOptions, pca};
+use unica::gpu::kernel::{Grid, PipelineCache, Precision};
+use unica::gpu::{GpuContext, GpuOptions, readback};
+use unica::nn::sampler::Sampling;
+use unica::nn::{Bundle, Recorder, Tensor};
+use unica::random::Rng;
+
+fn witch_bundle() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle")
+}
+
+fn gpu() -> GpuContext {
+    GpuContext::headless(&GpuOptions::default()).expect("a GPU adapter (lavapipe in CI)")
+}
+
+fn options(steps: usize, cfg_scale: f32, seed: u64) -> EngineOptions {
+    EngineOptions {
+        seed,
+        sampling: Some(Sampling { steps, cfg_scale }),
+        ..EngineOptions::default()
+    }
+}
+
+/// The loop of one engine frame on the host: `context` [1, F-1, C, h, w] values and
+/// the world root before the frame; returns (world points, new window, new root).
+#[allow(clippy::too_many_arguments)]
+fn reference_frame(
+    gpu: &GpuContext,
+    bundle: &Bundle,
+    context: &[f32],
+    noise: &[f32],
+    action: Action,
+    sampling: Sampling,
+    root: Vec3,
+    jacobian: &[f32],
+) -> (Vec<Vec3>, Vec<f32>, Vec3, usize) {
+    let mut pipelines = PipelineCache::default();
+    let mut r = Recorder::new(gpu, &mut pipelines, Precision::F32);
+    let cfg = &bundle.unet.cfg;
+    let side = 16;
+    let ctx = r
+        .upload("ctx", &[1, cfg.frames - 1, cfg.latent, side, side], context)
+        .unwrap();
+    let noise = r
+        .upload("noise", &[1, cfg.latent, side, side], noise)
+        .unwrap();
+    let latent = bundle
+        .generate(&mut r, &ctx, action.id() as usize, &noise, sampling)
+        .unwrap();
+    let map = bundle.decode(&mut r, &latent).unwrap();
+    r.submit();
+    let (latent, map) = (latent.read(gpu).unwrap(), map.read(gpu).unwrap());
+    let plane = map.len() / 3;
+    let mut clamped = 0;
+    let unit: Vec<Vec3> = bundle
+        .pixels
+        .iter()
+        .map(|&p| {
+            Vec3::from_array([0, 1, 2].map(|k| {
+                let x = map[k * plane + p as usize];
+                let kept = if x.is_nan() { 0.5 } else { x.clamp(0.0, 1.0) };
+                clamped += usize::from(kept != x);
+                kept
+            }))
+        })
+        .collect();
+    let centre =
+        bundle.waist.iter().map(|&w| unit[w as usize]).sum::<Vec3>() / bundle.waist.len() as f32;
+    let shift = centre - Vec3::splat(0.5);
+    let scale = bundle.manifest.normalisation.scale;
+    let drawn = pca::project_points(&unit, shift, &bundle.pca_mean, &bundle.pca_basis);
+    let points = drawn
+        .iter()
+        .map(|&p| (p - Vec3::splat(0.5)) / scale + root)
+        .collect();
+    let l = latent.len();
+    let frames = context.len() / l;
+    let window = (0..frames * l)
+        .map(|i| {
+            let (f, j) = (i / l, i % l);
+            let mut v = if f + 1 < frames {
+                context[i + l]
+            } else {
+                latent[j]
+            };
+            for k in 0..3 {
+                v += -shift[k] * jacobian[k * l + j];
+            }
+            v
+        })
+        .collect();
+    (points, window, root + shift / scale, clamped)
+}
+
+fn worst(a: &[Vec3], b: &[Vec3]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| x.distance(*y))
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
+    // Two frames each without and with guidance (two DDIM steps: the plan's structure is
+    // the same for any count). Tolerance: 2e-5 m (0.02 mm) on world points and 2e-5 m on
+    // the root; both sides run the same f32 kernels and differ only in summation order
+    // and fused multiply-adds of the PCA, the slide and the world placement (measured
+    // ≈ 1e-6 m).
+    let gpu = gpu();
+    for cfg_scale in [1.0, 2.0] {
+        let sampling = Sampling {
+            steps: 2,
+            cfg_scale,
+        };
+        let mut engine = Engine::new(&gpu, &witch_bundle(), &options(2, cfg_scale, 7)).unwrap();
+        let mut context = engine.bundle.context.read(&gpu).unwrap();
+        let jacobian = engine.shift_jacobian().to_vec();
+        let mut root = engine.root();
+        let mut noise = Rng::new(7);
+        for action in [Action::Forward, Action::Right] {
+            let frame = engine.step(action).unwrap();
+            let n = noise.gaussian(context.len() / 3);
+            let (points, window, new_root, clamped) = reference_frame(
+                &gpu,
+                &engine.bundle,
+                &context,
+                &n,
+                action,
+                sampling,
+                root,
+                &jacobian,
+            );
+            let error = worst(&frame.points, &points);
+            assert!(
+                error < 2e-5,
+                "cfg {cfg_scale} {action:?}: points differ by {error} m"
+            );
+            assert!(
+                frame.root.distance(new_root) < 2e-5,
+                "root {} vs {new_root}",
+                frame.root
+            );
+            assert_eq!(frame.clamped, clamped);
+            context = window;
+            root = new_root;
+        }
+    }
+}
+
+#[test]
+fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
+    // A 2×2 "map" (plane 4) with 3 foreground pixels; pixel 3's values include NaN,
+    // -1 and 2 (three clamps); the waist is points 0 and 1.
+    let gpu = gpu();
+    let mut pipelines = PipelineCache::default();
+    let mut r = Recorder::new(&gpu, &mut pipelines, Precision::F32);
+    let nan = f32::NAN;
+    #[rustfmt::skip]
+    let map = [
+        0.2, 0.0, 0.4, nan,   // x
+        0.5, 0.0, 0.7, -1.0,  // y
+        0.1, 0.0, 0.3, 2.0,   // z
+    ];
+    let map = Tensor::upload(&gpu, "map", &[1, 3, 2, 2], &map, Precision::F32).unwrap();
+    let u32s = |v: &[u32]| {
+        gpu.storage_buffer_init("ids", bytemuck::cast_slice(v), wgpu::BufferUsages::empty())
+            .unwrap()
+    };
+    let (pixels, waist) = (u32s(&[0, 2, 3]), u32s(&[0, 1]));
+    let unit = gpu
+        .storage_buffer("unit", 36, wgpu::BufferUsages::COPY_SRC)
+        .unwrap();
+    let start = FrameState {
+        root: [0.0; 4],
+        shift: [0.0; 4],
+        clamped: 0,
+        clamped_total: 5,
+        frames: 0,
+        reserved: 0,
+    };
+    let state = gpu
+        .storage_buffer_init(
+            "state",
+            bytemuck::bytes_of(&start),
+            wgpu::BufferUsages::COPY_SRC,
+        )
+        .unwrap();
+    let params = PostParams {
+        points: 3,
+        plane: 4,
+        waist: 2,
+        components: 0,
+        scale: 1.0,
+        latent: 1,
+        frames: 1,
+        reserved: 0,
+    };
+    r.dispatch(
+        &kernels::FRAME_UNIT,
+        &params,
+        &[&map.buffer, &pixels, &waist, &unit, &state],
+        Grid { x: 1, y: 1 },
+    );
+    r.submit();
+    let unit: Vec<f32> =
+        bytemuck::pod_collect_to_vec(&readback::buffer(&gpu, &unit, "unit").unwrap());
+    assert_eq!(unit, [0.2, 0.5, 0.1, 0.4, 0.7, 0.3, 0.5, 0.0, 1.0]);
+    let state: FrameState =
+        bytemuck::pod_read_unaligned(&readback::buffer(&gpu, &state, "state").unwrap());
+    assert_eq!((state.clamped, state.clamped_total), (3, 8));
+    let want = [0.3 - 0.5, 0.6 - 0.5, 0.2 - 0.5];
+    for (got, want) in state.shift.iter().zip(want) {
+        assert!((got - want).abs() < 1e-6, "{:?}", state.shift);
+    }
+}
+
+#[test]
+fn a_generated_frame_creates_nothing_and_reads_back_one_small_state() {
+    let gpu = gpu();
+    for cfg_scale in [1.0, 2.0] {
+        let mut engine = Engine::new(&gpu, &witch_bundle(), &options(2, cfg_scale, 1)).unwrap();
+        engine.frame(Action::Forward).unwrap();
+        engine.finish();
+        let before = gpu.counts();
+        for action in [Action::Forward, Action::Left, Action::Idle] {
+            engine.frame(action).unwrap();
+            engine.finish();
+        }
+        let c = gpu.counts() - before;
+        assert_eq!((c.buffers, c.bind_groups), (0, 0), "cfg {cfg_scale}: {c:?}");
+        assert_eq!(c.submissions, 3, "{c:?}");
+        assert_eq!(c.readbacks, 3, "{c:?}");
+        assert!(c.readback_bytes <= 3 * 256, "{c:?}");
+        assert_eq!(c.dispatches, 3 * engine.plan_counts().0 as u64, "{c:?}");
+        assert_eq!(engine.state().frames, 4);
+        // A settings change captures a new plan once, then creates nothing again.
+        engine.set_sampling(Sampling {
+            steps: 3,
+            cfg_scale,
+        });
+        engine.frame(Action::Forward).unwrap();
+        engine.finish();
+        let before = gpu.counts();
+        engine.frame(Action::Forward).unwrap();
+        engine.finish();
+        let c = gpu.counts() - before;
+        assert_eq!((c.buffers, c.bind_groups), (0, 0), "{c:?}");
+    }
+}
+
+#[test]
+fn the_same_seed_and_keys_give_the_same_bytes() {
+    let gpu = gpu();
+    let run = |seed: u64| -> Vec<Vec<Vec3>> {
+        let mut engine = Engine::new(&gpu, &witch_bundle(), &options(2, 1.0, seed)).unwrap();
+        [Action::Forward, Action::Right, Action::Idle]
+            .into_iter()
+            .map(|a| engine.step(a).unwrap().points)
+            .collect()
+    };
+    let (a, b) = (run(3), run(3));
+    assert!(a == b, "same seed, different frames");
+    assert!(a != run(4), "another seed, the same frames");
+}
