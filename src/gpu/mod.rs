@@ -3,6 +3,7 @@
 
 pub mod counters;
 pub mod kernel;
+pub mod plan;
 pub mod readback;
 pub mod shaders;
 pub mod timing;

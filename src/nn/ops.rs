@@ -4,7 +4,8 @@
 //! allocates its output and records one dispatch; nothing is read back.
 
 use super::Tensor;
-use crate::gpu::kernel::{Grid, PipelineCache, Precision, uniform};
+use crate::gpu::kernel::{Grid, PipelineCache, Precision};
+pub use crate::gpu::plan::{Builder, Plan};
 use crate::gpu::shaders::{self, Shader};
 use crate::gpu::{GpuContext, GpuError};
 use crate::gpu_struct;
@@ -189,121 +190,6 @@ impl Indices {
     }
 }
 
-/// One piece of recorded work: everything it binds was created when it was recorded.
-enum Step {
-    Dispatch {
-        pipeline: wgpu::ComputePipeline,
-        bind_group: wgpu::BindGroup,
-        grid: Grid,
-    },
-    Copy {
-        source: wgpu::Buffer,
-        source_offset: u64,
-        target: wgpu::Buffer,
-        target_offset: u64,
-        size: u64,
-    },
-}
-
-/// Records a run of steps into `encoder`: consecutive dispatches share one compute pass
-/// (wgpu orders each dispatch's storage writes before the next one's reads).
-fn encode_steps(gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, steps: &[Step]) {
-    let mut pass: Option<wgpu::ComputePass> = None;
-    let mut dispatches = 0;
-    for step in steps {
-        match step {
-            Step::Dispatch {
-                pipeline,
-                bind_group,
-                grid,
-            } => {
-                let pass = pass.get_or_insert_with(|| {
-                    encoder
-                        .begin_compute_pass(&wgpu::ComputePassDescriptor {
-                            label: Some("nn"),
-                            timestamp_writes: None,
-                        })
-                        .forget_lifetime()
-                });
-                pass.set_pipeline(pipeline);
-                pass.set_bind_group(0, bind_group, &[]);
-                pass.dispatch_workgroups(grid.x, grid.y, 1);
-                dispatches += 1;
-            }
-            Step::Copy {
-                source,
-                source_offset,
-                target,
-                target_offset,
-                size,
-            } => {
-                pass = None;
-                encoder.copy_buffer_to_buffer(
-                    source,
-                    *source_offset,
-                    target,
-                    *target_offset,
-                    *size,
-                );
-            }
-        }
-    }
-    gpu.counters.dispatches(dispatches);
-}
-
-/// Recorded work kept to run again: its buffers, uniforms and bind groups were made when
-/// it was captured ([`Recorder::capture`]), so running it creates nothing. Inputs that
-/// change between runs live in buffers the owner rewrites with `write_buffer`. The work
-/// is in parts (split at [`Recorder::boundary`]) so a caller can submit it piece by piece.
-pub struct Plan {
-    parts: Vec<Vec<Step>>,
-    flops: u64,
-}
-
-impl Plan {
-    /// The number of parts (submission-sized pieces).
-    pub fn parts(&self) -> usize {
-        self.parts.len()
-    }
-
-    /// Compute dispatches in one run.
-    pub fn dispatches(&self) -> usize {
-        self.parts
-            .iter()
-            .flatten()
-            .filter(|s| matches!(s, Step::Dispatch { .. }))
-            .count()
-    }
-
-    /// FLOPs of one run (as [`Recorder::flops`] counts them).
-    pub fn flops(&self) -> u64 {
-        self.flops
-    }
-
-    /// Records part `k` into `encoder`.
-    pub fn encode_part(&self, gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, k: usize) {
-        encode_steps(gpu, encoder, &self.parts[k]);
-    }
-
-    /// Records every part into `encoder`.
-    pub fn encode(&self, gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder) {
-        for k in 0..self.parts() {
-            self.encode_part(gpu, encoder, k);
-        }
-    }
-
-    /// Runs the whole plan in one submission (nothing is read back).
-    pub fn run(&self, gpu: &GpuContext) {
-        let mut encoder = gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("plan"),
-            });
-        self.encode(gpu, &mut encoder);
-        gpu.submit([encoder.finish()]);
-    }
-}
-
 /// What a [`Recorder`] does with its work.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Mode {
@@ -324,10 +210,7 @@ enum Mode {
 /// norms and element-wise work not counted).
 pub struct Recorder<'a> {
     gpu: &'a GpuContext,
-    pipelines: &'a mut PipelineCache,
-    precision: Precision,
-    /// The parts recorded and not yet submitted; the last one is open.
-    parts: Vec<Vec<Step>>,
+    steps: Builder<'a>,
     flops: u64,
     mode: Mode,
 }
@@ -341,9 +224,7 @@ impl<'a> Recorder<'a> {
     ) -> Self {
         Self {
             gpu,
-            pipelines,
-            precision,
-            parts: vec![Vec::new()],
+            steps: Builder::new(gpu, pipelines, precision),
             flops: 0,
             mode,
         }
@@ -380,25 +261,15 @@ impl<'a> Recorder<'a> {
     pub fn boundary(&mut self) {
         match self.mode {
             Mode::Once => {}
-            Mode::Split => self.submit_parts(),
-            Mode::Capture => {
-                if !self.parts.last().is_some_and(Vec::is_empty) {
-                    self.parts.push(Vec::new());
-                }
-            }
+            Mode::Split => self.steps.submit(),
+            Mode::Capture => self.steps.boundary(),
         }
     }
 
-    fn submit_parts(&mut self) {
-        let parts = std::mem::replace(&mut self.parts, vec![Vec::new()]);
-        let mut encoder = self
-            .gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("nn") });
-        for part in &parts {
-            encode_steps(self.gpu, &mut encoder, part);
-        }
-        self.gpu.submit([encoder.finish()]);
+    /// The steps recorded so far, for stages that record their own kernels into the
+    /// same work (e.g. the splats of a frame after the model).
+    pub fn steps(&mut self) -> &mut Builder<'a> {
+        &mut self.steps
     }
 
     /// FLOPs recorded so far (see the type's documentation).
@@ -411,41 +282,38 @@ impl<'a> Recorder<'a> {
     }
 
     pub fn precision(&self) -> Precision {
-        self.precision
+        self.steps.precision()
     }
 
     /// Submits everything recorded (a capturing recorder's work too, once).
     pub fn submit(mut self) {
-        self.submit_parts();
+        self.steps.submit();
     }
 
     /// The recorded work as a [`Plan`] (nothing is submitted).
-    pub fn finish(mut self) -> Plan {
-        if self.parts.len() > 1 && self.parts.last().is_some_and(Vec::is_empty) {
-            self.parts.pop();
-        }
-        Plan {
-            parts: std::mem::take(&mut self.parts),
-            flops: self.flops,
-        }
+    pub fn finish(self) -> Plan {
+        self.steps.finish(self.flops)
     }
 
     /// A tensor of host values in this recorder's precision (written before the
     /// submission runs).
     pub fn upload(&self, label: &str, shape: &[usize], values: &[f32]) -> Result<Tensor, GpuError> {
-        Tensor::upload(self.gpu, label, shape, values, self.precision)
+        Tensor::upload(self.gpu, label, shape, values, self.precision())
     }
 
     fn output(&self, label: &str, shape: &[usize]) -> Result<Tensor, GpuError> {
-        Tensor::empty(self.gpu, label, shape, self.precision)
+        Tensor::empty(self.gpu, label, shape, self.precision())
     }
 
     fn check(&self, tensors: &[&Tensor]) {
         for t in tensors {
             assert_eq!(
-                t.precision, self.precision,
+                t.precision,
+                self.precision(),
                 "a {:?} tensor {:?} in a {:?} recorder",
-                t.precision, t.shape, self.precision
+                t.precision,
+                t.shape,
+                self.precision()
             );
         }
     }
@@ -472,26 +340,7 @@ impl<'a> Recorder<'a> {
         buffers: &[&wgpu::Buffer],
         grid: Grid,
     ) {
-        let params = uniform(self.gpu, params);
-        let bindings: Vec<&wgpu::Buffer> = std::iter::once(&params)
-            .chain(buffers.iter().copied())
-            .collect();
-        let pipeline = self
-            .pipelines
-            .get(&self.gpu.device, shader, self.precision)
-            .clone();
-        let bind_group = self
-            .gpu
-            .bind_buffers(&pipeline.get_bind_group_layout(0), &bindings);
-        self.push(Step::Dispatch {
-            pipeline,
-            bind_group,
-            grid,
-        });
-    }
-
-    fn push(&mut self, step: Step) {
-        self.parts.last_mut().expect("an open part").push(step);
+        self.steps.dispatch(shader, params, buffers, grid);
     }
 
     /// Records a kernel of another stage (its own shader and parameter struct) into this
@@ -508,13 +357,7 @@ impl<'a> Recorder<'a> {
 
     /// Records a buffer-to-buffer copy.
     pub fn copy(&mut self, source: &wgpu::Buffer, target: &wgpu::Buffer, size: u64) {
-        self.push(Step::Copy {
-            source: source.clone(),
-            source_offset: 0,
-            target: target.clone(),
-            target_offset: 0,
-            size,
-        });
+        self.steps.copy(source, 0, target, 0, size);
     }
 
     /// One thread per element at 64 threads per workgroup.
@@ -831,20 +674,20 @@ impl<'a> Recorder<'a> {
             panic!("a row table must be 2-D, got {:?}", table.shape)
         };
         let y = self.output("gather_rows.y", &[rows.len(), dim])?;
-        let row_bytes = (dim * self.precision.bytes()) as u64;
+        let row_bytes = (dim * self.precision().bytes()) as u64;
         assert!(
             row_bytes.is_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT),
             "rows of {row_bytes} bytes"
         );
         for (k, &r) in rows.iter().enumerate() {
             assert!(r < count, "row {r} of a {count}-row table");
-            self.push(Step::Copy {
-                source: table.buffer.clone(),
-                source_offset: r as u64 * row_bytes,
-                target: y.buffer.clone(),
-                target_offset: k as u64 * row_bytes,
-                size: row_bytes,
-            });
+            self.steps.copy(
+                &table.buffer,
+                r as u64 * row_bytes,
+                &y.buffer,
+                k as u64 * row_bytes,
+                row_bytes,
+            );
         }
         Ok(y)
     }

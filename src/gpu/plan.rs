@@ -1,0 +1,250 @@
+//! Recorded GPU work kept to run again (a lazy graph run as command buffers): a
+//! [`Builder`] turns kernel launches into steps — each with its pipeline, uniform and bind
+//! group made once, when recorded — and a [`Plan`] encodes them into any number of
+//! command encoders without creating anything. Stages (the model, the splats, the engine)
+//! record their own kernels through it; it knows no model.
+
+use super::GpuContext;
+use super::kernel::{Grid, PipelineCache, Precision, uniform};
+use super::shaders::Shader;
+
+/// One piece of recorded work: everything it binds was created when it was recorded.
+enum Step {
+    Dispatch {
+        pipeline: wgpu::ComputePipeline,
+        bind_group: wgpu::BindGroup,
+        grid: Grid,
+    },
+    Copy {
+        source: wgpu::Buffer,
+        source_offset: u64,
+        target: wgpu::Buffer,
+        target_offset: u64,
+        size: u64,
+    },
+}
+
+/// Records a run of steps into `encoder`: consecutive dispatches share one compute pass
+/// (wgpu orders each dispatch's storage writes before the next one's reads).
+fn encode_steps(gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, steps: &[Step]) {
+    let mut pass: Option<wgpu::ComputePass> = None;
+    let mut dispatches = 0;
+    for step in steps {
+        match step {
+            Step::Dispatch {
+                pipeline,
+                bind_group,
+                grid,
+            } => {
+                let pass = pass.get_or_insert_with(|| {
+                    encoder
+                        .begin_compute_pass(&wgpu::ComputePassDescriptor {
+                            label: Some("plan"),
+                            timestamp_writes: None,
+                        })
+                        .forget_lifetime()
+                });
+                pass.set_pipeline(pipeline);
+                pass.set_bind_group(0, bind_group, &[]);
+                pass.dispatch_workgroups(grid.x, grid.y, 1);
+                dispatches += 1;
+            }
+            Step::Copy {
+                source,
+                source_offset,
+                target,
+                target_offset,
+                size,
+            } => {
+                pass = None;
+                encoder.copy_buffer_to_buffer(
+                    source,
+                    *source_offset,
+                    target,
+                    *target_offset,
+                    *size,
+                );
+            }
+        }
+    }
+    gpu.counters.dispatches(dispatches);
+}
+
+/// Recorded work kept to run again: its buffers, uniforms and bind groups were made when
+/// it was captured ([`Recorder::capture`]), so running it creates nothing. Inputs that
+/// change between runs live in buffers the owner rewrites with `write_buffer`. The work
+/// is in parts (split at [`Builder::boundary`]) so a caller can submit it piece by piece.
+pub struct Plan {
+    parts: Vec<Vec<Step>>,
+    flops: u64,
+}
+
+impl Plan {
+    /// The number of parts (submission-sized pieces).
+    pub fn parts(&self) -> usize {
+        self.parts.len()
+    }
+
+    /// Compute dispatches in one run.
+    pub fn dispatches(&self) -> usize {
+        self.parts
+            .iter()
+            .flatten()
+            .filter(|s| matches!(s, Step::Dispatch { .. }))
+            .count()
+    }
+
+    /// FLOPs of one run (as its recorder counted them).
+    pub fn flops(&self) -> u64 {
+        self.flops
+    }
+
+    /// Records part `k` into `encoder`.
+    pub fn encode_part(&self, gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, k: usize) {
+        encode_steps(gpu, encoder, &self.parts[k]);
+    }
+
+    /// Records every part into `encoder`.
+    pub fn encode(&self, gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder) {
+        for k in 0..self.parts() {
+            self.encode_part(gpu, encoder, k);
+        }
+    }
+
+    /// Runs the whole plan in one submission (nothing is read back).
+    pub fn run(&self, gpu: &GpuContext) {
+        let mut encoder = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("plan"),
+            });
+        self.encode(gpu, &mut encoder);
+        gpu.submit([encoder.finish()]);
+    }
+}
+
+/// Records steps in parts (split at [`Builder::boundary`]).
+pub struct Builder<'a> {
+    gpu: &'a GpuContext,
+    pipelines: &'a mut PipelineCache,
+    precision: Precision,
+    /// The parts recorded so far; the last one is open.
+    parts: Vec<Vec<Step>>,
+}
+
+impl<'a> Builder<'a> {
+    pub fn new(
+        gpu: &'a GpuContext,
+        pipelines: &'a mut PipelineCache,
+        precision: Precision,
+    ) -> Self {
+        Self {
+            gpu,
+            pipelines,
+            precision,
+            parts: vec![Vec::new()],
+        }
+    }
+
+    pub fn gpu(&self) -> &'a GpuContext {
+        self.gpu
+    }
+
+    /// The variant `Elem` shaders are built in.
+    pub fn precision(&self) -> Precision {
+        self.precision
+    }
+
+    /// One thread per element at 64 threads per workgroup.
+    pub fn grid(&self, threads: usize) -> Grid {
+        Grid::for_elements(
+            threads as u32,
+            self.gpu
+                .device
+                .limits()
+                .max_compute_workgroups_per_dimension,
+        )
+    }
+
+    fn push(&mut self, step: Step) {
+        self.parts.last_mut().expect("an open part").push(step);
+    }
+
+    /// Records one dispatch of `shader`: `params` as a uniform at binding 0, then
+    /// `buffers` at bindings 1, 2, …, over `grid`.
+    pub fn dispatch<P: bytemuck::Pod>(
+        &mut self,
+        shader: &Shader,
+        params: &P,
+        buffers: &[&wgpu::Buffer],
+        grid: Grid,
+    ) {
+        let params = uniform(self.gpu, params);
+        let bindings: Vec<&wgpu::Buffer> = std::iter::once(&params)
+            .chain(buffers.iter().copied())
+            .collect();
+        let pipeline = self
+            .pipelines
+            .get(&self.gpu.device, shader, self.precision)
+            .clone();
+        let bind_group = self
+            .gpu
+            .bind_buffers(&pipeline.get_bind_group_layout(0), &bindings);
+        self.push(Step::Dispatch {
+            pipeline,
+            bind_group,
+            grid,
+        });
+    }
+
+    /// Records a copy of `size` bytes between buffers.
+    pub fn copy(
+        &mut self,
+        source: &wgpu::Buffer,
+        source_offset: u64,
+        target: &wgpu::Buffer,
+        target_offset: u64,
+        size: u64,
+    ) {
+        self.push(Step::Copy {
+            source: source.clone(),
+            source_offset,
+            target: target.clone(),
+            target_offset,
+            size,
+        });
+    }
+
+    /// Starts a new part.
+    pub fn boundary(&mut self) {
+        if !self.parts.last().is_some_and(Vec::is_empty) {
+            self.parts.push(Vec::new());
+        }
+    }
+
+    /// Submits what is recorded, in one submission, and starts afresh.
+    pub fn submit(&mut self) {
+        let parts = std::mem::replace(&mut self.parts, vec![Vec::new()]);
+        let mut encoder = self
+            .gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("plan"),
+            });
+        for part in &parts {
+            encode_steps(self.gpu, &mut encoder, part);
+        }
+        self.gpu.submit([encoder.finish()]);
+    }
+
+    /// The recorded work as a [`Plan`] of `flops` FLOPs (nothing is submitted).
+    pub fn finish(mut self, flops: u64) -> Plan {
+        if self.parts.len() > 1 && self.parts.last().is_some_and(Vec::is_empty) {
+            self.parts.pop();
+        }
+        Plan {
+            parts: std::mem::take(&mut self.parts),
+            flops,
+        }
+    }
+}
