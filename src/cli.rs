@@ -632,7 +632,7 @@ fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
                     seed: args.seed,
                     sampling: Some(sampling),
                     pca: !args.no_pca,
-                    split: false,
+                    ..Default::default()
                 },
             }
         }

@@ -15,6 +15,7 @@ use unica::gpu::{GpuContext, GpuOptions, readback};
 use unica::nn::sampler::Sampling;
 use unica::nn::{Bundle, Recorder, Tensor};
 use unica::random::Rng;
+use unica::splat::ply::Splat;
 
 fn witch_bundle() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle")
@@ -273,4 +274,59 @@ fn the_same_seed_and_keys_give_the_same_bytes() {
     let (a, b) = (run(3), run(3));
     assert!(a == b, "same seed, different frames");
     assert!(a != run(4), "another seed, the same frames");
+}
+
+/// The largest differences between two splat lists: (position m, scale relative,
+/// rotation 1 - |q·q'|, opacity, colour).
+fn splat_differences(a: &[Splat], b: &[Splat]) -> [f32; 5] {
+    assert_eq!(a.len(), b.len(), "splat counts");
+    let mut worst = [0.0f32; 5];
+    for (x, y) in a.iter().zip(b) {
+        let d = [
+            x.position.distance(y.position),
+            ((x.scale - y.scale).abs() / y.scale.abs().max(Vec3::splat(1e-9))).max_element(),
+            1.0 - x.rotation.dot(y.rotation).abs(),
+            (x.opacity - y.opacity).abs(),
+            x.color().distance(y.color()),
+        ];
+        for (w, v) in worst.iter_mut().zip(d) {
+            *w = w.max(v);
+        }
+    }
+    worst
+}
+
+#[test]
+fn the_gpu_splats_equal_the_cpu_appearance_on_the_shipped_bundle() {
+    // A generated frame's points through today's CPU appearance stage (base splats, the
+    // refiner fed host orders, upscale, fine splats) and through the frame plan's splat
+    // kernels, at level 128 and 256, with and without the refiner. Tolerances (f32): the
+    // two sides differ only in summation order and fused multiply-adds (lengths,
+    // logarithms, the refiner's inputs), so positions within 1e-5 m, scales within 1e-3
+    // relative, rotations within 1e-4 of |q·q'| = 1, opacity and colour within 1e-3.
+    use unica::engine::appearance::Appearance;
+    let gpu = gpu();
+    for (level, refine) in [(128, true), (256, true), (256, false)] {
+        let mut options = options(2, 1.0, 11);
+        options.splat_level = Some(level);
+        options.refine = refine;
+        let mut engine = Engine::new(&gpu, &witch_bundle(), &options).unwrap();
+        let frame = engine.step(Action::Forward).unwrap();
+        let got = engine.read_splats().unwrap();
+        let mut look = Appearance::new(&gpu, &engine.bundle, Precision::F32, level).unwrap();
+        look.refine = refine;
+        let want = look.splats(&engine.bundle, &frame.points).unwrap();
+        let d = splat_differences(&got, &want);
+        eprintln!(
+            "level {level} refiner {refine}: {} splats, worst {d:?}",
+            got.len()
+        );
+        assert!(
+            d[0] < 1e-5,
+            "level {level} refine {refine}: positions {d:?}"
+        );
+        assert!(d[1] < 1e-3, "scales {d:?}");
+        assert!(d[2] < 1e-4, "rotations {d:?}");
+        assert!(d[3] < 1e-3 && d[4] < 1e-3, "opacity, colour {d:?}");
+    }
 }

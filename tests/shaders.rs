@@ -10,7 +10,12 @@ use wgpu::naga;
 
 /// Every shader of the crate: the GPU layer's and each stage's own.
 fn all() -> Vec<Shader> {
-    [unica::gpu::shaders::ALL, unica::engine::kernels::ALL].concat()
+    [
+        unica::gpu::shaders::ALL,
+        unica::engine::kernels::ALL,
+        unica::splat::frame::ALL,
+    ]
+    .concat()
 }
 
 /// The `.wgsl` files under `dir`, named relative to `shaders/` (one level of stage folders).

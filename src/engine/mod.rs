@@ -26,9 +26,13 @@ use crate::action::Action;
 use crate::gpu::kernel::{PipelineCache, Precision};
 use crate::gpu::{GpuContext, GpuError, readback};
 use crate::nn::ops::{Indices, Plan};
+use crate::nn::refiner::{Order, Orders};
 use crate::nn::sampler::Sampling;
 use crate::nn::{Bundle, LoadError, Recorder, Tensor};
 use crate::random::Rng;
+use crate::splat::frame::SplatFrame;
+use crate::splat::ply::Splat;
+use crate::splat::raster::GpuSplat;
 use kernels::{FrameState, PostParams};
 use recentre::ShiftBasis;
 
@@ -44,6 +48,11 @@ pub struct EngineOptions {
     pub pca: bool,
     /// Submit each generated frame in parts (context pass, each step, decode).
     pub split: bool,
+    /// Make the frame's splats at this level (128, 256, 512 or 1024) into the
+    /// rasterizer's buffer as part of the frame; `None`: geometry only.
+    pub splat_level: Option<usize>,
+    /// Apply the bundle's refiner to the splats (when it has one).
+    pub refine: bool,
 }
 
 impl Default for EngineOptions {
@@ -54,6 +63,8 @@ impl Default for EngineOptions {
             sampling: None,
             pca: true,
             split: false,
+            splat_level: None,
+            refine: true,
         }
     }
 }
@@ -104,6 +115,8 @@ struct FramePlan {
     guided: bool,
     sampling: Sampling,
     pca: bool,
+    /// The splat level and refiner setting it draws with (None: no splats).
+    look: Option<(usize, bool)>,
 }
 
 /// A mapped readback of the frame state in flight.
@@ -124,6 +137,9 @@ pub struct Engine {
     split: bool,
     live: Live,
     plan: Option<FramePlan>,
+    /// The frame's splats (when asked for) and whether they use the refiner.
+    splats: Option<SplatFrame>,
+    refine: bool,
     basis: ShiftBasis,
     slots: Vec<Slot>,
     /// The latest frame state read back, and the frames submitted.
@@ -179,6 +195,8 @@ impl Engine {
             split: options.split,
             live,
             plan: None,
+            splats: None,
+            refine: options.refine,
             basis,
             slots,
             state: initial_state(start_root),
@@ -187,6 +205,9 @@ impl Engine {
             frames: 0,
             bundle,
         };
+        if let Some(level) = options.splat_level {
+            engine.set_splats(Some(level))?;
+        }
         engine.prepare()?;
         Ok(engine)
     }
@@ -246,6 +267,83 @@ impl Engine {
         &self.basis.jacobian
     }
 
+    /// Makes the frame's splats at `level` (128, 256, 512 or 1024) from the next frame on,
+    /// or none; the level's buffers are made here, once.
+    pub fn set_splats(&mut self, level: Option<usize>) -> Result<(), GpuError> {
+        let same = match (&self.splats, level) {
+            (Some(s), Some(l)) => s.level() == l && s.refines() == self.refining(),
+            (None, None) => true,
+            _ => false,
+        };
+        if same {
+            return Ok(());
+        }
+        self.splats = match level {
+            Some(level) => {
+                let b = &self.bundle;
+                let colors = b
+                    .colors
+                    .clone()
+                    .unwrap_or_else(|| vec![surface::COLOR; b.pixels.len()]);
+                let refiner = b
+                    .refiner
+                    .as_ref()
+                    .filter(|_| self.refine)
+                    .map(|r| (r.cfg.mean_bound, r.cfg.stride));
+                Some(SplatFrame::new(
+                    &self.gpu,
+                    &b.pixels,
+                    &b.waist,
+                    &colors,
+                    b.manifest.normalisation.scale,
+                    level,
+                    refiner,
+                    self.precision,
+                )?)
+            }
+            None => None,
+        };
+        Ok(())
+    }
+
+    /// Draws the refiner's residuals (when the bundle has a refiner) from the next frame.
+    pub fn set_refine(&mut self, on: bool) -> Result<(), GpuError> {
+        self.refine = on;
+        let level = self.splats.as_ref().map(SplatFrame::level);
+        self.set_splats(level)
+    }
+
+    fn refining(&self) -> bool {
+        self.refine && self.bundle.refiner.is_some()
+    }
+
+    /// The refiner setting in force.
+    pub fn refine(&self) -> bool {
+        self.refining()
+    }
+
+    /// The rasterizer's input buffer and its splat count (when splats are made): written
+    /// by each frame's work, read by later submissions.
+    pub fn splats(&self) -> Option<(&wgpu::Buffer, usize)> {
+        self.splats.as_ref().map(|s| (&s.splats, s.count()))
+    }
+
+    /// The splat level in force.
+    pub fn splat_level(&self) -> Option<usize> {
+        self.splats.as_ref().map(SplatFrame::level)
+    }
+
+    /// The latest frame's splats read back (PLY export, tests; outside the frame loop:
+    /// waits for the GPU).
+    pub fn read_splats(&self) -> Result<Vec<Splat>, GpuError> {
+        let Some((buffer, count)) = self.splats() else {
+            return Ok(Vec::new());
+        };
+        let raw = readback::buffer(&self.gpu, buffer, "splats")?;
+        let splats: Vec<GpuSplat> = bytemuck::pod_collect_to_vec(&raw);
+        Ok(splats.iter().take(count).map(GpuSplat::to_splat).collect())
+    }
+
     /// The frame plan's compute dispatches and FLOPs.
     pub fn plan_counts(&self) -> (usize, u64) {
         self.plan
@@ -263,10 +361,11 @@ impl Engine {
     /// Captures the frame plan for the current settings if it is missing or stale (at
     /// load, and after a settings change; never otherwise).
     pub fn prepare(&mut self) -> Result<(), GpuError> {
+        let look = self.splats.as_ref().map(|s| (s.level(), s.refines()));
         let fresh = self
             .plan
             .as_ref()
-            .is_some_and(|p| p.sampling == self.sampling && p.pca == self.pca);
+            .is_some_and(|p| p.sampling == self.sampling && p.pca == self.pca && p.look == look);
         if !fresh {
             self.plan = Some(self.capture()?);
         }
@@ -337,6 +436,43 @@ impl Engine {
             ],
             grid,
         );
+        if let Some(splats) = &self.splats {
+            r.boundary();
+            let inputs = splats.record_coarse(r.steps(), &live.points);
+            let residuals = match (inputs, &bundle.refiner) {
+                (Some(inputs), Some(refiner)) => {
+                    let order = |o: &crate::splat::frame::OrderBuffers, len: usize| Order {
+                        sort: Indices::from_buffer(&o.sort, len),
+                        unsort: Indices::from_buffer(&o.unsort, len),
+                    };
+                    let orders = Orders {
+                        fine: inputs
+                            .fine
+                            .iter()
+                            .map(|o| order(o, inputs.points))
+                            .collect(),
+                        coarse: inputs
+                            .coarse
+                            .iter()
+                            .map(|o| order(o, inputs.pooled))
+                            .collect(),
+                        groups: Indices::from_buffer(inputs.groups, inputs.points),
+                    };
+                    let features = Tensor {
+                        buffer: inputs.features.clone(),
+                        shape: vec![inputs.points, crate::splat::frame::FEATURES],
+                        precision: self.precision,
+                    };
+                    Some(refiner.forward_with(&mut r, &features, &orders)?)
+                }
+                _ => None,
+            };
+            splats.record_finish(
+                r.steps(),
+                &live.points,
+                residuals.as_ref().map(|t| &t.buffer),
+            );
+        }
         let grid = r.grid(live.window.len());
         r.dispatch(
             &kernels::SLIDE,
@@ -361,6 +497,7 @@ impl Engine {
             guided,
             sampling: self.sampling,
             pca: self.pca,
+            look: self.splats.as_ref().map(|s| (s.level(), s.refines())),
         })
     }
 

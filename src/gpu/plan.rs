@@ -71,7 +71,7 @@ fn encode_steps(gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, steps: &[S
 }
 
 /// Recorded work kept to run again: its buffers, uniforms and bind groups were made when
-/// it was captured ([`Recorder::capture`]), so running it creates nothing. Inputs that
+/// it was recorded by a [`Builder`], so running it creates nothing. Inputs that
 /// change between runs live in buffers the owner rewrites with `write_buffer`. The work
 /// is in parts (split at [`Builder::boundary`]) so a caller can submit it piece by piece.
 pub struct Plan {

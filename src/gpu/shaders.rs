@@ -95,9 +95,16 @@ pub struct Shader {
     pub needs_subgroups: bool,
     /// Stores its tensors as `Elem`, built as f32 or f16 (see [`Precision`]).
     pub elem: bool,
+    /// Rust constants declared as WGSL `const NAME: f32` before the file (one definition).
+    pub constants: &'static [(&'static str, f32)],
 }
 
 impl Shader {
+    /// This shader with `constants` declared in its prelude.
+    pub const fn with_constants(self, constants: &'static [(&'static str, f32)]) -> Self {
+        Self { constants, ..self }
+    }
+
     /// Whether the variant for `precision` needs SHADER_F16.
     pub fn needs_f16_for(&self, precision: Precision) -> bool {
         self.needs_f16 || (self.elem && precision == Precision::F16)
@@ -117,6 +124,9 @@ impl Shader {
                 Precision::F16 => "f16",
             };
             out.push_str(&format!("alias Elem = {elem};\n"));
+        }
+        for (name, value) in self.constants {
+            out.push_str(&format!("const {name}: f32 = {value:?};\n"));
         }
         for s in self.structs {
             out.push_str(&(s.wgsl)());
@@ -151,6 +161,7 @@ macro_rules! wgsl_shader {
             needs_f16: $f16,
             needs_subgroups: $sg,
             elem: $elem,
+            constants: &[],
         }
     };
 }

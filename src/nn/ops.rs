@@ -174,6 +174,18 @@ pub struct Indices {
 }
 
 impl Indices {
+    /// Indices already in a u32 storage buffer (e.g. written by another stage's kernel).
+    pub fn from_buffer(buffer: &wgpu::Buffer, len: usize) -> Self {
+        Self {
+            buffer: buffer.clone(),
+            len,
+        }
+    }
+
+    pub fn buffer(&self) -> &wgpu::Buffer {
+        &self.buffer
+    }
+
     pub fn len(&self) -> usize {
         self.len
     }

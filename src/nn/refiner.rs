@@ -77,9 +77,18 @@ impl LayerNorm {
 }
 
 /// One serialisation order on the GPU: the order and its inverse.
-struct Order {
-    sort: Indices,
-    unsort: Indices,
+pub struct Order {
+    pub sort: Indices,
+    pub unsort: Indices,
+}
+
+/// The orders of one frame's points: the four curves of the points and of the pooled
+/// points, and each point's pooled group. Made on the host from positions
+/// ([`Refiner::orders`]) or on the GPU by the splat stage (the engine wraps its buffers).
+pub struct Orders {
+    pub fine: Vec<Order>,
+    pub coarse: Vec<Order>,
+    pub groups: Indices,
 }
 
 impl Order {
@@ -214,6 +223,30 @@ impl Refiner {
         })
     }
 
+    /// The serialisation orders of points at `unit` (normalised, root at 0.5), uploaded.
+    pub fn orders(&self, r: &Recorder, unit: &[Vec3]) -> Result<Orders, GpuError> {
+        let stride = self.cfg.stride;
+        let fine_orders: Vec<Vec<u32>> = ORDERS
+            .iter()
+            .map(|&curve| serialise::serialise(unit, curve))
+            .collect();
+        let coarse_unit = serialise::pooled_positions(unit, &fine_orders[0], stride);
+        Ok(Orders {
+            fine: fine_orders
+                .iter()
+                .map(|o| Order::new(r, o))
+                .collect::<Result<Vec<_>, _>>()?,
+            coarse: ORDERS
+                .iter()
+                .map(|&curve| Order::new(r, &serialise::serialise(&coarse_unit, curve)))
+                .collect::<Result<Vec<_>, _>>()?,
+            groups: r.indices(
+                "refiner.groups",
+                &serialise::groups(&fine_orders[0], stride),
+            )?,
+        })
+    }
+
     /// Records the residuals [N, 14] of `features` [N, 11] for points at `unit`
     /// (normalised, the frame's root at 0.5).
     pub fn forward(
@@ -222,24 +255,19 @@ impl Refiner {
         features: &Tensor,
         unit: &[Vec3],
     ) -> Result<Tensor, GpuError> {
+        let orders = self.orders(r, unit)?;
+        self.forward_with(r, features, &orders)
+    }
+
+    /// Records the residuals [N, 14] of `features` [N, 11] with the points' `orders`.
+    pub fn forward_with(
+        &self,
+        r: &mut Recorder,
+        features: &Tensor,
+        orders: &Orders,
+    ) -> Result<Tensor, GpuError> {
         let stride = self.cfg.stride;
-        let fine_orders: Vec<Vec<u32>> = ORDERS
-            .iter()
-            .map(|&curve| serialise::serialise(unit, curve))
-            .collect();
-        let coarse_unit = serialise::pooled_positions(unit, &fine_orders[0], stride);
-        let fine = fine_orders
-            .iter()
-            .map(|o| Order::new(r, o))
-            .collect::<Result<Vec<_>, _>>()?;
-        let coarse = ORDERS
-            .iter()
-            .map(|&curve| Order::new(r, &serialise::serialise(&coarse_unit, curve)))
-            .collect::<Result<Vec<_>, _>>()?;
-        let groups = r.indices(
-            "refiner.groups",
-            &serialise::groups(&fine_orders[0], stride),
-        )?;
+        let (fine, coarse, groups) = (&orders.fine, &orders.coarse, &orders.groups);
         let patch = self.cfg.patch;
         let mut block = 0;
         let mut x = self.embed.forward(r, features, false)?;
@@ -256,7 +284,7 @@ impl Refiner {
             block += 1;
         }
         let up = self.up.forward(r, &y, false)?;
-        let unpooled = r.gather(&up, &groups)?;
+        let unpooled = r.gather(&up, groups)?;
         let mut x = r.add(&skip, &unpooled, super::Broadcast::Trailing)?;
         for b in &self.decoder {
             x = b.forward(r, &x, &fine[block % 4], patch)?;

@@ -85,6 +85,20 @@ impl From<&Splat> for GpuSplat {
     }
 }
 
+impl GpuSplat {
+    /// The splat as the rest of the crate holds it (exports, tests).
+    pub fn to_splat(&self) -> Splat {
+        let [x, y, z, opacity] = self.position_opacity;
+        Splat {
+            position: Vec3::new(x, y, z),
+            f_dc: Vec3::from_slice(&self.f_dc[..3]),
+            opacity,
+            scale: Vec3::from_slice(&self.scale[..3]),
+            rotation: glam::Quat::from_array(self.rotation),
+        }
+    }
+}
+
 /// Sort entries allowed per splat on average; beyond that, entries are dropped (and
 /// counted in [`Raster::info`]).
 pub const ENTRIES_PER_SPLAT: usize = 16;

@@ -1,0 +1,24 @@
+// The distance of each (point, right or lower neighbour) pair, for the median spacing.
+
+@group(0) @binding(0) var<uniform> p: SplatParams;
+@group(0) @binding(1) var<storage, read> points: array<f32>;
+@group(0) @binding(2) var<storage, read> pairs: array<vec2<u32>>;
+@group(0) @binding(3) var<storage, read_write> distances: array<f32>;
+
+fn point(i: u32) -> vec3<f32> {
+    return vec3<f32>(points[3u * i], points[3u * i + 1u], points[3u * i + 2u]);
+}
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let m = (group.x + group.y * groups.x) * 64u + lane;
+    if m >= p.pairs {
+        return;
+    }
+    let d = point(pairs[m].y) - point(pairs[m].x);
+    distances[m] = sqrt(d.x * d.x + d.y * d.y + d.z * d.z);
+}

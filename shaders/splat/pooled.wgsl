@@ -1,0 +1,30 @@
+// The mean position of each run of `stride` points along an order (the last run may be
+// shorter), summed in order: the pooled points of the refiner's coarse stage.
+
+@group(0) @binding(0) var<uniform> p: SplatParams;
+@group(0) @binding(1) var<storage, read> unit: array<f32>;
+@group(0) @binding(2) var<storage, read> sort: array<u32>;
+@group(0) @binding(3) var<storage, read_write> pooled: array<f32>;
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let g = (group.x + group.y * groups.x) * 64u + lane;
+    let first = g * p.stride;
+    if first >= p.points {
+        return;
+    }
+    let last = min(first + p.stride, p.points);
+    var sum = vec3<f32>(0.0);
+    for (var r = first; r < last; r++) {
+        let i = 3u * sort[r];
+        sum += vec3<f32>(unit[i], unit[i + 1u], unit[i + 2u]);
+    }
+    let mean = sum / f32(last - first);
+    pooled[3u * g] = mean.x;
+    pooled[3u * g + 1u] = mean.y;
+    pooled[3u * g + 2u] = mean.z;
+}

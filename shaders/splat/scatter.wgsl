@@ -1,0 +1,27 @@
+// Three channels of per-point rows (`channels` values each, from `first`; channels past
+// the end are 0) into a [3, size, size] map at the points' pixels; the background keeps
+// what it has (0).
+
+@group(0) @binding(0) var<uniform> p: SplatParams;
+@group(0) @binding(1) var<storage, read> rows: array<f32>;
+@group(0) @binding(2) var<storage, read> pixels: array<u32>;
+@group(0) @binding(3) var<storage, read_write> map: array<f32>;
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let i = (group.x + group.y * groups.x) * 64u + lane;
+    if i >= p.points {
+        return;
+    }
+    for (var k = 0u; k < 3u; k++) {
+        var v = 0.0;
+        if p.first + k < p.channels {
+            v = rows[i * p.channels + p.first + k];
+        }
+        map[k * p.plane + pixels[i]] = v;
+    }
+}

@@ -1,0 +1,26 @@
+// Exact selection of the `mid`-th smallest distance (distances are ≥ 0, so their bits
+// order as u32): pass 0 counts the high 16 bits of every distance, pass 1 the low 16
+// bits of those whose high bits are the bin pass 0 picked (select[0]).
+
+@group(0) @binding(0) var<uniform> p: SplatParams;
+@group(0) @binding(1) var<storage, read> distances: array<f32>;
+@group(0) @binding(2) var<storage, read> select: array<u32>;
+@group(0) @binding(3) var<storage, read_write> histogram: array<atomic<u32>>;
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+) {
+    let m = (group.x + group.y * groups.x) * 64u + lane;
+    if m >= p.pairs {
+        return;
+    }
+    let bits = bitcast<u32>(distances[m]);
+    if p.round == 0u {
+        atomicAdd(&histogram[bits >> 16u], 1u);
+    } else if (bits >> 16u) == select[0] {
+        atomicAdd(&histogram[bits & 0xffffu], 1u);
+    }
+}

@@ -1,0 +1,668 @@
+//! A generated frame's splats made on the GPU, from its world-space points (3N f32 in the
+//! 128² map's pixel order) to the rasterizer's input buffer, with the same arithmetic as
+//! the CPU path (`base.rs`, `upscale.rs`, `serialise.rs`; tested equal in tests/splat.rs):
+//! the root and normalised points, the median spacing (an exact two-pass radix select),
+//! base splats and the refiner's features, the refiner's serialisation orders (codes and
+//! a stable rank by counting), then either the refined splats at 128² or the upscale of
+//! positions and residuals to the splat level and the fine splats. Every buffer is made
+//! in [`SplatFrame::new`]; [`SplatFrame::record_coarse`] and [`SplatFrame::record_finish`]
+//! record kernels into a [`Builder`], so they become part of the engine's frame plan. The
+//! refiner itself runs between the two (the engine wires it: `splat` never imports `nn`).
+
+use glam::Vec3;
+
+use super::base::{self, OPACITY, RESIDUALS, SPREAD, THICKNESS};
+use super::ply::SH_C0;
+use super::raster::GpuSplat;
+use super::upscale::UpscaleParams;
+use crate::gpu::kernel::{Grid, Precision};
+use crate::gpu::plan::Builder;
+use crate::gpu::shaders::{self, Shader};
+use crate::gpu::{GpuContext, GpuError};
+use crate::gpu_struct;
+use crate::wgsl_shader;
+
+/// The map size the model draws (the refiner's points).
+pub const COARSE: usize = 128;
+/// Refiner input values per point.
+pub const FEATURES: usize = 11;
+/// Bins of each radix-select pass (16 bits).
+const BINS: u64 = 1 << 16;
+
+gpu_struct! {
+    /// Sizes and switches of the splat kernels (one struct for all of them).
+    pub struct SplatParams {
+        /// Points at this level.
+        pub points: u32,
+        /// Waist points (root).
+        pub waist: u32,
+        /// Normalisation scale (normalised units per metre).
+        pub scale: f32,
+        /// Neighbour pairs of the median spacing.
+        pub pairs: u32,
+        /// The rank of the median among the pairs.
+        pub mid: u32,
+        /// Radix-select pass: 0 the high 16 bits, 1 the low.
+        pub round: u32,
+        /// First channel and channels per row (scatter, gather).
+        pub first: u32,
+        pub channels: u32,
+        /// Pixels per map plane (scatter, gather).
+        pub plane: u32,
+        /// Pooling stride of the refiner.
+        pub stride: u32,
+        /// Serialisation curve (0..4) of a rank pass.
+        pub curve: u32,
+        /// The refiner's mean-offset bound, world units.
+        pub bound: f32,
+        /// Base: also write the refiner's features. Rank: also write the pooled groups.
+        pub features: u32,
+        /// Refine: apply the residuals.
+        pub residuals: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
+    }
+}
+
+const CONSTANTS: &[(&str, f32)] = &[
+    ("SH_C0", SH_C0),
+    ("SPREAD", SPREAD),
+    ("THICKNESS", THICKNESS),
+    ("OPACITY", OPACITY),
+];
+
+pub const ROOT: Shader =
+    wgsl_shader!("splat/root.wgsl", [SplatParams], f16: false, subgroups: false);
+pub const UNIT: Shader =
+    wgsl_shader!("splat/unit.wgsl", [SplatParams], f16: false, subgroups: false);
+pub const DISTANCES: Shader =
+    wgsl_shader!("splat/distances.wgsl", [SplatParams], f16: false, subgroups: false);
+pub const SELECT_HISTOGRAM: Shader =
+    wgsl_shader!("splat/select_histogram.wgsl", [SplatParams], f16: false, subgroups: false);
+pub const SELECT_PICK: Shader =
+    wgsl_shader!("splat/select_pick.wgsl", [SplatParams], f16: false, subgroups: false);
+pub const BASE: Shader =
+    wgsl_shader!("splat/base.wgsl", [SplatParams, GpuSplat], elem).with_constants(CONSTANTS);
+pub const CODES: Shader =
+    wgsl_shader!("splat/codes.wgsl", [SplatParams], f16: false, subgroups: false);
+pub const RANK: Shader =
+    wgsl_shader!("splat/rank.wgsl", [SplatParams], f16: false, subgroups: false);
+pub const POOLED: Shader =
+    wgsl_shader!("splat/pooled.wgsl", [SplatParams], f16: false, subgroups: false);
+pub const ROWS_TO_F32: Shader = wgsl_shader!("splat/rows_to_f32.wgsl", [SplatParams], elem);
+pub const SCATTER: Shader =
+    wgsl_shader!("splat/scatter.wgsl", [SplatParams], f16: false, subgroups: false);
+pub const GATHER_MAP: Shader =
+    wgsl_shader!("splat/gather_map.wgsl", [SplatParams], f16: false, subgroups: false);
+pub const REFINE: Shader =
+    wgsl_shader!("splat/refine.wgsl", [SplatParams, GpuSplat], f16: false, subgroups: false)
+        .with_constants(CONSTANTS);
+
+/// Every shader of the GPU splat frame.
+pub const ALL: &[Shader] = &[
+    ROOT,
+    UNIT,
+    DISTANCES,
+    SELECT_HISTOGRAM,
+    SELECT_PICK,
+    BASE,
+    CODES,
+    RANK,
+    POOLED,
+    ROWS_TO_F32,
+    SCATTER,
+    GATHER_MAP,
+    REFINE,
+];
+
+/// One serialisation order on the GPU: sort (rank → point) and unsort (point → rank).
+pub struct OrderBuffers {
+    pub sort: wgpu::Buffer,
+    pub unsort: wgpu::Buffer,
+}
+
+/// The static layout and working buffers of one map level.
+struct Level {
+    size: usize,
+    count: usize,
+    pixels: wgpu::Buffer,
+    neighbours: wgpu::Buffer,
+    pairs: wgpu::Buffer,
+    pair_count: usize,
+    colors: wgpu::Buffer,
+    distances: wgpu::Buffer,
+    histogram: wgpu::Buffer,
+    select: wgpu::Buffer,
+    /// Root xyz (coarse) and the median spacing in [3].
+    frame: wgpu::Buffer,
+    base: wgpu::Buffer,
+}
+
+impl Level {
+    fn new(
+        gpu: &GpuContext,
+        size: usize,
+        pixels: &[u32],
+        colors: &[Vec3],
+    ) -> Result<Self, GpuError> {
+        let neighbours = base::neighbours(pixels, size);
+        let packed: Vec<[i32; 4]> = neighbours
+            .iter()
+            .map(|n| n.map(|k| k.map_or(-1, |k| k as i32)))
+            .collect();
+        let pairs: Vec<[u32; 2]> = [0, 2]
+            .iter()
+            .flat_map(|&k| {
+                neighbours
+                    .iter()
+                    .enumerate()
+                    .filter_map(move |(i, n)| n[k].map(|n| [i as u32, n]))
+            })
+            .collect();
+        let colors: Vec<f32> = colors.iter().flat_map(|c| c.to_array()).collect();
+        let none = wgpu::BufferUsages::empty();
+        let bytes = |values: &[u8]| {
+            let mut v = values.to_vec();
+            v.resize(v.len().max(4), 0);
+            v
+        };
+        let count = pixels.len();
+        Ok(Self {
+            size,
+            count,
+            pixels: gpu.storage_buffer_init(
+                "splat.pixels",
+                &bytes(bytemuck::cast_slice(pixels)),
+                none,
+            )?,
+            neighbours: gpu.storage_buffer_init(
+                "splat.neighbours",
+                &bytes(bytemuck::cast_slice(&packed)),
+                none,
+            )?,
+            pairs: gpu.storage_buffer_init(
+                "splat.pairs",
+                &bytes(bytemuck::cast_slice(&pairs)),
+                none,
+            )?,
+            pair_count: pairs.len(),
+            colors: gpu.storage_buffer_init(
+                "splat.colors",
+                &bytes(bytemuck::cast_slice(&colors)),
+                none,
+            )?,
+            distances: gpu.storage_buffer(
+                "splat.distances",
+                4 * pairs.len().max(1) as u64,
+                none,
+            )?,
+            histogram: gpu.storage_buffer("splat.histogram", 4 * BINS, none)?,
+            select: gpu.storage_buffer("splat.select", 16, none)?,
+            frame: gpu.storage_buffer("splat.frame", 16, wgpu::BufferUsages::COPY_SRC)?,
+            base: gpu.storage_buffer(
+                "splat.base",
+                (count.max(1) * std::mem::size_of::<GpuSplat>()) as u64,
+                wgpu::BufferUsages::COPY_SRC,
+            )?,
+        })
+    }
+
+    fn params(&self) -> SplatParams {
+        SplatParams {
+            points: self.count as u32,
+            waist: 0,
+            scale: 1.0,
+            pairs: self.pair_count as u32,
+            mid: (self.pair_count / 2) as u32,
+            round: 0,
+            first: 0,
+            channels: 3,
+            plane: (self.size * self.size) as u32,
+            stride: 1,
+            curve: 0,
+            bound: 0.0,
+            features: 0,
+            residuals: 0,
+            reserved0: 0,
+            reserved1: 0,
+        }
+    }
+
+    /// The median spacing of `points` into frame[3], then the base splats (and features).
+    fn record_base(
+        &self,
+        b: &mut Builder,
+        points: &wgpu::Buffer,
+        unit: &wgpu::Buffer,
+        features: Option<&wgpu::Buffer>,
+    ) {
+        let mut p = self.params();
+        let one = Grid { x: 1, y: 1 };
+        let pairs = b.grid(self.pair_count);
+        b.dispatch(
+            &DISTANCES,
+            &p,
+            &[points, &self.pairs, &self.distances],
+            pairs,
+        );
+        for pass in 0..2 {
+            p.round = pass;
+            b.dispatch(
+                &SELECT_HISTOGRAM,
+                &p,
+                &[&self.distances, &self.select, &self.histogram],
+                pairs,
+            );
+            b.dispatch(
+                &SELECT_PICK,
+                &p,
+                &[&self.histogram, &self.select, &self.frame],
+                one,
+            );
+        }
+        p.features = u32::from(features.is_some());
+        let grid = b.grid(self.count);
+        b.dispatch(
+            &BASE,
+            &p,
+            &[
+                points,
+                &self.neighbours,
+                &self.colors,
+                &self.frame,
+                unit,
+                &self.base,
+                features.unwrap_or(&self.distances),
+            ],
+            grid,
+        );
+    }
+}
+
+/// The fine level's extra buffers (splat level above 128).
+struct Fine {
+    level: Level,
+    /// [3, 128, 128] scatter target and its foreground mask.
+    map: wgpu::Buffer,
+    mask: wgpu::Buffer,
+    /// [3, size, size] upscaled map and (unused) mask.
+    up_map: wgpu::Buffer,
+    up_mask: wgpu::Buffer,
+    points: wgpu::Buffer,
+    residuals: wgpu::Buffer,
+}
+
+/// The refiner's side of the coarse level.
+struct Refining {
+    bound: f32,
+    stride: usize,
+    features: wgpu::Buffer,
+    codes: wgpu::Buffer,
+    fine: Vec<OrderBuffers>,
+    groups: wgpu::Buffer,
+    pooled: wgpu::Buffer,
+    pooled_codes: wgpu::Buffer,
+    coarse: Vec<OrderBuffers>,
+    residuals: wgpu::Buffer,
+}
+
+/// The GPU splats of a frame at one splat level (see the module header).
+pub struct SplatFrame {
+    scale: f32,
+    waist: wgpu::Buffer,
+    waist_count: usize,
+    coarse: Level,
+    unit: wgpu::Buffer,
+    refining: Option<Refining>,
+    fine: Option<Fine>,
+    /// The rasterizer's input: [`SplatFrame::count`] [`GpuSplat`]s.
+    pub splats: wgpu::Buffer,
+}
+
+/// What the refiner needs from the coarse level, on the GPU.
+pub struct RefinerInputs<'a> {
+    /// [N, 11] features in the engine's precision.
+    pub features: &'a wgpu::Buffer,
+    /// The four serialisation orders of the points and of the pooled points.
+    pub fine: &'a [OrderBuffers],
+    pub coarse: &'a [OrderBuffers],
+    /// Each point's pooled group.
+    pub groups: &'a wgpu::Buffer,
+    pub points: usize,
+    pub pooled: usize,
+}
+
+impl SplatFrame {
+    /// The buffers of splats at map size `level` (128, 256, 512 or 1024) for the 128²
+    /// foreground `pixels` with linear `colors`, `waist` point indices and normalisation
+    /// `scale`; `refiner`: (mean bound in normalised units, pooling stride) when the
+    /// refiner runs, its features stored in `precision`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        gpu: &GpuContext,
+        pixels: &[u32],
+        waist: &[u32],
+        colors: &[Vec3],
+        scale: f32,
+        level: usize,
+        refiner: Option<(f32, usize)>,
+        precision: Precision,
+    ) -> Result<Self, GpuError> {
+        assert!(
+            level >= COARSE && level.is_multiple_of(COARSE),
+            "splat level {level}"
+        );
+        let n = pixels.len();
+        let none = wgpu::BufferUsages::empty();
+        let coarse = Level::new(gpu, COARSE, pixels, colors)?;
+        let orders = |label: &str, count: usize| -> Result<Vec<OrderBuffers>, GpuError> {
+            (0..4)
+                .map(|_| {
+                    Ok(OrderBuffers {
+                        sort: gpu.storage_buffer(label, 4 * count.max(1) as u64, none)?,
+                        unsort: gpu.storage_buffer(label, 4 * count.max(1) as u64, none)?,
+                    })
+                })
+                .collect()
+        };
+        let refining = match refiner {
+            Some((bound, stride)) => {
+                let pooled = n.div_ceil(stride);
+                let elem = precision.bytes() as u64;
+                Some(Refining {
+                    bound: bound / scale,
+                    stride,
+                    features: gpu.storage_buffer(
+                        "splat.features",
+                        (elem * (FEATURES * n.max(1)) as u64).next_multiple_of(4),
+                        wgpu::BufferUsages::COPY_SRC,
+                    )?,
+                    codes: gpu.storage_buffer("splat.codes", 16 * n.max(1) as u64, none)?,
+                    fine: orders("splat.order", n)?,
+                    groups: gpu.storage_buffer("splat.groups", 4 * n.max(1) as u64, none)?,
+                    pooled: gpu.storage_buffer("splat.pooled", 12 * pooled.max(1) as u64, none)?,
+                    pooled_codes: gpu.storage_buffer(
+                        "splat.pooled_codes",
+                        16 * pooled.max(1) as u64,
+                        none,
+                    )?,
+                    coarse: orders("splat.pooled_order", pooled)?,
+                    residuals: gpu.storage_buffer(
+                        "splat.residuals",
+                        4 * (RESIDUALS * n.max(1)) as u64,
+                        wgpu::BufferUsages::COPY_SRC,
+                    )?,
+                })
+            }
+            None => None,
+        };
+        let fine = if level > COARSE {
+            let plane = COARSE * COARSE;
+            let mut mask = vec![0.0f32; plane];
+            for &p in pixels {
+                mask[p as usize] = 1.0;
+            }
+            let mut color_map = vec![0.0f32; 3 * plane];
+            for (&p, c) in pixels.iter().zip(colors) {
+                for k in 0..3 {
+                    color_map[k * plane + p as usize] = c[k];
+                }
+            }
+            // The layout comes from the GPU kernel itself (as the frame's upscales do), so
+            // a pixel on the 0.25 mask threshold is foreground on both.
+            let (up_colors, up_mask) = upscale_once(gpu, &color_map, &mask, level / COARSE)?;
+            let fine_pixels: Vec<u32> = (0..level * level)
+                .filter(|&i| up_mask[i] > 0.0)
+                .map(|i| i as u32)
+                .collect();
+            let fine_plane = level * level;
+            let fine_colors: Vec<Vec3> = fine_pixels
+                .iter()
+                .map(|&p| {
+                    let p = p as usize;
+                    Vec3::new(
+                        up_colors[p],
+                        up_colors[fine_plane + p],
+                        up_colors[2 * fine_plane + p],
+                    )
+                })
+                .collect();
+            let level = Level::new(gpu, level, &fine_pixels, &fine_colors)?;
+            let count = level.count.max(1) as u64;
+            Some(Fine {
+                map: gpu.storage_buffer("splat.map", 12 * plane as u64, none)?,
+                mask: gpu.storage_buffer_init("splat.mask", bytemuck::cast_slice(&mask), none)?,
+                up_map: gpu.storage_buffer("splat.up_map", 12 * fine_plane as u64, none)?,
+                up_mask: gpu.storage_buffer("splat.up_mask", 4 * fine_plane as u64, none)?,
+                points: gpu.storage_buffer("splat.fine_points", 12 * count, none)?,
+                residuals: gpu.storage_buffer(
+                    "splat.fine_residuals",
+                    4 * RESIDUALS as u64 * count,
+                    none,
+                )?,
+                level,
+            })
+        } else {
+            None
+        };
+        let count = fine.as_ref().map_or(n, |f| f.level.count);
+        Ok(Self {
+            scale,
+            waist: gpu.storage_buffer_init("splat.waist", bytemuck::cast_slice(waist), none)?,
+            waist_count: waist.len(),
+            unit: gpu.storage_buffer(
+                "splat.unit",
+                12 * n.max(1) as u64,
+                wgpu::BufferUsages::COPY_SRC,
+            )?,
+            splats: gpu.storage_buffer(
+                "splats",
+                (count.max(1) * std::mem::size_of::<GpuSplat>()) as u64,
+                wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            )?,
+            coarse,
+            refining,
+            fine,
+        })
+    }
+
+    /// Splats per frame.
+    pub fn count(&self) -> usize {
+        self.fine
+            .as_ref()
+            .map_or(self.coarse.count, |f| f.level.count)
+    }
+
+    /// The splat level (map size).
+    pub fn level(&self) -> usize {
+        self.fine.as_ref().map_or(COARSE, |f| f.level.size)
+    }
+
+    /// Whether the refiner's inputs are made (and its residuals expected).
+    pub fn refines(&self) -> bool {
+        self.refining.is_some()
+    }
+
+    /// Records the 128² stage from the frame's world points (3N f32): root, normalised
+    /// points, median spacing, base splats and, when refining, the refiner's features and
+    /// serialisation orders (returned for the refiner).
+    pub fn record_coarse(
+        &self,
+        b: &mut Builder,
+        points: &wgpu::Buffer,
+    ) -> Option<RefinerInputs<'_>> {
+        let c = &self.coarse;
+        let mut p = c.params();
+        p.waist = self.waist_count as u32;
+        p.scale = self.scale;
+        b.dispatch(
+            &ROOT,
+            &p,
+            &[points, &self.waist, &c.frame],
+            Grid { x: 1, y: 1 },
+        );
+        let grid = b.grid(3 * c.count);
+        b.dispatch(&UNIT, &p, &[points, &c.frame, &self.unit], grid);
+        let r = self.refining.as_ref();
+        c.record_base(b, points, &self.unit, r.map(|r| &r.features));
+        let r = r?;
+        let n = c.count;
+        let pooled = n.div_ceil(r.stride);
+        p.stride = r.stride as u32;
+        let grid = b.grid(n);
+        b.dispatch(&CODES, &p, &[&self.unit, &r.codes], grid);
+        for (curve, order) in r.fine.iter().enumerate() {
+            p.curve = curve as u32;
+            p.features = u32::from(curve == 0);
+            b.dispatch(
+                &RANK,
+                &p,
+                &[&r.codes, &order.sort, &order.unsort, &r.groups],
+                grid,
+            );
+        }
+        let grid = b.grid(pooled);
+        b.dispatch(&POOLED, &p, &[&self.unit, &r.fine[0].sort, &r.pooled], grid);
+        let mut q = p;
+        q.points = pooled as u32;
+        q.features = 0;
+        b.dispatch(&CODES, &q, &[&r.pooled, &r.pooled_codes], grid);
+        for (curve, order) in r.coarse.iter().enumerate() {
+            q.curve = curve as u32;
+            b.dispatch(
+                &RANK,
+                &q,
+                &[&r.pooled_codes, &order.sort, &order.unsort, &r.groups],
+                grid,
+            );
+        }
+        Some(RefinerInputs {
+            features: &r.features,
+            fine: &r.fine,
+            coarse: &r.coarse,
+            groups: &r.groups,
+            points: n,
+            pooled,
+        })
+    }
+
+    /// Records the drawn splats into [`SplatFrame::splats`]: the refined 128² splats, or
+    /// the upscale to the splat level and its splats; `residuals` is the refiner's [N, 14]
+    /// output (stored in the engine's precision) when refining.
+    pub fn record_finish(
+        &self,
+        b: &mut Builder,
+        points: &wgpu::Buffer,
+        residuals: Option<&wgpu::Buffer>,
+    ) {
+        let c = &self.coarse;
+        let mut p = c.params();
+        let rows = match (residuals, &self.refining) {
+            (Some(raw), Some(r)) => {
+                p.bound = r.bound;
+                p.channels = RESIDUALS as u32;
+                let grid = b.grid(RESIDUALS * c.count);
+                b.dispatch(&ROWS_TO_F32, &p, &[raw, &r.residuals], grid);
+                Some(&r.residuals)
+            }
+            _ => None,
+        };
+        let Some(f) = &self.fine else {
+            p.residuals = u32::from(rows.is_some());
+            let grid = b.grid(c.count);
+            b.dispatch(
+                &REFINE,
+                &p,
+                &[&c.base, rows.unwrap_or(&c.distances), &self.splats],
+                grid,
+            );
+            return;
+        };
+        let factor = f.level.size / COARSE;
+        let upscale = UpscaleParams {
+            width: COARSE as u32,
+            height: COARSE as u32,
+            factor: factor as u32,
+            reserved: 0,
+        };
+        let up_grid = b.grid(f.level.size * f.level.size);
+        let coarse_grid = b.grid(c.count);
+        let fine_grid = b.grid(f.level.count);
+        let mut fp = f.level.params();
+        // Positions: scatter, upscale, gather at the fine pixels.
+        let mut up = |b: &mut Builder,
+                      rows: &wgpu::Buffer,
+                      out: &wgpu::Buffer,
+                      channels: usize,
+                      first: usize| {
+            let mut sp = c.params();
+            sp.channels = channels as u32;
+            sp.first = first as u32;
+            b.dispatch(&SCATTER, &sp, &[rows, &c.pixels, &f.map], coarse_grid);
+            b.dispatch(
+                &shaders::UPSCALE_MAP,
+                &upscale,
+                &[&f.map, &f.mask, &f.up_map, &f.up_mask],
+                up_grid,
+            );
+            fp.channels = channels as u32;
+            fp.first = first as u32;
+            b.dispatch(
+                &GATHER_MAP,
+                &fp,
+                &[&f.up_map, &f.level.pixels, out],
+                fine_grid,
+            );
+        };
+        up(b, points, &f.points, 3, 0);
+        if let Some(rows) = rows {
+            for first in (0..RESIDUALS).step_by(3) {
+                up(b, rows, &f.residuals, RESIDUALS, first);
+            }
+        }
+        f.level.record_base(b, &f.points, &self.unit, None);
+        let mut p = f.level.params();
+        p.residuals = u32::from(rows.is_some());
+        p.bound = self.refining.as_ref().map_or(0.0, |r| r.bound);
+        b.dispatch(
+            &REFINE,
+            &p,
+            &[&f.level.base, &f.residuals, &self.splats],
+            fine_grid,
+        );
+    }
+}
+
+/// Upscales a [3, 128, 128] map with its mask once (at load) and reads both back.
+fn upscale_once(
+    gpu: &GpuContext,
+    map: &[f32],
+    mask: &[f32],
+    factor: usize,
+) -> Result<(Vec<f32>, Vec<f32>), GpuError> {
+    let none = wgpu::BufferUsages::empty();
+    let map = gpu.storage_buffer_init("splat.setup_map", bytemuck::cast_slice(map), none)?;
+    let mask = gpu.storage_buffer_init("splat.setup_mask", bytemuck::cast_slice(mask), none)?;
+    let mut pipelines = crate::gpu::kernel::PipelineCache::default();
+    let mut encoder = gpu.device.create_command_encoder(&Default::default());
+    let (out, out_mask) = super::upscale::record(
+        gpu,
+        &mut pipelines,
+        &mut encoder,
+        &map,
+        &mask,
+        COARSE,
+        COARSE,
+        factor,
+    )?;
+    gpu.submit([encoder.finish()]);
+    let read = |b: &wgpu::Buffer, label: &str| -> Result<Vec<f32>, GpuError> {
+        Ok(bytemuck::pod_collect_to_vec(&crate::gpu::readback::buffer(
+            gpu, b, label,
+        )?))
+    };
+    Ok((
+        read(&out, "upscaled colours")?,
+        read(&out_mask, "upscaled mask")?,
+    ))
+}
