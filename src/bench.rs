@@ -535,10 +535,9 @@ fn resident_mib() -> Option<f64> {
     Some(kib / 1024.0)
 }
 
-/// The whole live frame of a bundle on this adapter, by stage: the model (DDIM steps and
-/// decode, with the map's readback), the CPU share (clamping, root, PCA), the 128² base
-/// splats, the refiner, the upscale to the splat level with its base splats, and the
-/// rasterizer (projection, sort, blending) at 1280×720; then generated frames per second.
+/// The whole live frame of a bundle on this adapter: the engine's frame plan (model,
+/// clamping, PCA, splats at the splat level; waited for) and the rasterizer (projection,
+/// sort, blending) at 1280×720; then generated frames per second.
 pub fn frame_stages(
     gpu: &GpuContext,
     dir: &std::path::Path,
@@ -548,79 +547,53 @@ pub fn frame_stages(
     out: &mut impl Write,
 ) -> anyhow::Result<()> {
     use crate::action::Action;
-    use crate::engine::appearance::Appearance;
     use crate::engine::{Engine, EngineOptions};
     use crate::render::OrbitCamera;
     use crate::splat::project::SplatCamera;
     use crate::splat::raster::Rasterizer;
     let options = EngineOptions {
         sampling,
+        splat_level: Some(level),
         ..EngineOptions::default()
     };
     let mut engine = Engine::new(gpu, dir, &options)?;
-    let mut look = Appearance::new(gpu, &engine.bundle, options.precision, level)?;
     let s = engine.sampling();
+    let count = engine.splats().map_or(0, |(_, n)| n);
     writeln!(
         out,
-        "\nlive frame of {}: {} DDIM steps, CFG {}, splat level {level} ({} splats), \
+        "\nlive frame of {}: {} DDIM steps, CFG {}, splat level {level} ({count} splats), \
          refiner {}; median ms of {repeat} frames after a warm-up",
         dir.display(),
         s.steps,
         s.cfg_scale,
-        look.count(),
-        if look.refine {
+        if engine.refine() {
             "on"
         } else {
             "off (none in the bundle)"
         },
     )?;
     let mut rasterizer = Rasterizer::default();
-    let stages = [
-        "model (UNet steps, decode)",
-        "CPU: clamp, root, PCA",
-        "base splats (128²)",
-        "refiner",
-        "upscale + base splats",
-        "upload splats",
-        "raster 1280x720",
-    ];
+    let stages = ["frame plan (model + splats)", "raster 1280x720"];
     let mut times: Vec<Vec<f64>> = vec![Vec::new(); stages.len()];
     for run in 0..=repeat.max(1) {
-        let frame = engine.step(Action::Forward)?;
-        let splats = look.splats(&engine.bundle, &frame.points)?;
         let clock = Instant::now();
-        let buffer = Rasterizer::upload(gpu, &splats)?;
-        let upload = clock.elapsed().as_secs_f64() * 1e3;
+        engine.frame(Action::Forward)?;
+        engine.finish();
+        let model = clock.elapsed().as_secs_f64() * 1e3;
         let orbit = OrbitCamera {
-            target: frame.root,
+            target: engine.root(),
             ..OrbitCamera::default()
         };
         let camera = SplatCamera::new(&orbit, 1280, 720);
+        let (buffer, count) = engine.splats().expect("splats asked for");
         let clock = Instant::now();
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        rasterizer.record(
-            gpu,
-            &mut encoder,
-            &buffer,
-            splats.len(),
-            &camera,
-            glam::Vec3::ZERO,
-        )?;
+        rasterizer.record(gpu, &mut encoder, buffer, count, &camera, glam::Vec3::ZERO)?;
         gpu.submit([encoder.finish()]);
         gpu.wait_idle();
         let raster = clock.elapsed().as_secs_f64() * 1e3;
         if run > 0 {
-            let t = look.times;
-            let row = [
-                frame.gpu_ms,
-                frame.cpu_ms,
-                t.base,
-                t.refiner,
-                t.upscale,
-                upload,
-                raster,
-            ];
-            for (list, ms) in times.iter_mut().zip(row) {
+            for (list, ms) in times.iter_mut().zip([model, raster]) {
                 list.push(ms);
             }
         }
@@ -641,12 +614,10 @@ pub fn frame_stages(
 }
 
 /// `unica bench --live N`: N generated frames after a warm-up frame, made as the app
-/// makes them — the engine's frame (recorded and submitted, no wait), then the splats of
-/// its points at `level` written into the rasterizer's splat buffer — with the GPU
-/// layer's counts per frame. cpu_ms is the time spent recording and preparing on this
-/// thread; while the appearance stage still runs on the CPU (it reads the points back)
-/// its waits are inside it too, and are named on the line after. wall_ms is the whole
-/// run, ended by waiting for the GPU, per frame.
+/// makes them — key → the engine's frame plan (model, clamping, PCA, splats at `level`
+/// into the rasterizer's buffer) — with the GPU layer's counts per frame. cpu_ms is the
+/// time spent recording and submitting on this thread (it never waits inside a frame);
+/// wall_ms is the whole run, ended by waiting for the GPU, per frame.
 pub fn live(
     gpu: &GpuContext,
     dir: &std::path::Path,
@@ -656,26 +627,23 @@ pub fn live(
     out: &mut impl Write,
 ) -> anyhow::Result<()> {
     use crate::action::Action;
-    use crate::engine::appearance::Appearance;
     use crate::engine::{Engine, EngineOptions};
-    use crate::splat::raster::Rasterizer;
     let options = EngineOptions {
         sampling: Some(sampling),
+        splat_level: Some(level),
         ..EngineOptions::default()
     };
     let mut engine = Engine::new(gpu, dir, &options)?;
-    let mut look = Appearance::new(gpu, &engine.bundle, options.precision, level)?;
-    let standing = engine.standing_points();
-    let splat_buffer = Rasterizer::upload(gpu, &look.splats(&engine.bundle, &standing)?)?;
     writeln!(out, "adapter: {}", gpu.adapter_label())?;
     let (dispatches, flops) = engine.plan_counts();
     writeln!(
         out,
-        "live: {} DDIM steps, CFG {}, splat level {level} ({} splats); geometry plan: {dispatches} \
-         dispatches, {:.2} GFLOP",
+        "live: {} DDIM steps, CFG {}, splat level {level} ({} splats, refiner {}); frame plan: \
+         {dispatches} dispatches, {:.2} GFLOP",
         sampling.steps,
         sampling.cfg_scale,
-        look.count(),
+        engine.splats().map_or(0, |(_, n)| n),
+        if engine.refine() { "on" } else { "off" },
         flops as f64 / 1e9
     )?;
     let keys = [
@@ -684,38 +652,17 @@ pub fn live(
         Action::Right,
         Action::Idle,
     ];
-    let mut one = |engine: &mut Engine,
-                   i: usize,
-                   geometry_ms: &mut f64,
-                   look_ms: &mut f64|
-     -> anyhow::Result<()> {
-        let clock = Instant::now();
-        engine.frame(keys[i % keys.len()])?;
-        *geometry_ms += clock.elapsed().as_secs_f64() * 1e3;
-        let clock = Instant::now();
-        let values: Vec<f32> = bytemuck::pod_collect_to_vec(&crate::gpu::readback::buffer(
-            gpu,
-            engine.points_buffer(),
-            "points",
-        )?);
-        let points: Vec<glam::Vec3> = values
-            .chunks_exact(3)
-            .map(|v| glam::Vec3::new(v[0], v[1], v[2]))
-            .collect();
-        let splats = look.splats(&engine.bundle, &points)?;
-        Rasterizer::write(gpu, &splat_buffer, &splats);
-        *look_ms += clock.elapsed().as_secs_f64() * 1e3;
-        Ok(())
-    };
-    let (mut warm_geometry, mut warm_look) = (0.0, 0.0);
-    one(&mut engine, 0, &mut warm_geometry, &mut warm_look)?;
+    engine.frame(keys[0])?;
     engine.finish();
     let before = gpu.counts();
-    let (mut geometry_ms, mut look_ms) = (0.0, 0.0);
     let bar = indicatif::ProgressBar::new(frames as u64);
+    let mut cpu_ms = 0.0;
     let start = Instant::now();
     for i in 1..=frames {
-        one(&mut engine, i, &mut geometry_ms, &mut look_ms)?;
+        let clock = Instant::now();
+        engine.frame(keys[i % keys.len()])?;
+        engine.poll();
+        cpu_ms += clock.elapsed().as_secs_f64() * 1e3;
         bar.inc(1);
     }
     engine.finish();
@@ -723,36 +670,27 @@ pub fn live(
     bar.finish_and_clear();
     let c = gpu.counts() - before;
     let n = frames as f64;
-    let per = |v: u64| v as f64 / n;
-    let fmt = |v: u64| {
-        let x = per(v);
+    let per = |v: u64| {
+        let x = v as f64 / n;
         if x.fract() == 0.0 {
             format!("{x:.0}")
         } else {
-            format!("{x:.1}")
+            format!("{x:.2}")
         }
     };
     writeln!(
         out,
         "per generated frame: dispatches={} submissions={} readbacks={} readback_bytes={} \
-         buffers_created={} bind_groups_created={} cpu_ms={:.1} wall_ms={:.1} fps={:.2}",
-        fmt(c.dispatches),
-        fmt(c.submissions),
-        fmt(c.readbacks),
-        fmt(c.readback_bytes),
-        fmt(c.buffers),
-        fmt(c.bind_groups),
-        (geometry_ms + look_ms) / n,
+         buffers_created={} bind_groups_created={} cpu_ms={:.2} wall_ms={:.1} fps={:.2}",
+        per(c.dispatches),
+        per(c.submissions),
+        per(c.readbacks),
+        per(c.readback_bytes),
+        per(c.buffers),
+        per(c.bind_groups),
+        cpu_ms / n,
         wall_ms,
         1e3 / wall_ms
-    )?;
-    writeln!(
-        out,
-        "of which: geometry engine frame (recorded and submitted, no wait) cpu_ms={:.2}; \
-         appearance on the CPU (points read back, base splats, refiner, upscale, splat \
-         write; waits included) ms={:.1}",
-        geometry_ms / n,
-        look_ms / n
     )?;
     let state = engine.state();
     writeln!(

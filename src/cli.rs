@@ -700,22 +700,35 @@ fn export(args: ExportArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         }),
         ..Default::default()
     };
-    let mut engine = crate::engine::Engine::new(&gpu, &args.bundle, &options)?;
-    let bar = indicatif::ProgressBar::new(keys.len() as u64);
-    let mut points = engine.standing_points();
-    for i in 0..keys.len() {
-        points = engine.step(keys.action_at(i))?.points;
-        bar.inc(1);
-    }
-    bar.finish_and_clear();
     let level = args
         .look
         .splat_level
         .unwrap_or_else(|| crate::engine::appearance::default_level(&gpu));
-    let mut look =
-        crate::engine::appearance::Appearance::new(&gpu, &engine.bundle, options.precision, level)?;
-    look.refine &= !args.look.no_refiner;
-    let splats = look.splats(&engine.bundle, &points)?;
+    let options = crate::engine::EngineOptions {
+        splat_level: Some(level),
+        refine: !args.look.no_refiner,
+        ..options
+    };
+    let mut engine = crate::engine::Engine::new(&gpu, &args.bundle, &options)?;
+    let bar = indicatif::ProgressBar::new(keys.len() as u64);
+    for i in 0..keys.len() {
+        engine.frame(keys.action_at(i))?;
+        engine.finish();
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let splats = if keys.is_empty() {
+        let mut look = crate::engine::appearance::Appearance::new(
+            &gpu,
+            &engine.bundle,
+            options.precision,
+            level,
+        )?;
+        look.refine &= !args.look.no_refiner;
+        look.splats(&engine.bundle, &engine.standing_points())?
+    } else {
+        engine.read_splats()?
+    };
     crate::splat::ply::write(&args.out, &splats)?;
     println!("wrote {} splats to {}", splats.len(), args.out.display());
     Ok(())

@@ -14,7 +14,7 @@ use crate::action::{Action, KeyScript};
 use crate::avatar::description::Description;
 use crate::avatar::load_character;
 use crate::avatar::teacher::Teacher;
-use crate::engine::appearance::{self, Appearance};
+use crate::engine::appearance;
 use crate::engine::surface::MapSurface;
 use crate::engine::{Engine, EngineOptions};
 use crate::files::{write_atomic, write_png_atomic};
@@ -23,8 +23,6 @@ use crate::mesh::Mesh;
 use crate::render::OrbitCamera;
 use crate::render::offscreen::Offscreen;
 use crate::render::scene::DrawOptions;
-use crate::splat::ply::Splat;
-use crate::splat::raster::Rasterizer;
 
 /// Who is rendered.
 pub enum Avatar {
@@ -68,16 +66,17 @@ struct FrameRecord {
 /// The avatar being driven, frame by frame.
 enum Driver {
     Teacher(Box<Teacher>),
-    Neural(Box<Engine>, MapSurface, Box<Appearance>),
+    Neural(Box<Engine>, MapSurface),
 }
 
-/// One step's result: the mesh to draw (and for the neural avatar its splats), the
-/// root, and for the neural avatar its points, clamped values and (gpu, cpu, splats) ms.
+/// One step's result: the mesh to draw (and for the neural avatar the engine's splat
+/// buffer and count), the root, and for the neural avatar its points, clamped values and
+/// (frame, cpu) ms.
 struct Step {
     mesh: Mesh,
-    splats: Vec<Splat>,
+    splats: Option<(wgpu::Buffer, usize)>,
     root: Vec3,
-    neural: Option<(Vec<Vec3>, usize, [f64; 3])>,
+    neural: Option<(Vec<Vec3>, usize, [f64; 2])>,
 }
 
 impl Driver {
@@ -93,48 +92,41 @@ impl Driver {
                 Driver::Teacher(Box::new(Teacher::new(character, description)?))
             }
             Avatar::Bundle { dir, options } => {
-                let engine = Engine::new(gpu, dir, options)?;
-                let surface = engine.surface();
                 let level = job
                     .splat_level
                     .unwrap_or_else(|| appearance::default_level(gpu));
-                let mut look = Appearance::new(gpu, &engine.bundle, options.precision, level)?;
-                look.refine = job.refine && engine.bundle.refiner.is_some();
-                Driver::Neural(Box::new(engine), surface, Box::new(look))
+                let options = EngineOptions {
+                    splat_level: (!job.surface).then_some(level),
+                    refine: job.refine,
+                    ..options.clone()
+                };
+                let engine = Engine::new(gpu, dir, &options)?;
+                let surface = engine.surface();
+                Driver::Neural(Box::new(engine), surface)
             }
         })
     }
 
-    /// Steps the avatar; the neural one's base splats are made when `splats` is set.
-    fn step(&mut self, action: Action, splats: bool) -> anyhow::Result<Step> {
+    /// Steps the avatar (the neural one makes its splats on the GPU as part of the
+    /// frame, when asked for at load).
+    fn step(&mut self, action: Action) -> anyhow::Result<Step> {
         Ok(match self {
             Driver::Teacher(teacher) => {
                 teacher.step(action);
                 Step {
                     mesh: teacher.mesh(),
-                    splats: Vec::new(),
+                    splats: None,
                     root: teacher.root(),
                     neural: None,
                 }
             }
-            Driver::Neural(engine, surface, look) => {
+            Driver::Neural(engine, surface) => {
                 let frame = engine.step(action)?;
-                let clock = Instant::now();
-                let splats = if splats {
-                    look.splats(&engine.bundle, &frame.points)?
-                } else {
-                    Vec::new()
-                };
-                let splat_ms = clock.elapsed().as_secs_f64() * 1e3;
                 Step {
-                    splats,
+                    splats: engine.splats().map(|(b, n)| (b.clone(), n)),
                     mesh: surface.mesh(&frame.points),
                     root: frame.root,
-                    neural: Some((
-                        frame.points,
-                        frame.clamped,
-                        [frame.gpu_ms, frame.cpu_ms, splat_ms],
-                    )),
+                    neural: Some((frame.points, frame.clamped, [frame.gpu_ms, frame.cpu_ms])),
                 }
             }
         })
@@ -154,17 +146,14 @@ pub fn render(
         .map(|k| std::f32::consts::PI + std::f32::consts::TAU * k as f32 / job.views as f32)
         .collect();
     let (mut step_ms, mut render_ms, mut write_ms) = (0.0, 0.0, 0.0);
-    let (mut model_ms, mut clamped_total) = ([0.0; 3], 0);
+    let (mut model_ms, mut clamped_total) = ([0.0; 2], 0);
     let mut distance = None;
     let mut frames = Vec::new();
     let total = job.keys.len();
     for index in 0..total {
         let action = job.keys.action_at(index);
         let clock = Instant::now();
-        let step = driver.step(action, !job.surface)?;
-        let splats = (!step.splats.is_empty())
-            .then(|| Rasterizer::upload(offscreen.gpu(), &step.splats))
-            .transpose()?;
+        let step = driver.step(action)?;
         step_ms += clock.elapsed().as_secs_f64() * 1e3;
         let distance = *distance.get_or_insert_with(|| {
             let (lo, hi) = step.mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ONE));
@@ -179,13 +168,10 @@ pub fn render(
                 distance,
             };
             let clock = Instant::now();
-            let image = match &splats {
-                Some(buffer) => offscreen.render_splats(
-                    buffer,
-                    step.splats.len(),
-                    &camera,
-                    &DrawOptions::default(),
-                )?,
+            let image = match &step.splats {
+                Some((buffer, count)) => {
+                    offscreen.render_splats(buffer, *count, &camera, &DrawOptions::default())?
+                }
                 None => offscreen.render(&step.mesh, &camera, &DrawOptions::default())?,
             };
             render_ms += clock.elapsed().as_secs_f64() * 1e3;
@@ -221,15 +207,15 @@ pub fn render(
         (Avatar::Teacher { character, .. }, _) => {
             serde_json::json!({ "teacher": character.display().to_string() })
         }
-        (Avatar::Bundle { dir, options }, Driver::Neural(engine, _, look)) => serde_json::json!({
+        (Avatar::Bundle { dir, options }, Driver::Neural(engine, _)) => serde_json::json!({
             "bundle": dir.display().to_string(),
             "seed": options.seed,
             "ddim_steps": engine.sampling().steps,
             "cfg_scale": engine.sampling().cfg_scale,
             "pca": options.pca,
-            "splat_level": look.level(),
-            "splats_per_frame": look.count(),
-            "refiner": look.refine,
+            "splat_level": engine.splat_level(),
+            "splats_per_frame": engine.splats().map(|(_, n)| n),
+            "refiner": engine.refine(),
             "clamped_values": clamped_total,
         }),
         _ => unreachable!("the driver follows the avatar"),
@@ -243,7 +229,7 @@ pub fn render(
         "frames": frames,
         "timings_ms": {
             "step": step_ms, "render": render_ms, "write": write_ms,
-            "model_gpu": model_ms[0], "model_cpu": model_ms[1], "splats": model_ms[2],
+            "model_and_splats": model_ms[0], "model_cpu": model_ms[1],
         },
     });
     write_atomic(

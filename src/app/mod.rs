@@ -627,8 +627,9 @@ fn neural_hud(ui: &mut egui::Ui, neural: &mut shown::Neural) {
         neural.avatar.fps, neural.frames
     ));
     ui.label(format!(
-        "Model: {:.0} ms GPU + {:.1} ms CPU per frame; splats {:.0} ms",
-        neural.gpu_ms, neural.cpu_ms, neural.splat_ms
+        "Model and splats on the GPU: {:.0} ms per generated frame ({:.1} ms CPU); \
+         the window runs at its own pace",
+        neural.frame_ms, neural.cpu_ms
     ));
     if neural.clamped > 0 {
         ui.colored_label(

@@ -1,7 +1,11 @@
 //! The neural avatar in the window: the engine runs on its own thread so the UI never
 //! waits for the model. The UI publishes the held action and the live settings; the
 //! worker reads them as it starts each generated frame (a key press changes the next
-//! frame, nothing queues), paces itself to the data rate and hands back the newest frame.
+//! frame, nothing queues), paces itself to the data rate and reports each frame. The
+//! frame's splats never leave the GPU: the engine writes them into its splat buffer,
+//! which the window's rasterizer reads (the worker hands over the buffer, not splats).
+//! The engine submits a frame in small parts, each waited for on the worker's thread, so
+//! the window's own frames interleave with the model's work.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
@@ -15,10 +19,10 @@ use crate::action::Action;
 use crate::avatar::locomotion::FRAME_RATE;
 use crate::engine::appearance::{self, Appearance};
 use crate::engine::surface::MapSurface;
-use crate::engine::{Engine, EngineOptions, Frame};
+use crate::engine::{Engine, EngineOptions};
 use crate::gpu::GpuContext;
 use crate::nn::sampler::Sampling;
-use crate::splat::ply::Splat;
+use crate::splat::raster::Rasterizer;
 
 /// What the UI may change while the avatar runs.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -33,11 +37,21 @@ pub struct Settings {
     pub level: usize,
 }
 
-/// A generated frame with its splats (when they are drawn) and their time, ms.
+/// A generated frame as the window needs it.
 pub struct Drawn {
-    pub frame: Frame,
-    pub splats: Option<Vec<Splat>>,
-    pub splat_ms: f64,
+    /// Frames generated so far.
+    pub frames: u64,
+    /// The world root (read back asynchronously: up to a frame late).
+    pub root: Vec3,
+    pub clamped_total: usize,
+    /// The surface points, read back only when the surface is drawn instead of splats.
+    pub points: Option<Vec<Vec3>>,
+    /// The engine's splat buffer and its count (it changes with the splat level).
+    pub splats: Option<(wgpu::Buffer, usize)>,
+    /// The worker's CPU time recording and submitting the frame, and the whole frame
+    /// (submission to submission, GPU work and waits included), ms.
+    pub cpu_ms: f64,
+    pub frame_ms: f64,
 }
 
 /// What the worker reports.
@@ -47,7 +61,8 @@ pub enum Update {
     Ready {
         surface: Box<MapSurface>,
         standing: Vec<Vec3>,
-        splats: Vec<Splat>,
+        /// The engine's splat buffer (holding the standing start) and its count.
+        splats: Option<(wgpu::Buffer, usize)>,
         root: Vec3,
         settings: Settings,
         /// The bundle has a refiner.
@@ -169,24 +184,25 @@ struct Worker {
 
 impl Worker {
     fn run(self, send: &std::sync::mpsc::Sender<Update>) -> anyhow::Result<()> {
+        let level = appearance::default_level(&self.gpu);
         let options = EngineOptions {
             split: true,
+            splat_level: Some(level),
             ..EngineOptions::default()
         };
         let mut engine = Engine::new(&self.gpu, &self.dir, &options)?;
-        let level = appearance::default_level(&self.gpu);
-        let mut look = Appearance::new(&self.gpu, &engine.bundle, options.precision, level)?;
         let mut settings = Settings {
             sampling: engine.sampling(),
             pca: true,
             splats: true,
-            refine: look.refine,
+            refine: engine.refine(),
             level,
         };
         let standing = engine.standing_points();
+        standing_splats(&self.gpu, &engine, &standing, level, settings.refine)?;
         let ready = Update::Ready {
             surface: Box::new(engine.surface()),
-            splats: look.splats(&engine.bundle, &standing)?,
+            splats: engine.splats().map(|(b, n)| (b.clone(), n)),
             standing,
             root: engine.root(),
             settings,
@@ -199,32 +215,41 @@ impl Worker {
         let mut next = Instant::now();
         let mut last = next;
         while !self.stop.load(Ordering::Relaxed) {
+            let mut new_buffer = false;
             if let Some(new) = self.settings.lock().expect("settings lock").take() {
                 engine.set_sampling(new.sampling);
                 engine.set_pca(new.pca);
-                if new.level != settings.level {
-                    look =
-                        Appearance::new(&self.gpu, &engine.bundle, options.precision, new.level)?;
-                }
-                look.refine = new.refine;
+                let before = engine.splat_level();
+                engine.set_refine(new.refine)?;
+                engine.set_splats(Some(new.level))?;
+                new_buffer = before != engine.splat_level() || new.refine != settings.refine;
                 settings = new;
             }
             let action = Action::from_id(self.action.load(Ordering::Relaxed));
-            let frame = engine.step(action)?;
             let clock = Instant::now();
-            let splats = if settings.splats {
-                Some(look.splats(&engine.bundle, &frame.points)?)
-            } else {
+            engine.frame(action)?;
+            let cpu_ms = clock.elapsed().as_secs_f64() * 1e3;
+            engine.poll();
+            let points = if settings.splats {
                 None
+            } else {
+                Some(engine.read_points()?)
             };
-            let splat_ms = clock.elapsed().as_secs_f64() * 1e3;
             let now = Instant::now();
             let interval = now.duration_since(last).as_secs_f64();
             last = now;
+            let state = engine.state();
             let drawn = Drawn {
-                frame,
-                splats,
-                splat_ms,
+                frames: engine.frames(),
+                root: engine.root(),
+                clamped_total: state.clamped_total as usize,
+                points,
+                splats: engine
+                    .splats()
+                    .filter(|_| new_buffer)
+                    .map(|(b, n)| (b.clone(), n)),
+                cpu_ms,
+                frame_ms: interval * 1e3,
             };
             if send.send(Update::Frame(Box::new(drawn), interval)).is_err() {
                 return Ok(());
@@ -240,4 +265,30 @@ impl Worker {
         }
         Ok(())
     }
+}
+
+/// The standing start's splats (CPU path, once at load) into the engine's splat buffer,
+/// so the avatar is drawn before the first generated frame.
+fn standing_splats(
+    gpu: &GpuContext,
+    engine: &Engine,
+    standing: &[Vec3],
+    level: usize,
+    refine: bool,
+) -> anyhow::Result<()> {
+    let Some((buffer, count)) = engine.splats() else {
+        return Ok(());
+    };
+    let mut look = Appearance::new(
+        gpu,
+        &engine.bundle,
+        crate::gpu::kernel::Precision::F32,
+        level,
+    )?;
+    look.refine = refine;
+    let splats = look.splats(&engine.bundle, standing)?;
+    if splats.len() == count {
+        Rasterizer::write(gpu, buffer, &splats);
+    }
+    Ok(())
 }

@@ -15,7 +15,6 @@ use crate::engine::surface::MapSurface;
 use crate::gpu::GpuContext;
 use crate::mesh::Mesh;
 use crate::render::{GpuMesh, SceneRenderer};
-use crate::splat::ply::Splat;
 use crate::splat::raster::Rasterizer;
 
 /// Where the teacher stands when it runs beside the neural avatar.
@@ -35,10 +34,9 @@ pub struct Neural {
     pub root: Vec3,
     pub frames: u64,
     pub clamped: usize,
-    /// The last frame's model time on the GPU and the CPU, and its splats' time, ms.
-    pub gpu_ms: f64,
+    /// The worker's CPU time recording a frame, and its whole frame, ms.
     pub cpu_ms: f64,
-    pub splat_ms: f64,
+    pub frame_ms: f64,
 }
 
 impl Neural {
@@ -63,7 +61,7 @@ impl Neural {
                     refiner,
                 } => {
                     self.mesh = surface.mesh(&standing);
-                    self.upload_splats(gpu, &splats);
+                    self.splats = splats;
                     self.surface = Some((*surface, renderer.upload(gpu, &self.mesh)));
                     self.root = root;
                     self.settings = Some(settings);
@@ -71,20 +69,20 @@ impl Neural {
                     status = Some(None);
                 }
                 Update::Frame(drawn, _) => {
-                    let frame = &drawn.frame;
-                    if let Some((surface, gpu_mesh)) = self.surface.take() {
-                        self.mesh = surface.mesh(&frame.points);
+                    if let (Some(points), Some((surface, gpu_mesh))) =
+                        (&drawn.points, self.surface.take())
+                    {
+                        self.mesh = surface.mesh(points);
                         gpu_mesh.write_vertices(gpu, &self.mesh);
                         self.surface = Some((surface, gpu_mesh));
                     }
-                    if let Some(splats) = &drawn.splats {
-                        self.upload_splats(gpu, splats);
+                    if drawn.splats.is_some() {
+                        self.splats = drawn.splats;
                     }
-                    self.splat_ms = drawn.splat_ms;
-                    self.root = frame.root;
-                    self.frames = frame.index + 1;
-                    self.clamped = frame.clamped_total;
-                    (self.gpu_ms, self.cpu_ms) = (frame.gpu_ms, frame.cpu_ms);
+                    self.root = drawn.root;
+                    self.frames = drawn.frames;
+                    self.clamped = drawn.clamped_total;
+                    (self.cpu_ms, self.frame_ms) = (drawn.cpu_ms, drawn.frame_ms);
                 }
                 Update::Failed(e) => {
                     log::error!("neural avatar: {e}");
@@ -93,19 +91,6 @@ impl Neural {
             }
         }
         status
-    }
-
-    /// A frame's splats into the splat buffer.
-    fn upload_splats(&mut self, gpu: &GpuContext, splats: &[Splat]) {
-        match &self.splats {
-            Some((buffer, count)) if *count == splats.len() => {
-                Rasterizer::write(gpu, buffer, splats)
-            }
-            _ => match Rasterizer::upload(gpu, splats) {
-                Ok(buffer) => self.splats = Some((buffer, splats.len())),
-                Err(e) => log::error!("splats: {e}"),
-            },
-        }
     }
 }
 
@@ -208,9 +193,8 @@ impl Shown {
             root: Vec3::ZERO,
             frames: 0,
             clamped: 0,
-            gpu_ms: 0.0,
+            frame_ms: 0.0,
             cpu_ms: 0.0,
-            splat_ms: 0.0,
         });
         shown
     }

@@ -149,6 +149,10 @@ pub struct Engine {
     frames: u64,
 }
 
+/// Dispatches per submission when a frame is submitted in parts beside a window: about
+/// 30 ms of model work on a 2-core CPU driver, far less on a GPU.
+pub const SPLIT_STEPS: usize = 12;
+
 /// Frame-state readbacks in flight at most (older ones are skipped, not waited for).
 const SLOTS: usize = 3;
 
@@ -377,6 +381,9 @@ impl Engine {
         let bundle = &self.bundle;
         let guided = self.sampling.cfg_scale != 1.0;
         let mut r = Recorder::capture(&self.gpu, &mut self.pipelines, self.precision);
+        if self.split {
+            r.steps().limit_parts(SPLIT_STEPS);
+        }
         let actions = r.indices("engine.actions", &vec![0; if guided { 2 } else { 1 }])?;
         let latent =
             bundle.generate_with(&mut r, &live.context, &actions, &live.noise, self.sampling)?;
@@ -597,6 +604,20 @@ impl Engine {
     pub fn finish(&mut self) {
         self.gpu.wait_idle();
         self.collect();
+    }
+
+    /// The latest frame's points read back (the surface view, tools; waits for the GPU).
+    pub fn read_points(&self) -> Result<Vec<Vec3>, GpuError> {
+        let values: Vec<f32> = bytemuck::pod_collect_to_vec(&readback::buffer(
+            &self.gpu,
+            &self.live.points,
+            "points",
+        )?);
+        Ok(values
+            .chunks_exact(3)
+            .take(self.bundle.pixels.len())
+            .map(|v| Vec3::new(v[0], v[1], v[2]))
+            .collect())
     }
 
     /// Generates the next frame under `action` and waits for it, reading its points

@@ -130,6 +130,8 @@ pub struct Builder<'a> {
     precision: Precision,
     /// The parts recorded so far; the last one is open.
     parts: Vec<Vec<Step>>,
+    /// Start a new part after this many steps (None: only at boundaries).
+    max_part: Option<usize>,
 }
 
 impl<'a> Builder<'a> {
@@ -143,7 +145,14 @@ impl<'a> Builder<'a> {
             pipelines,
             precision,
             parts: vec![Vec::new()],
+            max_part: None,
         }
+    }
+
+    /// Parts of at most `steps` steps from now on (boundaries still split too), so a
+    /// caller that submits part by part keeps every submission short.
+    pub fn limit_parts(&mut self, steps: usize) {
+        self.max_part = Some(steps.max(1));
     }
 
     pub fn gpu(&self) -> &'a GpuContext {
@@ -167,6 +176,12 @@ impl<'a> Builder<'a> {
     }
 
     fn push(&mut self, step: Step) {
+        if self
+            .max_part
+            .is_some_and(|max| self.parts.last().is_some_and(|p| p.len() >= max))
+        {
+            self.parts.push(Vec::new());
+        }
         self.parts.last_mut().expect("an open part").push(step);
     }
 
