@@ -128,6 +128,9 @@ struct UnicaApp {
     message: Option<String>,
     show_help: bool,
     screenshot_requested: bool,
+    /// When the first generated frame arrived, and the window frame then: the window's
+    /// rate while the model runs (printed by `--exit-after`).
+    model_started: Option<(Instant, u64)>,
     /// Where the screenshot callback leaves its result for the exit path.
     outcome: Arc<Mutex<Option<anyhow::Error>>>,
 }
@@ -172,6 +175,7 @@ impl UnicaApp {
             message: None,
             show_help: false,
             screenshot_requested: false,
+            model_started: None,
             outcome,
         };
         if record {
@@ -482,7 +486,17 @@ impl UnicaApp {
             .shown
             .neural
             .as_ref()
-            .map(|n| format!("; {} generated frames", n.frames))
+            .map(|n| {
+                let window = self.model_started.map_or(String::new(), |(t, f)| {
+                    let seconds = t.elapsed().as_secs_f64();
+                    format!(
+                        " ({:.2} per second); the window ran at {:.1} fps while the model ran",
+                        n.frames as f64 / seconds.max(1e-9),
+                        (self.frame - f) as f64 / seconds.max(1e-9)
+                    )
+                });
+                format!("; {} generated frames{window}", n.frames)
+            })
             .unwrap_or_default();
         println!(
             "unica: {} frames rendered; action {}; character {}{generated}",
@@ -526,6 +540,10 @@ impl eframe::App for UnicaApp {
             0.9 * self.frame_ms + 0.1 * dt
         };
 
+        if self.model_started.is_none() && self.shown.neural.as_ref().is_some_and(|n| n.frames > 0)
+        {
+            self.model_started = Some((now, self.frame));
+        }
         self.handle_input(&ctx);
         self.action = match &self.options.keys {
             Some(script) => script.action_at(self.frame as usize),

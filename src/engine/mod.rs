@@ -348,6 +348,16 @@ impl Engine {
         Ok(splats.iter().take(count).map(GpuSplat::to_splat).collect())
     }
 
+    /// Runs the frame plan once more, each dispatch in its own submission waited for, and
+    /// returns the milliseconds by shader (a profile for benchmarks: it advances the
+    /// loop by one frame under `action`).
+    pub fn profile(&mut self, action: Action) -> Result<Vec<(&'static str, usize, f64)>, GpuError> {
+        self.frame(action)?;
+        self.finish();
+        let plan = &self.plan.as_ref().expect("prepared").plan;
+        Ok(plan.profile(&self.gpu))
+    }
+
     /// The frame plan's compute dispatches and FLOPs.
     pub fn plan_counts(&self) -> (usize, u64) {
         self.plan

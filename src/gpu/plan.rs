@@ -11,6 +11,8 @@ use super::shaders::Shader;
 /// One piece of recorded work: everything it binds was created when it was recorded.
 enum Step {
     Dispatch {
+        /// The shader's file (profiles).
+        name: &'static str,
         pipeline: wgpu::ComputePipeline,
         bind_group: wgpu::BindGroup,
         grid: Grid,
@@ -35,6 +37,7 @@ fn encode_steps(gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, steps: &[S
                 pipeline,
                 bind_group,
                 grid,
+                ..
             } => {
                 let pass = pass.get_or_insert_with(|| {
                     encoder
@@ -109,6 +112,37 @@ impl Plan {
         for k in 0..self.parts() {
             self.encode_part(gpu, encoder, k);
         }
+    }
+
+    /// Runs every step in its own submission, waited for (the plan's effects happen once
+    /// more), and returns (shader, dispatches, milliseconds) by shader, slowest first.
+    pub fn profile(&self, gpu: &GpuContext) -> Vec<(&'static str, usize, f64)> {
+        let mut by_name: Vec<(&'static str, usize, f64)> = Vec::new();
+        for step in self.parts.iter().flatten() {
+            let clock = std::time::Instant::now();
+            let mut encoder = gpu
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("profile"),
+                });
+            encode_steps(gpu, &mut encoder, std::slice::from_ref(step));
+            gpu.submit([encoder.finish()]);
+            gpu.wait_idle();
+            let ms = clock.elapsed().as_secs_f64() * 1e3;
+            let name = match step {
+                Step::Dispatch { name, .. } => *name,
+                Step::Copy { .. } => "copy",
+            };
+            match by_name.iter_mut().find(|(n, ..)| *n == name) {
+                Some(entry) => {
+                    entry.1 += 1;
+                    entry.2 += ms;
+                }
+                None => by_name.push((name, 1, ms)),
+            }
+        }
+        by_name.sort_by(|a, b| b.2.total_cmp(&a.2));
+        by_name
     }
 
     /// Runs the whole plan in one submission (nothing is read back).
@@ -206,6 +240,7 @@ impl<'a> Builder<'a> {
             .gpu
             .bind_buffers(&pipeline.get_bind_group_layout(0), &bindings);
         self.push(Step::Dispatch {
+            name: shader.file,
             pipeline,
             bind_group,
             grid,
