@@ -19,3 +19,17 @@ pub mod random;
 pub mod render;
 pub mod splat;
 pub mod tensors;
+
+/// Every WGSL shader of the crate, gathered from the stages that own them (tests check
+/// that this covers every file under `shaders/` and that each parses and validates).
+pub fn shaders() -> Vec<gpu::shaders::Shader> {
+    [
+        gpu::shaders::ALL,
+        nn::kernels::ALL,
+        splat::kernels::ALL,
+        splat::frame::ALL,
+        engine::kernels::ALL,
+        render::scene::ALL,
+    ]
+    .concat()
+}

@@ -170,7 +170,7 @@ fn the_neural_witch_is_generated_and_drawn() {
     let stdout = check(&out);
     let generated: u64 = stdout
         .split("; ")
-        .find_map(|part| part.strip_suffix(" generated frames\n"))
+        .find_map(|part| part.trim_end().strip_suffix(" generated frames"))
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("no generated frame count: {stdout}"));
     assert!(generated >= 1, "{stdout}");

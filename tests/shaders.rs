@@ -10,12 +10,7 @@ use wgpu::naga;
 
 /// Every shader of the crate: the GPU layer's and each stage's own.
 fn all() -> Vec<Shader> {
-    [
-        unica::gpu::shaders::ALL,
-        unica::engine::kernels::ALL,
-        unica::splat::frame::ALL,
-    ]
-    .concat()
+    unica::shaders()
 }
 
 /// The `.wgsl` files under `dir`, named relative to `shaders/` (one level of stage folders).
@@ -78,7 +73,7 @@ fn every_shader_parses_and_validates_with_only_the_features_it_declares() {
 
 #[test]
 fn the_f32_variant_of_an_elem_shader_needs_no_f16() {
-    let shader = unica::gpu::shaders::CONV2D;
+    let shader = unica::nn::kernels::CONV2D;
     assert!(!shader.needs_f16_for(Precision::F32));
     assert!(shader.needs_f16_for(Precision::F16));
     assert!(shader.source(Precision::F16).starts_with("enable f16;"));

@@ -10,13 +10,9 @@
 @group(0) @binding(5) var<storage, read> coefficients: array<f32>;
 @group(0) @binding(6) var<storage, read_write> points: array<f32>;
 
-@compute @workgroup_size(64)
-fn main(
-    @builtin(workgroup_id) group: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) lane: u32,
-) {
-    let i = (group.x + group.y * groups.x) * 64u + lane;
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let i = linear_index(invocation);
     let d = 3u * p.points;
     if i >= d {
         return;

@@ -8,13 +8,9 @@
 @group(0) @binding(4) var<storage, read> state: FrameState;
 @group(0) @binding(5) var<storage, read_write> coefficients: array<f32>;
 
-@compute @workgroup_size(64)
-fn main(
-    @builtin(workgroup_id) group: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) lane: u32,
-) {
-    let k = (group.x + group.y * groups.x) * 64u + lane;
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let k = linear_index(invocation);
     if k >= p.components {
         return;
     }

@@ -9,13 +9,9 @@
 @group(0) @binding(4) var<storage, read_write> state: FrameState;
 @group(0) @binding(5) var<storage, read_write> window: array<Elem>;
 
-@compute @workgroup_size(64)
-fn main(
-    @builtin(workgroup_id) group: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) lane: u32,
-) {
-    let i = (group.x + group.y * groups.x) * 64u + lane;
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let i = linear_index(invocation);
     if i >= p.frames * p.latent {
         return;
     }

@@ -88,13 +88,9 @@ fn quat_from_frame(x: vec3<f32>, y: vec3<f32>, z: vec3<f32>) -> vec4<f32> {
     return q * (1.0 / l);
 }
 
-@compute @workgroup_size(64)
-fn main(
-    @builtin(workgroup_id) group: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) lane: u32,
-) {
-    let i = (group.x + group.y * groups.x) * 64u + lane;
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let i = linear_index(invocation);
     if i >= p.points {
         return;
     }

@@ -50,13 +50,9 @@ fn hilbert(cell: vec3<u32>) -> u32 {
     return interleave(vec3<u32>(x[0] ^ t, x[1] ^ t, x[2] ^ t));
 }
 
-@compute @workgroup_size(64)
-fn main(
-    @builtin(workgroup_id) group: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) lane: u32,
-) {
-    let i = (group.x + group.y * groups.x) * 64u + lane;
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let i = linear_index(invocation);
     if i >= p.points {
         return;
     }

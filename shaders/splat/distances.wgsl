@@ -9,13 +9,9 @@ fn point(i: u32) -> vec3<f32> {
     return vec3<f32>(points[3u * i], points[3u * i + 1u], points[3u * i + 2u]);
 }
 
-@compute @workgroup_size(64)
-fn main(
-    @builtin(workgroup_id) group: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) lane: u32,
-) {
-    let m = (group.x + group.y * groups.x) * 64u + lane;
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let m = linear_index(invocation);
     if m >= p.pairs {
         return;
     }

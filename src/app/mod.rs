@@ -490,7 +490,8 @@ impl UnicaApp {
                 let window = self.model_started.map_or(String::new(), |(t, f)| {
                     let seconds = t.elapsed().as_secs_f64();
                     format!(
-                        " ({:.2} per second); the window ran at {:.1} fps while the model ran",
+                        "; {:.2} generated per second; the window ran at {:.1} fps while the \
+                         model ran",
                         n.frames as f64 / seconds.max(1e-9),
                         (self.frame - f) as f64 / seconds.max(1e-9)
                     )

@@ -97,12 +97,40 @@ pub struct Shader {
     pub elem: bool,
     /// Rust constants declared as WGSL `const NAME: f32` before the file (one definition).
     pub constants: &'static [(&'static str, f32)],
+    /// Rust constants declared as WGSL `const NAME: u32` before the file.
+    pub uints: &'static [(&'static str, u32)],
+}
+
+/// What every shader starts with (after its `enable` and `Elem` lines): the workgroup
+/// size of the 1-D kernels from [`WORKGROUP_SIZE`](super::kernel::WORKGROUP_SIZE), and
+/// the entry point's builtins with the linear index of a 2-D dispatch grid
+/// (see [`Grid`](super::kernel::Grid)), so no kernel repeats them.
+pub fn prelude() -> String {
+    format!(
+        "const WORKGROUP: u32 = {}u;
+struct Invocation {{
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lane: u32,
+}}
+fn linear_index(invocation: Invocation) -> u32 {{
+    return (invocation.group.x + invocation.group.y * invocation.groups.x) * WORKGROUP
+        + invocation.lane;
+}}
+",
+        super::kernel::WORKGROUP_SIZE
+    )
 }
 
 impl Shader {
     /// This shader with `constants` declared in its prelude.
     pub const fn with_constants(self, constants: &'static [(&'static str, f32)]) -> Self {
         Self { constants, ..self }
+    }
+
+    /// This shader with integer `uints` declared in its prelude.
+    pub const fn with_uints(self, uints: &'static [(&'static str, u32)]) -> Self {
+        Self { uints, ..self }
     }
 
     /// Whether the variant for `precision` needs SHADER_F16.
@@ -125,8 +153,12 @@ impl Shader {
             };
             out.push_str(&format!("alias Elem = {elem};\n"));
         }
+        out.push_str(&prelude());
         for (name, value) in self.constants {
             out.push_str(&format!("const {name}: f32 = {value:?};\n"));
+        }
+        for (name, value) in self.uints {
+            out.push_str(&format!("const {name}: u32 = {value}u;\n"));
         }
         for s in self.structs {
             out.push_str(&(s.wgsl)());
@@ -162,84 +194,22 @@ macro_rules! wgsl_shader {
             needs_subgroups: $sg,
             elem: $elem,
             constants: &[],
+            uints: &[],
         }
     };
 }
 use crate::wgsl_shader as shader;
 
 use super::kernel::{ElementwiseParams, Precision, ReduceParams};
-use crate::nn::ops::{
-    AddParams, AttentionParams, AxpbyParams, ConcatParams, Conv2dParams, EmbeddingParams,
-    GatherParams, GroupNormParams, LinearParams, PermuteParams, SegmentParams, UpsampleParams,
-};
-use crate::render::SceneUniforms;
-use crate::splat::composite::CompositeParams;
-use crate::splat::raster::{GpuSplat, ProjectedSplat, RadixParams, ScanParams, SplatFrame};
-use crate::splat::upscale::UpscaleParams;
 
-pub const SCALE_ADD: Shader = shader!("scale_add.wgsl", [ElementwiseParams], elem);
+// The GPU layer's own example kernels; every stage declares its own shaders beside its
+// dispatch code (`nn::kernels`, `splat::kernels`, `splat::frame`, `engine::kernels`,
+// `render::scene`), and `crate::shaders()` lists them all.
+pub const SCALE_ADD: Shader = shader!("gpu/scale_add.wgsl", [ElementwiseParams], elem);
 pub const SUM_SHARED: Shader =
-    shader!("sum_shared.wgsl", [ReduceParams], f16: false, subgroups: false);
+    shader!("gpu/sum_shared.wgsl", [ReduceParams], f16: false, subgroups: false);
 pub const SUM_SUBGROUP: Shader =
-    shader!("sum_subgroup.wgsl", [ReduceParams], f16: false, subgroups: true);
-pub const SCENE: Shader = shader!("scene.wgsl", [SceneUniforms], f16: false, subgroups: false);
-pub const CONV2D: Shader = shader!("conv2d.wgsl", [Conv2dParams], elem);
-pub const UPSAMPLE_NEAREST: Shader = shader!("upsample_nearest.wgsl", [UpsampleParams], elem);
-pub const GROUP_NORM: Shader = shader!("group_norm.wgsl", [GroupNormParams], elem);
-pub const LINEAR: Shader = shader!("linear.wgsl", [LinearParams], elem);
-pub const ADD: Shader = shader!("add.wgsl", [AddParams], elem);
-pub const PERMUTE: Shader = shader!("permute.wgsl", [PermuteParams], elem);
-pub const CONCAT: Shader = shader!("concat.wgsl", [ConcatParams], elem);
-pub const AXPBY: Shader = shader!("axpby.wgsl", [AxpbyParams], elem);
-pub const ATTENTION: Shader = shader!("attention.wgsl", [AttentionParams], elem);
-pub const SPLAT_PROJECT: Shader = shader!("splat_project.wgsl", [SplatFrame, GpuSplat, ProjectedSplat], f16: false, subgroups: false);
-pub const SCAN_BLOCKS: Shader =
-    shader!("scan_blocks.wgsl", [ScanParams], f16: false, subgroups: false);
-pub const SCAN_ADD: Shader = shader!("scan_add.wgsl", [ScanParams], f16: false, subgroups: false);
-pub const SPLAT_KEYS: Shader =
-    shader!("splat_keys.wgsl", [SplatFrame, ProjectedSplat], f16: false, subgroups: false);
-pub const RADIX_HISTOGRAM: Shader =
-    shader!("radix_histogram.wgsl", [RadixParams], f16: false, subgroups: false);
-pub const RADIX_SCATTER: Shader =
-    shader!("radix_scatter.wgsl", [RadixParams], f16: false, subgroups: false);
-pub const SPLAT_RANGES: Shader =
-    shader!("splat_ranges.wgsl", [SplatFrame], f16: false, subgroups: false);
-pub const SPLAT_RENDER: Shader =
-    shader!("splat_render.wgsl", [SplatFrame, ProjectedSplat], f16: false, subgroups: false);
-pub const SPLAT_COMPOSITE: Shader =
-    shader!("splat_composite.wgsl", [CompositeParams], f16: false, subgroups: false);
-pub const UPSCALE_MAP: Shader =
-    shader!("upscale_map.wgsl", [UpscaleParams], f16: false, subgroups: false);
-pub const TIMESTEP_EMBEDDING: Shader = shader!("timestep_embedding.wgsl", [EmbeddingParams], elem);
-pub const GATHER: Shader = shader!("gather.wgsl", [GatherParams], elem);
-pub const SEGMENT_MEAN: Shader = shader!("segment_mean.wgsl", [SegmentParams], elem);
+    shader!("gpu/sum_subgroup.wgsl", [ReduceParams], f16: false, subgroups: true);
 
-/// Every shader of the crate; a test checks this covers every file in `shaders/`.
-pub const ALL: &[Shader] = &[
-    SCALE_ADD,
-    SUM_SHARED,
-    SUM_SUBGROUP,
-    SCENE,
-    CONV2D,
-    UPSAMPLE_NEAREST,
-    GROUP_NORM,
-    LINEAR,
-    ADD,
-    PERMUTE,
-    CONCAT,
-    AXPBY,
-    ATTENTION,
-    TIMESTEP_EMBEDDING,
-    SPLAT_PROJECT,
-    SCAN_BLOCKS,
-    SCAN_ADD,
-    SPLAT_KEYS,
-    RADIX_HISTOGRAM,
-    RADIX_SCATTER,
-    SPLAT_RANGES,
-    SPLAT_RENDER,
-    SPLAT_COMPOSITE,
-    UPSCALE_MAP,
-    GATHER,
-    SEGMENT_MEAN,
-];
+/// The GPU layer's shaders.
+pub const ALL: &[Shader] = &[SCALE_ADD, SUM_SHARED, SUM_SUBGROUP];

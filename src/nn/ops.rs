@@ -6,7 +6,8 @@
 use super::Tensor;
 use crate::gpu::kernel::{Grid, PipelineCache, Precision};
 pub use crate::gpu::plan::{Builder, Plan};
-use crate::gpu::shaders::{self, Shader};
+use crate::gpu::shaders::Shader;
+use super::kernels;
 use crate::gpu::{GpuContext, GpuError};
 use crate::gpu_struct;
 
@@ -424,7 +425,7 @@ impl<'a> Recorder<'a> {
         let bias = bias.unwrap_or(weight);
         // One thread per output pixel and block of 8 output channels.
         let grid = self.grid(n * c_out.div_ceil(8) * h_out * w_out);
-        self.launch(&shaders::CONV2D, &params, &[x, weight, bias, &y], grid);
+        self.launch(&kernels::CONV2D, &params, &[x, weight, bias, &y], grid);
         Ok(y)
     }
 
@@ -441,7 +442,7 @@ impl<'a> Recorder<'a> {
             reserved: 0,
         };
         let grid = self.grid(y.len());
-        self.launch(&shaders::UPSAMPLE_NEAREST, &params, &[x, &y], grid);
+        self.launch(&kernels::UPSAMPLE_NEAREST, &params, &[x, &y], grid);
         Ok(y)
     }
 
@@ -478,7 +479,7 @@ impl<'a> Recorder<'a> {
                 .limits()
                 .max_compute_workgroups_per_dimension,
         );
-        self.launch(&shaders::GROUP_NORM, &params, &[x, gamma, beta, &y], grid);
+        self.launch(&kernels::GROUP_NORM, &params, &[x, gamma, beta, &y], grid);
         Ok(y)
     }
 
@@ -510,7 +511,7 @@ impl<'a> Recorder<'a> {
             input_silu: u32::from(input_silu),
         };
         let grid = self.grid(y.len());
-        self.launch(&shaders::LINEAR, &params, &[x, weight, bias, &y], grid);
+        self.launch(&kernels::LINEAR, &params, &[x, weight, bias, &y], grid);
         Ok(y)
     }
 
@@ -550,7 +551,7 @@ impl<'a> Recorder<'a> {
             b_offset: part.start as u32,
         };
         let grid = self.grid(y.len());
-        self.launch(&shaders::ADD, &params, &[a, b, &y], grid);
+        self.launch(&kernels::ADD, &params, &[a, b, &y], grid);
         Ok(y)
     }
 
@@ -574,7 +575,7 @@ impl<'a> Recorder<'a> {
             perm: perm.map(|k| k as u32),
         };
         let grid = self.grid(y.len());
-        self.launch(&shaders::PERMUTE, &params, &[x, &y], grid);
+        self.launch(&kernels::PERMUTE, &params, &[x, &y], grid);
         Ok(y)
     }
 
@@ -602,7 +603,7 @@ impl<'a> Recorder<'a> {
             reserved: 0,
         };
         let grid = self.grid(y.len());
-        self.launch(&shaders::CONCAT, &params, &[a, b, &y], grid);
+        self.launch(&kernels::CONCAT, &params, &[a, b, &y], grid);
         Ok(y)
     }
 
@@ -635,7 +636,7 @@ impl<'a> Recorder<'a> {
             reserved2: 0,
         };
         let grid = self.grid(y.len());
-        self.launch(&shaders::AXPBY, &params, &[x, z, &y], grid);
+        self.launch(&kernels::AXPBY, &params, &[x, z, &y], grid);
         Ok(y)
     }
 
@@ -660,7 +661,7 @@ impl<'a> Recorder<'a> {
         let y = self.output("attention.y", &shape)?;
         self.flops += 4 * (y.len() as u64) * params.keys as u64;
         let grid = self.grid((params.sequences * params.heads * params.queries) as usize);
-        self.launch(&shaders::ATTENTION, &params, &[q, kv, &y], grid);
+        self.launch(&kernels::ATTENTION, &params, &[q, kv, &y], grid);
         Ok(y)
     }
 
@@ -675,7 +676,7 @@ impl<'a> Recorder<'a> {
             reserved1: 0,
         };
         let grid = self.grid(t.len() * dim / 2);
-        self.launch(&shaders::TIMESTEP_EMBEDDING, &params, &[t, &y], grid);
+        self.launch(&kernels::TIMESTEP_EMBEDDING, &params, &[t, &y], grid);
         Ok(y)
     }
 
@@ -734,7 +735,7 @@ impl<'a> Recorder<'a> {
         };
         let grid = self.grid(y.len());
         self.launch_buffers(
-            &shaders::GATHER,
+            &kernels::GATHER,
             &params,
             &[&index.buffer, &x.buffer, &y.buffer],
             grid,
@@ -759,7 +760,7 @@ impl<'a> Recorder<'a> {
             reserved: 0,
         };
         let grid = self.grid(y.len());
-        self.launch(&shaders::SEGMENT_MEAN, &params, &[x, &y], grid);
+        self.launch(&kernels::SEGMENT_MEAN, &params, &[x, &y], grid);
         Ok(y)
     }
 }

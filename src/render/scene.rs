@@ -6,7 +6,8 @@ use glam::{Vec3, Vec4};
 use super::OrbitCamera;
 use crate::gpu::kernel::Precision;
 use crate::gpu::timing::PassTimer;
-use crate::gpu::{GpuContext, shaders};
+use crate::gpu::GpuContext;
+use crate::gpu::shaders::Shader;
 use crate::gpu_struct;
 use crate::mesh::Mesh;
 
@@ -31,6 +32,12 @@ gpu_struct! {
         pub ground_ambient: glam::Vec4,
     }
 }
+
+/// The scene's shader (WGSL in `shaders/render/`).
+pub const SCENE: Shader = crate::wgsl_shader!("render/scene.wgsl", [SceneUniforms], f16: false, subgroups: false);
+
+/// The render stage's shaders.
+pub const ALL: &[Shader] = &[SCENE];
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -115,7 +122,7 @@ pub struct SceneRenderer {
 impl SceneRenderer {
     pub fn new(gpu: &GpuContext) -> Self {
         let device = &gpu.device;
-        let module = shaders::SCENE.module(device, Precision::F32);
+        let module = SCENE.module(device, Precision::F32);
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("scene"),
             entries: &[wgpu::BindGroupLayoutEntry {

@@ -3,7 +3,7 @@
 
 use crate::gpu::GpuContext;
 use crate::gpu::kernel::{Precision, uniform};
-use crate::gpu::shaders;
+use super::kernels;
 use crate::gpu_struct;
 use crate::render::RenderTarget;
 
@@ -23,7 +23,7 @@ pub struct Compositor {
 
 impl Compositor {
     pub fn new(gpu: &GpuContext, format: wgpu::TextureFormat) -> Self {
-        let module = shaders::SPLAT_COMPOSITE.module(&gpu.device, Precision::F32);
+        let module = kernels::SPLAT_COMPOSITE.module(&gpu.device, Precision::F32);
         let blend = wgpu::BlendComponent {
             src_factor: wgpu::BlendFactor::One,
             dst_factor: wgpu::BlendFactor::OneMinusSrcAlpha,

@@ -17,7 +17,8 @@ use super::raster::GpuSplat;
 use super::upscale::UpscaleParams;
 use crate::gpu::kernel::{Grid, Precision};
 use crate::gpu::plan::Builder;
-use crate::gpu::shaders::{self, Shader};
+use super::kernels;
+use crate::gpu::shaders::Shader;
 use crate::gpu::{GpuContext, GpuError};
 use crate::gpu_struct;
 use crate::wgsl_shader;
@@ -600,7 +601,7 @@ impl SplatFrame {
             sp.first = first as u32;
             b.dispatch(&SCATTER, &sp, &[rows, &c.pixels, &f.map], coarse_grid);
             b.dispatch(
-                &shaders::UPSCALE_MAP,
+                &kernels::UPSCALE_MAP,
                 &upscale,
                 &[&f.map, &f.mask, &f.up_map, &f.up_mask],
                 up_grid,

@@ -8,6 +8,7 @@ pub mod align;
 pub mod base;
 pub mod composite;
 pub mod frame;
+pub mod kernels;
 pub mod ply;
 pub mod project;
 pub mod raster;

@@ -9,7 +9,8 @@ use glam::{Mat4, Vec3};
 use super::ply::Splat;
 use super::project::SplatCamera;
 use crate::gpu::kernel::{Grid, PipelineCache, Precision, dispatch, uniform};
-use crate::gpu::shaders::{self, Shader};
+use super::kernels;
+use crate::gpu::shaders::Shader;
 use crate::gpu::{GpuContext, GpuError};
 use crate::gpu_struct;
 
@@ -255,7 +256,7 @@ impl Rasterizer {
         self.run(
             gpu,
             encoder,
-            &shaders::SPLAT_PROJECT,
+            &kernels::SPLAT_PROJECT,
             &[&frame, splats, &b.projected, &b.touched],
             threads(count),
         );
@@ -273,7 +274,7 @@ impl Rasterizer {
         self.run(
             gpu,
             encoder,
-            &shaders::SPLAT_KEYS,
+            &kernels::SPLAT_KEYS,
             &bindings,
             threads(count),
         );
@@ -292,7 +293,7 @@ impl Rasterizer {
             self.run(
                 gpu,
                 encoder,
-                &shaders::RADIX_HISTOGRAM,
+                &kernels::RADIX_HISTOGRAM,
                 &bindings,
                 groups(blocks),
             );
@@ -309,7 +310,7 @@ impl Rasterizer {
             self.run(
                 gpu,
                 encoder,
-                &shaders::RADIX_SCATTER,
+                &kernels::RADIX_SCATTER,
                 &bindings,
                 groups(blocks),
             );
@@ -318,7 +319,7 @@ impl Rasterizer {
         self.run(
             gpu,
             encoder,
-            &shaders::SPLAT_RANGES,
+            &kernels::SPLAT_RANGES,
             &[&b.keys[0], &b.info, &b.ranges],
             threads(capacity),
         );
@@ -326,7 +327,7 @@ impl Rasterizer {
         self.run(
             gpu,
             encoder,
-            &shaders::SPLAT_RENDER,
+            &kernels::SPLAT_RENDER,
             &bindings,
             groups((tiles_x * tiles_y) as usize),
         );
@@ -364,7 +365,7 @@ impl Rasterizer {
         self.run(
             gpu,
             encoder,
-            &shaders::SCAN_BLOCKS,
+            &kernels::SCAN_BLOCKS,
             &[&params, data, &sums],
             grid,
         );
@@ -373,7 +374,7 @@ impl Rasterizer {
             self.run(
                 gpu,
                 encoder,
-                &shaders::SCAN_ADD,
+                &kernels::SCAN_ADD,
                 &[&params, data, &sums],
                 grid,
             );

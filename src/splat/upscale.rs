@@ -2,7 +2,8 @@
 //! (shaders/upscale_map.wgsl) and its CPU reference, the same arithmetic in f32.
 
 use crate::gpu::kernel::{Grid, PipelineCache, Precision, dispatch, uniform};
-use crate::gpu::{GpuContext, GpuError, shaders};
+use super::kernels;
+use crate::gpu::{GpuContext, GpuError};
 use crate::gpu_struct;
 
 gpu_struct! {
@@ -91,7 +92,7 @@ pub fn record(
         reserved: 0,
     };
     let params = uniform(gpu, &params);
-    let pipeline = pipelines.get(&gpu.device, &shaders::UPSCALE_MAP, Precision::F32);
+    let pipeline = pipelines.get(&gpu.device, &kernels::UPSCALE_MAP, Precision::F32);
     let grid = Grid::for_elements(
         pixels as u32,
         gpu.device.limits().max_compute_workgroups_per_dimension,

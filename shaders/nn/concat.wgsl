@@ -7,13 +7,9 @@
 @group(0) @binding(2) var<storage, read> b: array<Elem>;
 @group(0) @binding(3) var<storage, read_write> y: array<Elem>;
 
-@compute @workgroup_size(64)
-fn main(
-    @builtin(workgroup_id) group: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) lane: u32,
-) {
-    let i = (group.x + group.y * groups.x) * 64u + lane;
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let i = linear_index(invocation);
     let row = p.a_inner + p.b_inner;
     if i >= p.outer * row {
         return;

@@ -4,20 +4,16 @@
 // splitting; `kv_share` consecutive sequences read the same keys (one action token for
 // every frame of a group). One thread per (sequence, head, query), an online softmax in
 // one pass over the keys. With `causal` set, query i sees keys j <= i + keys - queries
-// (the queries are the last ones of the sequence). Head size at most 64 (host-checked).
+// (the queries are the last ones of the sequence). Head size at most MAX_HEAD_SIZE (host-checked).
 
 @group(0) @binding(0) var<uniform> p: AttentionParams;
 @group(0) @binding(1) var<storage, read> q: array<Elem>;
 @group(0) @binding(2) var<storage, read> kv: array<Elem>;
 @group(0) @binding(3) var<storage, read_write> out: array<Elem>;
 
-@compute @workgroup_size(64)
-fn main(
-    @builtin(workgroup_id) group: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) lane: u32,
-) {
-    let id = (group.x + group.y * groups.x) * 64u + lane;
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let id = linear_index(invocation);
     if id >= p.sequences * p.heads * p.queries {
         return;
     }
@@ -32,7 +28,7 @@ fn main(
     if p.causal != 0u {
         keys = min(keys, i + 1u + p.keys - p.queries);
     }
-    var acc: array<f32, 64>;
+    var acc: array<f32, MAX_HEAD_SIZE>;
     var best = -3.0e38;
     var total = 0.0;
     for (var j = 0u; j < keys; j++) {

@@ -25,8 +25,8 @@ fn main(
     let valid_tile = tile < tiles;
     let tx = tile % f.tiles_x;
     let ty = tile / f.tiles_x;
-    let x = tx * 16u + lane % 16u;
-    let y = ty * 16u + lane / 16u;
+    let x = tx * TILE + lane % TILE;
+    let y = ty * TILE + lane / TILE;
     let inside = valid_tile && x < f.width && y < f.height;
     let pixel = vec2<f32>(f32(x) + 0.5, f32(y) + 0.5);
     var range = vec2<u32>(0u, 0u);

@@ -4,13 +4,9 @@
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read_write> y: array<Elem>;
 
-@compute @workgroup_size(64)
-fn main(
-    @builtin(workgroup_id) group: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) lane: u32,
-) {
-    let i = (group.x + group.y * groups.x) * 64u + lane;
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let i = linear_index(invocation);
     let w_out = 2u * p.w_in;
     let h_out = 2u * p.h_in;
     if i >= p.planes * h_out * w_out {

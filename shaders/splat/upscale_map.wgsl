@@ -9,13 +9,9 @@
 @group(0) @binding(3) var<storage, read_write> out_map: array<f32>;
 @group(0) @binding(4) var<storage, read_write> out_mask: array<f32>;
 
-@compute @workgroup_size(64)
-fn main(
-    @builtin(workgroup_id) group: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) lane: u32,
-) {
-    let i = (group.x + group.y * groups.x) * 64u + lane;
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let i = linear_index(invocation);
     let w_out = p.width * p.factor;
     let h_out = p.height * p.factor;
     if i >= w_out * h_out {

@@ -1,0 +1,40 @@
+//! The geometry model's kernels: each shader (WGSL in `shaders/nn/`) with the parameter
+//! struct it shares with Rust (declared in `ops`); `Recorder` dispatches them.
+
+use super::ops::{
+    AddParams, AttentionParams, AxpbyParams, ConcatParams, Conv2dParams, EmbeddingParams,
+    GatherParams, GroupNormParams, LinearParams, PermuteParams, SegmentParams, UpsampleParams,
+};
+use crate::gpu::shaders::Shader;
+use crate::wgsl_shader as shader;
+
+pub const CONV2D: Shader = shader!("nn/conv2d.wgsl", [Conv2dParams], elem);
+pub const UPSAMPLE_NEAREST: Shader = shader!("nn/upsample_nearest.wgsl", [UpsampleParams], elem);
+pub const GROUP_NORM: Shader = shader!("nn/group_norm.wgsl", [GroupNormParams], elem);
+pub const LINEAR: Shader = shader!("nn/linear.wgsl", [LinearParams], elem);
+pub const ADD: Shader = shader!("nn/add.wgsl", [AddParams], elem);
+pub const PERMUTE: Shader = shader!("nn/permute.wgsl", [PermuteParams], elem);
+pub const CONCAT: Shader = shader!("nn/concat.wgsl", [ConcatParams], elem);
+pub const AXPBY: Shader = shader!("nn/axpby.wgsl", [AxpbyParams], elem);
+pub const ATTENTION: Shader = shader!("nn/attention.wgsl", [AttentionParams], elem)
+    .with_uints(&[("MAX_HEAD_SIZE", super::ops::MAX_HEAD_SIZE as u32)]);
+pub const TIMESTEP_EMBEDDING: Shader =
+    shader!("nn/timestep_embedding.wgsl", [EmbeddingParams], elem);
+pub const GATHER: Shader = shader!("nn/gather.wgsl", [GatherParams], elem);
+pub const SEGMENT_MEAN: Shader = shader!("nn/segment_mean.wgsl", [SegmentParams], elem);
+
+/// Every shader of the model.
+pub const ALL: &[Shader] = &[
+    CONV2D,
+    UPSAMPLE_NEAREST,
+    GROUP_NORM,
+    LINEAR,
+    ADD,
+    PERMUTE,
+    CONCAT,
+    AXPBY,
+    ATTENTION,
+    TIMESTEP_EMBEDDING,
+    GATHER,
+    SEGMENT_MEAN,
+];
