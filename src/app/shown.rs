@@ -39,6 +39,8 @@ pub struct Neural {
     pub gpu_ms: f64,
     pub cpu_ms: f64,
     pub splat_ms: f64,
+    /// Why the worker stopped, until the app takes it.
+    pub failure: Option<String>,
 }
 
 impl Neural {
@@ -89,6 +91,7 @@ impl Neural {
                 Update::Failed(e) => {
                     log::error!("neural avatar: {e}");
                     status = Some(Some(format!("The neural avatar stopped: {e}")));
+                    self.failure = Some(e);
                 }
             }
         }
@@ -211,6 +214,7 @@ impl Shown {
             gpu_ms: 0.0,
             cpu_ms: 0.0,
             splat_ms: 0.0,
+            failure: None,
         });
         shown
     }
