@@ -127,7 +127,9 @@ impl KeyScript {
     /// The action of frame `frame`; Idle after the script ends.
     pub fn action_at(&self, frame: usize) -> Action {
         let run = self.runs.partition_point(|&(_, end)| end <= frame);
-        self.runs.get(run).map_or(Action::Idle, |&(action, _)| action)
+        self.runs
+            .get(run)
+            .map_or(Action::Idle, |&(action, _)| action)
     }
 }
 
@@ -203,14 +205,21 @@ mod tests {
         );
         assert!(KeyScript::parse("-3W").is_err());
         assert!(KeyScript::parse("+3W").is_err());
-        for huge in ["99999999999999W", "3000000000W", "999999999999999999999999W"] {
+        for huge in [
+            "99999999999999W",
+            "3000000000W",
+            "999999999999999999999999W",
+        ] {
             assert_eq!(
                 KeyScript::parse(huge).unwrap_err().problem,
                 "the script asks for more than 1,000,000 frames"
             );
         }
         assert!(KeyScript::parse("600000W 400001S").is_err());
-        assert_eq!(KeyScript::parse("600000W 400000S").unwrap().len(), 1_000_000);
+        assert_eq!(
+            KeyScript::parse("600000W 400000S").unwrap().len(),
+            1_000_000
+        );
         assert!(KeyScript::parse("3é").is_err());
         assert!(e.to_string().contains("'10X'"));
     }

@@ -15,7 +15,12 @@ pub struct WriteError {
 
 impl std::fmt::Display for WriteError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "could not write {}: {}", self.path.display(), self.source)
+        write!(
+            f,
+            "could not write {}: {}",
+            self.path.display(),
+            self.source
+        )
     }
 }
 

@@ -329,7 +329,9 @@ mod tests {
         };
         assert_eq!(listed(), 0);
         for n in 1..=3 {
-            writer.write(&image(n as u8), moment(Action::Right)).unwrap();
+            writer
+                .write(&image(n as u8), moment(Action::Right))
+                .unwrap();
             // No stop, no drop: what a kill -9 would leave.
             assert_eq!(listed(), n);
         }

@@ -91,8 +91,15 @@ pub fn load_character(path: &Path) -> Result<Character, LoadError> {
             ),
         ));
     }
-    if let Some(v) = skinned.weights.iter().position(|w| !w.iter().all(|x| x.is_finite())) {
-        return Err(fail(path, format!("vertex {v} has a non-finite skin weight")));
+    if let Some(v) = skinned
+        .weights
+        .iter()
+        .position(|w| !w.iter().all(|x| x.is_finite()))
+    {
+        return Err(fail(
+            path,
+            format!("vertex {v} has a non-finite skin weight"),
+        ));
     }
     if let Some(b) = rig.bones.iter().position(|b| !b.inverse_bind.is_finite()) {
         return Err(fail(

@@ -39,7 +39,11 @@ pub fn import(path: &Path) -> Result<Imported, LoadError> {
         return Err(fail(path, "not a GLB file (it does not start with 'glTF')"));
     }
     let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| {
-        let kind = if glb { "not a valid GLB file" } else { "not valid glTF JSON" };
+        let kind = if glb {
+            "not a valid GLB file"
+        } else {
+            "not valid glTF JSON"
+        };
         fail(path, format!("{kind}: {e}"))
     })?;
     let base = path.parent().unwrap_or(Path::new("."));
@@ -174,13 +178,19 @@ fn check_extent(
     if count.saturating_mul(a.size()) > MAX_BYTES {
         return Err(fail(
             path,
-            format!("{name}: {count} elements of {} bytes are more than 256 MiB", a.size()),
+            format!(
+                "{name}: {count} elements of {} bytes are more than 256 MiB",
+                a.size()
+            ),
         ));
     }
     match a.view() {
         Some(view) => fits(path, &name, &view, a.offset(), count, a.size(), buffers)?,
         None if a.sparse().is_none() => {
-            return Err(fail(path, format!("{name} has no bufferView and is not sparse")));
+            return Err(fail(
+                path,
+                format!("{name} has no bufferView and is not sparse"),
+            ));
         }
         None => {}
     }
@@ -195,10 +205,26 @@ fn check_extent(
         let indices = sparse.indices();
         let what = format!("{name} sparse indices");
         let size = indices.index_type().size();
-        fits(path, &what, &indices.view(), indices.offset(), n, size, buffers)?;
+        fits(
+            path,
+            &what,
+            &indices.view(),
+            indices.offset(),
+            n,
+            size,
+            buffers,
+        )?;
         let values = sparse.values();
         let what = format!("{name} sparse values");
-        fits(path, &what, &values.view(), values.offset(), n, a.size(), buffers)?;
+        fits(
+            path,
+            &what,
+            &values.view(),
+            values.offset(),
+            n,
+            a.size(),
+            buffers,
+        )?;
     }
     Ok(())
 }

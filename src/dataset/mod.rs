@@ -149,7 +149,10 @@ impl Dataset {
         if !(manifest.norm_scale.is_finite() && manifest.norm_scale > 0.0) {
             return Err(invalid(
                 &manifest_path,
-                format!("norm_scale {} is not a positive number", manifest.norm_scale),
+                format!(
+                    "norm_scale {} is not a positive number",
+                    manifest.norm_scale
+                ),
             ));
         }
         if let Some(c) = manifest.clips.iter().find(|c| c.switch_frame > c.frames) {
@@ -256,7 +259,12 @@ fn check_reference(path: &Path, r: &Reference, bones: usize) -> Result<(), Datas
     let signed = |v: &[u32]| v.iter().map(|&x| x as i32 as i64).collect::<Vec<_>>();
     let joints = r.joints.iter().flatten().map(|&j| j as i64);
     first_bad(path, "joints", joints, bones)?;
-    first_bad(path, "triangles", signed(&r.triangles).into_iter(), vertices)?;
+    first_bad(
+        path,
+        "triangles",
+        signed(&r.triangles).into_iter(),
+        vertices,
+    )?;
     let pixel_triangles = signed(&r.pixel_triangles).into_iter();
     first_bad(path, "pixel_triangles", pixel_triangles, triangles)?;
     first_bad(path, "waist", signed(&r.waist).into_iter(), r.pixels.len())?;
@@ -270,9 +278,15 @@ fn check_reference(path: &Path, r: &Reference, bones: usize) -> Result<(), Datas
             Err(invalid(path, format!("'{name}' holds a non-finite value")))
         }
     };
-    finite("bind_positions", r.bind_positions.iter().all(|p| p.is_finite()))?;
+    finite(
+        "bind_positions",
+        r.bind_positions.iter().all(|p| p.is_finite()),
+    )?;
     finite("weights", r.weights.iter().flatten().all(|w| w.is_finite()))?;
-    finite("barycentrics", r.barycentrics.iter().flatten().all(|b| b.is_finite()))?;
+    finite(
+        "barycentrics",
+        r.barycentrics.iter().flatten().all(|b| b.is_finite()),
+    )?;
     Ok(())
 }
 

@@ -72,10 +72,7 @@ impl<'a> Weights<'a> {
                 match values.iter().position(|v| !v.is_finite()) {
                     Some(i) => Err(LoadError::Manifest {
                         path: file.path().display().to_string(),
-                        problem: format!(
-                            "tensor '{full}' holds {} at index {i}",
-                            values[i]
-                        ),
+                        problem: format!("tensor '{full}' holds {} at index {i}", values[i]),
                     }),
                     None => Ok(values),
                 }

@@ -344,7 +344,10 @@ fn skip_binary(
                     if n.is_nan() || n < 0.0 {
                         return Err(format!("element '{}': bad list length {n}", element.name));
                     }
-                    (size, (n as usize).saturating_mul(type_size(item_ty).expect("checked")))
+                    (
+                        size,
+                        (n as usize).saturating_mul(type_size(item_ty).expect("checked")),
+                    )
                 }
             };
             offset = offset
@@ -377,7 +380,9 @@ fn read_ascii<'a>(
     let values = count
         .checked_mul(properties.len())
         .filter(|&n| n <= bytes.div_ceil(2))
-        .ok_or(format!("the file is truncated: it cannot hold {count} vertices"))?;
+        .ok_or(format!(
+            "the file is truncated: it cannot hold {count} vertices"
+        ))?;
     let mut out = Vec::with_capacity(values);
     for i in 0..count {
         for _ in properties {
