@@ -109,7 +109,7 @@ impl KeyScript {
         if runs.is_empty() {
             return Err(ScriptError {
                 index: 0,
-                token: text.into(),
+                token: String::new(),
                 problem: "the script is empty",
             });
         }

@@ -70,7 +70,7 @@ pub fn load_character(path: &Path) -> Result<Character, LoadError> {
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
     let (rig, skinned, clips) = match ext.as_str() {
-        "gltf" | "glb" => load_gltf(path)?,
+        "gltf" | "glb" => super::gltf_check::guarded(path, || load_gltf(path))?,
         "obj" => load_obj(path)?,
         other => {
             return Err(fail(

@@ -78,6 +78,44 @@ pub fn import(path: &Path) -> Result<Imported, LoadError> {
     Ok((document, buffers, images))
 }
 
+/// Runs `read` (everything that touches the `gltf` crate for `path`) and turns a panic
+/// inside it into a named error. The `gltf` crate (1.4) panics on some malformed files
+/// (indices out of range inside its own validation, invalid enum values); those panics
+/// are kept silent on this thread, so the caller prints one line.
+pub fn guarded<T>(
+    path: &Path,
+    read: impl FnOnce() -> Result<T, LoadError>,
+) -> Result<T, LoadError> {
+    use std::cell::Cell;
+    use std::panic::{AssertUnwindSafe, catch_unwind};
+    thread_local! {
+        static QUIET: Cell<bool> = const { Cell::new(false) };
+    }
+    static HOOK: std::sync::Once = std::sync::Once::new();
+    HOOK.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !QUIET.with(Cell::get) {
+                previous(info);
+            }
+        }));
+    });
+    let was = QUIET.with(|q| q.replace(true));
+    let result = catch_unwind(AssertUnwindSafe(read));
+    QUIET.with(|q| q.set(was));
+    result.unwrap_or_else(|panic| {
+        let message = panic
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| panic.downcast_ref::<String>().cloned())
+            .unwrap_or_default();
+        Err(fail(
+            path,
+            format!("malformed glTF: the glTF reader failed ({message})"),
+        ))
+    })
+}
+
 /// Checks every accessor's extent and the type of every accessor unica reads.
 pub fn check(
     path: &Path,
