@@ -573,3 +573,56 @@ fn a_write_error_names_its_cause_once() {
         "{chained}"
     );
 }
+
+// ---------- start-up noise ----------
+
+#[test]
+fn no_xdg_runtime_dir_complaint_without_a_wayland_session() {
+    let out = Command::new(env!("CARGO_BIN_EXE_unica"))
+        .arg("adapters")
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("WAYLAND_DISPLAY")
+        .env_remove("DISPLAY")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("XDG_RUNTIME_DIR"), "{err}");
+}
+
+// ---------- avatar descriptions (found by tests/fuzz.rs) ----------
+
+#[test]
+fn descriptions_with_huge_chain_counts_or_speeds_are_refused() {
+    use unica::avatar::description::Description;
+    let path = Path::new("x.avatar.json");
+    let base = || {
+        json!({"clips": {"idle": "Idle", "walk": "Walk", "run": "Run"},
+               "waist_bones": ["hip"], "feet": ["hip"], "forward": "+z"})
+    };
+    let part = |chains: u64, segments: u64| {
+        let mut d = base();
+        d["loose_parts"] = json!([{"name": "skirt", "kind": "ring", "parent_bone": "hip",
+                                   "chains": chains, "segments": segments}]);
+        d.to_string()
+    };
+    assert!(Description::parse(&part(3, 2), path).is_ok());
+    // 2^31 chains aborted on a 51 GB allocation.
+    let err = Description::parse(&part(2_147_483_647, 2), path)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("x.avatar.json: loose part 'skirt': 2147483647 chains"),
+        "{err}"
+    );
+    let err = Description::parse(&part(3, 0), path)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("3 chains of 0 segments"), "{err}");
+    // A run speed of 1e308 made the clip time infinite: a panic in clip sampling.
+    let mut fast = base();
+    fast["run_speed"] = json!(1e308);
+    let err = Description::parse(&fast.to_string(), path)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("run_speed Some(inf) is not a speed"), "{err}");
+}

@@ -200,6 +200,17 @@ impl Description {
                 ));
             }
         }
+        for (name, speed) in [
+            ("walk_speed", description.walk_speed),
+            ("run_speed", description.run_speed),
+        ] {
+            if speed.is_some_and(|v| !(v.is_finite() && v > 0.0 && v < 1000.0)) {
+                return Err(fail(
+                    path,
+                    format!("{name} {speed:?} is not a speed in (0, 1000) m/s"),
+                ));
+            }
+        }
         if let Some(c) = description
             .colliders
             .iter()
