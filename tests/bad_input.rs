@@ -106,7 +106,7 @@ fn write_gltf(dir: &Path, bin: &[u8], edit: impl FnOnce(&mut Value)) -> PathBuf 
 fn gltf_error(bin: &[u8], edit: impl FnOnce(&mut Value)) -> String {
     let dir = tempfile::tempdir().unwrap();
     let path = write_gltf(dir.path(), bin, edit);
-    let err = load_character(&path).err().expect("must fail").to_string();
+    let err = load_character(&path).expect_err("must fail").to_string();
     assert!(err.contains("t.gltf") || err.contains("t.bin"), "{err}");
     err
 }
@@ -377,8 +377,7 @@ fn manifest_error(edit: impl FnOnce(&mut Value)) -> String {
     let path = dir.path().join("manifest.json");
     std::fs::write(&path, serde_json::to_vec(&json).unwrap()).unwrap();
     let err = unica::nn::bundle::read_manifest(&path)
-        .err()
-        .expect("must fail")
+        .expect_err("must fail")
         .to_string();
     assert!(err.contains("manifest.json"), "{err}");
     err
@@ -386,7 +385,8 @@ fn manifest_error(edit: impl FnOnce(&mut Value)) -> String {
 
 #[test]
 fn bundle_manifests_with_impossible_values_are_refused() {
-    let cases: Vec<(fn(&mut Value), &str)> = vec![
+    type Edit = fn(&mut Value);
+    let cases: Vec<(Edit, &str)> = vec![
         (
             |j| j["diffusion"]["steps"] = json!(1_000_000_000_000_000u64),
             "diffusion.steps 1000000000000000",

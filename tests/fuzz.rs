@@ -340,7 +340,7 @@ fn gltf_seed() -> Vec<u8> {
 fn glb_seed() -> Vec<u8> {
     let bin = triangle_bin();
     let mut text = serde_json::to_vec(&triangle_json(json!({"byteLength": bin.len()}))).unwrap();
-    while text.len() % 4 != 0 {
+    while !text.len().is_multiple_of(4) {
         text.push(b' ');
     }
     let total = 12 + 8 + text.len() + 8 + bin.len();
@@ -615,7 +615,7 @@ fn fuzz_key_scripts() {
         };
         match KeyScript::parse(text) {
             Ok(script) => {
-                assert!(script.len() >= 1 && script.len() <= 1_000_000);
+                assert!(!script.is_empty() && script.len() <= 1_000_000);
                 for frame in [
                     0,
                     script.len() / 2,

@@ -280,7 +280,7 @@ fn read_primitive(
         Some(i) => i.into_u32().collect(),
         None => (0..n as u32).collect(),
     };
-    if indices.len() % 3 != 0 {
+    if !indices.len().is_multiple_of(3) {
         return Err(fail(
             path,
             format!(
