@@ -211,8 +211,6 @@ fn fuzz(target: &str, file: &str, seeds: &[Vec<u8>], exec: impl Fn(&Path, &[u8])
     let started = Instant::now();
     let mut rng = Rng(0x9e37_79b9_7f4a_7c15 ^ target.bytes().fold(7, |h, b| h * 31 + b as u64));
     let (mut done, mut accepted, mut panics, mut slowest) = (0, 0, Vec::new(), Duration::ZERO);
-    let base = LIVE.load(Ordering::Relaxed);
-    PEAK.store(base, Ordering::Relaxed);
     while done < execs && time.is_none_or(|t| started.elapsed() < t) {
         let seed = &seeds[rng.below(seeds.len())];
         let other = &seeds[rng.below(seeds.len())];
@@ -235,10 +233,11 @@ fn fuzz(target: &str, file: &str, seeds: &[Vec<u8>], exec: impl Fn(&Path, &[u8])
         slowest = slowest.max(clock.elapsed());
         done += 1;
     }
-    let peak = PEAK.load(Ordering::Relaxed).saturating_sub(base);
+    // The whole test process's peak of live heap memory (targets run side by side).
+    let peak = PEAK.load(Ordering::Relaxed);
     println!(
         "fuzz {target}: {done} executions in {:.1} s, {} panics, 0 aborts, {accepted} accepted, \
-         peak +{} MiB, slowest {} ms",
+         process peak {} MiB, slowest {} ms",
         started.elapsed().as_secs_f64(),
         panics.len(),
         peak >> 20,
