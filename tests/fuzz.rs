@@ -237,16 +237,17 @@ fn fuzz(target: &str, file: &str, seeds: &[Vec<u8>], exec: impl Fn(&Path, &[u8])
     let peak = PEAK.load(Ordering::Relaxed);
     println!(
         "fuzz {target}: {done} executions in {:.1} s, {} panics, 0 aborts, {accepted} accepted, \
-         process peak {} MiB, slowest {} ms",
+         process heap peak {} KiB, slowest {} ms",
         started.elapsed().as_secs_f64(),
         panics.len(),
-        peak >> 20,
+        peak >> 10,
         slowest.as_millis()
     );
     assert!(
         panics.is_empty(),
         "{target}: inputs that panicked: {panics:?}"
     );
+    assert!(peak > 0, "the counting allocator saw nothing");
     assert!(peak < GIB, "{target}: {peak} bytes live at the peak");
     assert!(
         slowest < Duration::from_secs(30),
