@@ -57,10 +57,15 @@ impl fmt::Display for Action {
     }
 }
 
-/// A scripted session: one action per frame.
+/// The most frames a key script may ask for: 1,000,000 (over 9 hours at 30 fps).
+pub const MAX_SCRIPT_FRAMES: u64 = 1_000_000;
+
+/// A scripted session: one action per frame, kept as runs (`count` frames of `action`),
+/// so a long script costs no memory.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct KeyScript {
-    actions: Vec<Action>,
+    /// Each run's action and the frame after it ends (increasing).
+    runs: Vec<(Action, usize)>,
 }
 
 #[derive(Debug, PartialEq, Eq, thiserror::Error)]
@@ -75,8 +80,10 @@ pub struct ScriptError {
 
 impl KeyScript {
     /// Parses space-separated `<count><key>` tokens, e.g. `"60W 60S 60A 20I"`.
+    /// At most [`MAX_SCRIPT_FRAMES`] frames in all.
     pub fn parse(text: &str) -> Result<Self, ScriptError> {
-        let mut actions = Vec::new();
+        let mut runs = Vec::new();
+        let mut total: u64 = 0;
         for (index, token) in text.split_whitespace().enumerate() {
             let err = |problem| ScriptError {
                 index: index + 1,
@@ -85,35 +92,44 @@ impl KeyScript {
             };
             let key = token.chars().last().ok_or_else(|| err("empty"))?;
             let action = Action::from_letter(key).ok_or_else(|| err("unknown key"))?;
-            let count: usize = token[..token.len() - key.len_utf8()]
-                .parse()
-                .map_err(|_| err("the count is not a whole number"))?;
+            let digits = &token[..token.len() - key.len_utf8()];
+            if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
+                return Err(err("the count is not a whole number"));
+            }
+            let count: u64 = digits.parse().unwrap_or(u64::MAX);
             if count == 0 {
                 return Err(err("the count must be at least 1"));
             }
-            actions.extend(std::iter::repeat_n(action, count));
+            total = total.saturating_add(count);
+            if total > MAX_SCRIPT_FRAMES {
+                return Err(err("the script asks for more than 1,000,000 frames"));
+            }
+            runs.push((action, total as usize));
         }
-        if actions.is_empty() {
+        if runs.is_empty() {
             return Err(ScriptError {
                 index: 0,
-                token: text.into(),
+                token: String::new(),
                 problem: "the script is empty",
             });
         }
-        Ok(Self { actions })
+        Ok(Self { runs })
     }
 
     pub fn len(&self) -> usize {
-        self.actions.len()
+        self.runs.last().map_or(0, |&(_, end)| end)
     }
 
     pub fn is_empty(&self) -> bool {
-        self.actions.is_empty()
+        self.runs.is_empty()
     }
 
     /// The action of frame `frame`; Idle after the script ends.
     pub fn action_at(&self, frame: usize) -> Action {
-        self.actions.get(frame).copied().unwrap_or(Action::Idle)
+        let run = self.runs.partition_point(|&(_, end)| end <= frame);
+        self.runs
+            .get(run)
+            .map_or(Action::Idle, |&(action, _)| action)
     }
 }
 
@@ -188,6 +204,22 @@ mod tests {
             "the script is empty"
         );
         assert!(KeyScript::parse("-3W").is_err());
+        assert!(KeyScript::parse("+3W").is_err());
+        for huge in [
+            "99999999999999W",
+            "3000000000W",
+            "999999999999999999999999W",
+        ] {
+            assert_eq!(
+                KeyScript::parse(huge).unwrap_err().problem,
+                "the script asks for more than 1,000,000 frames"
+            );
+        }
+        assert!(KeyScript::parse("600000W 400001S").is_err());
+        assert_eq!(
+            KeyScript::parse("600000W 400000S").unwrap().len(),
+            1_000_000
+        );
         assert!(KeyScript::parse("3é").is_err());
         assert!(e.to_string().contains("'10X'"));
     }

@@ -4,13 +4,27 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-/// A file that could not be written, naming it.
-#[derive(Debug, thiserror::Error)]
-#[error("could not write {}: {source}", path.display())]
+/// A file that could not be written, naming it and the cause. The cause is part of the
+/// message and deliberately not exposed as `source()`, so a chained report (`{:#}`)
+/// prints it once.
+#[derive(Debug)]
 pub struct WriteError {
     pub path: PathBuf,
     pub source: std::io::Error,
 }
+
+impl std::fmt::Display for WriteError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "could not write {}: {}",
+            self.path.display(),
+            self.source
+        )
+    }
+}
+
+impl std::error::Error for WriteError {}
 
 /// Writes `bytes` to `path` atomically: readers see the old file or the whole new one.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), WriteError> {

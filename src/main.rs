@@ -4,6 +4,16 @@
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
+    // Without a Wayland session, libwayland-client (probed by the Vulkan loader and
+    // winit) prints "error: XDG_RUNTIME_DIR is invalid or not set" on every start when
+    // that variable is unset. There is no Wayland display to find then, so point it at
+    // the temp folder: the probe fails quietly and X11 or headless use is unchanged.
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none()
+        && std::env::var_os("WAYLAND_DISPLAY").is_none()
+    {
+        // SAFETY: first thing in main, before any other thread exists.
+        unsafe { std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir()) };
+    }
     env_logger::Builder::from_env(
         env_logger::Env::default().default_filter_or("warn,wgpu_hal=off"),
     )

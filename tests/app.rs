@@ -315,3 +315,58 @@ fn the_window_without_any_adapter_fails_in_one_line() {
     assert_eq!(ours.len(), 1, "{err}");
     assert!(ours[0].contains("mesa-vulkan-drivers"), "{}", ours[0]);
 }
+
+/// A scripted run that fails: exit 1, no panic, one `unica: error:` line with `needle`.
+fn assert_scripted_failure(out: &Output, needle: &str) {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "should fail: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    let ours: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("unica: error:"))
+        .collect();
+    assert_eq!(ours.len(), 1, "{err}");
+    assert!(
+        ours[0].contains(needle),
+        "expected '{needle}' in {}",
+        ours[0]
+    );
+}
+
+#[test]
+fn recording_into_an_unusable_folder_fails_a_scripted_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("not_a_folder");
+    std::fs::write(&file, b"x").unwrap();
+    let witch = witch();
+    let out = unica(
+        &[
+            "--character",
+            witch.to_str().unwrap(),
+            "--keys",
+            "5W",
+            "--record",
+            "--record-dir",
+            file.to_str().unwrap(),
+            "--exit-after",
+            "5",
+        ],
+        &[],
+    );
+    assert_scripted_failure(&out, "cannot record: could not write");
+}
+
+#[test]
+fn a_bundle_whose_weights_fail_to_load_fails_a_scripted_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let bundle = dir.path().join("bundle");
+    std::fs::create_dir(&bundle).unwrap();
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle");
+    std::fs::copy(shipped.join("manifest.json"), bundle.join("manifest.json")).unwrap();
+    std::fs::write(bundle.join("weights.safetensors"), b"not tensors").unwrap();
+    let out = unica(
+        &["--bundle", bundle.to_str().unwrap(), "--exit-after", "50"],
+        &[],
+    );
+    assert_scripted_failure(&out, "the neural avatar stopped");
+}

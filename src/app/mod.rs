@@ -133,6 +133,8 @@ struct UnicaApp {
     model_started: Option<(Instant, u64)>,
     /// Where the screenshot callback leaves its result for the exit path.
     outcome: Arc<Mutex<Option<anyhow::Error>>>,
+    /// A scripted run failed: close the window (the error is in `outcome`).
+    closing: bool,
 }
 
 impl UnicaApp {
@@ -177,6 +179,7 @@ impl UnicaApp {
             screenshot_requested: false,
             model_started: None,
             outcome,
+            closing: false,
         };
         if record {
             app.toggle_recording();
@@ -219,7 +222,10 @@ impl UnicaApp {
                         };
                         format!("Recorded {n} frames to {}{video}", dir.display())
                     }
-                    Err(e) => format!("Recording stopped: {e}"),
+                    Err(e) => {
+                        self.fail(format!("recording stopped: {e}"));
+                        return;
+                    }
                 });
             }
             None => {
@@ -228,7 +234,7 @@ impl UnicaApp {
                         self.message = None;
                         self.recording = Some((recorder, Instant::now()));
                     }
-                    Err(e) => self.message = Some(format!("Cannot record: {e}")),
+                    Err(e) => self.fail(format!("cannot record: {e}")),
                 }
             }
         }
@@ -450,7 +456,9 @@ impl UnicaApp {
                 .stop()
                 .map(|n| n.to_string())
                 .unwrap_or_else(|_| "earlier".into());
-            self.message = Some(format!("Recording stopped: {err} (frames {written} kept)"));
+            self.fail(format!(
+                "recording stopped: {err} (the {written} frames before it are kept)"
+            ));
             return;
         }
         let due = recorder.frames_due(started.elapsed().as_secs_f64());
@@ -470,6 +478,23 @@ impl UnicaApp {
                 recorder.push(image, moment, due)
             }
             Err(e) => self.message = Some(format!("Recording: {e}")),
+        }
+    }
+
+    /// Whether the session is scripted (`--keys` or `--exit-after`): a failure then
+    /// ends it with a non-zero exit.
+    fn scripted(&self) -> bool {
+        self.options.keys.is_some() || self.options.exit_after.is_some()
+    }
+
+    /// Shows `problem`; a scripted session also closes and exits non-zero with it.
+    fn fail(&mut self, problem: String) {
+        log::error!("{problem}");
+        self.message = Some(problem.clone());
+        if self.scripted() {
+            let mut outcome = self.outcome.lock().expect("outcome lock");
+            outcome.get_or_insert_with(|| anyhow::anyhow!("{problem}"));
+            self.closing = true;
         }
     }
 
@@ -580,6 +605,13 @@ impl eframe::App for UnicaApp {
                     .show(ui, &self.gpu, &state.renderer, &meshes, splats);
             });
         self.record_frame();
+        if let Some(e) = self.shown.neural.as_mut().and_then(|n| n.failure.take()) {
+            self.fail(format!("the neural avatar stopped: {e}"));
+        }
+        if self.closing {
+            ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+            return;
+        }
         self.frame += 1;
         self.scripted_exit(&ctx);
         ctx.request_repaint();

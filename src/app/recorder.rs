@@ -15,9 +15,6 @@ use crate::render::OrbitCamera;
 pub const DEFAULT_FPS: f64 = 30.0;
 /// Most frames written for one viewport frame when the app falls behind (one second).
 const MAX_CATCH_UP: u64 = 30;
-/// The manifest is rewritten after this many frames (and when the recording stops).
-const MANIFEST_EVERY: u64 = 30;
-
 /// What was happening when a frame was taken.
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct Moment {
@@ -37,63 +34,76 @@ pub struct FrameRecord {
     pub moment: Moment,
 }
 
-#[derive(serde::Serialize)]
-struct Manifest<'a> {
-    unica_version: &'a str,
-    fps: f64,
-    frames: &'a [FrameRecord],
-}
+/// The manifest's closing bytes, overwritten by each frame's record and written again
+/// after it.
+const MANIFEST_TAIL: &[u8] = b"\n]}\n";
 
-/// Writes numbered frames and the manifest into one folder, synchronously.
+/// Writes numbered frames and the manifest into one folder, synchronously. The manifest
+/// gains each frame's record as soon as its PNG is in place (one small write in place
+/// of the closing bytes), so after a crash or a kill it lists every finished frame and
+/// stays valid JSON.
 pub struct FrameWriter {
     dir: PathBuf,
     fps: f64,
-    frames: Vec<FrameRecord>,
+    frames: u64,
+    manifest: std::fs::File,
+    /// Where the closing bytes start.
+    end: u64,
 }
 
 impl FrameWriter {
     pub fn create(dir: &Path, fps: f64) -> Result<Self, WriteError> {
-        std::fs::create_dir_all(dir).map_err(|source| WriteError {
-            path: dir.to_path_buf(),
-            source,
-        })?;
+        let fail = |path: PathBuf| move |source| WriteError { path, source };
+        std::fs::create_dir_all(dir).map_err(fail(dir.to_path_buf()))?;
+        let path = dir.join("manifest.json");
+        let head = format!(
+            "{{\"unica_version\": {:?}, \"fps\": {}, \"frames\": [",
+            env!("CARGO_PKG_VERSION"),
+            serde_json::json!(fps)
+        );
+        write_atomic(&path, &[head.as_bytes(), MANIFEST_TAIL].concat())?;
+        let manifest = std::fs::OpenOptions::new()
+            .write(true)
+            .open(&path)
+            .map_err(fail(path.clone()))?;
         Ok(Self {
             dir: dir.to_path_buf(),
             fps,
-            frames: Vec::new(),
+            frames: 0,
+            manifest,
+            end: head.len() as u64,
         })
     }
 
     pub fn frames_written(&self) -> u64 {
-        self.frames.len() as u64
+        self.frames
     }
 
-    /// Writes the next frame; the manifest follows every [`MANIFEST_EVERY`] frames.
+    /// Writes the next frame, then adds it to the manifest.
     pub fn write(&mut self, image: &image::RgbaImage, moment: Moment) -> Result<(), WriteError> {
-        let index = self.frames_written();
+        use std::io::{Seek, SeekFrom, Write};
+        let index = self.frames;
         let file = format!("frame_{index:06}.png");
         write_png_atomic(&self.dir.join(&file), image)?;
-        self.frames.push(FrameRecord {
+        let record = FrameRecord {
             index,
             file,
             time_s: index as f64 / self.fps,
             moment,
-        });
-        if self.frames_written().is_multiple_of(MANIFEST_EVERY) {
-            self.write_manifest()?;
-        }
-        Ok(())
-    }
-
-    /// Writes manifest.json listing every frame written so far.
-    pub fn write_manifest(&self) -> Result<(), WriteError> {
-        let manifest = Manifest {
-            unica_version: env!("CARGO_PKG_VERSION"),
-            fps: self.fps,
-            frames: &self.frames,
         };
-        let json = serde_json::to_vec_pretty(&manifest).expect("manifest serialises");
-        write_atomic(&self.dir.join("manifest.json"), &json)
+        let json = serde_json::to_string(&record).expect("a frame record serialises");
+        let separator: &[u8] = if index == 0 { b"\n" } else { b",\n" };
+        let bytes = [separator, json.as_bytes(), MANIFEST_TAIL].concat();
+        self.manifest
+            .seek(SeekFrom::Start(self.end))
+            .and_then(|_| self.manifest.write_all(&bytes))
+            .map_err(|source| WriteError {
+                path: self.dir.join("manifest.json"),
+                source,
+            })?;
+        self.end += (bytes.len() - MANIFEST_TAIL.len()) as u64;
+        self.frames += 1;
+        Ok(())
     }
 }
 
@@ -126,12 +136,11 @@ impl Recorder {
                         writer.write(&job.image, job.moment)?;
                     }
                 }
-                writer.write_manifest()
+                Ok(())
             };
             let result = run(&mut writer);
             if let Err(e) = &result {
-                // Keep what was written listed; the failing frame itself is not.
-                let _ = writer.write_manifest();
+                // What was written stays listed; the failing frame itself is not.
                 let _ = err_tx.send(WriteError {
                     path: e.path.clone(),
                     source: std::io::Error::new(e.source.kind(), e.source.to_string()),
@@ -305,6 +314,27 @@ mod tests {
             serde_json::from_slice(&std::fs::read(dir.path().join("manifest.json")).unwrap())
                 .unwrap();
         assert_eq!(manifest["frames"].as_array().unwrap().len(), 2);
+    }
+
+    #[test]
+    fn the_manifest_lists_every_frame_as_soon_as_it_is_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut writer = FrameWriter::create(dir.path(), 30.0).unwrap();
+        let listed = || {
+            let json: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(dir.path().join("manifest.json")).unwrap())
+                    .unwrap();
+            assert_eq!(json["fps"], 30.0);
+            json["frames"].as_array().unwrap().len()
+        };
+        assert_eq!(listed(), 0);
+        for n in 1..=3 {
+            writer
+                .write(&image(n as u8), moment(Action::Right))
+                .unwrap();
+            // No stop, no drop: what a kill -9 would leave.
+            assert_eq!(listed(), n);
+        }
     }
 
     #[test]

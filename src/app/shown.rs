@@ -37,6 +37,8 @@ pub struct Neural {
     /// The worker's CPU time recording a frame, and its whole frame, ms.
     pub cpu_ms: f64,
     pub frame_ms: f64,
+    /// Why the worker stopped, until the app takes it.
+    pub failure: Option<String>,
 }
 
 impl Neural {
@@ -87,6 +89,7 @@ impl Neural {
                 Update::Failed(e) => {
                     log::error!("neural avatar: {e}");
                     status = Some(Some(format!("The neural avatar stopped: {e}")));
+                    self.failure = Some(e);
                 }
             }
         }
@@ -195,6 +198,7 @@ impl Shown {
             clamped: 0,
             frame_ms: 0.0,
             cpu_ms: 0.0,
+            failure: None,
         });
         shown
     }

@@ -70,7 +70,7 @@ pub fn load_character(path: &Path) -> Result<Character, LoadError> {
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
     let (rig, skinned, clips) = match ext.as_str() {
-        "gltf" | "glb" => load_gltf(path)?,
+        "gltf" | "glb" => super::gltf_check::guarded(path, || load_gltf(path))?,
         "obj" => load_obj(path)?,
         other => {
             return Err(fail(
@@ -81,6 +81,39 @@ pub fn load_character(path: &Path) -> Result<Character, LoadError> {
     };
     if skinned.bind.indices.is_empty() {
         return Err(fail(path, "the file contains no triangles"));
+    }
+    if let Some(v) = skinned.bind.positions.iter().position(|p| !p.is_finite()) {
+        return Err(fail(
+            path,
+            format!(
+                "vertex {v} has a non-finite position {}",
+                skinned.bind.positions[v]
+            ),
+        ));
+    }
+    if let Some(v) = skinned
+        .weights
+        .iter()
+        .position(|w| !w.iter().all(|x| x.is_finite()))
+    {
+        return Err(fail(
+            path,
+            format!("vertex {v} has a non-finite skin weight"),
+        ));
+    }
+    if let Some(b) = rig.bones.iter().position(|b| !b.inverse_bind.is_finite()) {
+        return Err(fail(
+            path,
+            format!("bone {b} has a non-finite inverse bind matrix"),
+        ));
+    }
+    if let Some(n) = rig.nodes.iter().find(|n| {
+        !(n.rest.translation.is_finite() && n.rest.rotation.is_finite() && n.rest.scale.is_finite())
+    }) {
+        return Err(fail(
+            path,
+            format!("node '{}' has a non-finite transform", n.name),
+        ));
     }
     let name = path
         .file_stem()
@@ -98,7 +131,7 @@ pub fn load_character(path: &Path) -> Result<Character, LoadError> {
 type Loaded = (Rig, SkinnedMesh, Vec<Clip>);
 
 fn load_gltf(path: &Path) -> Result<Loaded, LoadError> {
-    let (doc, buffers, images) = gltf::import(path).map_err(|e| fail(path, e.to_string()))?;
+    let (doc, buffers, images) = super::gltf_check::import(path)?;
     let scene = doc
         .default_scene()
         .or_else(|| doc.scenes().next())
@@ -112,6 +145,15 @@ fn load_gltf(path: &Path) -> Result<Loaded, LoadError> {
     let mut mesh_nodes = Vec::new();
     while let Some((node, parent)) = queue.pop_front() {
         let ours = rig.nodes.len();
+        if index_of[node.index()].is_some() {
+            return Err(fail(
+                path,
+                format!(
+                    "node {} is reached twice from the scene (a cycle or a shared child)",
+                    node.index()
+                ),
+            ));
+        }
         index_of[node.index()] = Some(ours);
         let (t, r, s) = node.transform().decomposed();
         rig.nodes.push(Node {
@@ -238,6 +280,15 @@ fn read_primitive(
         Some(i) => i.into_u32().collect(),
         None => (0..n as u32).collect(),
     };
+    if !indices.len().is_multiple_of(3) {
+        return Err(fail(
+            path,
+            format!(
+                "a triangle primitive has {} indices, not a multiple of 3",
+                indices.len()
+            ),
+        ));
+    }
     if let Some(&bad) = indices.iter().find(|&&i| i as usize >= n) {
         return Err(fail(path, format!("index {bad} is past the {n} vertices")));
     }
@@ -276,6 +327,12 @@ fn read_primitive(
                 out[k] = *bone as u16;
             }
             let total: f32 = w.iter().sum();
+            if w.iter().any(|x| !x.is_finite() || *x < 0.0) {
+                return Err(fail(
+                    path,
+                    format!("a skinned vertex has weights {w:?} (not finite and non-negative)"),
+                ));
+            }
             if total <= 0.0 {
                 return Err(fail(path, "a skinned vertex has all weights zero"));
             }
@@ -358,9 +415,15 @@ fn texel(image: &gltf::image::Data, uv: Vec2) -> Vec3 {
         gltf::image::Format::R8G8B8A8 => 4,
         _ => return Vec3::ONE,
     };
-    let x = ((uv.x.rem_euclid(1.0) * image.width as f32) as u32).min(image.width - 1);
-    let y = ((uv.y.rem_euclid(1.0) * image.height as f32) as u32).min(image.height - 1);
-    let i = ((y * image.width + x) * channels) as usize;
+    if image.width == 0 || image.height == 0 || !uv.is_finite() {
+        return Vec3::ONE;
+    }
+    let x = ((uv.x.rem_euclid(1.0) * image.width as f32) as usize).min(image.width as usize - 1);
+    let y = ((uv.y.rem_euclid(1.0) * image.height as f32) as usize).min(image.height as usize - 1);
+    let i = (y * image.width as usize + x) * channels;
+    let Some(rgb) = image.pixels.get(i..i + 3) else {
+        return Vec3::ONE;
+    };
     let srgb = |v: u8| {
         let c = v as f32 / 255.0;
         if c <= 0.04045 {
@@ -369,11 +432,7 @@ fn texel(image: &gltf::image::Data, uv: Vec2) -> Vec3 {
             ((c + 0.055) / 1.055).powf(2.4)
         }
     };
-    Vec3::new(
-        srgb(image.pixels[i]),
-        srgb(image.pixels[i + 1]),
-        srgb(image.pixels[i + 2]),
-    )
+    Vec3::new(srgb(rgb[0]), srgb(rgb[1]), srgb(rgb[2]))
 }
 
 fn read_clip(
@@ -424,6 +483,16 @@ fn read_clip(
         } else {
             1
         };
+        let finite = match &values {
+            Values::Translation(v) | Values::Scale(v) => v.iter().all(|x| x.is_finite()),
+            Values::Rotation(v) => v.iter().all(|x| x.is_finite()),
+        };
+        if !finite || times.iter().any(|t| !t.is_finite()) || !times.is_sorted() {
+            return Err(fail(
+                path,
+                format!("clip '{name}': key times or values are not finite and increasing"),
+            ));
+        }
         let count = match &values {
             Values::Translation(v) | Values::Scale(v) => v.len(),
             Values::Rotation(v) => v.len(),

@@ -81,7 +81,7 @@ impl Channel {
         let cubic = self.interpolation == Interpolation::CubicSpline;
         let value = |k: usize| if cubic { values[3 * k + 1] } else { values[k] }.to4();
         let n = self.times.len();
-        if n == 1 || t <= self.times[0] {
+        if n == 1 || t.is_nan() || t <= self.times[0] {
             return value(0);
         }
         if t >= self.times[n - 1] {

@@ -62,6 +62,10 @@ pub struct ClipNames {
     pub run: String,
 }
 
+/// The most spring chains one loose part may ask for, and segments per chain.
+pub const MAX_CHAINS: usize = 64;
+pub const MAX_SEGMENTS: usize = 32;
+
 /// How spring chains are laid out over a loose part.
 #[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
 #[serde(rename_all = "lowercase")]
@@ -173,6 +177,50 @@ impl Description {
                 format!(
                     "forward '{}' is not one of +z -z +x -x",
                     description.forward
+                ),
+            ));
+        }
+        for part in &description.loose_parts {
+            let bad =
+                |problem: String| Err(fail(path, format!("loose part '{}': {problem}", part.name)));
+            if !(1..=MAX_CHAINS).contains(&part.chains)
+                || !(1..=MAX_SEGMENTS).contains(&part.segments)
+            {
+                return bad(format!(
+                    "{} chains of {} segments (1 to {MAX_CHAINS} chains of 1 to {MAX_SEGMENTS} are possible)",
+                    part.chains, part.segments
+                ));
+            }
+            let values = [part.arc_degrees, part.stiffness, part.drag, part.gravity];
+            if values.iter().any(|v| !v.is_finite())
+                || !(part.arc_degrees > 0.0 && part.arc_degrees <= 360.0)
+            {
+                return bad(format!(
+                    "arc_degrees, stiffness, drag and gravity must be finite (arc in (0, 360]): {values:?}"
+                ));
+            }
+        }
+        for (name, speed) in [
+            ("walk_speed", description.walk_speed),
+            ("run_speed", description.run_speed),
+        ] {
+            if speed.is_some_and(|v| !(v.is_finite() && v > 0.0 && v < 1000.0)) {
+                return Err(fail(
+                    path,
+                    format!("{name} {speed:?} is not a speed in (0, 1000) m/s"),
+                ));
+            }
+        }
+        if let Some(c) = description
+            .colliders
+            .iter()
+            .find(|c| c.radius.is_some_and(|r| !(r.is_finite() && r > 0.0)))
+        {
+            return Err(fail(
+                path,
+                format!(
+                    "collider '{}': radius {:?} is not a positive number",
+                    c.bone, c.radius
                 ),
             ));
         }

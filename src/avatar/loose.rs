@@ -426,5 +426,8 @@ fn measured_radius(
         return 0.05 * height;
     }
     distances.sort_by(f32::total_cmp);
-    distances[distances.len() / 2].clamp(0.02 * height, 0.15 * height)
+    // max/min rather than clamp: never panics, whatever the height.
+    distances[distances.len() / 2]
+        .min(0.15 * height)
+        .max(0.02 * height)
 }

@@ -4,6 +4,7 @@
 pub mod character;
 pub mod clip;
 pub mod description;
+pub mod gltf_check;
 pub mod locomotion;
 pub mod loose;
 pub mod reference;

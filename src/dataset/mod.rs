@@ -142,6 +142,28 @@ impl Dataset {
                 .collect(),
             waist: to_u32(file.i32("waist", &[None])?.0),
         };
+        check_reference(file.path(), &reference, manifest.bones)?;
+        if manifest.clips.is_empty() {
+            return Err(invalid(&manifest_path, "the manifest lists no clips"));
+        }
+        if !(manifest.norm_scale.is_finite() && manifest.norm_scale > 0.0) {
+            return Err(invalid(
+                &manifest_path,
+                format!(
+                    "norm_scale {} is not a positive number",
+                    manifest.norm_scale
+                ),
+            ));
+        }
+        if let Some(c) = manifest.clips.iter().find(|c| c.switch_frame > c.frames) {
+            return Err(invalid(
+                &manifest_path,
+                format!(
+                    "clip {}: switch frame {} is past its {} frames",
+                    c.file, c.switch_frame, c.frames
+                ),
+            ));
+        }
         Ok(Self {
             dir: dir.to_path_buf(),
             manifest,
@@ -214,6 +236,60 @@ impl Dataset {
     }
 }
 
+/// Every index in the reference points at something that exists (joints below `bones`,
+/// triangle corners below the vertex count, pixel triangles below the triangle count,
+/// waist entries below the pixel count) and every value is finite.
+fn check_reference(path: &Path, r: &Reference, bones: usize) -> Result<(), DatasetError> {
+    fn first_bad(
+        path: &Path,
+        name: &str,
+        mut values: impl Iterator<Item = i64>,
+        bound: usize,
+    ) -> Result<(), DatasetError> {
+        match values.find(|&v| v < 0 || v as u64 >= bound as u64) {
+            Some(v) => Err(invalid(
+                path,
+                format!("'{name}' holds {v}, outside 0..{bound}"),
+            )),
+            None => Ok(()),
+        }
+    }
+    let vertices = r.bind_positions.len();
+    let triangles = r.triangles.len() / 3;
+    let signed = |v: &[u32]| v.iter().map(|&x| x as i32 as i64).collect::<Vec<_>>();
+    let joints = r.joints.iter().flatten().map(|&j| j as i64);
+    first_bad(path, "joints", joints, bones)?;
+    first_bad(
+        path,
+        "triangles",
+        signed(&r.triangles).into_iter(),
+        vertices,
+    )?;
+    let pixel_triangles = signed(&r.pixel_triangles).into_iter();
+    first_bad(path, "pixel_triangles", pixel_triangles, triangles)?;
+    first_bad(path, "waist", signed(&r.waist).into_iter(), r.pixels.len())?;
+    if r.waist.is_empty() {
+        return Err(invalid(path, "'waist' is empty"));
+    }
+    let finite = |name: &str, ok: bool| {
+        if ok {
+            Ok(())
+        } else {
+            Err(invalid(path, format!("'{name}' holds a non-finite value")))
+        }
+    };
+    finite(
+        "bind_positions",
+        r.bind_positions.iter().all(|p| p.is_finite()),
+    )?;
+    finite("weights", r.weights.iter().flatten().all(|w| w.is_finite()))?;
+    finite(
+        "barycentrics",
+        r.barycentrics.iter().flatten().all(|b| b.is_finite()),
+    )?;
+    Ok(())
+}
+
 /// What [`validate`] found.
 #[derive(Debug, Serialize)]
 pub struct Validation {
@@ -275,7 +351,8 @@ pub fn validate(dir: &Path) -> Result<Validation, DatasetError> {
                 ));
             }
             let root = GroupNorm::root(points, &data.reference.waist);
-            if root.distance(clip.root[f]) > 1e-3 {
+            let off = root.distance(clip.root[f]);
+            if off.is_nan() || off > 1e-3 {
                 return Err(invalid(
                     &path,
                     format!(

@@ -21,6 +21,8 @@ use crate::tensors::TensorFile;
 
 pub const FORMAT: &str = "unica-bundle";
 pub const VERSION: u64 = 1;
+/// The most training noise steps a bundle may declare (the shipped one has 1,000).
+pub const MAX_DIFFUSION_STEPS: usize = 100_000;
 
 /// What the manifest says (unknown fields are ignored; `tensors` is checked through the
 /// weights themselves).
@@ -215,7 +217,12 @@ pub fn read_manifest(path: &Path) -> Result<Manifest, LoadError> {
                 "bundle version {v}, this build reads version {VERSION}"
             )));
         }
-        None => return Err(fail("no bundle version".into())),
+        None => {
+            return Err(fail(match value.get("version") {
+                Some(v) => format!("bundle version {v} is not a whole number (expected {VERSION})"),
+                None => "no bundle version".into(),
+            }));
+        }
     }
     let manifest: Manifest = serde_json::from_value(value).map_err(|e| fail(e.to_string()))?;
     let (unet, diffusion) = (&manifest.unet, &manifest.diffusion);
@@ -223,7 +230,37 @@ pub fn read_manifest(path: &Path) -> Result<Manifest, LoadError> {
         .iter()
         .map(|a| a.to_string())
         .collect();
-    let problem = if diffusion.schedule != "scaled_linear" || diffusion.prediction != "epsilon" {
+    let positive = |x: f64| x.is_finite() && x > 0.0;
+    let problem = if !(2..=MAX_DIFFUSION_STEPS).contains(&diffusion.steps) {
+        Some(format!(
+            "diffusion.steps {}: between 2 and {MAX_DIFFUSION_STEPS} are possible",
+            diffusion.steps
+        ))
+    } else if !(positive(diffusion.beta_start)
+        && positive(diffusion.beta_end)
+        && diffusion.beta_start <= diffusion.beta_end
+        && diffusion.beta_end < 1.0)
+    {
+        Some(format!(
+            "diffusion betas {} to {}: 0 < beta_start <= beta_end < 1 is needed",
+            diffusion.beta_start, diffusion.beta_end
+        ))
+    } else if !positive(manifest.latent_scale as f64) {
+        Some(format!(
+            "latent_scale {} is not a positive number",
+            manifest.latent_scale
+        ))
+    } else if !positive(manifest.normalisation.scale as f64) {
+        Some(format!(
+            "normalisation.scale {} is not a positive number",
+            manifest.normalisation.scale
+        ))
+    } else if !positive(manifest.frame_rate as f64) {
+        Some(format!(
+            "frame_rate {} is not a positive number",
+            manifest.frame_rate
+        ))
+    } else if diffusion.schedule != "scaled_linear" || diffusion.prediction != "epsilon" {
         Some(format!(
             "diffusion '{}' with '{}' prediction; this engine runs scaled_linear with epsilon",
             diffusion.schedule, diffusion.prediction

@@ -68,7 +68,14 @@ impl<'a> Weights<'a> {
         match self.source {
             Source::File(file) => {
                 let wanted: Vec<Option<usize>> = shape.iter().map(|&s| Some(s)).collect();
-                Ok(file.f32(&full, &wanted)?.0)
+                let values = file.f32(&full, &wanted)?.0;
+                match values.iter().position(|v| !v.is_finite()) {
+                    Some(i) => Err(LoadError::Manifest {
+                        path: file.path().display().to_string(),
+                        problem: format!("tensor '{full}' holds {} at index {i}", values[i]),
+                    }),
+                    None => Ok(values),
+                }
             }
             Source::Random => Ok(random_values(&full, shape.iter().product())),
         }

@@ -118,18 +118,47 @@ fn type_size(name: &str) -> Option<usize> {
     })
 }
 
+/// One property of a PLY element: a scalar, or a list (its count's type and its items').
+enum Property {
+    Scalar(String, String),
+    List(String, String),
+}
+
+/// An element of the header: name, count and properties, in file order.
+struct Element {
+    name: String,
+    count: usize,
+    properties: Vec<Property>,
+}
+
+/// Where the header ends and the body starts (after `end_header` and its LF or CRLF).
+fn header_end(bytes: &[u8]) -> Option<(usize, usize)> {
+    let mut from = 0;
+    while let Some(at) = find(&bytes[from..], b"end_header") {
+        let at = from + at;
+        let rest = &bytes[at + b"end_header".len()..];
+        let line_start = at == 0 || bytes[at - 1] == b'\n';
+        if line_start && rest.starts_with(b"\n") {
+            return Some((at, at + b"end_header\n".len()));
+        }
+        if line_start && rest.starts_with(b"\r\n") {
+            return Some((at, at + b"end_header\r\n".len()));
+        }
+        from = at + 1;
+    }
+    None
+}
+
 /// Splats from a PLY file's bytes; the error says what is wrong.
 pub fn decode(bytes: &[u8]) -> Result<Vec<Splat>, String> {
-    let end = find(bytes, b"end_header\n").ok_or("not a PLY file (no end_header line)")?;
+    let (end, body_start) = header_end(bytes).ok_or("not a PLY file (no end_header line)")?;
     let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "the PLY header is not text")?;
     let mut lines = header.lines();
-    if lines.next() != Some("ply") {
+    if lines.next().map(str::trim_end) != Some("ply") {
         return Err("not a PLY file (the first line is not 'ply')".into());
     }
     let mut format = None;
-    let mut count = None;
-    let mut properties: Vec<(String, String)> = Vec::new();
-    let mut in_vertex = false;
+    let mut elements: Vec<Element> = Vec::new();
     for line in lines {
         let words: Vec<&str> = line.split_whitespace().collect();
         match words.as_slice() {
@@ -141,26 +170,57 @@ pub fn decode(bytes: &[u8]) -> Result<Vec<Splat>, String> {
                     other => return Err(format!("unknown PLY format '{other}'")),
                 })
             }
-            ["element", "vertex", n] => {
-                count = Some(
-                    n.parse::<usize>()
-                        .map_err(|_| format!("bad vertex count '{n}'"))?,
-                );
-                in_vertex = true;
+            ["element", name, n] => elements.push(Element {
+                name: name.to_string(),
+                count: n
+                    .parse::<usize>()
+                    .map_err(|_| format!("bad {name} count '{n}'"))?,
+                properties: Vec::new(),
+            }),
+            ["property", "list", count_ty, item_ty, _] => {
+                let element = elements
+                    .last_mut()
+                    .ok_or("a property comes before any element")?;
+                if element.name == "vertex" {
+                    return Err("list properties on vertices are not supported".into());
+                }
+                for ty in [count_ty, item_ty] {
+                    type_size(ty).ok_or(format!("unknown property type '{ty}'"))?;
+                }
+                element
+                    .properties
+                    .push(Property::List(count_ty.to_string(), item_ty.to_string()));
             }
-            ["element", ..] => in_vertex = false,
-            ["property", "list", ..] if in_vertex => {
-                return Err("list properties on vertices are not supported".into());
-            }
-            ["property", ty, name] if in_vertex => {
+            ["property", ty, name] => {
+                let element = elements
+                    .last_mut()
+                    .ok_or("a property comes before any element")?;
                 type_size(ty).ok_or(format!("unknown property type '{ty}'"))?;
-                properties.push((ty.to_string(), name.to_string()));
+                element
+                    .properties
+                    .push(Property::Scalar(ty.to_string(), name.to_string()));
             }
             _ => {}
         }
     }
     let format = format.ok_or("the PLY header has no format line")?;
-    let count = count.ok_or("the PLY file has no vertex element")?;
+    let at = elements
+        .iter()
+        .position(|e| e.name == "vertex")
+        .ok_or("the PLY file has no vertex element")?;
+    let vertex = &elements[at];
+    let count = vertex.count;
+    if count == 0 {
+        return Err("the PLY file has 0 vertices".into());
+    }
+    let properties: Vec<(String, String)> = vertex
+        .properties
+        .iter()
+        .filter_map(|p| match p {
+            Property::Scalar(ty, name) => Some((ty.clone(), name.clone())),
+            Property::List(..) => None,
+        })
+        .collect();
     let column = |name: &str| {
         properties
             .iter()
@@ -170,60 +230,181 @@ pub fn decode(bytes: &[u8]) -> Result<Vec<Splat>, String> {
             ))
     };
     // Every written field but the (unused) normals.
-    let wanted: Vec<usize> = FIELDS
-        .iter()
+    let names: Vec<&str> = FIELDS
+        .into_iter()
         .filter(|n| !["nx", "ny", "nz"].contains(n))
-        .map(|n| column(n))
-        .collect::<Result<_, _>>()?;
-    let rows = read_rows(
-        &bytes[end + b"end_header\n".len()..],
-        format,
-        &properties,
-        count,
-    )?;
-    Ok(rows
-        .iter()
-        .map(|row| {
+        .collect();
+    let wanted: Vec<usize> = names.iter().map(|n| column(n)).collect::<Result<_, _>>()?;
+    let body = &bytes[body_start..];
+    let rows = match format {
+        Format::Ascii => {
+            let text = std::str::from_utf8(body).map_err(|_| "the ASCII body is not text")?;
+            let mut words = text.split_whitespace();
+            for element in &elements[..at] {
+                skip_ascii(&mut words, element)?;
+            }
+            read_ascii(&mut words, body.len(), &properties, count)?
+        }
+        Format::Little | Format::Big => {
+            let mut offset = 0;
+            for element in &elements[..at] {
+                offset = skip_binary(body, offset, format, element)?;
+            }
+            read_rows(&body[offset..], format, &properties, count)?
+        }
+    };
+    rows.chunks_exact(properties.len())
+        .enumerate()
+        .map(|(i, row)| {
             let v: Vec<f32> = wanted.iter().map(|&c| row[c]).collect();
-            Splat {
+            if let Some(k) = v.iter().position(|x| !x.is_finite()) {
+                return Err(format!("vertex {i}: '{}' is {}", names[k], v[k]));
+            }
+            let rotation = Quat::from_xyzw(v[11], v[12], v[13], v[10]);
+            let norm = rotation.length_squared();
+            if norm.is_nan() || norm <= 1e-12 || norm.is_infinite() {
+                return Err(format!("vertex {i}: the rotation quaternion is zero"));
+            }
+            let scale = Vec3::new(v[7].exp(), v[8].exp(), v[9].exp());
+            if !scale.is_finite() {
+                return Err(format!("vertex {i}: a scale overflows ({scale})"));
+            }
+            Ok(Splat {
                 position: Vec3::new(v[0], v[1], v[2]),
                 f_dc: Vec3::new(v[3], v[4], v[5]),
                 opacity: 1.0 / (1.0 + (-v[6]).exp()),
-                scale: Vec3::new(v[7].exp(), v[8].exp(), v[9].exp()),
-                rotation: Quat::from_xyzw(v[11], v[12], v[13], v[10]).normalize(),
-            }
+                scale,
+                rotation: rotation.normalize(),
+            })
         })
-        .collect())
+        .collect()
 }
 
 fn find(haystack: &[u8], needle: &[u8]) -> Option<usize> {
     haystack.windows(needle.len()).position(|w| w == needle)
 }
 
-/// Every vertex's properties as f32.
+/// Skips an ASCII element (one line per item; a list is its count then its items).
+fn skip_ascii<'a>(
+    words: &mut impl Iterator<Item = &'a str>,
+    element: &Element,
+) -> Result<(), String> {
+    if element.properties.is_empty() {
+        return Ok(());
+    }
+    let ended = || format!("the file ends inside element '{}'", element.name);
+    for _ in 0..element.count {
+        for property in &element.properties {
+            let word = words.next().ok_or_else(ended)?;
+            if let Property::List(..) = property {
+                let n: usize = word
+                    .parse()
+                    .map_err(|_| format!("element '{}': bad list length '{word}'", element.name))?;
+                for _ in 0..n {
+                    words.next().ok_or_else(ended)?;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Skips a binary element from `offset`; returns the offset after it.
+fn skip_binary(
+    body: &[u8],
+    mut offset: usize,
+    format: Format,
+    element: &Element,
+) -> Result<usize, String> {
+    let ended = || format!("the file ends inside element '{}'", element.name);
+    let fixed: Option<usize> = element
+        .properties
+        .iter()
+        .map(|p| match p {
+            Property::Scalar(ty, _) => type_size(ty),
+            Property::List(..) => None,
+        })
+        .sum();
+    if let Some(stride) = fixed {
+        let end = stride
+            .checked_mul(element.count)
+            .and_then(|n| n.checked_add(offset))
+            .filter(|&end| end <= body.len())
+            .ok_or_else(ended)?;
+        return Ok(end);
+    }
+    for _ in 0..element.count {
+        for property in &element.properties {
+            let (size, items) = match property {
+                Property::Scalar(ty, _) => (type_size(ty).expect("checked"), 0),
+                Property::List(count_ty, item_ty) => {
+                    let size = type_size(count_ty).expect("checked");
+                    let raw = body.get(offset..offset + size).ok_or_else(ended)?;
+                    let n = number(count_ty, raw, format);
+                    if n.is_nan() || n < 0.0 {
+                        return Err(format!("element '{}': bad list length {n}", element.name));
+                    }
+                    (
+                        size,
+                        (n as usize).saturating_mul(type_size(item_ty).expect("checked")),
+                    )
+                }
+            };
+            offset = offset
+                .checked_add(size)
+                .and_then(|o| o.checked_add(items))
+                .filter(|&o| o <= body.len())
+                .ok_or_else(ended)?;
+        }
+    }
+    Ok(offset)
+}
+
+/// One value of PLY type `ty` in `format`, as f32.
+fn number(ty: &str, raw: &[u8], format: Format) -> f32 {
+    let mut raw = raw.to_vec();
+    if format == Format::Big {
+        raw.reverse();
+    }
+    value(ty, &raw)
+}
+
+/// The vertices' properties from ASCII words, row-major.
+fn read_ascii<'a>(
+    words: &mut impl Iterator<Item = &'a str>,
+    bytes: usize,
+    properties: &[(String, String)],
+    count: usize,
+) -> Result<Vec<f32>, String> {
+    // Each number takes at least one character and a separator.
+    let values = count
+        .checked_mul(properties.len())
+        .filter(|&n| n <= bytes.div_ceil(2))
+        .ok_or(format!(
+            "the file is truncated: it cannot hold {count} vertices"
+        ))?;
+    let mut out = Vec::with_capacity(values);
+    for i in 0..count {
+        for _ in properties {
+            let word = words
+                .next()
+                .ok_or(format!("the file ends inside vertex {i} of {count}"))?;
+            out.push(
+                word.parse::<f32>()
+                    .map_err(|_| format!("vertex {i}: '{word}' is not a number"))?,
+            );
+        }
+    }
+    Ok(out)
+}
+
+/// Every binary vertex's properties as f32, row-major.
 fn read_rows(
     body: &[u8],
     format: Format,
     properties: &[(String, String)],
     count: usize,
-) -> Result<Vec<Vec<f32>>, String> {
-    if format == Format::Ascii {
-        let text = std::str::from_utf8(body).map_err(|_| "the ASCII body is not text")?;
-        let mut numbers = text.split_whitespace();
-        return (0..count)
-            .map(|i| {
-                (0..properties.len())
-                    .map(|_| {
-                        let word = numbers
-                            .next()
-                            .ok_or(format!("the file ends inside vertex {i} of {count}"))?;
-                        word.parse::<f32>()
-                            .map_err(|_| format!("vertex {i}: '{word}' is not a number"))
-                    })
-                    .collect()
-            })
-            .collect();
-    }
+) -> Result<Vec<f32>, String> {
     let sizes: Vec<usize> = properties
         .iter()
         .map(|(ty, _)| type_size(ty).expect("checked"))
@@ -238,25 +419,15 @@ fn read_rows(
             body.len()
         ));
     }
-    Ok(body
-        .chunks_exact(stride)
-        .take(count)
-        .map(|row| {
-            let mut at = 0;
-            properties
-                .iter()
-                .zip(&sizes)
-                .map(|((ty, _), &size)| {
-                    let mut raw = row[at..at + size].to_vec();
-                    at += size;
-                    if format == Format::Big {
-                        raw.reverse();
-                    }
-                    value(ty, &raw)
-                })
-                .collect()
-        })
-        .collect())
+    let mut out = Vec::with_capacity(count * properties.len());
+    for row in body.chunks_exact(stride).take(count) {
+        let mut at = 0;
+        for ((ty, _), &size) in properties.iter().zip(&sizes) {
+            out.push(number(ty, &row[at..at + size], format));
+            at += size;
+        }
+    }
+    Ok(out)
 }
 
 /// One little-endian value of PLY type `ty` as f32.
