@@ -53,6 +53,11 @@ pub struct Cli {
     #[arg(long, value_name = "N")]
     exit_after: Option<u64>,
 
+    /// DDIM steps of the neural avatar per generated frame [default: the bundle's]; fewer
+    /// is faster and coarser (the HUD changes it live)
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..=1000))]
+    steps: Option<u64>,
+
     /// Save a PNG of the whole window when exiting (needs --exit-after)
     #[arg(long, value_name = "PNG", requires = "exit_after")]
     screenshot: Option<PathBuf>,
@@ -845,6 +850,7 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
         character,
         keys,
         exit_after: cli.exit_after,
+        steps: cli.steps.map(|s| s as usize),
         screenshot: cli.screenshot,
         record_dir,
         record: cli.record,

@@ -1,6 +1,7 @@
 // Lays the rasterized splats (premultiplied linear RGB + coverage, drawn over black) over
 // the rendered scene: a full-screen triangle whose fragments read the splat image; the
-// pipeline blends with (One, OneMinusSrcAlpha).
+// pipeline blends with (One, OneMinusSrcAlpha). The image may be smaller than the target
+// by `divisor` (a quick raster while the camera moves).
 
 @group(0) @binding(0) var<uniform> c: CompositeParams;
 @group(0) @binding(1) var<storage, read> image: array<vec4<f32>>;
@@ -13,7 +14,7 @@ fn vs_main(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {
 
 @fragment
 fn fs_main(@builtin(position) position: vec4<f32>) -> @location(0) vec4<f32> {
-    let x = min(u32(position.x), c.width - 1u);
-    let y = min(u32(position.y), c.height - 1u);
+    let x = min(u32(position.x) / c.divisor, c.width - 1u);
+    let y = min(u32(position.y) / c.divisor, c.height - 1u);
     return image[y * c.width + x];
 }

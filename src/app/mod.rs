@@ -35,6 +35,8 @@ pub struct AppOptions {
     pub keys: Option<KeyScript>,
     /// Render this many frames, then exit.
     pub exit_after: Option<u64>,
+    /// The neural avatar's DDIM steps (`None`: the bundle's); the HUD changes them live.
+    pub steps: Option<usize>,
     /// Save a screenshot of the window when exiting after `exit_after` frames.
     pub screenshot: Option<PathBuf>,
     /// Folder that F9 records into.
@@ -147,7 +149,9 @@ impl UnicaApp {
         let character = options.character.as_deref();
         let shown = match (&options.splats, &options.bundle) {
             (Some(file), _) => Shown::splat_file(&gpu, &viewport.renderer, file),
-            (None, Some(dir)) => Shown::neural(&gpu, &viewport.renderer, dir, character),
+            (None, Some(dir)) => {
+                Shown::neural(&gpu, &viewport.renderer, dir, character, options.steps)
+            }
             (None, None) => Shown::load(&gpu, &viewport.renderer, character),
         };
         viewport.camera = behind(&shown);
@@ -191,7 +195,7 @@ impl UnicaApp {
     fn open(&mut self, path: PathBuf) {
         let renderer = &self.viewport.renderer;
         self.shown = if path.is_dir() {
-            Shown::neural(&self.gpu, renderer, &path, None)
+            Shown::neural(&self.gpu, renderer, &path, None, self.options.steps)
         } else {
             Shown::load(&self.gpu, renderer, Some(&path))
         };
@@ -605,6 +609,10 @@ impl eframe::App for UnicaApp {
                     .show(ui, &self.gpu, &state.renderer, &meshes, splats);
             });
         self.record_frame();
+        // The viewport's GPU work for this frame is done: the model may take its turn.
+        if let Some(neural) = &self.shown.neural {
+            neural.avatar.window_frame();
+        }
         if let Some(e) = self.shown.neural.as_mut().and_then(|n| n.failure.take()) {
             self.fail(format!("the neural avatar stopped: {e}"));
         }
@@ -678,9 +686,9 @@ fn neural_hud(ui: &mut egui::Ui, neural: &mut shown::Neural) {
         neural.avatar.fps, neural.frames
     ));
     ui.label(format!(
-        "Model and splats on the GPU: {:.0} ms per generated frame ({:.1} ms CPU); \
-         the window runs at its own pace",
-        neural.frame_ms, neural.cpu_ms
+        "Model and splats on the GPU: {:.1} s per generated frame, worked on in slices \
+         between window frames (the window keeps its own rate)",
+        neural.frame_ms / 1e3
     ));
     if neural.clamped > 0 {
         ui.colored_label(

@@ -8,7 +8,7 @@
 //! the window's own frames interleave with the model's work.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, TryRecvError, channel};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -48,8 +48,8 @@ pub struct Drawn {
     pub points: Option<Vec<Vec3>>,
     /// The engine's splat buffer and its count (it changes with the splat level).
     pub splats: Option<(wgpu::Buffer, usize)>,
-    /// The worker's CPU time recording and submitting the frame, and the whole frame
-    /// (submission to submission, GPU work and waits included), ms.
+    /// The worker's time in the engine's frame call (recording, submitting and, beside a
+    /// window, waiting between parts), and the whole frame (report to report), ms.
     pub cpu_ms: f64,
     pub frame_ms: f64,
 }
@@ -73,8 +73,16 @@ pub enum Update {
     Failed(String),
 }
 
+/// The model's share of time beside the window: after this much model work the worker
+/// waits for the window to draw a frame (at most [`WINDOW_WAIT`]), so the window keeps
+/// its rate on a machine where the model and the window share the same cores.
+const MODEL_SLICE: Duration = Duration::from_millis(12);
+const WINDOW_WAIT: Duration = Duration::from_millis(250);
+
 pub struct NeuralAvatar {
     pub dir: PathBuf,
+    /// Window frames drawn, counted by [`NeuralAvatar::window_frame`].
+    window_frames: Arc<AtomicU64>,
     action: Arc<AtomicU32>,
     settings: Arc<Mutex<Option<Settings>>>,
     stop: Arc<AtomicBool>,
@@ -86,13 +94,16 @@ pub struct NeuralAvatar {
 }
 
 impl NeuralAvatar {
-    /// Starts loading `dir` on a worker thread.
-    pub fn start(gpu: &GpuContext, dir: &Path) -> Self {
+    /// Starts loading `dir` on a worker thread (`steps`: DDIM steps, else the bundle's).
+    pub fn start(gpu: &GpuContext, dir: &Path, steps: Option<usize>) -> Self {
         let action = Arc::new(AtomicU32::new(Action::Idle.id()));
         let settings: Arc<Mutex<Option<Settings>>> = Arc::default();
         let stop = Arc::new(AtomicBool::new(false));
+        let window_frames = Arc::new(AtomicU64::new(0));
         let (send, updates) = channel();
         let worker = Worker {
+            steps,
+            window_frames: window_frames.clone(),
             gpu: gpu.clone(),
             dir: dir.to_path_buf(),
             action: action.clone(),
@@ -110,6 +121,7 @@ impl NeuralAvatar {
             .expect("spawning a thread");
         Self {
             dir: dir.to_path_buf(),
+            window_frames,
             action,
             settings,
             stop,
@@ -117,6 +129,11 @@ impl NeuralAvatar {
             fps: 0.0,
             failed: false,
         }
+    }
+
+    /// The window is drawing a frame (the worker gives it turns between model parts).
+    pub fn window_frame(&self) {
+        self.window_frames.fetch_add(1, Ordering::Relaxed);
     }
 
     pub fn set_action(&self, action: Action) {
@@ -175,6 +192,8 @@ impl Drop for NeuralAvatar {
 }
 
 struct Worker {
+    steps: Option<usize>,
+    window_frames: Arc<AtomicU64>,
     gpu: GpuContext,
     dir: PathBuf,
     action: Arc<AtomicU32>,
@@ -191,6 +210,33 @@ impl Worker {
             ..EngineOptions::default()
         };
         let mut engine = Engine::new(&self.gpu, &self.dir, &options)?;
+        if let Some(steps) = self.steps {
+            let sampling = Sampling {
+                steps,
+                ..engine.sampling()
+            };
+            sampling
+                .check(engine.bundle.schedule.steps())
+                .map_err(|e| anyhow::anyhow!("--steps: {e}"))?;
+            engine.set_sampling(sampling);
+        }
+        let (frames, stop) = (self.window_frames.clone(), self.stop.clone());
+        let mut seen = frames.load(Ordering::Relaxed);
+        let mut slice = Instant::now();
+        engine.set_pacer(move || {
+            if slice.elapsed() < MODEL_SLICE {
+                return;
+            }
+            let waited = Instant::now();
+            while frames.load(Ordering::Relaxed) == seen
+                && waited.elapsed() < WINDOW_WAIT
+                && !stop.load(Ordering::Relaxed)
+            {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+            seen = frames.load(Ordering::Relaxed);
+            slice = Instant::now();
+        });
         let mut settings = Settings {
             sampling: engine.sampling(),
             pca: true,

@@ -181,13 +181,14 @@ impl Shown {
         renderer: &SceneRenderer,
         dir: &Path,
         character: Option<&Path>,
+        steps: Option<usize>,
     ) -> Self {
         let mut shown = Self::load(gpu, renderer, character);
         shown.show_teacher = shown.teacher.is_some();
         shown.name = format!("{} (neural)", dir.display());
         shown.problem = Some("Loading the neural avatar…".into());
         shown.neural = Some(Neural {
-            avatar: NeuralAvatar::start(gpu, dir),
+            avatar: NeuralAvatar::start(gpu, dir, steps),
             settings: None,
             surface: None,
             mesh: Mesh::default(),
@@ -243,9 +244,9 @@ impl Shown {
     }
 
     /// The splats to draw: a PLY file's, or the neural avatar's when it shows splats.
-    pub fn splats(&self) -> Option<(&wgpu::Buffer, usize)> {
+    pub fn splats(&self) -> Option<(&wgpu::Buffer, usize, u64)> {
         if let Some((buffer, count, _)) = &self.file_splats {
-            return Some((buffer, *count));
+            return Some((buffer, *count, 0));
         }
         let neural = self
             .neural
@@ -254,7 +255,7 @@ impl Shown {
         neural
             .splats
             .as_ref()
-            .map(|(buffer, count)| (buffer, *count))
+            .map(|(buffer, count)| (buffer, *count, neural.frames))
     }
 
     /// The meshes to draw.

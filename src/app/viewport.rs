@@ -25,10 +25,24 @@ pub struct Viewport {
     texture: Option<egui::TextureId>,
     /// Made when splats are first drawn.
     splatting: Option<(Rasterizer, Compositor)>,
+    /// The last splat image and what it was drawn from: redrawn only when the camera,
+    /// the size or the splats change, so HUD-only frames cost no rasterization.
+    cached: Option<Cached>,
 }
 
-/// Splats to draw: a buffer of `GpuSplat`s and how many.
-pub type Splats<'a> = (&'a wgpu::Buffer, usize);
+/// Splats to draw: a buffer of `GpuSplat`s, how many, and a generation that changes
+/// whenever the buffer's contents do (e.g. the generated frame's number).
+pub type Splats<'a> = (&'a wgpu::Buffer, usize, u64);
+
+struct Cached {
+    key: (OrbitCamera, (u32, u32), wgpu::Buffer, usize, u64),
+    image: wgpu::Buffer,
+    divisor: u32,
+}
+
+/// While the camera moves, splats are rasterized at 1/DIVISOR of the size along each
+/// axis (a sixteenth of the pixels); the full size follows once it stops.
+const MOVING_DIVISOR: u32 = 4;
 
 impl Viewport {
     pub fn new(gpu: &GpuContext) -> Self {
@@ -38,6 +52,7 @@ impl Viewport {
             target: None,
             texture: None,
             splatting: None,
+            cached: None,
         }
     }
 
@@ -92,17 +107,41 @@ impl Viewport {
             self.renderer
                 .draw(gpu, encoder, target, &self.camera, meshes, timer)
         });
-        if let Some((buffer, count)) = splats {
+        if let Some((buffer, count, generation)) = splats {
             let (rasterizer, compositor) = self
                 .splatting
                 .get_or_insert_with(|| (Rasterizer::default(), Compositor::new(gpu, COLOR_FORMAT)));
-            let camera = SplatCamera::new(&self.camera, w, h);
+            let key = (self.camera, (w, h), buffer.clone(), count, generation);
+            let cached = &mut self.cached;
+            let moving = cached.as_ref().is_some_and(|c| c.key.0 != self.camera);
+            let full = cached.as_ref().is_some_and(|c| c.divisor == 1);
+            let fresh = cached.as_ref().is_some_and(|c| c.key == key);
             profiler.cpu_stage(gpu, "splats", |encoder| {
-                match rasterizer.record(gpu, encoder, buffer, count, &camera, glam::Vec3::ZERO) {
-                    Ok(raster) => compositor.draw(gpu, encoder, target, &raster.image),
-                    Err(e) => log::error!("splats: {e}"),
+                if !(fresh && (full || moving)) {
+                    let divisor = if moving { MOVING_DIVISOR } else { 1 };
+                    let camera =
+                        SplatCamera::new(&self.camera, w.div_ceil(divisor), h.div_ceil(divisor));
+                    match rasterizer.record(gpu, encoder, buffer, count, &camera, glam::Vec3::ZERO)
+                    {
+                        Ok(raster) => {
+                            *cached = Some(Cached {
+                                key,
+                                image: raster.image.clone(),
+                                divisor,
+                            })
+                        }
+                        Err(e) => {
+                            log::error!("splats: {e}");
+                            *cached = None;
+                        }
+                    }
+                }
+                if let Some(c) = cached.as_ref() {
+                    compositor.draw(gpu, encoder, target, &c.image, c.divisor);
                 }
             });
+        } else {
+            self.cached = None;
         }
         let response = ui.add(
             egui::Image::new(egui::load::SizedTexture::new(texture, size))

@@ -140,6 +140,8 @@ pub struct Engine {
     /// The frame's splats (when asked for) and whether they use the refiner.
     splats: Option<SplatFrame>,
     refine: bool,
+    /// Called between the parts of a split frame (see [`Engine::set_pacer`]).
+    pacer: Option<Box<dyn FnMut() + Send>>,
     basis: ShiftBasis,
     slots: Vec<Slot>,
     /// The latest frame state read back, and the frames submitted.
@@ -149,9 +151,9 @@ pub struct Engine {
     frames: u64,
 }
 
-/// Dispatches per submission when a frame is submitted in parts beside a window: about
-/// 30 ms of model work on a 2-core CPU driver, far less on a GPU.
-pub const SPLIT_STEPS: usize = 12;
+/// Dispatches per submission when a frame is submitted in parts beside a window (a few
+/// tens of ms of model work on a 2-core CPU driver, far less on a GPU).
+pub const SPLIT_STEPS: usize = 1;
 
 /// Frame-state readbacks in flight at most (older ones are skipped, not waited for).
 const SLOTS: usize = 3;
@@ -201,6 +203,7 @@ impl Engine {
             plan: None,
             splats: None,
             refine: options.refine,
+            pacer: None,
             basis,
             slots,
             state: initial_state(start_root),
@@ -269,6 +272,13 @@ impl Engine {
     /// other ([3, C·h·w], see `recentre`): what the window's slide subtracts.
     pub fn shift_jacobian(&self) -> &[f32] {
         &self.basis.jacobian
+    }
+
+    /// A split frame calls `pacer` on the submitting thread after each part has run, so
+    /// a caller can give the GPU (and, on a CPU driver, the CPU) to other work — the
+    /// window — between parts.
+    pub fn set_pacer(&mut self, pacer: impl FnMut() + Send + 'static) {
+        self.pacer = Some(Box::new(pacer));
     }
 
     /// Makes the frame's splats at `level` (128, 256, 512 or 1024) from the next frame on,
@@ -556,6 +566,9 @@ impl Engine {
                     submission_index: Some(index),
                     timeout: None,
                 });
+                if let Some(pacer) = self.pacer.as_mut() {
+                    pacer();
+                }
             }
         }
         let size = std::mem::size_of::<FrameState>() as u64;

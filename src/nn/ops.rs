@@ -4,10 +4,10 @@
 //! allocates its output and records one dispatch; nothing is read back.
 
 use super::Tensor;
+use super::kernels;
 use crate::gpu::kernel::{Grid, PipelineCache, Precision};
 pub use crate::gpu::plan::{Builder, Plan};
 use crate::gpu::shaders::Shader;
-use super::kernels;
 use crate::gpu::{GpuContext, GpuError};
 use crate::gpu_struct;
 

@@ -70,7 +70,7 @@ impl Offscreen {
             &splat_camera,
             glam::Vec3::ZERO,
         )?;
-        compositor.draw(&self.gpu, &mut encoder, &self.target, &raster.image);
+        compositor.draw(&self.gpu, &mut encoder, &self.target, &raster.image, 1);
         self.gpu.submit([encoder.finish()]);
         readback::rgba_texture(&self.gpu, &self.target.color)
     }

@@ -4,10 +4,10 @@
 use glam::{Vec3, Vec4};
 
 use super::OrbitCamera;
-use crate::gpu::kernel::Precision;
-use crate::gpu::timing::PassTimer;
 use crate::gpu::GpuContext;
+use crate::gpu::kernel::Precision;
 use crate::gpu::shaders::Shader;
+use crate::gpu::timing::PassTimer;
 use crate::gpu_struct;
 use crate::mesh::Mesh;
 
@@ -34,7 +34,8 @@ gpu_struct! {
 }
 
 /// The scene's shader (WGSL in `shaders/render/`).
-pub const SCENE: Shader = crate::wgsl_shader!("render/scene.wgsl", [SceneUniforms], f16: false, subgroups: false);
+pub const SCENE: Shader =
+    crate::wgsl_shader!("render/scene.wgsl", [SceneUniforms], f16: false, subgroups: false);
 
 /// The render stage's shaders.
 pub const ALL: &[Shader] = &[SCENE];

@@ -1,9 +1,9 @@
 //! Drawing rasterized splats into a render target over what is already there (the
 //! scene's grid and meshes): see shaders/splat_composite.wgsl.
 
+use super::kernels;
 use crate::gpu::GpuContext;
 use crate::gpu::kernel::{Precision, uniform};
-use super::kernels;
 use crate::gpu_struct;
 use crate::render::RenderTarget;
 
@@ -12,8 +12,9 @@ gpu_struct! {
     pub struct CompositeParams {
         pub width: u32,
         pub height: u32,
-        pub reserved0: u32,
-        pub reserved1: u32,
+        /// Window pixels per image pixel along each axis (a reduced-size raster).
+        pub divisor: u32,
+        pub reserved: u32,
     }
 }
 
@@ -62,23 +63,26 @@ impl Compositor {
         Self { pipeline }
     }
 
-    /// Records drawing `image` (the rasterizer's output at the target's size) over
-    /// `target`.
+    /// Records drawing `image` (the rasterizer's output at the target's size divided by
+    /// `divisor`, rounded up) over `target`, each image pixel covering divisor² pixels.
     pub fn draw(
         &self,
         gpu: &GpuContext,
         encoder: &mut wgpu::CommandEncoder,
         target: &RenderTarget,
         image: &wgpu::Buffer,
+        divisor: u32,
     ) {
+        let divisor = divisor.max(1);
         let (width, height) = target.size();
+        let (width, height) = (width.div_ceil(divisor), height.div_ceil(divisor));
         let params = uniform(
             gpu,
             &CompositeParams {
                 width,
                 height,
-                reserved0: 0,
-                reserved1: 0,
+                divisor,
+                reserved: 0,
             },
         );
         let bind_group = gpu.create_bind_group(&wgpu::BindGroupDescriptor {

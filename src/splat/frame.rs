@@ -12,12 +12,12 @@
 use glam::Vec3;
 
 use super::base::{self, OPACITY, RESIDUALS, SPREAD, THICKNESS};
+use super::kernels;
 use super::ply::SH_C0;
 use super::raster::GpuSplat;
 use super::upscale::UpscaleParams;
 use crate::gpu::kernel::{Grid, Precision};
 use crate::gpu::plan::Builder;
-use super::kernels;
 use crate::gpu::shaders::Shader;
 use crate::gpu::{GpuContext, GpuError};
 use crate::gpu_struct;

@@ -10,7 +10,8 @@ use crate::wgsl_shader as shader;
 pub const SPLAT_PROJECT: Shader = shader!("splat/splat_project.wgsl", [SplatFrame, GpuSplat, ProjectedSplat], f16: false, subgroups: false);
 pub const SCAN_BLOCKS: Shader =
     shader!("splat/scan_blocks.wgsl", [ScanParams], f16: false, subgroups: false);
-pub const SCAN_ADD: Shader = shader!("splat/scan_add.wgsl", [ScanParams], f16: false, subgroups: false);
+pub const SCAN_ADD: Shader =
+    shader!("splat/scan_add.wgsl", [ScanParams], f16: false, subgroups: false);
 pub const SPLAT_KEYS: Shader =
     shader!("splat/splat_keys.wgsl", [SplatFrame, ProjectedSplat], f16: false, subgroups: false);
 pub const RADIX_HISTOGRAM: Shader =

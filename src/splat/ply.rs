@@ -19,6 +19,9 @@ pub struct Splat {
 }
 
 /// The SH degree-0 constant, 1 / (2√π).
+/// The smallest scale written (1 nm): zero footprints are written as this.
+pub const MIN_SCALE: f32 = 1e-9;
+
 pub const SH_C0: f32 = 0.282_094_8;
 
 impl Splat {
@@ -56,9 +59,11 @@ fn fields(s: &Splat) -> [f32; 17] {
         s.f_dc.y,
         s.f_dc.z,
         logit,
-        s.scale.x.ln(),
-        s.scale.y.ln(),
-        s.scale.z.ln(),
+        // A degenerate splat (two map pixels on one point give a zero footprint) is
+        // written as a vanishing one, so the file stays finite and readable.
+        s.scale.x.max(MIN_SCALE).ln(),
+        s.scale.y.max(MIN_SCALE).ln(),
+        s.scale.z.max(MIN_SCALE).ln(),
         q.w,
         q.x,
         q.y,
@@ -479,6 +484,22 @@ mod tests {
         let back = read(&path).unwrap();
         assert_eq!(back.len(), 5);
         assert!(splats().iter().zip(&back).all(|(a, b)| close(a, b)));
+    }
+
+    #[test]
+    fn a_zero_footprint_is_written_as_a_vanishing_splat() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.ply");
+        let mut flat = splats();
+        flat[1].scale = Vec3::new(0.01, 0.0, 0.0);
+        write(&path, &flat).unwrap();
+        let back = read(&path).unwrap();
+        assert!(
+            (back[1].scale.y - MIN_SCALE).abs() < 1e-12,
+            "{}",
+            back[1].scale
+        );
+        assert!((back[1].scale.x - 0.01).abs() < 1e-6);
     }
 
     #[test]

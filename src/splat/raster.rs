@@ -6,10 +6,10 @@
 
 use glam::{Mat4, Vec3};
 
+use super::kernels;
 use super::ply::Splat;
 use super::project::SplatCamera;
 use crate::gpu::kernel::{Grid, PipelineCache, Precision, dispatch, uniform};
-use super::kernels;
 use crate::gpu::shaders::Shader;
 use crate::gpu::{GpuContext, GpuError};
 use crate::gpu_struct;

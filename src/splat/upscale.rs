@@ -1,8 +1,8 @@
 //! Foreground-aware upscaling of 3-channel maps (DESIGN §7: 128² → 1024²): the GPU kernel
 //! (shaders/upscale_map.wgsl) and its CPU reference, the same arithmetic in f32.
 
-use crate::gpu::kernel::{Grid, PipelineCache, Precision, dispatch, uniform};
 use super::kernels;
+use crate::gpu::kernel::{Grid, PipelineCache, Precision, dispatch, uniform};
 use crate::gpu::{GpuContext, GpuError};
 use crate::gpu_struct;
 
