@@ -203,6 +203,15 @@ struct Worker {
 
 impl Worker {
     fn run(self, send: &std::sync::mpsc::Sender<Update>) -> anyhow::Result<()> {
+        // Loading submits seconds of work on a CPU driver; let the window open and
+        // configure its surface first (wgpu waits for an idle GPU to do that).
+        let opened = Instant::now();
+        while self.window_frames.load(Ordering::Relaxed) < 3
+            && opened.elapsed() < Duration::from_secs(5)
+            && !self.stop.load(Ordering::Relaxed)
+        {
+            std::thread::sleep(Duration::from_millis(10));
+        }
         let level = appearance::default_level(&self.gpu);
         let options = EngineOptions {
             split: true,

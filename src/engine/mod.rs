@@ -151,6 +151,10 @@ pub struct Engine {
     frames: u64,
 }
 
+// The refiner (nn) and the splat stage meet here: their per-point sizes must agree.
+const _: () = assert!(crate::nn::refiner::RESIDUALS == crate::splat::base::RESIDUALS);
+const _: () = assert!(crate::nn::refiner::FEATURES == crate::splat::frame::FEATURES);
+
 /// Dispatches per submission when a frame is submitted in parts beside a window (a few
 /// tens of ms of model work on a 2-core CPU driver, far less on a GPU).
 pub const SPLIT_STEPS: usize = 1;

@@ -12,10 +12,12 @@ use super::ops::{AttentionParams, Indices, Recorder};
 use super::serialise::{self, ORDERS};
 use super::{LoadError, Tensor, Weights};
 use crate::gpu::GpuError;
-use crate::splat::base::RESIDUALS;
 
-/// Inputs per point (see [`crate::splat::base::features`]).
+/// Inputs per point (the splat stage's features; `engine` checks both sides agree).
 pub const FEATURES: usize = 11;
+/// Outputs per point: mean 3, colour 3, log-scale 3, rotation 4, opacity 1 (the splat
+/// stage's residuals; `engine` checks both sides agree).
+pub const RESIDUALS: usize = 14;
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 pub struct RefinerConfig {
