@@ -330,3 +330,41 @@ fn the_gpu_splats_equal_the_cpu_appearance_on_the_shipped_bundle() {
         assert!(d[3] < 1e-3 && d[4] < 1e-3, "opacity, colour {d:?}");
     }
 }
+
+#[test]
+fn a_dispatch_with_the_wrong_bindings_is_caught_when_recorded() {
+    let gpu = gpu();
+    let buffer = gpu
+        .storage_buffer("x", 64, wgpu::BufferUsages::empty())
+        .unwrap();
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        let mut pipelines = PipelineCache::default();
+        let mut r = Recorder::new(&gpu, &mut pipelines, Precision::F32);
+        let params = PostParams {
+            points: 1,
+            plane: 1,
+            waist: 1,
+            components: 0,
+            scale: 1.0,
+            latent: 1,
+            frames: 1,
+            reserved: 0,
+        };
+        // frame_unit binds five buffers after its parameters; four are given.
+        r.dispatch(
+            &kernels::FRAME_UNIT,
+            &params,
+            &[&buffer, &buffer, &buffer, &buffer],
+            Grid { x: 1, y: 1 },
+        );
+    }));
+    let message = result.expect_err("the dispatch must be refused");
+    let text = message
+        .downcast_ref::<String>()
+        .cloned()
+        .unwrap_or_default();
+    assert!(
+        text.contains("engine/frame_unit.wgsl") && text.contains("declares 6"),
+        "{text}"
+    );
+}

@@ -156,3 +156,30 @@ fn a_misaligned_struct_would_be_caught() {
         .unwrap();
     assert_eq!(offsets, [0, 16]);
 }
+
+#[test]
+fn every_compute_kernel_binds_its_parameters_then_buffers_in_order() {
+    // The dispatch convention (gpu::plan::Builder::dispatch, gpu::kernel::dispatch):
+    // group 0, binding 0 the uniform parameters (if any), then storage buffers with no
+    // gaps; the builder checks the count against this reflection when it records.
+    let mut checked = 0;
+    for shader in &all() {
+        let source = shader.source(Precision::F32);
+        if !source.contains("@compute") {
+            continue;
+        }
+        let bindings = shader.bindings(Precision::F32).unwrap();
+        let numbers: Vec<u32> = bindings.iter().map(|b| b.0).collect();
+        let expected: Vec<u32> = (0..bindings.len() as u32).collect();
+        assert_eq!(numbers, expected, "{}: bindings not 0..n", shader.file);
+        // Parameters, where a kernel has them, come first (the rasterizer's range
+        // kernel has none).
+        assert!(
+            bindings[1..].iter().all(|b| !b.1),
+            "{}: a uniform after binding 0",
+            shader.file
+        );
+        checked += 1;
+    }
+    assert!(checked >= 40, "only {checked} compute kernels found");
+}

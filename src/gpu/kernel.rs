@@ -64,6 +64,8 @@ impl Grid {
 #[derive(Default)]
 pub struct PipelineCache {
     pipelines: HashMap<(&'static str, Precision), wgpu::ComputePipeline>,
+    /// Group-0 binding counts by naga's reflection (see [`PipelineCache::bindings`]).
+    bindings: HashMap<(&'static str, Precision), usize>,
 }
 
 impl PipelineCache {
@@ -85,6 +87,18 @@ impl PipelineCache {
                     compilation_options: Default::default(),
                     cache: None,
                 })
+            })
+    }
+
+    /// How many group-0 bindings the shader declares (reflected once per variant), so a
+    /// dispatch that binds another number is caught when it is recorded, naming the file.
+    pub fn bindings(&mut self, shader: &Shader, precision: Precision) -> usize {
+        *self
+            .bindings
+            .entry((shader.file, precision))
+            .or_insert_with(|| match shader.bindings(precision) {
+                Ok(b) => b.len(),
+                Err(e) => panic!("{e}"),
             })
     }
 

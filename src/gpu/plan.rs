@@ -228,6 +228,15 @@ impl<'a> Builder<'a> {
         buffers: &[&wgpu::Buffer],
         grid: Grid,
     ) {
+        let declared = self.pipelines.bindings(shader, self.precision);
+        assert_eq!(
+            buffers.len() + 1,
+            declared,
+            "{}: {} buffers bound after the parameters, the shader declares {} bindings",
+            shader.file,
+            buffers.len(),
+            declared
+        );
         let params = uniform(self.gpu, params);
         let bindings: Vec<&wgpu::Buffer> = std::iter::once(&params)
             .chain(buffers.iter().copied())

@@ -167,6 +167,24 @@ impl Shader {
         out
     }
 
+    /// The group-0 bindings of the variant for `precision` as naga reflects them:
+    /// (binding, is a uniform), sorted by binding.
+    pub fn bindings(&self, precision: Precision) -> Result<Vec<(u32, bool)>, String> {
+        let source = self.source(precision);
+        let module = wgpu::naga::front::wgsl::parse_str(&source)
+            .map_err(|e| format!("{}: {}", self.file, e.emit_to_string(&source)))?;
+        let mut out: Vec<(u32, bool)> = module
+            .global_variables
+            .iter()
+            .filter_map(|(_, v)| {
+                let b = v.binding.as_ref()?;
+                (b.group == 0).then_some((b.binding, v.space == wgpu::naga::AddressSpace::Uniform))
+            })
+            .collect();
+        out.sort();
+        Ok(out)
+    }
+
     pub fn module(&self, device: &wgpu::Device, precision: Precision) -> wgpu::ShaderModule {
         device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(self.file),
