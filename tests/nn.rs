@@ -152,10 +152,16 @@ fn check(
     scope: Scope,
     module: impl Fn(&mut Recorder, &Weights, &[Tensor]) -> Tensor,
 ) {
-    for precision in precisions() {
+    // Every kernel variant: the register-tiled ones where the shapes allow, then the
+    // simple ones only.
+    for (precision, untiled) in precisions()
+        .into_iter()
+        .flat_map(|p| [(p, false), (p, true)])
+    {
         let mut f = Fixture::open(name, precision);
         let inputs: Vec<Tensor> = inputs.iter().map(|n| f.input(n)).collect();
         let (mut r, w) = f.recorder();
+        r.set_untiled(untiled);
         let y = module(&mut r, &w, &inputs);
         r.submit();
         let (layer, model) = tolerances(precision);
@@ -607,11 +613,15 @@ fn the_refiner_matches_pytorch() {
         stride: 4,
         mean_bound: 0.004,
     };
-    for precision in precisions() {
+    for (precision, untiled) in precisions()
+        .into_iter()
+        .flat_map(|p| [(p, false), (p, true)])
+    {
         let mut f = Fixture::open("refiner", precision);
         let unit = points(&f, "io.in.unit");
         let features = f.input("io.in.features");
         let (mut r, w) = f.recorder();
+        r.set_untiled(untiled);
         let y = Refiner::load(&w, &cfg)
             .unwrap()
             .forward(&mut r, &features, &unit)
@@ -623,7 +633,10 @@ fn the_refiner_matches_pytorch() {
 
 #[test]
 fn the_shipped_refiner_matches_pytorch_on_a_witch_frame() {
-    for precision in precisions() {
+    for (precision, untiled) in precisions()
+        .into_iter()
+        .flat_map(|p| [(p, false), (p, true)])
+    {
         let mut f = Fixture::open("witch_refiner", precision);
         let manifest: serde_json::Value = serde_json::from_str(
             &std::fs::read_to_string(witch_bundle().join("manifest.json")).unwrap(),
@@ -634,6 +647,7 @@ fn the_shipped_refiner_matches_pytorch_on_a_witch_frame() {
         let unit = points(&f, "io.in.unit");
         let features = f.input("io.in.features");
         let mut r = Recorder::new(&f.gpu, &mut f.pipelines, precision);
+        r.set_untiled(untiled);
         let w = Weights::new(&file, &f.gpu, precision);
         let refiner = Refiner::load(&w.at("refiner"), &cfg).unwrap();
         let y = refiner.forward(&mut r, &features, &unit).unwrap();

@@ -9,9 +9,13 @@ use crate::gpu::shaders::Shader;
 use crate::wgsl_shader as shader;
 
 pub const CONV2D: Shader = shader!("nn/conv2d.wgsl", [Conv2dParams], elem);
+/// The convolution in register tiles of 4 output pixels × 8 channels.
+pub const CONV2D_TILED: Shader = shader!("nn/conv2d_tiled.wgsl", [Conv2dParams], elem);
 pub const UPSAMPLE_NEAREST: Shader = shader!("nn/upsample_nearest.wgsl", [UpsampleParams], elem);
 pub const GROUP_NORM: Shader = shader!("nn/group_norm.wgsl", [GroupNormParams], elem);
 pub const LINEAR: Shader = shader!("nn/linear.wgsl", [LinearParams], elem);
+/// The linear layer in 4 × 4 register tiles (for 4 rows or more).
+pub const LINEAR_TILED: Shader = shader!("nn/linear_tiled.wgsl", [LinearParams], elem);
 pub const ADD: Shader = shader!("nn/add.wgsl", [AddParams], elem);
 pub const PERMUTE: Shader = shader!("nn/permute.wgsl", [PermuteParams], elem);
 pub const CONCAT: Shader = shader!("nn/concat.wgsl", [ConcatParams], elem);
@@ -26,9 +30,11 @@ pub const SEGMENT_MEAN: Shader = shader!("nn/segment_mean.wgsl", [SegmentParams]
 /// Every shader of the model.
 pub const ALL: &[Shader] = &[
     CONV2D,
+    CONV2D_TILED,
     UPSAMPLE_NEAREST,
     GROUP_NORM,
     LINEAR,
+    LINEAR_TILED,
     ADD,
     PERMUTE,
     CONCAT,

@@ -226,7 +226,13 @@ pub struct Recorder<'a> {
     steps: Builder<'a>,
     flops: u64,
     mode: Mode,
+    /// Use the one-output-per-invocation kernels only (tests of both variants; also
+    /// forced by setting [`SIMPLE_KERNELS_ENV`]).
+    untiled: bool,
 }
+
+/// Environment variable that forces the simple (untiled) kernel variants.
+pub const SIMPLE_KERNELS_ENV: &str = "UNICA_SIMPLE_KERNELS";
 
 impl<'a> Recorder<'a> {
     fn with_mode(
@@ -240,6 +246,7 @@ impl<'a> Recorder<'a> {
             steps: Builder::new(gpu, pipelines, precision),
             flops: 0,
             mode,
+            untiled: std::env::var(SIMPLE_KERNELS_ENV).is_ok_and(|v| !v.is_empty() && v != "0"),
         }
     }
 
@@ -283,6 +290,11 @@ impl<'a> Recorder<'a> {
     /// same work (e.g. the splats of a frame after the model).
     pub fn steps(&mut self) -> &mut Builder<'a> {
         &mut self.steps
+    }
+
+    /// Records the simple kernel variants only (`true`), or picks by shape (`false`).
+    pub fn set_untiled(&mut self, untiled: bool) {
+        self.untiled = untiled;
     }
 
     /// FLOPs recorded so far (see the type's documentation).
@@ -423,9 +435,21 @@ impl<'a> Recorder<'a> {
         self.flops += 2 * (y.len() * c_in * k * k) as u64;
         // A bias binding must exist even without a bias; the weight stands in (unread).
         let bias = bias.unwrap_or(weight);
-        // One thread per output pixel and block of 8 output channels.
-        let grid = self.grid(n * c_out.div_ceil(8) * h_out * w_out);
-        self.launch(&kernels::CONV2D, &params, &[x, weight, bias, &y], grid);
+        // Register tiles of 4 output pixels × 8 channels where a row has 4 pixels; one
+        // thread per output pixel and block of 8 channels otherwise. Both sum in the same
+        // order; both are parity-tested (tests/nn.rs).
+        if w_out >= 4 && !self.untiled {
+            let grid = self.grid(n * c_out.div_ceil(8) * h_out * w_out.div_ceil(4));
+            self.launch(
+                &kernels::CONV2D_TILED,
+                &params,
+                &[x, weight, bias, &y],
+                grid,
+            );
+        } else {
+            let grid = self.grid(n * c_out.div_ceil(8) * h_out * w_out);
+            self.launch(&kernels::CONV2D, &params, &[x, weight, bias, &y], grid);
+        }
         Ok(y)
     }
 
@@ -510,8 +534,22 @@ impl<'a> Recorder<'a> {
             outputs: outputs as u32,
             input_silu: u32::from(input_silu),
         };
-        let grid = self.grid(y.len());
-        self.launch(&kernels::LINEAR, &params, &[x, weight, bias, &y], grid);
+        // Register tiles of 4 rows × 4 outputs where there are rows to share a tile;
+        // one invocation per output otherwise (the timestep and action embeddings).
+        // Both sum in the same order; both are parity-tested (tests/nn.rs).
+        let rows = x.len() / inputs;
+        if rows >= 4 && !self.untiled {
+            let grid = self.grid(rows.div_ceil(4) * outputs.div_ceil(4));
+            self.launch(
+                &kernels::LINEAR_TILED,
+                &params,
+                &[x, weight, bias, &y],
+                grid,
+            );
+        } else {
+            let grid = self.grid(y.len());
+            self.launch(&kernels::LINEAR, &params, &[x, weight, bias, &y], grid);
+        }
         Ok(y)
     }
 

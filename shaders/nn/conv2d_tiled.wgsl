@@ -1,0 +1,84 @@
+// 2-D convolution in register tiles (NCHW, Elem storage, f32 sums): each invocation
+// computes 4 neighbouring output pixels of a row × 8 output channels, so every weight
+// loaded serves 4 pixels and every input value 8 channels. Taps outside the input add
+// an exact zero, so each output sums the same terms in the same order (bias, then
+// c_in, ky, kx) as conv2d.wgsl. Weights [c_out, c_in, k, k], optional bias [c_out].
+
+@group(0) @binding(0) var<uniform> p: Conv2dParams;
+@group(0) @binding(1) var<storage, read> x: array<Elem>;
+@group(0) @binding(2) var<storage, read> weight: array<Elem>;
+@group(0) @binding(3) var<storage, read> bias: array<Elem>;
+@group(0) @binding(4) var<storage, read_write> y: array<Elem>;
+
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let i = linear_index(invocation);
+    let blocks = (p.c_out + 7u) / 8u;
+    let tiles = (p.w_out + 3u) / 4u;
+    if i >= p.batch * blocks * p.h_out * tiles {
+        return;
+    }
+    let ox0 = (i % tiles) * 4u;
+    let oy = (i / tiles) % p.h_out;
+    let block = (i / (tiles * p.h_out)) % blocks;
+    let n = i / (tiles * p.h_out * blocks);
+    let last = p.c_out - 1u;
+    let co = min(vec4<u32>(8u * block) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
+    let co2 = min(co + vec4<u32>(4u), vec4<u32>(last));
+    var b = vec4<f32>(0.0);
+    var b2 = vec4<f32>(0.0);
+    if p.has_bias != 0u {
+        b = vec4<f32>(f32(bias[co.x]), f32(bias[co.y]), f32(bias[co.z]), f32(bias[co.w]));
+        b2 = vec4<f32>(f32(bias[co2.x]), f32(bias[co2.y]), f32(bias[co2.z]), f32(bias[co2.w]));
+    }
+    // Accumulators: pixel j's first and second four channels.
+    var a = array<vec4<f32>, 4>(b, b, b, b);
+    var a2 = array<vec4<f32>, 4>(b2, b2, b2, b2);
+    let taps = p.kernel * p.kernel;
+    let w_base = co * (p.c_in * taps);
+    let w_base2 = co2 * (p.c_in * taps);
+    for (var ci = 0u; ci < p.c_in; ci++) {
+        let x_base = (n * p.c_in + ci) * p.h_in * p.w_in;
+        let w_ci = w_base + vec4<u32>(ci * taps);
+        let w_ci2 = w_base2 + vec4<u32>(ci * taps);
+        for (var ky = 0u; ky < p.kernel; ky++) {
+            let iy = i32(oy * p.stride + ky) - i32(p.pad);
+            if iy < 0 || iy >= i32(p.h_in) {
+                continue;
+            }
+            let row = x_base + u32(iy) * p.w_in;
+            for (var kx = 0u; kx < p.kernel; kx++) {
+                let tap = vec4<u32>(ky * p.kernel + kx);
+                let w = w_ci + tap;
+                let w2 = w_ci2 + tap;
+                let wv = vec4<f32>(f32(weight[w.x]), f32(weight[w.y]), f32(weight[w.z]), f32(weight[w.w]));
+                let wv2 = vec4<f32>(f32(weight[w2.x]), f32(weight[w2.y]), f32(weight[w2.z]), f32(weight[w2.w]));
+                for (var j = 0u; j < 4u; j++) {
+                    let ix = i32((ox0 + j) * p.stride + kx) - i32(p.pad);
+                    if ix < 0 || ix >= i32(p.w_in) {
+                        continue;
+                    }
+                    let v = f32(x[row + u32(ix)]);
+                    a[j] += v * wv;
+                    a2[j] += v * wv2;
+                }
+            }
+        }
+    }
+    let plane = p.h_out * p.w_out;
+    for (var j = 0u; j < 4u; j++) {
+        let ox = ox0 + j;
+        if ox >= p.w_out {
+            break;
+        }
+        let out = (n * p.c_out + 8u * block) * plane + oy * p.w_out + ox;
+        for (var c = 0u; c < 4u; c++) {
+            if 8u * block + c < p.c_out {
+                y[out + c * plane] = Elem(a[j][c]);
+            }
+            if 8u * block + 4u + c < p.c_out {
+                y[out + (4u + c) * plane] = Elem(a2[j][c]);
+            }
+        }
+    }
+}

@@ -1,0 +1,65 @@
+// Fully connected layer in register tiles (Elem storage, f32 sums): each invocation
+// computes 4 rows × 4 outputs of y[b, o] = sum_i act(x[b, i]) * weight[o, i] + bias[o],
+// so every loaded input value is used 4 times and every weight 4 times (on a CPU driver
+// the caches do the rest; on a GPU it quarters the loads). The sums run over i in order
+// from the bias, as linear.wgsl's do. Rows and outputs past the end are clamped for the
+// loads and not stored.
+
+@group(0) @binding(0) var<uniform> p: LinearParams;
+@group(0) @binding(1) var<storage, read> x: array<Elem>;
+@group(0) @binding(2) var<storage, read> weight: array<Elem>;
+@group(0) @binding(3) var<storage, read> bias: array<Elem>;
+@group(0) @binding(4) var<storage, read_write> y: array<Elem>;
+
+fn act(v: f32) -> f32 {
+    if p.input_silu != 0u {
+        return v / (1.0 + exp(-v));
+    }
+    return v;
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let i = linear_index(invocation);
+    let out_tiles = (p.outputs + 3u) / 4u;
+    let row_tiles = (p.rows + 3u) / 4u;
+    if i >= out_tiles * row_tiles {
+        return;
+    }
+    let o0 = (i % out_tiles) * 4u;
+    let r0 = (i / out_tiles) * 4u;
+    let last_o = p.outputs - 1u;
+    let last_r = p.rows - 1u;
+    let wo = vec4<u32>(min(o0, last_o), min(o0 + 1u, last_o), min(o0 + 2u, last_o), min(o0 + 3u, last_o)) * p.inputs;
+    let xr = vec4<u32>(min(r0, last_r), min(r0 + 1u, last_r), min(r0 + 2u, last_r), min(r0 + 3u, last_r)) * p.inputs;
+    let b = vec4<f32>(
+        f32(bias[min(o0, last_o)]),
+        f32(bias[min(o0 + 1u, last_o)]),
+        f32(bias[min(o0 + 2u, last_o)]),
+        f32(bias[min(o0 + 3u, last_o)]),
+    );
+    var a0 = b;
+    var a1 = b;
+    var a2 = b;
+    var a3 = b;
+    for (var k = 0u; k < p.inputs; k++) {
+        let w = vec4<f32>(f32(weight[wo.x + k]), f32(weight[wo.y + k]), f32(weight[wo.z + k]), f32(weight[wo.w + k]));
+        a0 += act(f32(x[xr.x + k])) * w;
+        a1 += act(f32(x[xr.y + k])) * w;
+        a2 += act(f32(x[xr.z + k])) * w;
+        a3 += act(f32(x[xr.w + k])) * w;
+    }
+    let acc = array<vec4<f32>, 4>(a0, a1, a2, a3);
+    for (var r = 0u; r < 4u; r++) {
+        let row = r0 + r;
+        if row >= p.rows {
+            break;
+        }
+        for (var c = 0u; c < 4u; c++) {
+            let o = o0 + c;
+            if o < p.outputs {
+                y[row * p.outputs + o] = Elem(acc[r][c]);
+            }
+        }
+    }
+}
