@@ -2,6 +2,8 @@
 //! non-finite meshes, datasets, bundles, PLY files, key scripts, write errors) gets a
 //! named error — from the library, and from the binary as one line with a non-zero exit.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -22,18 +24,9 @@ fn unica(args: &[&str]) -> Output {
 fn assert_one_line_error(out: &Output, needles: &[&str]) {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "should fail cleanly: {err}");
-    assert!(!err.contains("panicked"), "{err}");
-    let ours: Vec<&str> = err
-        .lines()
-        .filter(|l| l.starts_with("unica: error:"))
-        .collect();
-    assert_eq!(ours.len(), 1, "{err}");
+    let line = common::error_line(out);
     for needle in needles {
-        assert!(
-            ours[0].contains(needle),
-            "expected '{needle}' in: {}",
-            ours[0]
-        );
+        assert!(line.contains(needle), "expected '{needle}' in: {line}");
     }
 }
 

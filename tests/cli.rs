@@ -1,6 +1,8 @@
 //! The binary's contract: help and version, one-line errors with non-zero exit for bad
 //! input and for a machine without any GPU adapter.
 
+mod common;
+
 use std::process::{Command, Output};
 
 fn unica(args: &[&str], env: &[(&str, &str)]) -> Output {
@@ -22,17 +24,8 @@ fn stderr(out: &Output) -> String {
 fn assert_one_line_error(out: &Output, needle: &str) {
     let err = stderr(out);
     assert!(!out.status.success(), "should fail: {err}");
-    assert!(!err.contains("panicked"), "{err}");
-    let ours: Vec<&str> = err
-        .lines()
-        .filter(|l| l.starts_with("unica: error:"))
-        .collect();
-    assert_eq!(ours.len(), 1, "{err}");
-    assert!(
-        ours[0].contains(needle),
-        "expected '{needle}' in: {}",
-        ours[0]
-    );
+    let line = common::error_line(out);
+    assert!(line.contains(needle), "expected '{needle}' in: {line}");
 }
 
 #[test]

@@ -1,4 +1,5 @@
-//! Helpers shared by the integration tests: the shared Witch and whole-folder snapshots.
+//! Helpers shared by the integration tests: the shared Witch, whole-folder snapshots and
+//! the one-line error of a failed run.
 
 #![allow(dead_code)] // each test binary uses its own subset
 
@@ -28,4 +29,17 @@ pub fn files(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
     walk(dir, dir, &mut out);
     out.sort();
     out
+}
+
+/// The single `unica: error:` line of a failed run's stderr, asserting that nothing
+/// panicked and that there is exactly one such line.
+pub fn error_line(out: &std::process::Output) -> String {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    let ours: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("unica: error:"))
+        .collect();
+    assert_eq!(ours.len(), 1, "{err}");
+    ours[0].to_string()
 }
