@@ -48,9 +48,7 @@ pub struct Drawn {
     pub points: Option<Vec<Vec3>>,
     /// The engine's splat buffer and its count (it changes with the splat level).
     pub splats: Option<(wgpu::Buffer, usize)>,
-    /// The worker's time in the engine's frame call (recording, submitting and, beside a
-    /// window, waiting between parts), and the whole frame (report to report), ms.
-    pub cpu_ms: f64,
+    /// The whole frame (report to report), ms.
     pub frame_ms: f64,
 }
 
@@ -281,9 +279,7 @@ impl Worker {
                 settings = new;
             }
             let action = Action::from_id(self.action.load(Ordering::Relaxed));
-            let clock = Instant::now();
             engine.frame(action)?;
-            let cpu_ms = clock.elapsed().as_secs_f64() * 1e3;
             engine.poll();
             let points = if settings.splats {
                 None
@@ -303,7 +299,6 @@ impl Worker {
                     .splats()
                     .filter(|_| new_buffer)
                     .map(|(b, n)| (b.clone(), n)),
-                cpu_ms,
                 frame_ms: interval * 1e3,
             };
             if send.send(Update::Frame(Box::new(drawn), interval)).is_err() {

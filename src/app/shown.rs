@@ -34,8 +34,7 @@ pub struct Neural {
     pub root: Vec3,
     pub frames: u64,
     pub clamped: usize,
-    /// The worker's CPU time recording a frame, and its whole frame, ms.
-    pub cpu_ms: f64,
+    /// The worker's whole frame (report to report), ms.
     pub frame_ms: f64,
     /// Why the worker stopped, until the app takes it.
     pub failure: Option<String>,
@@ -84,7 +83,7 @@ impl Neural {
                     self.root = drawn.root;
                     self.frames = drawn.frames;
                     self.clamped = drawn.clamped_total;
-                    (self.cpu_ms, self.frame_ms) = (drawn.cpu_ms, drawn.frame_ms);
+                    self.frame_ms = drawn.frame_ms;
                 }
                 Update::Failed(e) => {
                     log::error!("neural avatar: {e}");
@@ -198,7 +197,6 @@ impl Shown {
             frames: 0,
             clamped: 0,
             frame_ms: 0.0,
-            cpu_ms: 0.0,
             failure: None,
         });
         shown

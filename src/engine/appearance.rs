@@ -6,7 +6,7 @@
 use glam::Vec3;
 
 use crate::gpu::kernel::{PipelineCache, Precision};
-use crate::gpu::{GpuContext, GpuError, readback};
+use crate::gpu::{GpuContext, GpuError};
 use crate::nn::{Bundle, Recorder, Tensor};
 use crate::posmap::MAP_SIZE;
 use crate::splat::base::{self, RESIDUALS};
@@ -204,29 +204,15 @@ fn upscale(
     map: &[f32],
     size: usize,
 ) -> Result<(Vec<f32>, Vec<f32>), GpuError> {
-    let usage = wgpu::BufferUsages::empty();
-    let map_buffer = gpu.storage_buffer_init("appearance.map", bytemuck::cast_slice(map), usage)?;
-    let mask_buffer =
-        gpu.storage_buffer_init("appearance.mask", bytemuck::cast_slice(mask), usage)?;
-    let mut encoder = gpu
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("upscale"),
-        });
-    let (out, out_mask) = upscale::record(
+    upscale::run(
         gpu,
         pipelines,
-        &mut encoder,
-        &map_buffer,
-        &mask_buffer,
+        map,
+        mask,
         MAP_SIZE,
         MAP_SIZE,
         size / MAP_SIZE,
-    )?;
-    gpu.submit([encoder.finish()]);
-    let values = bytemuck::pod_collect_to_vec(&readback::buffer(gpu, &out, "upscaled map")?);
-    let mask = bytemuck::pod_collect_to_vec(&readback::buffer(gpu, &out_mask, "upscaled mask")?);
-    Ok((values, mask))
+    )
 }
 
 /// Three values per foreground pixel as a [3, 128, 128] map (0 behind).

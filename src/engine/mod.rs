@@ -289,7 +289,7 @@ impl Engine {
     /// or none; the level's buffers are made here, once.
     pub fn set_splats(&mut self, level: Option<usize>) -> Result<(), GpuError> {
         let same = match (&self.splats, level) {
-            (Some(s), Some(l)) => s.level() == l && s.refines() == self.refining(),
+            (Some(s), Some(l)) => s.level() == l && s.refines() == self.refine(),
             (None, None) => true,
             _ => false,
         };
@@ -331,13 +331,9 @@ impl Engine {
         self.set_splats(level)
     }
 
-    fn refining(&self) -> bool {
-        self.refine && self.bundle.refiner.is_some()
-    }
-
-    /// The refiner setting in force.
+    /// Whether the refiner is applied (asked for, and the bundle has one).
     pub fn refine(&self) -> bool {
-        self.refining()
+        self.refine && self.bundle.refiner.is_some()
     }
 
     /// The rasterizer's input buffer and its splat count (when splats are made): written
@@ -710,9 +706,11 @@ impl Live {
         );
         gpu.submit([encoder.finish()]);
         let f32s = |label: &str, values: &[f32]| {
-            let mut bytes: Vec<u8> = bytemuck::cast_slice(values).to_vec();
-            bytes.resize(bytes.len().max(4), 0);
-            gpu.storage_buffer_init(label, &bytes, wgpu::BufferUsages::empty())
+            gpu.storage_buffer_init(
+                label,
+                bytemuck::cast_slice(values),
+                wgpu::BufferUsages::empty(),
+            )
         };
         let u32s = |label: &str, values: &[u32]| {
             gpu.storage_buffer_init(

@@ -335,19 +335,25 @@ impl GpuContext {
         }))
     }
 
-    /// A storage buffer filled with `data` (same size check as [`Self::storage_buffer`]).
+    /// A storage buffer filled with `data`, padded with zeros to a non-zero multiple of 4
+    /// bytes (same size check as [`Self::storage_buffer`]).
     pub fn storage_buffer_init(
         &self,
         label: &str,
         data: &[u8],
         usage: wgpu::BufferUsages,
     ) -> Result<wgpu::Buffer, GpuError> {
-        let buffer = self.storage_buffer(
-            label,
-            data.len() as u64,
-            usage | wgpu::BufferUsages::COPY_DST,
-        )?;
-        self.queue.write_buffer(&buffer, 0, data);
+        // Bound and copied sizes must be non-zero multiples of 4: pad with zeros.
+        let size = data.len().max(1).next_multiple_of(4);
+        let buffer =
+            self.storage_buffer(label, size as u64, usage | wgpu::BufferUsages::COPY_DST)?;
+        if size == data.len() {
+            self.queue.write_buffer(&buffer, 0, data);
+        } else {
+            let mut padded = data.to_vec();
+            padded.resize(size, 0);
+            self.queue.write_buffer(&buffer, 0, &padded);
+        }
         Ok(buffer)
     }
 

@@ -107,13 +107,6 @@ impl Plan {
         encode_steps(gpu, encoder, &self.parts[k]);
     }
 
-    /// Records every part into `encoder`.
-    pub fn encode(&self, gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder) {
-        for k in 0..self.parts() {
-            self.encode_part(gpu, encoder, k);
-        }
-    }
-
     /// Runs every step in its own submission, waited for (the plan's effects happen once
     /// more), and returns (shader, dispatches, milliseconds) by shader, slowest first.
     pub fn profile(&self, gpu: &GpuContext) -> Vec<(&'static str, usize, f64)> {
@@ -143,17 +136,6 @@ impl Plan {
         }
         by_name.sort_by(|a, b| b.2.total_cmp(&a.2));
         by_name
-    }
-
-    /// Runs the whole plan in one submission (nothing is read back).
-    pub fn run(&self, gpu: &GpuContext) {
-        let mut encoder = gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("plan"),
-            });
-        self.encode(gpu, &mut encoder);
-        gpu.submit([encoder.finish()]);
     }
 }
 

@@ -183,10 +183,6 @@ impl Indices {
         }
     }
 
-    pub fn buffer(&self) -> &wgpu::Buffer {
-        &self.buffer
-    }
-
     pub fn len(&self) -> usize {
         self.len
     }
@@ -354,18 +350,7 @@ impl<'a> Recorder<'a> {
     ) {
         self.check(buffers);
         let buffers: Vec<&wgpu::Buffer> = buffers.iter().map(|t| &t.buffer).collect();
-        self.launch_buffers(shader, params, &buffers, grid);
-    }
-
-    /// Records one dispatch of `shader` with `params` at binding 0, then `buffers`.
-    fn launch_buffers<P: bytemuck::Pod>(
-        &mut self,
-        shader: &Shader,
-        params: &P,
-        buffers: &[&wgpu::Buffer],
-        grid: Grid,
-    ) {
-        self.steps.dispatch(shader, params, buffers, grid);
+        self.steps.dispatch(shader, params, &buffers, grid);
     }
 
     /// Records a kernel of another stage (its own shader and parameter struct) into this
@@ -377,7 +362,7 @@ impl<'a> Recorder<'a> {
         buffers: &[&wgpu::Buffer],
         grid: Grid,
     ) {
-        self.launch_buffers(shader, params, buffers, grid);
+        self.steps.dispatch(shader, params, buffers, grid);
     }
 
     /// Records a buffer-to-buffer copy.
@@ -387,13 +372,7 @@ impl<'a> Recorder<'a> {
 
     /// One thread per element at 64 threads per workgroup.
     pub fn grid(&self, threads: usize) -> Grid {
-        Grid::for_elements(
-            threads as u32,
-            self.gpu
-                .device
-                .limits()
-                .max_compute_workgroups_per_dimension,
-        )
+        self.steps.grid(threads)
     }
 
     /// `y = conv2d(x, weight) + bias` (square kernel, `stride`, zero padding `pad`).
@@ -772,7 +751,7 @@ impl<'a> Recorder<'a> {
             reserved1: 0,
         };
         let grid = self.grid(y.len());
-        self.launch_buffers(
+        self.dispatch(
             &kernels::GATHER,
             &params,
             &[&index.buffer, &x.buffer, &y.buffer],

@@ -162,36 +162,19 @@ impl Level {
             .collect();
         let colors: Vec<f32> = colors.iter().flat_map(|c| c.to_array()).collect();
         let none = wgpu::BufferUsages::empty();
-        let bytes = |values: &[u8]| {
-            let mut v = values.to_vec();
-            v.resize(v.len().max(4), 0);
-            v
-        };
         let count = pixels.len();
         Ok(Self {
             size,
             count,
-            pixels: gpu.storage_buffer_init(
-                "splat.pixels",
-                &bytes(bytemuck::cast_slice(pixels)),
-                none,
-            )?,
+            pixels: gpu.storage_buffer_init("splat.pixels", bytemuck::cast_slice(pixels), none)?,
             neighbours: gpu.storage_buffer_init(
                 "splat.neighbours",
-                &bytes(bytemuck::cast_slice(&packed)),
+                bytemuck::cast_slice(&packed),
                 none,
             )?,
-            pairs: gpu.storage_buffer_init(
-                "splat.pairs",
-                &bytes(bytemuck::cast_slice(&pairs)),
-                none,
-            )?,
+            pairs: gpu.storage_buffer_init("splat.pairs", bytemuck::cast_slice(&pairs), none)?,
             pair_count: pairs.len(),
-            colors: gpu.storage_buffer_init(
-                "splat.colors",
-                &bytes(bytemuck::cast_slice(&colors)),
-                none,
-            )?,
+            colors: gpu.storage_buffer_init("splat.colors", bytemuck::cast_slice(&colors), none)?,
             distances: gpu.storage_buffer(
                 "splat.distances",
                 4 * pairs.len().max(1) as u64,
@@ -411,7 +394,16 @@ impl SplatFrame {
             }
             // The layout comes from the GPU kernel itself (as the frame's upscales do), so
             // a pixel on the 0.25 mask threshold is foreground on both.
-            let (up_colors, up_mask) = upscale_once(gpu, &color_map, &mask, level / COARSE)?;
+            let mut pipelines = crate::gpu::kernel::PipelineCache::default();
+            let (up_colors, up_mask) = super::upscale::run(
+                gpu,
+                &mut pipelines,
+                &color_map,
+                &mask,
+                COARSE,
+                COARSE,
+                level / COARSE,
+            )?;
             let fine_pixels: Vec<u32> = (0..level * level)
                 .filter(|&i| up_mask[i] > 0.0)
                 .map(|i| i as u32)
@@ -632,38 +624,4 @@ impl SplatFrame {
             fine_grid,
         );
     }
-}
-
-/// Upscales a [3, 128, 128] map with its mask once (at load) and reads both back.
-fn upscale_once(
-    gpu: &GpuContext,
-    map: &[f32],
-    mask: &[f32],
-    factor: usize,
-) -> Result<(Vec<f32>, Vec<f32>), GpuError> {
-    let none = wgpu::BufferUsages::empty();
-    let map = gpu.storage_buffer_init("splat.setup_map", bytemuck::cast_slice(map), none)?;
-    let mask = gpu.storage_buffer_init("splat.setup_mask", bytemuck::cast_slice(mask), none)?;
-    let mut pipelines = crate::gpu::kernel::PipelineCache::default();
-    let mut encoder = gpu.device.create_command_encoder(&Default::default());
-    let (out, out_mask) = super::upscale::record(
-        gpu,
-        &mut pipelines,
-        &mut encoder,
-        &map,
-        &mask,
-        COARSE,
-        COARSE,
-        factor,
-    )?;
-    gpu.submit([encoder.finish()]);
-    let read = |b: &wgpu::Buffer, label: &str| -> Result<Vec<f32>, GpuError> {
-        Ok(bytemuck::pod_collect_to_vec(&crate::gpu::readback::buffer(
-            gpu, b, label,
-        )?))
-    };
-    Ok((
-        read(&out, "upscaled colours")?,
-        read(&out_mask, "upscaled mask")?,
-    ))
 }

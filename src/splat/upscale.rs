@@ -108,6 +108,48 @@ pub fn record(
     Ok((out_map, out_mask))
 }
 
+/// Upscales a host `map` [3, h, w] with its `mask` [h, w] on the GPU in one submission
+/// and reads both back (tools, load-time layouts and the CPU reference path; never inside
+/// a generated frame).
+pub fn run(
+    gpu: &GpuContext,
+    pipelines: &mut PipelineCache,
+    map: &[f32],
+    mask: &[f32],
+    width: usize,
+    height: usize,
+    factor: usize,
+) -> Result<(Vec<f32>, Vec<f32>), GpuError> {
+    let usage = wgpu::BufferUsages::empty();
+    let map = gpu.storage_buffer_init("upscale.in_map", bytemuck::cast_slice(map), usage)?;
+    let mask = gpu.storage_buffer_init("upscale.in_mask", bytemuck::cast_slice(mask), usage)?;
+    let mut encoder = gpu
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("upscale"),
+        });
+    let (out, out_mask) = record(
+        gpu,
+        pipelines,
+        &mut encoder,
+        &map,
+        &mask,
+        width,
+        height,
+        factor,
+    )?;
+    gpu.submit([encoder.finish()]);
+    let read = |b: &wgpu::Buffer, label: &str| -> Result<Vec<f32>, GpuError> {
+        Ok(bytemuck::pod_collect_to_vec(&crate::gpu::readback::buffer(
+            gpu, b, label,
+        )?))
+    };
+    Ok((
+        read(&out, "upscaled map")?,
+        read(&out_mask, "upscaled mask")?,
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
