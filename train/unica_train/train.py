@@ -16,6 +16,7 @@ import csv
 import json
 import math
 import os
+import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -364,9 +365,16 @@ def main(argv=None):
             raise RuntimeError(f"ranks disagree after training: {sums}")
         if rank == 0:
             print(f"parameters in sync across {world} ranks", flush=True)
+        torch.distributed.barrier()  # no collective is in flight on any rank past this point
         torch.distributed.destroy_process_group()
         if rank != 0:
-            return
+            # This rank has nothing left to do. It leaves without the interpreter's teardown,
+            # where gloo's transport threads can still be joinable and abort the process
+            # ("terminate called without an active exception", seen once in CI after a run
+            # whose ranks were in sync); everything it wrote is flushed first.
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(0)
     vae, unet = vae.cpu(), unet.cpu()
     run.device = torch.device("cpu")
     run.mask = run.mask.cpu()
