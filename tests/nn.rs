@@ -25,7 +25,7 @@ use unica::nn::refiner::{Refiner, RefinerConfig};
 use unica::nn::sampler::{self, Sampling, Schedule};
 use unica::nn::unet::{UNet, UNetConfig};
 use unica::nn::vae::{Decoder, Encoder, VaeConfig};
-use unica::nn::{Bundle, Recorder, Tensor, Weights};
+use unica::nn::{Bundle, Kernels, Recorder, Tensor, Weights};
 use unica::tensors::TensorFile;
 
 /// Tolerances of the error measure above: (layers, whole models).
@@ -152,16 +152,15 @@ fn check(
     scope: Scope,
     module: impl Fn(&mut Recorder, &Weights, &[Tensor]) -> Tensor,
 ) {
-    // Every kernel variant: the register-tiled ones where the shapes allow, then the
-    // simple ones only.
-    for (precision, untiled) in precisions()
+    // Every kernel variant (simple, CPU, GPU), each in every precision.
+    for (precision, kernels) in precisions()
         .into_iter()
-        .flat_map(|p| [(p, false), (p, true)])
+        .flat_map(|p| Kernels::ALL.map(|k| (p, k)))
     {
         let mut f = Fixture::open(name, precision);
         let inputs: Vec<Tensor> = inputs.iter().map(|n| f.input(n)).collect();
         let (mut r, w) = f.recorder();
-        r.set_untiled(untiled);
+        r.set_kernels(kernels);
         let y = module(&mut r, &w, &inputs);
         r.submit();
         let (layer, model) = tolerances(precision);
@@ -613,15 +612,15 @@ fn the_refiner_matches_pytorch() {
         stride: 4,
         mean_bound: 0.004,
     };
-    for (precision, untiled) in precisions()
+    for (precision, kernels) in precisions()
         .into_iter()
-        .flat_map(|p| [(p, false), (p, true)])
+        .flat_map(|p| Kernels::ALL.map(|k| (p, k)))
     {
         let mut f = Fixture::open("refiner", precision);
         let unit = points(&f, "io.in.unit");
         let features = f.input("io.in.features");
         let (mut r, w) = f.recorder();
-        r.set_untiled(untiled);
+        r.set_kernels(kernels);
         let y = Refiner::load(&w, &cfg)
             .unwrap()
             .forward(&mut r, &features, &unit)
@@ -633,9 +632,9 @@ fn the_refiner_matches_pytorch() {
 
 #[test]
 fn the_shipped_refiner_matches_pytorch_on_a_witch_frame() {
-    for (precision, untiled) in precisions()
+    for (precision, kernels) in precisions()
         .into_iter()
-        .flat_map(|p| [(p, false), (p, true)])
+        .flat_map(|p| Kernels::ALL.map(|k| (p, k)))
     {
         let mut f = Fixture::open("witch_refiner", precision);
         let manifest: serde_json::Value = serde_json::from_str(
@@ -647,11 +646,70 @@ fn the_shipped_refiner_matches_pytorch_on_a_witch_frame() {
         let unit = points(&f, "io.in.unit");
         let features = f.input("io.in.features");
         let mut r = Recorder::new(&f.gpu, &mut f.pipelines, precision);
-        r.set_untiled(untiled);
+        r.set_kernels(kernels);
         let w = Weights::new(&file, &f.gpu, precision);
         let refiner = Refiner::load(&w.at("refiner"), &cfg).unwrap();
         let y = refiner.forward(&mut r, &features, &unit).unwrap();
         r.submit();
         f.assert_close(&y, "io.out.y", tolerances(precision).1);
+    }
+}
+
+#[test]
+fn every_variant_of_the_group_norm_and_the_3x3_convolution_agrees_on_odd_shapes() {
+    // Shapes the fixtures do not reach: a 12-channel group norm over 4 groups of 76,800
+    // values (near the CPU kernel's SERIAL_NORM_LIMIT; lavapipe's loop limiter once
+    // truncated it silently above 65,535 iterations), and a 3×3 convolution whose rows (13) are not a
+    // multiple of its 8-pixel tiles and whose 12 output channels are not a multiple of 8.
+    // The simple kernels are the PyTorch-tested reference here.
+    let f = Fixture::open("down", Precision::F32);
+    let mut pipelines = PipelineCache::default();
+    let wave = |n: usize, k: f32| -> Vec<f32> { (0..n).map(|i| (i as f32 * k).sin()).collect() };
+    let x = Tensor::upload(
+        &f.gpu,
+        "x",
+        &[1, 12, 160, 160],
+        &wave(12 * 160 * 160, 0.37),
+        Precision::F32,
+    )
+    .unwrap();
+    let gamma = Tensor::upload(&f.gpu, "g", &[12], &wave(12, 1.3), Precision::F32).unwrap();
+    let beta = Tensor::upload(&f.gpu, "b", &[12], &wave(12, 0.7), Precision::F32).unwrap();
+    let x2 = Tensor::upload(
+        &f.gpu,
+        "x2",
+        &[2, 5, 11, 13],
+        &wave(2 * 5 * 11 * 13, 0.11),
+        Precision::F32,
+    )
+    .unwrap();
+    let weights = unica::nn::ops::PackedConv::new(
+        &f.gpu,
+        "w",
+        &wave(12 * 5 * 9, 0.23),
+        12,
+        5,
+        Precision::F32,
+    )
+    .unwrap();
+    let bias = Tensor::upload(&f.gpu, "bias", &[12], &wave(12, 0.5), Precision::F32).unwrap();
+    let run = |kernels: Kernels, pipelines: &mut PipelineCache| {
+        let mut r = Recorder::new(&f.gpu, pipelines, Precision::F32);
+        r.set_kernels(kernels);
+        let norm = r.group_norm(&x, &gamma, &beta, 4, true).unwrap();
+        let conv = r.conv3x3(&x2, &weights, Some(&bias)).unwrap();
+        r.submit();
+        (norm.read(&f.gpu).unwrap(), conv.read(&f.gpu).unwrap())
+    };
+    let (norm, conv) = run(Kernels::Simple, &mut pipelines);
+    for kernels in [Kernels::Cpu, Kernels::Gpu] {
+        let (n, c) = run(kernels, &mut pipelines);
+        let norm_error = worst_difference(&n, &norm);
+        let conv_error = worst_difference(&c, &conv);
+        println!("{kernels:?}: group norm {norm_error:.1e}, conv3x3 {conv_error:.1e}");
+        // The norm's statistics sum in another order (1e-5 of unit values); the
+        // convolution sums the same terms in the same order.
+        assert!(norm_error < 1e-5, "{kernels:?} group norm: {norm_error}");
+        assert!(conv_error < 1e-6, "{kernels:?} conv3x3: {conv_error}");
     }
 }

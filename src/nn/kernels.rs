@@ -11,8 +11,13 @@ use crate::wgsl_shader as shader;
 pub const CONV2D: Shader = shader!("nn/conv2d.wgsl", [Conv2dParams], elem);
 /// The convolution in register tiles of 4 output pixels × 8 channels.
 pub const CONV2D_TILED: Shader = shader!("nn/conv2d_tiled.wgsl", [Conv2dParams], elem);
+/// The 3×3 stride-1 convolution in register tiles of 8 pixels × 8 channels, from
+/// repacked f32 weights (`ops::PackedConv`).
+pub const CONV3X3: Shader = shader!("nn/conv3x3.wgsl", [Conv2dParams], elem);
 pub const UPSAMPLE_NEAREST: Shader = shader!("nn/upsample_nearest.wgsl", [UpsampleParams], elem);
 pub const GROUP_NORM: Shader = shader!("nn/group_norm.wgsl", [GroupNormParams], elem);
+/// Group norm for CPU drivers: one invocation per (sample, group), no barriers.
+pub const GROUP_NORM_SERIAL: Shader = shader!("nn/group_norm_serial.wgsl", [GroupNormParams], elem);
 pub const LINEAR: Shader = shader!("nn/linear.wgsl", [LinearParams], elem);
 /// The linear layer in 4 × 4 register tiles (for 4 rows or more).
 pub const LINEAR_TILED: Shader = shader!("nn/linear_tiled.wgsl", [LinearParams], elem);
@@ -22,6 +27,8 @@ pub const CONCAT: Shader = shader!("nn/concat.wgsl", [ConcatParams], elem);
 pub const AXPBY: Shader = shader!("nn/axpby.wgsl", [AxpbyParams], elem);
 pub const ATTENTION: Shader = shader!("nn/attention.wgsl", [AttentionParams], elem)
     .with_uints(&[("MAX_HEAD_SIZE", super::ops::MAX_HEAD_SIZE as u32)]);
+/// Attention for CPU drivers: heads of at most 32 values in named vec4 registers.
+pub const ATTENTION_CPU: Shader = shader!("nn/attention_cpu.wgsl", [AttentionParams], elem);
 pub const TIMESTEP_EMBEDDING: Shader =
     shader!("nn/timestep_embedding.wgsl", [EmbeddingParams], elem);
 pub const GATHER: Shader = shader!("nn/gather.wgsl", [GatherParams], elem);
@@ -31,8 +38,10 @@ pub const SEGMENT_MEAN: Shader = shader!("nn/segment_mean.wgsl", [SegmentParams]
 pub const ALL: &[Shader] = &[
     CONV2D,
     CONV2D_TILED,
+    CONV3X3,
     UPSAMPLE_NEAREST,
     GROUP_NORM,
+    GROUP_NORM_SERIAL,
     LINEAR,
     LINEAR_TILED,
     ADD,
@@ -40,6 +49,7 @@ pub const ALL: &[Shader] = &[
     CONCAT,
     AXPBY,
     ATTENTION,
+    ATTENTION_CPU,
     TIMESTEP_EMBEDDING,
     GATHER,
     SEGMENT_MEAN,

@@ -3,15 +3,21 @@
 //! their PyTorch names and recorded with a [`Recorder`].
 
 use super::Tensor;
-use super::ops::{AttentionParams, Broadcast, Recorder};
+use super::ops::{AttentionParams, Broadcast, PackedConv, Recorder};
 use super::weights::{LoadError, Weights};
 use crate::gpu::GpuError;
 
-/// A square convolution with bias and "same" padding (k / 2).
+/// A square convolution with bias and "same" padding (k / 2). 3×3 stride-1 ones keep
+/// their weights in both layouts and record the register-tiled `conv3x3` kernel.
 pub struct Conv {
-    weight: Tensor,
+    weights: ConvWeights,
     bias: Tensor,
     stride: usize,
+}
+
+enum ConvWeights {
+    Plain(Tensor),
+    Packed(PackedConv),
 }
 
 impl Conv {
@@ -22,14 +28,19 @@ impl Conv {
         kernel: usize,
         stride: usize,
     ) -> Result<Self, LoadError> {
+        let weights = if kernel == 3 && stride == 1 {
+            ConvWeights::Packed(w.conv3x3("weight", c_out, c_in, c_out)?)
+        } else {
+            ConvWeights::Plain(w.tensor("weight", &[c_out, c_in, kernel, kernel])?)
+        };
         Ok(Self {
-            weight: w.tensor("weight", &[c_out, c_in, kernel, kernel])?,
+            weights,
             bias: w.tensor("bias", &[c_out])?,
             stride,
         })
     }
 
-    /// Only the first `keep` output channels of a convolution with `c_out` of them.
+    /// Only the first `keep` output channels of a 3×3 convolution with `c_out` of them.
     pub fn load_first(
         w: &Weights,
         c_in: usize,
@@ -37,15 +48,20 @@ impl Conv {
         keep: usize,
     ) -> Result<Self, LoadError> {
         Ok(Self {
-            weight: w.rows("weight", &[c_out, c_in, 3, 3], keep)?,
+            weights: ConvWeights::Packed(w.conv3x3("weight", c_out, c_in, keep)?),
             bias: w.rows("bias", &[c_out], keep)?,
             stride: 1,
         })
     }
 
     pub fn forward(&self, r: &mut Recorder, x: &Tensor) -> Result<Tensor, GpuError> {
-        let pad = self.weight.shape[2] / 2;
-        r.conv2d(x, &self.weight, Some(&self.bias), self.stride, pad)
+        match &self.weights {
+            ConvWeights::Packed(weights) => r.conv3x3(x, weights, Some(&self.bias)),
+            ConvWeights::Plain(weight) => {
+                let pad = weight.shape[2] / 2;
+                r.conv2d(x, weight, Some(&self.bias), self.stride, pad)
+            }
+        }
     }
 }
 

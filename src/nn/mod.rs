@@ -15,6 +15,6 @@ pub mod vae;
 pub mod weights;
 
 pub use bundle::Bundle;
-pub use ops::{Broadcast, Recorder};
+pub use ops::{Broadcast, Kernels, Recorder};
 pub use tensor::Tensor;
 pub use weights::{LoadError, Weights};

@@ -199,6 +199,55 @@ impl Indices {
     }
 }
 
+/// A 3×3 convolution's weights in both layouts: `plain` [c_out, c_in, 3, 3] in the
+/// recorder's precision for `conv2d`, and `packed` for `conv3x3.wgsl`: f32
+/// [c_in, 3, 3, c_out rounded up to 8] (zeros past c_out), so the 8 output channels of a
+/// tap are two vec4 loads. The packed values are the stored ones (rounded to f16 first
+/// in an f16 recorder), so both kernels sum the same numbers.
+pub struct PackedConv {
+    pub plain: Tensor,
+    pub packed: Tensor,
+    pub c_in: usize,
+    pub c_out: usize,
+}
+
+impl PackedConv {
+    /// `values` [c_out, c_in, 3, 3] as PyTorch stores them.
+    pub fn new(
+        gpu: &GpuContext,
+        label: &str,
+        values: &[f32],
+        c_out: usize,
+        c_in: usize,
+        precision: Precision,
+    ) -> Result<Self, GpuError> {
+        let plain = Tensor::upload(gpu, label, &[c_out, c_in, 3, 3], values, precision)?;
+        let stored = precision.decode(&precision.encode(values));
+        let lanes = c_out.next_multiple_of(8);
+        let mut packed = vec![0.0f32; c_in * 9 * lanes];
+        for co in 0..c_out {
+            for ci in 0..c_in {
+                for tap in 0..9 {
+                    packed[(ci * 9 + tap) * lanes + co] = stored[(co * c_in + ci) * 9 + tap];
+                }
+            }
+        }
+        let packed = Tensor::upload(
+            gpu,
+            &format!("{label} (packed)"),
+            &[c_in * 9, lanes],
+            &packed,
+            Precision::F32,
+        )?;
+        Ok(Self {
+            plain,
+            packed,
+            c_in,
+            c_out,
+        })
+    }
+}
+
 /// What a [`Recorder`] does with its work.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Mode {
@@ -222,13 +271,53 @@ pub struct Recorder<'a> {
     steps: Builder<'a>,
     flops: u64,
     mode: Mode,
-    /// Use the one-output-per-invocation kernels only (tests of both variants; also
-    /// forced by setting [`SIMPLE_KERNELS_ENV`]).
-    untiled: bool,
+    kernels: Kernels,
 }
 
-/// Environment variable that forces the simple (untiled) kernel variants.
-pub const SIMPLE_KERNELS_ENV: &str = "UNICA_SIMPLE_KERNELS";
+/// The most values per group the CPU group norm takes: its invocation loops 3/4 of this
+/// many times plus once per channel, and lavapipe ends any invocation's loops after
+/// 65,535 iterations in all (its loop limiter), silently. Larger groups take the
+/// workgroup kernel.
+pub const SERIAL_NORM_LIMIT: usize = 80_000;
+
+/// Which variant of each kernel a [`Recorder`] records. Every variant computes the same
+/// thing and is parity-tested against PyTorch (tests/nn.rs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kernels {
+    /// One output per invocation everywhere: the reference forms.
+    Simple,
+    /// For CPU drivers (lavapipe): register tiles, and no workgroup barriers (a CPU
+    /// driver runs a barrier as a switch between invocations).
+    Cpu,
+    /// For GPUs: register tiles, and workgroup reductions where they spread the work.
+    Gpu,
+}
+
+/// Environment variable that forces a kernel variant: `simple`, `cpu` or `gpu`.
+pub const KERNELS_ENV: &str = "UNICA_KERNELS";
+
+impl Kernels {
+    pub const ALL: [Kernels; 3] = [Kernels::Simple, Kernels::Cpu, Kernels::Gpu];
+
+    /// [`KERNELS_ENV`] when set (an unknown value is reported and ignored), otherwise by
+    /// the adapter: `Cpu` on a CPU driver, `Gpu` on anything else.
+    pub fn for_adapter(gpu: &GpuContext) -> Self {
+        if let Ok(value) = std::env::var(KERNELS_ENV) {
+            match value.as_str() {
+                "simple" => return Self::Simple,
+                "cpu" => return Self::Cpu,
+                "gpu" => return Self::Gpu,
+                "" => {}
+                other => log::warn!("{KERNELS_ENV}={other} is not simple, cpu or gpu; ignored"),
+            }
+        }
+        if gpu.adapter.get_info().device_type == wgpu::DeviceType::Cpu {
+            Self::Cpu
+        } else {
+            Self::Gpu
+        }
+    }
+}
 
 impl<'a> Recorder<'a> {
     fn with_mode(
@@ -242,7 +331,7 @@ impl<'a> Recorder<'a> {
             steps: Builder::new(gpu, pipelines, precision),
             flops: 0,
             mode,
-            untiled: std::env::var(SIMPLE_KERNELS_ENV).is_ok_and(|v| !v.is_empty() && v != "0"),
+            kernels: Kernels::for_adapter(gpu),
         }
     }
 
@@ -288,9 +377,14 @@ impl<'a> Recorder<'a> {
         &mut self.steps
     }
 
-    /// Records the simple kernel variants only (`true`), or picks by shape (`false`).
-    pub fn set_untiled(&mut self, untiled: bool) {
-        self.untiled = untiled;
+    /// Records `kernels` from now on (tests of every variant).
+    pub fn set_kernels(&mut self, kernels: Kernels) {
+        self.kernels = kernels;
+    }
+
+    /// The variant this recorder records.
+    pub fn kernels(&self) -> Kernels {
+        self.kernels
     }
 
     /// FLOPs recorded so far (see the type's documentation).
@@ -417,7 +511,7 @@ impl<'a> Recorder<'a> {
         // Register tiles of 4 output pixels × 8 channels where a row has 4 pixels; one
         // thread per output pixel and block of 8 channels otherwise. Both sum in the same
         // order; both are parity-tested (tests/nn.rs).
-        if w_out >= 4 && !self.untiled {
+        if w_out >= 4 && self.kernels != Kernels::Simple {
             let grid = self.grid(n * c_out.div_ceil(8) * h_out * w_out.div_ceil(4));
             self.launch(
                 &kernels::CONV2D_TILED,
@@ -429,6 +523,50 @@ impl<'a> Recorder<'a> {
             let grid = self.grid(n * c_out.div_ceil(8) * h_out * w_out);
             self.launch(&kernels::CONV2D, &params, &[x, weight, bias, &y], grid);
         }
+        Ok(y)
+    }
+
+    /// A 3×3, stride-1, padding-1 convolution from weights repacked by [`PackedConv`]:
+    /// register tiles of 8 pixels × 8 channels (`conv3x3.wgsl`), the same sums in the same
+    /// order as [`Recorder::conv2d`]. With [`Kernels::Simple`], and for rows narrower than 8,
+    /// it records `conv2d` instead.
+    pub fn conv3x3(
+        &mut self,
+        x: &Tensor,
+        weights: &PackedConv,
+        bias: Option<&Tensor>,
+    ) -> Result<Tensor, GpuError> {
+        let [n, c_in, h, w] = x.shape[..] else {
+            panic!("conv3x3 input must be NCHW, got {:?}", x.shape)
+        };
+        assert_eq!(c_in, weights.c_in, "conv3x3 channel mismatch");
+        if w < 8 || self.kernels == Kernels::Simple {
+            return self.conv2d(x, &weights.plain, bias, 1, 1);
+        }
+        let c_out = weights.c_out;
+        let y = self.output("conv3x3.y", &[n, c_out, h, w])?;
+        let params = Conv2dParams {
+            batch: n as u32,
+            c_in: c_in as u32,
+            c_out: c_out as u32,
+            h_in: h as u32,
+            w_in: w as u32,
+            h_out: h as u32,
+            w_out: w as u32,
+            kernel: 3,
+            stride: 1,
+            pad: 1,
+            has_bias: u32::from(bias.is_some()),
+            reserved: 0,
+        };
+        self.flops += 2 * (y.len() * c_in * 9) as u64;
+        // A bias binding must exist even without a bias; the input stands in (unread).
+        let bias = bias.unwrap_or(x);
+        self.check(&[x, bias, &y]);
+        let grid = self.grid(n * c_out.div_ceil(8) * h * w.div_ceil(8));
+        let buffers = [&x.buffer, &weights.packed.buffer, &bias.buffer, &y.buffer];
+        self.steps
+            .dispatch(&kernels::CONV3X3, &params, &buffers, grid);
         Ok(y)
     }
 
@@ -474,6 +612,18 @@ impl<'a> Recorder<'a> {
             reserved0: 0,
             reserved1: 0,
         };
+        let serial = (h * w).is_multiple_of(4) && c / groups * h * w <= SERIAL_NORM_LIMIT;
+        if self.kernels == Kernels::Cpu && serial {
+            // One invocation per (sample, group), no barriers.
+            let grid = self.grid(n * groups);
+            self.launch(
+                &kernels::GROUP_NORM_SERIAL,
+                &params,
+                &[x, gamma, beta, &y],
+                grid,
+            );
+            return Ok(y);
+        }
         // One workgroup per (sample, group).
         let grid = Grid::for_workgroups(
             (n * groups) as u32,
@@ -517,7 +667,7 @@ impl<'a> Recorder<'a> {
         // one invocation per output otherwise (the timestep and action embeddings).
         // Both sum in the same order; both are parity-tested (tests/nn.rs).
         let rows = x.len() / inputs;
-        if rows >= 4 && !self.untiled {
+        if rows >= 4 && self.kernels != Kernels::Simple {
             let grid = self.grid(rows.div_ceil(4) * outputs.div_ceil(4));
             self.launch(
                 &kernels::LINEAR_TILED,
@@ -678,7 +828,23 @@ impl<'a> Recorder<'a> {
         let y = self.output("attention.y", &shape)?;
         self.flops += 4 * (y.len() as u64) * params.keys as u64;
         let grid = self.grid((params.sequences * params.heads * params.queries) as usize);
-        self.launch(&kernels::ATTENTION, &params, &[q, kv, &y], grid);
+        let head = params.channels / params.heads;
+        let rows_in_vec4s = [
+            head,
+            params.q_stride,
+            params.q_offset,
+            params.kv_stride,
+            params.k_offset,
+            params.v_offset,
+        ]
+        .iter()
+        .all(|v| v % 4 == 0);
+        let shader = if self.kernels == Kernels::Cpu && head <= 32 && rows_in_vec4s {
+            &kernels::ATTENTION_CPU
+        } else {
+            &kernels::ATTENTION
+        };
+        self.launch(shader, &params, &[q, kv, &y], grid);
         Ok(y)
     }
 

@@ -7,6 +7,7 @@ use crate::gpu::{GpuContext, GpuError};
 use crate::tensors::{TensorError, TensorFile};
 
 use super::Tensor;
+use super::ops::PackedConv;
 
 /// Why a model could not be loaded; every message names the file.
 #[derive(Debug, thiserror::Error)]
@@ -106,6 +107,29 @@ impl<'a> Weights<'a> {
             &label,
             &kept,
             &values[..rows * per_row],
+            self.precision,
+        )?)
+    }
+}
+
+impl Weights<'_> {
+    /// The first `keep` output channels of a 3×3 convolution's weights of shape
+    /// [c_out, c_in, 3, 3], in both layouts [`PackedConv`] keeps.
+    pub fn conv3x3(
+        &self,
+        name: &str,
+        c_out: usize,
+        c_in: usize,
+        keep: usize,
+    ) -> Result<PackedConv, LoadError> {
+        let values = self.host(name, &[c_out, c_in, 3, 3])?;
+        let label = format!("{}{name}", self.prefix);
+        Ok(PackedConv::new(
+            self.gpu,
+            &label,
+            &values[..keep * c_in * 9],
+            keep,
+            c_in,
             self.precision,
         )?)
     }

@@ -1,0 +1,167 @@
+// 3×3 convolution, stride 1, zero padding 1 (NCHW, Elem storage, f32 sums) in register
+// tiles of 8 neighbouring output pixels of a row × 8 output channels. The weights come
+// repacked at load as f32 [c_in, 3, 3, c_out rounded up to 8] (nn::ops::PackedConv), so
+// a tap's 8 channels are two vec4 loads, and the 10 input values a row of 8 outputs
+// needs are loaded once per (c_in, ky) for all 3 taps: 16 loads per 192 multiply-adds.
+// Taps outside the input add an exact zero, so each output sums the same terms in the
+// same order (bias, then c_in, ky, kx) as conv2d.wgsl. Optional bias [c_out].
+
+@group(0) @binding(0) var<uniform> p: Conv2dParams;
+@group(0) @binding(1) var<storage, read> x: array<Elem>;
+@group(0) @binding(2) var<storage, read> weight: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> bias: array<Elem>;
+@group(0) @binding(4) var<storage, read_write> y: array<Elem>;
+
+// x at column `ix` of the row starting at `row`; zero outside it.
+fn column(row: u32, ix: i32) -> f32 {
+    let inside = ix >= 0 && ix < i32(p.w_in);
+    return select(0.0, f32(x[row + u32(clamp(ix, 0, i32(p.w_in) - 1))]), inside);
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let i = linear_index(invocation);
+    let blocks = (p.c_out + 7u) / 8u;
+    let tiles = (p.w_out + 7u) / 8u;
+    if i >= p.batch * blocks * p.h_out * tiles {
+        return;
+    }
+    let ox0 = (i % tiles) * 8u;
+    let oy = (i / tiles) % p.h_out;
+    let block = (i / (tiles * p.h_out)) % blocks;
+    let n = i / (tiles * p.h_out * blocks);
+    var lo = vec4<f32>(0.0);
+    var hi = vec4<f32>(0.0);
+    if p.has_bias != 0u {
+        let last = p.c_out - 1u;
+        let co = min(vec4<u32>(8u * block) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
+        let co2 = min(co + vec4<u32>(4u), vec4<u32>(last));
+        lo = vec4<f32>(f32(bias[co.x]), f32(bias[co.y]), f32(bias[co.z]), f32(bias[co.w]));
+        hi = vec4<f32>(f32(bias[co2.x]), f32(bias[co2.y]), f32(bias[co2.z]), f32(bias[co2.w]));
+    }
+    // Pixel j's first four channels in aj, its second four in bj: written out, not
+    // arrays, so CPU drivers keep them in registers.
+    var a0 = lo;
+    var a1 = lo;
+    var a2 = lo;
+    var a3 = lo;
+    var a4 = lo;
+    var a5 = lo;
+    var a6 = lo;
+    var a7 = lo;
+    var b0 = hi;
+    var b1 = hi;
+    var b2 = hi;
+    var b3 = hi;
+    var b4 = hi;
+    var b5 = hi;
+    var b6 = hi;
+    var b7 = hi;
+    let quads = 2u * blocks;
+    let left = i32(ox0) - 1;
+    for (var ci = 0u; ci < p.c_in; ci++) {
+        let plane = (n * p.c_in + ci) * p.h_in * p.w_in;
+        for (var ky = 0u; ky < 3u; ky++) {
+            let iy = i32(oy + ky) - 1;
+            if iy < 0 || iy >= i32(p.h_in) {
+                continue;
+            }
+            let row = plane + u32(iy) * p.w_in;
+            let v0 = column(row, left + 0);
+            let v1 = column(row, left + 1);
+            let v2 = column(row, left + 2);
+            let v3 = column(row, left + 3);
+            let v4 = column(row, left + 4);
+            let v5 = column(row, left + 5);
+            let v6 = column(row, left + 6);
+            let v7 = column(row, left + 7);
+            let v8 = column(row, left + 8);
+            let v9 = column(row, left + 9);
+            var w = (ci * 3u + ky) * 3u * quads + 2u * block;
+            // kx = 0
+            let wa0 = weight[w];
+            let wb0 = weight[w + 1u];
+            a0 += v0 * wa0;
+            a1 += v1 * wa0;
+            a2 += v2 * wa0;
+            a3 += v3 * wa0;
+            a4 += v4 * wa0;
+            a5 += v5 * wa0;
+            a6 += v6 * wa0;
+            a7 += v7 * wa0;
+            b0 += v0 * wb0;
+            b1 += v1 * wb0;
+            b2 += v2 * wb0;
+            b3 += v3 * wb0;
+            b4 += v4 * wb0;
+            b5 += v5 * wb0;
+            b6 += v6 * wb0;
+            b7 += v7 * wb0;
+            w += quads;
+            // kx = 1
+            let wa1 = weight[w];
+            let wb1 = weight[w + 1u];
+            a0 += v1 * wa1;
+            a1 += v2 * wa1;
+            a2 += v3 * wa1;
+            a3 += v4 * wa1;
+            a4 += v5 * wa1;
+            a5 += v6 * wa1;
+            a6 += v7 * wa1;
+            a7 += v8 * wa1;
+            b0 += v1 * wb1;
+            b1 += v2 * wb1;
+            b2 += v3 * wb1;
+            b3 += v4 * wb1;
+            b4 += v5 * wb1;
+            b5 += v6 * wb1;
+            b6 += v7 * wb1;
+            b7 += v8 * wb1;
+            w += quads;
+            // kx = 2
+            let wa2 = weight[w];
+            let wb2 = weight[w + 1u];
+            a0 += v2 * wa2;
+            a1 += v3 * wa2;
+            a2 += v4 * wa2;
+            a3 += v5 * wa2;
+            a4 += v6 * wa2;
+            a5 += v7 * wa2;
+            a6 += v8 * wa2;
+            a7 += v9 * wa2;
+            b0 += v2 * wb2;
+            b1 += v3 * wb2;
+            b2 += v4 * wb2;
+            b3 += v5 * wb2;
+            b4 += v6 * wb2;
+            b5 += v7 * wb2;
+            b6 += v8 * wb2;
+            b7 += v9 * wb2;
+        }
+    }
+    store(n, block, oy, ox0 + 0u, a0, b0);
+    store(n, block, oy, ox0 + 1u, a1, b1);
+    store(n, block, oy, ox0 + 2u, a2, b2);
+    store(n, block, oy, ox0 + 3u, a3, b3);
+    store(n, block, oy, ox0 + 4u, a4, b4);
+    store(n, block, oy, ox0 + 5u, a5, b5);
+    store(n, block, oy, ox0 + 6u, a6, b6);
+    store(n, block, oy, ox0 + 7u, a7, b7);
+}
+
+// Output pixel `ox` of row `oy`: channels 8·block … 8·block + 7 (those below c_out).
+fn store(n: u32, block: u32, oy: u32, ox: u32, lo: vec4<f32>, hi: vec4<f32>) {
+    if ox >= p.w_out {
+        return;
+    }
+    let plane = p.h_out * p.w_out;
+    let out = (n * p.c_out + 8u * block) * plane + oy * p.w_out + ox;
+    for (var c = 0u; c < 4u; c++) {
+        if 8u * block + c < p.c_out {
+            y[out + c * plane] = Elem(lo[c]);
+        }
+        if 8u * block + 4u + c < p.c_out {
+            y[out + (4u + c) * plane] = Elem(hi[c]);
+        }
+    }
+}
