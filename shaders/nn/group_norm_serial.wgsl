@@ -3,8 +3,9 @@
 // three passes (mean, variance, normalise) alone, with no workgroup barrier (a CPU
 // driver runs each barrier as a switch between invocations, which costs far more than
 // the arithmetic). Values go 4 at a time, summed in 4 running partial sums. Planes of a
-// multiple of 4 values, and at most SERIAL_NORM_LIMIT values per group (host-checked):
-// lavapipe stops any invocation's loops after 65,535 iterations in all.
+// multiple of 4 values or rows of a multiple of 4 channels (hw = 1: a layer norm), and
+// at most SERIAL_NORM_LIMIT values per group (host-checked): lavapipe stops any
+// invocation's loops after 65,535 iterations in all.
 
 @group(0) @binding(0) var<uniform> p: GroupNormParams;
 @group(0) @binding(1) var<storage, read> x: array<vec4<Elem>>;
@@ -34,6 +35,20 @@ fn main(invocation: Invocation) {
     }
     let inv_std = inverseSqrt((squares.x + squares.y + squares.z + squares.w) / f32(count) + p.eps);
     let first_channel = (id % p.groups) * per_group;
+    if p.hw == 1u {
+        // Rows of a layer norm: 4 channels at a time.
+        for (var i = 0u; i < quads; i++) {
+            let c = first_channel + 4u * i;
+            let g = vec4<f32>(f32(gamma[c]), f32(gamma[c + 1u]), f32(gamma[c + 2u]), f32(gamma[c + 3u]));
+            let b = vec4<f32>(f32(beta[c]), f32(beta[c + 1u]), f32(beta[c + 2u]), f32(beta[c + 3u]));
+            var v = (vec4<f32>(x[base + i]) - mean) * (inv_std * g) + b;
+            if p.silu != 0u {
+                v = v / (1.0 + exp(-v));
+            }
+            y[base + i] = vec4<Elem>(v);
+        }
+        return;
+    }
     let plane_quads = p.hw / 4u;
     for (var k = 0u; k < per_group; k++) {
         let c = first_channel + k;

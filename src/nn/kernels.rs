@@ -21,6 +21,8 @@ pub const GROUP_NORM_SERIAL: Shader = shader!("nn/group_norm_serial.wgsl", [Grou
 pub const LINEAR: Shader = shader!("nn/linear.wgsl", [LinearParams], elem);
 /// The linear layer in 4 × 4 register tiles (for 4 rows or more).
 pub const LINEAR_TILED: Shader = shader!("nn/linear_tiled.wgsl", [LinearParams], elem);
+/// The tiled linear layer for CPU drivers: vec4 loads along the inputs.
+pub const LINEAR_CPU: Shader = shader!("nn/linear_cpu.wgsl", [LinearParams], elem);
 pub const ADD: Shader = shader!("nn/add.wgsl", [AddParams], elem);
 pub const PERMUTE: Shader = shader!("nn/permute.wgsl", [PermuteParams], elem);
 pub const CONCAT: Shader = shader!("nn/concat.wgsl", [ConcatParams], elem);
@@ -44,6 +46,7 @@ pub const ALL: &[Shader] = &[
     GROUP_NORM_SERIAL,
     LINEAR,
     LINEAR_TILED,
+    LINEAR_CPU,
     ADD,
     PERMUTE,
     CONCAT,

@@ -612,7 +612,8 @@ impl<'a> Recorder<'a> {
             reserved0: 0,
             reserved1: 0,
         };
-        let serial = (h * w).is_multiple_of(4) && c / groups * h * w <= SERIAL_NORM_LIMIT;
+        let quads = (h * w).is_multiple_of(4) || (h * w == 1 && (c / groups).is_multiple_of(4));
+        let serial = quads && c / groups * h * w <= SERIAL_NORM_LIMIT;
         if self.kernels == Kernels::Cpu && serial {
             // One invocation per (sample, group), no barriers.
             let grid = self.grid(n * groups);
@@ -669,8 +670,13 @@ impl<'a> Recorder<'a> {
         let rows = x.len() / inputs;
         if rows >= 4 && self.kernels != Kernels::Simple {
             let grid = self.grid(rows.div_ceil(4) * outputs.div_ceil(4));
+            let vec4_rows = self.kernels == Kernels::Cpu && inputs.is_multiple_of(4);
             self.launch(
-                &kernels::LINEAR_TILED,
+                if vec4_rows {
+                    &kernels::LINEAR_CPU
+                } else {
+                    &kernels::LINEAR_TILED
+                },
                 &params,
                 &[x, weight, bias, &y],
                 grid,
