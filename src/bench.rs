@@ -610,6 +610,30 @@ pub fn frame_stages(
     }
     writeln!(out, "{:<32} {total:>10.2}", "whole frame")?;
     writeln!(out, "generated frames per second: {:.2}", 1e3 / total)?;
+    stage_lines(&mut engine, out)
+}
+
+/// One more frame, each stage of its plan submitted and waited for alone: one line per
+/// stage, `stage NAME: dispatches=D ms=X gflop=F gflops=G` (FLOPs as the trainer counts
+/// them; stages without counted FLOPs print 0).
+fn stage_lines(engine: &mut crate::engine::Engine, out: &mut impl Write) -> anyhow::Result<()> {
+    writeln!(
+        out,
+        "one more frame, each stage submitted and waited for alone ({:?} kernels):",
+        engine.kernels()
+    )?;
+    for stage in engine.profile_stages(crate::action::Action::Forward)? {
+        let gflop = stage.flops as f64 / 1e9;
+        writeln!(
+            out,
+            "stage {}: dispatches={} ms={:.1} gflop={:.3} gflops={:.2}",
+            stage.name,
+            stage.dispatches,
+            stage.ms,
+            gflop,
+            gflop / (stage.ms / 1e3)
+        )?;
+    }
     Ok(())
 }
 
@@ -699,6 +723,7 @@ pub fn live(
         "after {} frames: world root ({:.3}, {:.3}, {:.3}) m, {} values clamped",
         state.frames, state.root[0], state.root[1], state.root[2], state.clamped_total
     )?;
+    stage_lines(&mut engine, out)?;
     writeln!(
         out,
         "one more frame, each dispatch submitted and waited for alone (ms by shader):"

@@ -541,12 +541,12 @@ fn bundles_of_another_version_or_format_are_refused() {
 #[test]
 fn the_first_tensor_that_disagrees_with_the_config_is_named() {
     // A manifest claiming a 64-d embedding: the first embedding-sized tensor loaded is
-    // the time MLP's first weight, stored as [128, 128].
+    // the action table (for the cross-attention tables), stored as [6, 128].
     let dir = edited_bundle(|m| m["unet"]["embed"] = 64.into());
     let message = load_error(dir.path());
     assert!(
         message.contains("weights.safetensors")
-            && message.contains("'unet.time_mlp.0.weight' has shape [128, 128], expected [64, 64]"),
+            && message.contains("'unet.action.weight' has shape [6, 128], expected [6, 64]"),
         "{message}"
     );
     // A missing file is named too.
@@ -566,19 +566,17 @@ fn unsupported_model_shapes_are_refused_before_loading() {
 #[test]
 fn the_recorded_flops_agree_with_the_trainers_counter() {
     // unica_train.unet.conv_and_linear_flops on the tiny configs (batch 1, 4 frames):
-    // UNet 121,053,184, decoder 53,968,896. The engine projects the action token once per
-    // sample instead of once per frame (3 frames × 2·64·32 fewer per cross layer), so
-    // the UNet agrees within 0.1 %, the decoder exactly.
+    // UNet 121,053,184, decoder 53,968,896. The engine runs the cross-attention to the
+    // one action token as a table looked up at load, so it does not run that work per
+    // frame: per cross layer and frame, q and out (2·64·32·32 each), the attention
+    // product (4·64·32) and the token's kv (2·32·64): 274,432 × 4 frames × 3 layers =
+    // 3,293,184 fewer. The decoder agrees exactly.
     let mut f = Fixture::open("unet_step", Precision::F32);
     let (x, t, a) = (f.input("io.in.x"), f.stored("io.in.t").0, action(&f));
     let (mut r, w) = f.recorder();
     let unet = UNet::load(&w, &UNetConfig::TINY).unwrap();
     unet.groups(&mut r, &x, &t, &[a]).unwrap();
-    let unet_flops = r.flops() as f64;
-    assert!(
-        (unet_flops / 121_053_184.0 - 1.0).abs() < 1e-3,
-        "{unet_flops}"
-    );
+    assert_eq!(r.flops(), 121_053_184 - 3_293_184);
 
     let mut f = Fixture::open("vae_decoder", Precision::F32);
     let z = f.input("io.in.z");
@@ -711,5 +709,32 @@ fn every_variant_of_the_group_norm_and_the_3x3_convolution_agrees_on_odd_shapes(
         // convolution sums the same terms in the same order.
         assert!(norm_error < 1e-5, "{kernels:?} group norm: {norm_error}");
         assert!(conv_error < 1e-6, "{kernels:?} conv3x3: {conv_error}");
+    }
+}
+
+#[test]
+fn the_action_table_gives_the_cross_attention_bit_for_bit() {
+    // One token per sample: the UNet's table lookup must equal the layer exactly, in
+    // every kernel variant and precision (and the layer itself matches PyTorch above).
+    for (precision, kernels) in precisions()
+        .into_iter()
+        .flat_map(|p| Kernels::ALL.map(|k| (p, k)))
+    {
+        let mut f = Fixture::open("cross_attention", precision);
+        let (x, ctx) = (f.input("io.in.x"), f.input("io.in.ctx"));
+        let (mut r, w) = f.recorder();
+        r.set_kernels(kernels);
+        let layer = CrossAttention::load(&w, 16, 32, 2).unwrap();
+        let full = layer.forward(&mut r, &x, &ctx).unwrap();
+        let table = layer.action_table(&mut r, &ctx.reshaped(&[2, 32])).unwrap();
+        let ids = r.indices("ids", &[0, 1]).unwrap();
+        let looked_up = r.add_action_bias(&x, &table, &ids, 1).unwrap();
+        r.submit();
+        let (a, b) = (full.read(&f.gpu).unwrap(), looked_up.read(&f.gpu).unwrap());
+        assert!(
+            a.iter().zip(&b).all(|(p, q)| p.to_bits() == q.to_bits()),
+            "{precision:?} {kernels:?}: worst difference {}",
+            worst_difference(&a, &b)
+        );
     }
 }

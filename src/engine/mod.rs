@@ -24,6 +24,7 @@ use glam::Vec3;
 
 use crate::action::Action;
 use crate::gpu::kernel::{PipelineCache, Precision};
+use crate::gpu::plan::StageProfile;
 use crate::gpu::{GpuContext, GpuError, readback};
 use crate::nn::ops::{Indices, Plan};
 use crate::nn::refiner::{Order, Orders};
@@ -368,6 +369,22 @@ impl Engine {
         Ok(plan.profile(&self.gpu))
     }
 
+    /// Generates a frame (as [`Engine::frame`]), then runs its plan once more stage by
+    /// stage, each waited for alone: dispatches, milliseconds and FLOPs per stage
+    /// (`unet-context`, `unet-target` over all steps, `vae-decode`, `geometry`,
+    /// `splats`, `refiner`).
+    pub fn profile_stages(&mut self, action: Action) -> Result<Vec<StageProfile>, GpuError> {
+        self.frame(action)?;
+        self.finish();
+        let plan = &self.plan.as_ref().expect("prepared").plan;
+        Ok(plan.profile_stages(&self.gpu))
+    }
+
+    /// The kernel variant the frame plan records (by adapter, or `UNICA_KERNELS`).
+    pub fn kernels(&self) -> crate::nn::Kernels {
+        crate::nn::Kernels::for_adapter(&self.gpu)
+    }
+
     /// The frame plan's compute dispatches and FLOPs.
     pub fn plan_counts(&self) -> (usize, u64) {
         self.plan
@@ -408,7 +425,9 @@ impl Engine {
         let latent =
             bundle.generate_with(&mut r, &live.context, &actions, &live.noise, self.sampling)?;
         r.boundary();
+        r.stage("vae-decode");
         let map = bundle.decode(&mut r, &latent)?;
+        r.stage("geometry");
         let cfg = &bundle.unet.cfg;
         let points = bundle.pixels.len();
         let params = PostParams {
@@ -465,6 +484,7 @@ impl Engine {
         );
         if let Some(splats) = &self.splats {
             r.boundary();
+            r.stage("splats");
             let inputs = splats.record_coarse(r.steps(), &live.points);
             let residuals = match (inputs, &bundle.refiner) {
                 (Some(inputs), Some(refiner)) => {
@@ -490,7 +510,10 @@ impl Engine {
                         shape: vec![inputs.points, crate::splat::frame::FEATURES],
                         precision: self.precision,
                     };
-                    Some(refiner.forward_with(&mut r, &features, &orders)?)
+                    r.stage("refiner");
+                    let residuals = refiner.forward_with(&mut r, &features, &orders)?;
+                    r.stage("splats");
+                    Some(residuals)
                 }
                 _ => None,
             };
@@ -500,6 +523,7 @@ impl Engine {
                 residuals.as_ref().map(|t| &t.buffer),
             );
         }
+        r.stage("geometry");
         let grid = r.grid(live.window.len());
         r.dispatch(
             &kernels::SLIDE,

@@ -9,6 +9,7 @@ use super::kernel::{Grid, PipelineCache, Precision, uniform};
 use super::shaders::Shader;
 
 /// One piece of recorded work: everything it binds was created when it was recorded.
+#[derive(Clone)]
 enum Step {
     Dispatch {
         /// The shader's file (profiles).
@@ -80,6 +81,26 @@ fn encode_steps(gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, steps: &[S
 pub struct Plan {
     parts: Vec<Vec<Step>>,
     flops: u64,
+    stages: Vec<Mark>,
+}
+
+/// Where a named stage starts: its first step (counted over all parts) and the FLOPs
+/// recorded before it.
+#[derive(Clone, Copy, Debug)]
+struct Mark {
+    name: &'static str,
+    step: usize,
+    flops: u64,
+}
+
+/// One stage's share of a plan ([`Plan::profile_stages`]), summed over the places it was
+/// recorded (e.g. every denoising step).
+#[derive(Clone, Debug, PartialEq)]
+pub struct StageProfile {
+    pub name: &'static str,
+    pub dispatches: usize,
+    pub ms: f64,
+    pub flops: u64,
 }
 
 impl Plan {
@@ -137,6 +158,61 @@ impl Plan {
         by_name.sort_by(|a, b| b.2.total_cmp(&a.2));
         by_name
     }
+
+    /// Runs each stage (as marked by [`Builder::stage`]) in its own submission, waited
+    /// for (the plan's effects happen once more), and returns each stage's dispatches,
+    /// milliseconds and FLOPs, in the order stages first appear. Steps before the first
+    /// mark are the stage "other".
+    pub fn profile_stages(&self, gpu: &GpuContext) -> Vec<StageProfile> {
+        let steps: Vec<&Step> = self.parts.iter().flatten().collect();
+        let mut marks = self.stages.clone();
+        if marks.first().is_none_or(|m| m.step > 0) {
+            marks.insert(
+                0,
+                Mark {
+                    name: "other",
+                    step: 0,
+                    flops: 0,
+                },
+            );
+        }
+        let mut out: Vec<StageProfile> = Vec::new();
+        for (k, mark) in marks.iter().enumerate() {
+            let (end, end_flops) = marks
+                .get(k + 1)
+                .map_or((steps.len(), self.flops), |next| (next.step, next.flops));
+            let range: Vec<Step> = steps[mark.step..end].iter().map(|&s| s.clone()).collect();
+            let clock = std::time::Instant::now();
+            let mut encoder = gpu
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("profile stage"),
+                });
+            encode_steps(gpu, &mut encoder, &range);
+            gpu.submit([encoder.finish()]);
+            gpu.wait_idle();
+            let ms = clock.elapsed().as_secs_f64() * 1e3;
+            let dispatches = range
+                .iter()
+                .filter(|s| matches!(s, Step::Dispatch { .. }))
+                .count();
+            let flops = end_flops - mark.flops;
+            match out.iter_mut().find(|p| p.name == mark.name) {
+                Some(p) => {
+                    p.dispatches += dispatches;
+                    p.ms += ms;
+                    p.flops += flops;
+                }
+                None => out.push(StageProfile {
+                    name: mark.name,
+                    dispatches,
+                    ms,
+                    flops,
+                }),
+            }
+        }
+        out
+    }
 }
 
 /// Records steps in parts (split at [`Builder::boundary`]).
@@ -146,6 +222,8 @@ pub struct Builder<'a> {
     precision: Precision,
     /// The parts recorded so far; the last one is open.
     parts: Vec<Vec<Step>>,
+    /// Named stages (profiles).
+    stages: Vec<Mark>,
     /// Start a new part after this many steps (None: only at boundaries).
     max_part: Option<usize>,
 }
@@ -161,6 +239,7 @@ impl<'a> Builder<'a> {
             pipelines,
             precision,
             parts: vec![Vec::new()],
+            stages: Vec::new(),
             max_part: None,
         }
     }
@@ -266,6 +345,7 @@ impl<'a> Builder<'a> {
     /// Submits what is recorded, in one submission, and starts afresh.
     pub fn submit(&mut self) {
         let parts = std::mem::replace(&mut self.parts, vec![Vec::new()]);
+        self.stages.clear();
         let mut encoder = self
             .gpu
             .device
@@ -278,6 +358,13 @@ impl<'a> Builder<'a> {
         self.gpu.submit([encoder.finish()]);
     }
 
+    /// Starts the stage `name` (profiles): the steps recorded from here to the next mark
+    /// belong to it, with the FLOPs counted from `flops` (the recorder's count so far).
+    pub fn stage(&mut self, name: &'static str, flops: u64) {
+        let step = self.parts.iter().map(Vec::len).sum();
+        self.stages.push(Mark { name, step, flops });
+    }
+
     /// The recorded work as a [`Plan`] of `flops` FLOPs (nothing is submitted).
     pub fn finish(mut self, flops: u64) -> Plan {
         if self.parts.len() > 1 && self.parts.last().is_some_and(Vec::is_empty) {
@@ -286,6 +373,7 @@ impl<'a> Builder<'a> {
         Plan {
             parts: std::mem::take(&mut self.parts),
             flops,
+            stages: std::mem::take(&mut self.stages),
         }
     }
 }

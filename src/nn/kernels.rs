@@ -2,8 +2,9 @@
 //! struct it shares with Rust (declared in `ops`); `Recorder` dispatches them.
 
 use super::ops::{
-    AddParams, AttentionParams, AxpbyParams, ConcatParams, Conv2dParams, EmbeddingParams,
-    GatherParams, GroupNormParams, LinearParams, PermuteParams, SegmentParams, UpsampleParams,
+    ActionBiasParams, AddParams, AttentionParams, AxpbyParams, ConcatParams, Conv2dParams,
+    EmbeddingParams, GatherParams, GroupNormParams, LinearParams, PermuteParams, SegmentParams,
+    UpsampleParams,
 };
 use crate::gpu::shaders::Shader;
 use crate::wgsl_shader as shader;
@@ -24,6 +25,8 @@ pub const LINEAR_TILED: Shader = shader!("nn/linear_tiled.wgsl", [LinearParams],
 /// The tiled linear layer for CPU drivers: vec4 loads along the inputs.
 pub const LINEAR_CPU: Shader = shader!("nn/linear_cpu.wgsl", [LinearParams], elem);
 pub const ADD: Shader = shader!("nn/add.wgsl", [AddParams], elem);
+/// The cross-attention to one action token, as a per-action bias.
+pub const ADD_ACTION_BIAS: Shader = shader!("nn/add_action_bias.wgsl", [ActionBiasParams], elem);
 pub const PERMUTE: Shader = shader!("nn/permute.wgsl", [PermuteParams], elem);
 pub const CONCAT: Shader = shader!("nn/concat.wgsl", [ConcatParams], elem);
 pub const AXPBY: Shader = shader!("nn/axpby.wgsl", [AxpbyParams], elem);
@@ -48,6 +51,7 @@ pub const ALL: &[Shader] = &[
     LINEAR_TILED,
     LINEAR_CPU,
     ADD,
+    ADD_ACTION_BIAS,
     PERMUTE,
     CONCAT,
     AXPBY,

@@ -321,6 +321,27 @@ impl CrossAttention {
     }
 }
 
+impl CrossAttention {
+    /// The layer's output for each row of `tokens` [A, E] as the only token of a sample,
+    /// before the residual: softmax over one key is exactly 1, so every position gets
+    /// `out(v(token))`, whatever it holds. Recorded with the kernels `forward` uses (the
+    /// same variant picks the same summation order), so `x` plus a row of this table
+    /// ([`Recorder::add_action_bias`]) equals `forward` bit for bit. [A, C].
+    pub fn action_table(&self, r: &mut Recorder, tokens: &Tensor) -> Result<Tensor, GpuError> {
+        let [actions, _] = tokens.shape[..] else {
+            panic!("tokens must be [A, E], got {:?}", tokens.shape)
+        };
+        let kv = self.kv.forward(r, tokens, false)?; // [A, 2C]
+        let c = kv.shape[1] / 2;
+        let params = AttentionParams {
+            q_stride: (2 * c) as u32,
+            ..attention_params(actions, 1, 1, c, self.heads, false)
+        };
+        let v = r.attention(&kv, &kv, params)?;
+        self.out.forward(r, &v.reshaped(&[actions, c]), false)
+    }
+}
+
 /// Which frames of each group a batch holds, for [`TemporalAttention`].
 pub enum Frames<'a> {
     /// The first `count` frames of every group, in order; their packed qkv rows

@@ -135,6 +135,17 @@ gpu_struct! {
 }
 
 gpu_struct! {
+    /// `y = x + table[ids[sample], channel]` over `len` NCHW values (`frames` images per
+    /// sample, planes of `hw`).
+    pub struct ActionBiasParams {
+        pub len: u32,
+        pub hw: u32,
+        pub channels: u32,
+        pub frames: u32,
+    }
+}
+
+gpu_struct! {
     pub struct GatherParams {
         pub rows: u32,
         pub width: u32,
@@ -169,6 +180,7 @@ pub enum Broadcast {
 
 /// Row indices in a u32 storage buffer (for [`Recorder::gather`]); rewritable in place
 /// (e.g. the action ids of a captured [`Plan`]).
+#[derive(Clone, Debug)]
 pub struct Indices {
     buffer: wgpu::Buffer,
     len: usize,
@@ -369,6 +381,12 @@ impl<'a> Recorder<'a> {
             Mode::Split => self.steps.submit(),
             Mode::Capture => self.steps.boundary(),
         }
+    }
+
+    /// Names the work recorded from here on (until the next call) for profiles
+    /// ([`Plan::profile_stages`]).
+    pub fn stage(&mut self, name: &'static str) {
+        self.steps.stage(name, self.flops);
     }
 
     /// The steps recorded so far, for stages that record their own kernels into the
@@ -688,6 +706,35 @@ impl<'a> Recorder<'a> {
         Ok(y)
     }
 
+    /// `x` [N·F, C, H, W] plus row `ids[n]` of `table` [A, C] on every pixel of sample
+    /// n's `frames` (F) images.
+    pub fn add_action_bias(
+        &mut self,
+        x: &Tensor,
+        table: &Tensor,
+        ids: &Indices,
+        frames: usize,
+    ) -> Result<Tensor, GpuError> {
+        let [nf, c, h, w] = x.shape[..] else {
+            panic!("NCHW expected, got {:?}", x.shape)
+        };
+        assert_eq!(table.shape[1], c, "action bias table {:?}", table.shape);
+        assert_eq!(nf, ids.len * frames, "{} ids for {nf} images", ids.len);
+        self.check(&[x, table]);
+        let y = self.output("action_bias.y", &x.shape)?;
+        let params = ActionBiasParams {
+            len: x.len() as u32,
+            hw: (h * w) as u32,
+            channels: c as u32,
+            frames: frames as u32,
+        };
+        let grid = self.grid(y.len());
+        let buffers = [&x.buffer, &table.buffer, &ids.buffer, &y.buffer];
+        self.steps
+            .dispatch(&kernels::ADD_ACTION_BIAS, &params, &buffers, grid);
+        Ok(y)
+    }
+
     /// `a + b`, where `b` is shaped like `a` or broadcast as `broadcast` says.
     pub fn add(
         &mut self,
@@ -866,31 +913,6 @@ impl<'a> Recorder<'a> {
         };
         let grid = self.grid(t.len() * dim / 2);
         self.launch(&kernels::TIMESTEP_EMBEDDING, &params, &[t, &y], grid);
-        Ok(y)
-    }
-
-    /// The rows `rows` of a [R, D] table as a [rows.len(), D] tensor (buffer copies: an
-    /// embedding lookup with host-known ids).
-    pub fn gather_rows(&mut self, table: &Tensor, rows: &[usize]) -> Result<Tensor, GpuError> {
-        let [count, dim] = table.shape[..] else {
-            panic!("a row table must be 2-D, got {:?}", table.shape)
-        };
-        let y = self.output("gather_rows.y", &[rows.len(), dim])?;
-        let row_bytes = (dim * self.precision().bytes()) as u64;
-        assert!(
-            row_bytes.is_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT),
-            "rows of {row_bytes} bytes"
-        );
-        for (k, &r) in rows.iter().enumerate() {
-            assert!(r < count, "row {r} of a {count}-row table");
-            self.steps.copy(
-                &table.buffer,
-                r as u64 * row_bytes,
-                &y.buffer,
-                k as u64 * row_bytes,
-                row_bytes,
-            );
-        }
         Ok(y)
     }
 

@@ -112,6 +112,7 @@ pub fn sample_next<'a>(
 ) -> Result<Tensor, GpuError> {
     let guided = sampling.cfg_scale != 1.0;
     let actions = actions.into();
+    r.stage("unet-context");
     let context = if guided {
         r.concat(context, context, 0)?
     } else {
@@ -132,6 +133,7 @@ pub fn sample_next<'a>(
     let mut x = noise.clone();
     for (i, &t) in times.iter().enumerate() {
         let t_prev = times.get(i + 1).copied().unwrap_or(-1);
+        r.stage("unet-target");
         let eps = guided_eps(r, unet, &x, t, &cache, sampling.cfg_scale)?;
         let (a, b) = schedule.ddim_coefficients(t, t_prev);
         x = r.axpby(a, &x, 0, b, &eps, 0, &noise.shape)?;

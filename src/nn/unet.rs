@@ -12,6 +12,7 @@ use super::layers::{
 use super::ops::{Indices, Recorder};
 use super::weights::{LoadError, Weights};
 use crate::gpu::GpuError;
+use crate::gpu::kernel::PipelineCache;
 
 /// The UNet's shape, as the bundle manifest's `unet` entry.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -51,17 +52,26 @@ impl UNetConfig {
 }
 
 /// Spatial self-attention, cross-attention to the action, temporal attention.
+/// The cross-attention is kept as its table over the action tokens (one row per action
+/// and the null action): the same values in one dispatch instead of eight.
 struct AttentionStack {
     spatial: SpatialAttention,
-    cross: CrossAttention,
+    cross: Tensor,
     temporal: TemporalAttention,
 }
 
 impl AttentionStack {
-    fn load(w: &Weights, c: usize, cfg: &UNetConfig) -> Result<Self, LoadError> {
+    fn load(
+        w: &Weights,
+        r: &mut Recorder,
+        tokens: &Tensor,
+        c: usize,
+        cfg: &UNetConfig,
+    ) -> Result<Self, LoadError> {
+        let cross = CrossAttention::load(&w.at("cross"), c, cfg.embed, cfg.heads)?;
         Ok(Self {
             spatial: SpatialAttention::load(&w.at("spatial"), c, cfg.heads)?,
-            cross: CrossAttention::load(&w.at("cross"), c, cfg.embed, cfg.heads)?,
+            cross: cross.action_table(r, tokens)?,
             temporal: TemporalAttention::load(&w.at("temporal"), c, cfg.frames, cfg.heads)?,
         })
     }
@@ -113,11 +123,11 @@ impl<'a> From<&'a Indices> for ActionIds<'a> {
 }
 
 /// The context frames' temporal-attention rows of one generated frame, for every
-/// denoising step of it, and the action tokens they were made with.
+/// denoising step of it, and the action ids they were made with.
 pub struct ContextCache {
     rows: Vec<Tensor>,
-    /// [N, 1, E]: the batch's action embeddings.
-    token: Tensor,
+    /// The batch's N action ids.
+    ids: Indices,
 }
 
 /// How the batch's frames meet the temporal layers (see [`Frames`]).
@@ -171,7 +181,6 @@ pub struct UNet {
     pub cfg: UNetConfig,
     time_in: Linear,
     time_out: Linear,
-    action: Tensor,
     conv_in: Conv,
     down0: ResBlock,
     temporal0: TemporalAttention,
@@ -191,24 +200,28 @@ pub struct UNet {
 }
 
 impl UNet {
+    /// Loads the weights; the cross-attention tables are computed on the GPU here (one
+    /// submission).
     pub fn load(w: &Weights, cfg: &UNetConfig) -> Result<Self, LoadError> {
         let [c0, c1] = cfg.channels;
         let e = Some(cfg.embed);
-        Ok(Self {
+        let action = w.tensor("action.weight", &[cfg.actions + 1, cfg.embed])?;
+        let mut pipelines = PipelineCache::default();
+        let mut r = Recorder::new(w.gpu(), &mut pipelines, w.precision());
+        let unet = Self {
             time_in: Linear::load(&w.at("time_mlp.0"), cfg.embed, cfg.embed)?,
             time_out: Linear::load(&w.at("time_mlp.2"), cfg.embed, cfg.embed)?,
-            action: w.tensor("action.weight", &[cfg.actions + 1, cfg.embed])?,
             conv_in: Conv::load(&w.at("conv_in"), cfg.latent, c0, 3, 1)?,
             down0: ResBlock::load(&w.at("down0"), c0, c0, e)?,
             temporal0: TemporalAttention::load(&w.at("temporal0"), c0, cfg.frames, cfg.heads)?,
             down: Conv::load(&w.at("down.conv"), c0, c0, 3, 2)?,
             down1: ResBlock::load(&w.at("down1"), c0, c1, e)?,
-            attn1: AttentionStack::load(&w.at("attn1"), c1, cfg)?,
+            attn1: AttentionStack::load(&w.at("attn1"), &mut r, &action, c1, cfg)?,
             mid1: ResBlock::load(&w.at("mid1"), c1, c1, e)?,
-            mid_attn: AttentionStack::load(&w.at("mid_attn"), c1, cfg)?,
+            mid_attn: AttentionStack::load(&w.at("mid_attn"), &mut r, &action, c1, cfg)?,
             mid2: ResBlock::load(&w.at("mid2"), c1, c1, e)?,
             up1: ResBlock::load(&w.at("up1"), 2 * c1, c1, e)?,
-            up_attn: AttentionStack::load(&w.at("up_attn"), c1, cfg)?,
+            up_attn: AttentionStack::load(&w.at("up_attn"), &mut r, &action, c1, cfg)?,
             up: Up::load(&w.at("up"), c1, c1)?,
             up0: ResBlock::load(&w.at("up0"), c1 + c0, c0, e)?,
             temporal_up0: TemporalAttention::load(
@@ -220,11 +233,11 @@ impl UNet {
             norm_out: Norm::load(&w.at("norm_out"), c0)?,
             conv_out: Conv::load(&w.at("conv_out"), c0, cfg.latent, 3, 1)?,
             cfg: cfg.clone(),
-        })
+        };
+        r.submit();
+        Ok(unet)
     }
 
-    /// The noise prediction for every frame of whole groups: `x` [N, F, C, H, W],
-    /// `timesteps` N·F values, `actions` N ids (as the trainer's forward).
     pub fn groups<'a>(
         &self,
         r: &mut Recorder,
@@ -236,8 +249,8 @@ impl UNet {
             count: self.cfg.frames,
             keep: None,
         };
-        let token = self.token(r, actions.into())?;
-        let eps = self.run(r, x, timesteps, &token, pass)?;
+        let ids = self.ids(r, actions.into())?;
+        let eps = self.run(r, x, timesteps, &ids, pass)?;
         Ok(eps.reshaped(&x.shape))
     }
 
@@ -256,19 +269,21 @@ impl UNet {
             count,
             keep: Some(&mut rows),
         };
-        let token = self.token(r, actions.into())?;
-        let n = token.shape[0];
-        self.run(r, context, &vec![0.0; n * count], &token, pass)?;
-        Ok(ContextCache { rows, token })
+        let ids = self.ids(r, actions.into())?;
+        let n = ids.len();
+        self.run(r, context, &vec![0.0; n * count], &ids, pass)?;
+        Ok(ContextCache { rows, ids })
     }
 
-    /// The action embeddings [N, 1, E] of a batch's ids.
-    fn token(&self, r: &mut Recorder, actions: ActionIds) -> Result<Tensor, GpuError> {
-        let token = match actions {
-            ActionIds::Host(ids) => r.gather_rows(&self.action, ids)?,
-            ActionIds::Gpu(ids) => r.gather(&self.action, ids)?,
-        };
-        Ok(token.reshaped(&[actions.len(), 1, self.cfg.embed]))
+    /// The batch's action ids on the GPU (host ids are uploaded).
+    fn ids(&self, r: &mut Recorder, actions: ActionIds) -> Result<Indices, GpuError> {
+        match actions {
+            ActionIds::Host(ids) => {
+                let ids: Vec<u32> = ids.iter().map(|&a| a as u32).collect();
+                r.indices("unet.actions", &ids)
+            }
+            ActionIds::Gpu(ids) => Ok(ids.clone()),
+        }
     }
 
     /// The noise prediction of the frame after the context: `x` [N, C, H, W] at
@@ -281,8 +296,8 @@ impl UNet {
         cache: &ContextCache,
     ) -> Result<Tensor, GpuError> {
         let pass = Pass::Next { cache, layer: 0 };
-        let n = cache.token.shape[0];
-        self.run(r, x, &vec![timestep; n], &cache.token, pass)
+        let n = cache.ids.len();
+        self.run(r, x, &vec![timestep; n], &cache.ids, pass)
     }
 
     fn run(
@@ -290,7 +305,7 @@ impl UNet {
         r: &mut Recorder,
         x: &Tensor,
         timesteps: &[f32],
-        token: &Tensor,
+        ids: &Indices,
         mut pass: Pass,
     ) -> Result<Tensor, GpuError> {
         let (c, h, w) = (
@@ -305,11 +320,7 @@ impl UNet {
             "latents {:?} for {frames} frames",
             x.shape
         );
-        assert_eq!(
-            frames,
-            token.shape[0] * pass.frames(),
-            "timesteps per frame"
-        );
+        assert_eq!(frames, ids.len() * pass.frames(), "timesteps per frame");
         let x = x.reshaped(&[frames, c, h, w]);
         let t = r.upload("unet.timesteps", &[frames], timesteps)?;
         let te = r.timestep_embedding(&t, self.cfg.embed)?;
@@ -322,13 +333,13 @@ impl UNet {
         let h0 = pass.temporal(r, &self.temporal0, &h0)?;
         let h1 = self.down.forward(r, &h0)?;
         let h1 = self.down1.forward(r, &h1, emb)?;
-        let h1 = self.attend(r, &self.attn1, &h1, token, &mut pass)?;
+        let h1 = self.attend(r, &self.attn1, &h1, ids, &mut pass)?;
         let m = self.mid1.forward(r, &h1, emb)?;
-        let m = self.attend(r, &self.mid_attn, &m, token, &mut pass)?;
+        let m = self.attend(r, &self.mid_attn, &m, ids, &mut pass)?;
         let m = self.mid2.forward(r, &m, emb)?;
         let u1 = r.concat(&m, &h1, 1)?;
         let u1 = self.up1.forward(r, &u1, emb)?;
-        let u1 = self.attend(r, &self.up_attn, &u1, token, &mut pass)?;
+        let u1 = self.attend(r, &self.up_attn, &u1, ids, &mut pass)?;
         let u0 = self.up.forward(r, &u1)?;
         let u0 = r.concat(&u0, &h0, 1)?;
         let u0 = self.up0.forward(r, &u0, emb)?;
@@ -342,11 +353,11 @@ impl UNet {
         r: &mut Recorder,
         stack: &AttentionStack,
         x: &Tensor,
-        token: &Tensor,
+        ids: &Indices,
         pass: &mut Pass,
     ) -> Result<Tensor, GpuError> {
         let h = stack.spatial.forward(r, x)?;
-        let h = stack.cross.forward(r, &h, token)?;
+        let h = r.add_action_bias(&h, &stack.cross, ids, pass.frames())?;
         pass.temporal(r, &stack.temporal, &h)
     }
 }

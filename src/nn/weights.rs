@@ -112,7 +112,17 @@ impl<'a> Weights<'a> {
     }
 }
 
-impl Weights<'_> {
+impl<'a> Weights<'a> {
+    /// The GPU the tensors go to.
+    pub fn gpu(&self) -> &'a GpuContext {
+        self.gpu
+    }
+
+    /// The precision the tensors are stored in.
+    pub fn precision(&self) -> Precision {
+        self.precision
+    }
+
     /// The first `keep` output channels of a 3×3 convolution's weights of shape
     /// [c_out, c_in, 3, 3], in both layouts [`PackedConv`] keeps.
     pub fn conv3x3(
