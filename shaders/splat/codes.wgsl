@@ -1,6 +1,6 @@
 // Serialisation codes (PTv3, as src/splat/serialise.rs): each point's unit-cube position
 // quantised to 1024 cells per axis, as a z-order and a Hilbert index, and both with x and
-// y swapped: codes[curve · points + i], curves in the refiner's order (Z, Z transposed,
+// y swapped: codes[curve · stride + i], curves in the refiner's order (Z, Z transposed,
 // Hilbert, Hilbert transposed). 30 bits each.
 
 @group(0) @binding(0) var<uniform> p: SplatParams;
@@ -53,13 +53,22 @@ fn hilbert(cell: vec3<u32>) -> u32 {
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {
     let i = linear_index(invocation);
+    // Each curve's codes fill `stride` slots (points rounded up to 4, so rank.wgsl reads
+    // them as vec4s); the padding holds the largest u32, after every 30-bit code.
+    let stride = (p.points + 3u) / 4u * 4u;
+    if i >= stride {
+        return;
+    }
     if i >= p.points {
+        for (var curve = 0u; curve < 4u; curve++) {
+            codes[curve * stride + i] = 0xffffffffu;
+        }
         return;
     }
     let c = vec3<u32>(quantise(unit[3u * i]), quantise(unit[3u * i + 1u]), quantise(unit[3u * i + 2u]));
     let t = vec3<u32>(c.y, c.x, c.z);
     codes[i] = interleave(c);
-    codes[p.points + i] = interleave(t);
-    codes[2u * p.points + i] = hilbert(c);
-    codes[3u * p.points + i] = hilbert(t);
+    codes[stride + i] = interleave(t);
+    codes[2u * stride + i] = hilbert(c);
+    codes[3u * stride + i] = hilbert(t);
 }

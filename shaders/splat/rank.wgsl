@@ -4,7 +4,7 @@
 // pooled group rank / stride.
 
 @group(0) @binding(0) var<uniform> p: SplatParams;
-@group(0) @binding(1) var<storage, read> codes: array<u32>;
+@group(0) @binding(1) var<storage, read> codes: array<vec4<u32>>;
 @group(0) @binding(2) var<storage, read_write> sort: array<u32>;
 @group(0) @binding(3) var<storage, read_write> unsort: array<u32>;
 @group(0) @binding(4) var<storage, read_write> groups_out: array<u32>;
@@ -15,13 +15,21 @@ fn main(invocation: Invocation) {
     if i >= p.points {
         return;
     }
-    let base = p.curve * p.points;
-    let c = codes[base + i];
-    var rank = 0u;
-    for (var j = 0u; j < p.points; j++) {
-        let d = codes[base + j];
-        rank += select(0u, 1u, d < c || (d == c && j < i));
+    // The curve's codes as vec4s (codes.wgsl pads each curve to a multiple of 4 with the
+    // largest u32, which no code reaches, so padding never counts).
+    let quads = (p.points + 3u) / 4u;
+    let base = p.curve * quads;
+    let c = codes[base + i / 4u][i % 4u];
+    let cv = vec4<u32>(c);
+    let iv = vec4<u32>(i);
+    var counts = vec4<u32>(0u);
+    for (var q = 0u; q < quads; q++) {
+        let d = codes[base + q];
+        let j = vec4<u32>(4u * q) + vec4<u32>(0u, 1u, 2u, 3u);
+        let before = (d < cv) | ((d == cv) & (j < iv));
+        counts += select(vec4<u32>(0u), vec4<u32>(1u), before);
     }
+    let rank = counts.x + counts.y + counts.z + counts.w;
     sort[rank] = i;
     unsort[i] = rank;
     if p.features != 0u {

@@ -1,5 +1,7 @@
 """PyTorch-eager benchmark of the models, the counterpart of the WGSL engine's table: the
-median time of one UNet step (the CFG batch of 2 over a 4-frame group), one VAE decode
+median time of one UNet step (the CFG batch of 2 over a 4-frame group), one unet-target
+step (batch 1 at CFG 1, the engine's `stage unet-target`; printed as
+`pytorch stage unet-target: ms=X gflops=G` for the bundle, or the last config), one VAE decode
 (one 4x16x16 latent to a 3x128x128 map) and one generated frame (a DDIM sample of `--steps`
 guided UNet steps, then a decode), with the GFLOP of each (convolutions, linear layers and
 attention products, as counted by unet.conv_and_linear_flops) and the achieved GFLOP/s.
@@ -75,9 +77,14 @@ def bench_config(config: str, vae: PositionVae, unet: UNet, device: torch.device
     def frame():
         return vae.decode(sample_next(unet, schedule, context, action, steps, cfg_scale, noise))
 
+    # The engine's `stage unet-target`: one denoising step of the target frame at CFG 1.
+    # PyTorch has no context cache, so its sampler runs the whole group of one sample.
+    target_flops = conv_and_linear_flops(unet, x[:1], t[:1], actions[:1])
+
     rows = []
     for what, flops, fn in [
         ("unet step", unet_flops, lambda: unet(x, t, actions)),
+        ("unet-target", target_flops, lambda: unet(x[:1], t[:1], actions[:1])),
         ("vae decode", decode_flops, lambda: vae.decode(z)),
         ("generated frame", steps * frame_unet_flops + decode_flops, frame),
     ]:
@@ -134,6 +141,10 @@ def main(argv=None) -> dict:
         results.append(result)
     rows = [row for result in results for row in result["rows"]]
     print(table(rows))
+    for row in rows:
+        if row["config"] == ("bundle" if args.bundle else configs[-1]) and row["what"] == "unet-target":
+            # The line the README's speed table reads beside `unica bench`'s stage lines.
+            print(f"pytorch stage unet-target: ms={row['ms']:.1f} gflops={row['gflops']:.2f}")
     report = {"device": label, "torch": torch.__version__, "steps": args.steps, "cfg_scale": args.cfg_scale, "repeat": args.repeat,
               "configs": [{k: v for k, v in r.items() if k != "rows"} for r in results], "rows": rows}
     if args.json:
