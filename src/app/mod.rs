@@ -603,10 +603,14 @@ impl eframe::App for UnicaApp {
             .frame(egui::Frame::NONE)
             .show(ui, |ui| {
                 let meshes = self.shown.gpu_meshes();
+                let scene = self.shown.scene_generation();
                 let splats = self.shown.splats();
-                self.timings = self
-                    .viewport
-                    .show(ui, &self.gpu, &state.renderer, &meshes, splats);
+                let timings =
+                    self.viewport
+                        .show(ui, &self.gpu, &state.renderer, &meshes, scene, splats);
+                if !timings.is_empty() {
+                    self.timings = timings;
+                }
             });
         self.record_frame();
         // The viewport's GPU work for this frame is done: the model may take its turn.

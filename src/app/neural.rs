@@ -71,10 +71,13 @@ pub enum Update {
     Failed(String),
 }
 
-/// The model's share of time beside the window: after this much model work the worker
-/// waits for the window to draw a frame (at most [`WINDOW_WAIT`]), so the window keeps
-/// its rate on a machine where the model and the window share the same cores.
-const MODEL_SLICE: Duration = Duration::from_millis(12);
+/// The model's share of time beside the window, on a machine where the model and the
+/// window share the same cores (a CPU driver): after at least [`MODEL_SLICE`] of model
+/// work (one dispatch may run longer) the worker gives the window [`WINDOW_SHARE`] times
+/// as long and at least one drawn frame (waiting at most [`WINDOW_WAIT`]), so the window
+/// keeps its rate and the avatar updates at its own pace.
+const MODEL_SLICE: Duration = Duration::from_millis(6);
+const WINDOW_SHARE: u32 = 2;
 const WINDOW_WAIT: Duration = Duration::from_millis(250);
 
 pub struct NeuralAvatar {
@@ -231,11 +234,13 @@ impl Worker {
         let mut seen = frames.load(Ordering::Relaxed);
         let mut slice = Instant::now();
         engine.set_pacer(move || {
-            if slice.elapsed() < MODEL_SLICE {
+            let spent = slice.elapsed();
+            if spent < MODEL_SLICE {
                 return;
             }
+            let window_turn = (spent * WINDOW_SHARE).min(WINDOW_WAIT);
             let waited = Instant::now();
-            while frames.load(Ordering::Relaxed) == seen
+            while (frames.load(Ordering::Relaxed) == seen || waited.elapsed() < window_turn)
                 && waited.elapsed() < WINDOW_WAIT
                 && !stop.load(Ordering::Relaxed)
             {

@@ -108,6 +108,8 @@ pub struct Shown {
     file_splats: Option<(wgpu::Buffer, usize, (Vec3, Vec3))>,
     mesh: Mesh,
     gpu_mesh: GpuMesh,
+    /// Changes whenever the teacher's mesh on the GPU does.
+    generation: u64,
 }
 
 impl Shown {
@@ -138,6 +140,7 @@ impl Shown {
             teacher,
             neural: None,
             show_teacher: false,
+            generation: 0,
             file_splats: None,
             problem,
         }
@@ -239,6 +242,7 @@ impl Shown {
                 .for_each(|p| *p += TEACHER_OFFSET);
         }
         self.gpu_mesh.write_vertices(gpu, &self.mesh);
+        self.generation += 1;
     }
 
     /// The splats to draw: a PLY file's, or the neural avatar's when it shows splats.
@@ -270,6 +274,13 @@ impl Shown {
             .into_iter()
             .chain(other.then_some(&self.gpu_mesh))
             .collect()
+    }
+
+    /// Changes whenever what [`Shown::gpu_meshes`] draws does (meshes shown, the
+    /// teacher's pose, the neural surface's frame): the viewport redraws only then.
+    pub fn scene_generation(&self) -> (u64, u64, usize) {
+        let neural = self.neural.as_ref().map_or(0, |n| n.frames + 1);
+        (self.generation, neural, self.gpu_meshes().len())
     }
 
     /// The point the camera follows: the neural avatar's root, else the teacher's.

@@ -6,12 +6,23 @@
 use eframe::egui;
 
 use crate::gpu::GpuContext;
-use crate::gpu::timing::{Profiler, StageTiming};
+use std::time::Instant;
+
+use crate::gpu::timing::StageTiming;
 use crate::render::scene::COLOR_FORMAT;
 use crate::render::{GpuMesh, OrbitCamera, RenderTarget, SceneRenderer};
 use crate::splat::composite::Compositor;
 use crate::splat::project::SplatCamera;
 use crate::splat::raster::Rasterizer;
+
+/// A stage's CPU recording time since `clock` (the window waits for no GPU work).
+fn recorded(name: &str, clock: Instant) -> StageTiming {
+    StageTiming {
+        name: name.into(),
+        ms: clock.elapsed().as_secs_f64() * 1e3,
+        clock: "cpu, recording",
+    }
+}
 
 /// Radians of orbit per point dragged.
 const ORBIT_SPEED: f32 = 0.008;
@@ -28,7 +39,18 @@ pub struct Viewport {
     /// The last splat image and what it was drawn from: redrawn only when the camera,
     /// the size or the splats change, so HUD-only frames cost no rasterization.
     cached: Option<Cached>,
+    /// What the target holds (camera, size, scene generation, splats): when nothing
+    /// changed the viewport records nothing (a CPU driver spends a window frame's time
+    /// drawing it).
+    drawn: Option<SceneKey>,
 }
+
+type SceneKey = (
+    OrbitCamera,
+    (u32, u32),
+    (u64, u64, usize),
+    Option<(wgpu::Buffer, usize, u64)>,
+);
 
 /// Splats to draw: a buffer of `GpuSplat`s, how many, and a generation that changes
 /// whenever the buffer's contents do (e.g. the generated frame's number).
@@ -53,6 +75,7 @@ impl Viewport {
             texture: None,
             splatting: None,
             cached: None,
+            drawn: None,
         }
     }
 
@@ -62,13 +85,17 @@ impl Viewport {
     }
 
     /// Renders `meshes` and then `splats` over them at the size of the available area,
-    /// shows it, and applies mouse input to the camera. Returns the stage timings.
+    /// shows it, and applies mouse input to the camera. `scene` changes whenever the
+    /// meshes do; with the same camera, size, scene and splats as the last frame the image
+    /// is kept as it is. Returns each stage's CPU recording time (the GPU work is
+    /// submitted, not waited for); none when nothing was drawn.
     pub fn show(
         &mut self,
         ui: &mut egui::Ui,
         gpu: &GpuContext,
         egui_renderer: &egui::mutex::RwLock<eframe::egui_wgpu::Renderer>,
         meshes: &[&GpuMesh],
+        scene: (u64, u64, usize),
         splats: Option<Splats>,
     ) -> Vec<StageTiming> {
         let size = ui.available_size();
@@ -102,12 +129,33 @@ impl Viewport {
             return Vec::new();
         };
 
-        let mut profiler = Profiler::new(gpu);
-        profiler.stage(gpu, "viewport", |encoder, timer| {
-            self.renderer
-                .draw(gpu, encoder, target, &self.camera, meshes, timer)
-        });
+        let key = (
+            self.camera,
+            (w, h),
+            scene,
+            splats.map(|(b, n, g)| (b.clone(), n, g)),
+        );
+        // A splat image drawn small while the camera moved is redrawn at full size.
+        let settled = self.cached.as_ref().is_none_or(|c| c.divisor == 1);
+        if self.drawn.as_ref() == Some(&key) && settled {
+            return self.respond(ui, texture, size);
+        }
+        self.drawn = Some(key);
+        // One encoder and one submission, never waited for: on a CPU driver a wait would
+        // hold the window until the model's work queued before it had run too. The HUD
+        // gets the CPU time of recording each stage.
+        let mut encoder = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("viewport"),
+            });
+        let mut timings = Vec::new();
+        let clock = Instant::now();
+        self.renderer
+            .draw(gpu, &mut encoder, target, &self.camera, meshes, None);
+        timings.push(recorded("viewport", clock));
         if let Some((buffer, count, generation)) = splats {
+            let clock = Instant::now();
             let (rasterizer, compositor) = self
                 .splatting
                 .get_or_insert_with(|| (Rasterizer::default(), Compositor::new(gpu, COLOR_FORMAT)));
@@ -116,42 +164,50 @@ impl Viewport {
             let moving = cached.as_ref().is_some_and(|c| c.key.0 != self.camera);
             let full = cached.as_ref().is_some_and(|c| c.divisor == 1);
             let fresh = cached.as_ref().is_some_and(|c| c.key == key);
-            profiler.cpu_stage(gpu, "splats", |encoder| {
-                if !(fresh && (full || moving)) {
-                    let divisor = if moving { MOVING_DIVISOR } else { 1 };
-                    let camera =
-                        SplatCamera::new(&self.camera, w.div_ceil(divisor), h.div_ceil(divisor));
-                    match rasterizer.record(gpu, encoder, buffer, count, &camera, glam::Vec3::ZERO)
-                    {
-                        Ok(raster) => {
-                            *cached = Some(Cached {
-                                key,
-                                image: raster.image.clone(),
-                                divisor,
-                            })
-                        }
-                        Err(e) => {
-                            log::error!("splats: {e}");
-                            *cached = None;
-                        }
+            if !(fresh && (full || moving)) {
+                let divisor = if moving { MOVING_DIVISOR } else { 1 };
+                let camera =
+                    SplatCamera::new(&self.camera, w.div_ceil(divisor), h.div_ceil(divisor));
+                match rasterizer.record(gpu, &mut encoder, buffer, count, &camera, glam::Vec3::ZERO)
+                {
+                    Ok(raster) => {
+                        *cached = Some(Cached {
+                            key,
+                            image: raster.image.clone(),
+                            divisor,
+                        })
+                    }
+                    Err(e) => {
+                        log::error!("splats: {e}");
+                        *cached = None;
                     }
                 }
-                if let Some(c) = cached.as_ref() {
-                    compositor.draw(gpu, encoder, target, &c.image, c.divisor);
-                }
-            });
+            }
+            if let Some(c) = cached.as_ref() {
+                compositor.draw(gpu, &mut encoder, target, &c.image, c.divisor);
+            }
+            timings.push(recorded("splats", clock));
         } else {
             self.cached = None;
         }
+        gpu.submit([encoder.finish()]);
+        self.respond(ui, texture, size);
+        timings
+    }
+
+    /// Shows the target and applies the mouse to the camera.
+    fn respond(
+        &mut self,
+        ui: &mut egui::Ui,
+        texture: egui::TextureId,
+        size: egui::Vec2,
+    ) -> Vec<StageTiming> {
         let response = ui.add(
             egui::Image::new(egui::load::SizedTexture::new(texture, size))
                 .sense(egui::Sense::click_and_drag()),
         );
         self.handle_mouse(ui, &response);
-        profiler.finish(gpu).unwrap_or_else(|e| {
-            log::warn!("{e}");
-            Vec::new()
-        })
+        Vec::new()
     }
 
     fn handle_mouse(&mut self, ui: &egui::Ui, response: &egui::Response) {

@@ -13,7 +13,8 @@ pub const MAX_TIMESTAMP_STAGES: u32 = 32;
 pub struct StageTiming {
     pub name: String,
     pub ms: f64,
-    /// "gpu" for timestamp queries, "cpu" for wall clock around a blocking submit.
+    /// "gpu" for timestamp queries, "cpu" for wall clock around a blocking submit, "cpu,
+    /// recording" for the CPU time of recording alone (the window's stages).
     pub clock: &'static str,
 }
 
