@@ -654,7 +654,7 @@ fn the_shipped_refiner_matches_pytorch_on_a_witch_frame() {
 }
 
 #[test]
-fn every_variant_of_the_group_norm_and_the_3x3_convolution_agrees_on_odd_shapes() {
+fn every_variant_of_the_group_norm_and_the_packed_convolutions_agrees_on_odd_shapes() {
     // Shapes the fixtures do not reach: a 12-channel group norm over 4 groups of 76,800
     // values (near the CPU kernel's SERIAL_NORM_LIMIT; lavapipe's loop limiter once
     // truncated it silently above 65,535 iterations), and a 3×3 convolution whose rows (13) are not a
@@ -685,8 +685,25 @@ fn every_variant_of_the_group_norm_and_the_3x3_convolution_agrees_on_odd_shapes(
         &f.gpu,
         "w",
         &wave(12 * 5 * 9, 0.23),
-        12,
-        5,
+        [12, 5, 3],
+        Precision::F32,
+    )
+    .unwrap();
+    // A 1×1 convolution over planes of 12 × 13 = 156 pixels: 39 vec4s, so the last
+    // 8-pixel tile is half full.
+    let x3 = Tensor::upload(
+        &f.gpu,
+        "x3",
+        &[2, 5, 12, 13],
+        &wave(2 * 5 * 12 * 13, 0.13),
+        Precision::F32,
+    )
+    .unwrap();
+    let pointwise = unica::nn::ops::PackedConv::new(
+        &f.gpu,
+        "w1",
+        &wave(12 * 5, 0.29),
+        [12, 5, 1],
         Precision::F32,
     )
     .unwrap();
@@ -696,19 +713,25 @@ fn every_variant_of_the_group_norm_and_the_3x3_convolution_agrees_on_odd_shapes(
         r.set_kernels(kernels);
         let norm = r.group_norm(&x, &gamma, &beta, 4, true).unwrap();
         let conv = r.conv3x3(&x2, &weights, Some(&bias)).unwrap();
+        let point = r.conv1x1(&x3, &pointwise, Some(&bias)).unwrap();
         r.submit();
-        (norm.read(&f.gpu).unwrap(), conv.read(&f.gpu).unwrap())
+        let read = |t: &Tensor| t.read(&f.gpu).unwrap();
+        (read(&norm), read(&conv), read(&point))
     };
-    let (norm, conv) = run(Kernels::Simple, &mut pipelines);
+    let (norm, conv, point) = run(Kernels::Simple, &mut pipelines);
     for kernels in [Kernels::Cpu, Kernels::Gpu] {
-        let (n, c) = run(kernels, &mut pipelines);
+        let (n, c, q) = run(kernels, &mut pipelines);
         let norm_error = worst_difference(&n, &norm);
         let conv_error = worst_difference(&c, &conv);
-        println!("{kernels:?}: group norm {norm_error:.1e}, conv3x3 {conv_error:.1e}");
+        let point_error = worst_difference(&q, &point);
+        println!(
+            "{kernels:?}: group norm {norm_error:.1e}, conv3x3 {conv_error:.1e}, conv1x1 {point_error:.1e}"
+        );
         // The norm's statistics sum in another order (1e-5 of unit values); the
-        // convolution sums the same terms in the same order.
+        // convolutions sum the same terms in the same order.
         assert!(norm_error < 1e-5, "{kernels:?} group norm: {norm_error}");
         assert!(conv_error < 1e-6, "{kernels:?} conv3x3: {conv_error}");
+        assert!(point_error < 1e-6, "{kernels:?} conv1x1: {point_error}");
     }
 }
 

@@ -15,6 +15,9 @@ pub const CONV2D_TILED: Shader = shader!("nn/conv2d_tiled.wgsl", [Conv2dParams],
 /// The 3×3 stride-1 convolution in register tiles of 8 pixels × 8 channels, from
 /// repacked f32 weights (`ops::PackedConv`).
 pub const CONV3X3: Shader = shader!("nn/conv3x3.wgsl", [Conv2dParams], elem);
+/// The 1×1 convolution in register tiles of 8 pixels × 8 channels, from repacked f32
+/// weights (`ops::PackedConv`).
+pub const CONV1X1: Shader = shader!("nn/conv1x1.wgsl", [Conv2dParams], elem);
 pub const UPSAMPLE_NEAREST: Shader = shader!("nn/upsample_nearest.wgsl", [UpsampleParams], elem);
 pub const GROUP_NORM: Shader = shader!("nn/group_norm.wgsl", [GroupNormParams], elem);
 /// Group norm for CPU drivers: one invocation per (sample, group), no barriers.
@@ -44,6 +47,7 @@ pub const ALL: &[Shader] = &[
     CONV2D,
     CONV2D_TILED,
     CONV3X3,
+    CONV1X1,
     UPSAMPLE_NEAREST,
     GROUP_NORM,
     GROUP_NORM_SERIAL,

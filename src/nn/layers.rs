@@ -7,8 +7,9 @@ use super::ops::{AttentionParams, Broadcast, PackedConv, Recorder};
 use super::weights::{LoadError, Weights};
 use crate::gpu::GpuError;
 
-/// A square convolution with bias and "same" padding (k / 2). 3×3 stride-1 ones keep
-/// their weights in both layouts and record the register-tiled `conv3x3` kernel.
+/// A square convolution with bias and "same" padding (k / 2). 3×3 and 1×1 stride-1 ones
+/// keep their weights in both layouts and record the register-tiled `conv3x3` and
+/// `conv1x1` kernels.
 pub struct Conv {
     weights: ConvWeights,
     bias: Tensor,
@@ -28,8 +29,8 @@ impl Conv {
         kernel: usize,
         stride: usize,
     ) -> Result<Self, LoadError> {
-        let weights = if kernel == 3 && stride == 1 {
-            ConvWeights::Packed(w.conv3x3("weight", c_out, c_in, c_out)?)
+        let weights = if (kernel == 3 || kernel == 1) && stride == 1 {
+            ConvWeights::Packed(w.packed_conv("weight", [c_out, c_in, kernel], c_out)?)
         } else {
             ConvWeights::Plain(w.tensor("weight", &[c_out, c_in, kernel, kernel])?)
         };
@@ -48,7 +49,7 @@ impl Conv {
         keep: usize,
     ) -> Result<Self, LoadError> {
         Ok(Self {
-            weights: ConvWeights::Packed(w.conv3x3("weight", c_out, c_in, keep)?),
+            weights: ConvWeights::Packed(w.packed_conv("weight", [c_out, c_in, 3], keep)?),
             bias: w.rows("bias", &[c_out], keep)?,
             stride: 1,
         })
@@ -56,6 +57,9 @@ impl Conv {
 
     pub fn forward(&self, r: &mut Recorder, x: &Tensor) -> Result<Tensor, GpuError> {
         match &self.weights {
+            ConvWeights::Packed(weights) if weights.kernel == 1 => {
+                r.conv1x1(x, weights, Some(&self.bias))
+            }
             ConvWeights::Packed(weights) => r.conv3x3(x, weights, Some(&self.bias)),
             ConvWeights::Plain(weight) => {
                 let pad = weight.shape[2] / 2;

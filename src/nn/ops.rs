@@ -211,43 +211,55 @@ impl Indices {
     }
 }
 
-/// A 3×3 convolution's weights in both layouts: `plain` [c_out, c_in, 3, 3] in the
-/// recorder's precision for `conv2d`, and `packed` for `conv3x3.wgsl`: f32
-/// [c_in, 3, 3, c_out rounded up to 8] (zeros past c_out), so the 8 output channels of a
-/// tap are two vec4 loads. The packed values are the stored ones (rounded to f16 first
-/// in an f16 recorder), so both kernels sum the same numbers.
+/// A k×k convolution's weights (k = 1 or 3, stride 1) in both layouts: `plain`
+/// [c_out, c_in, k, k] in the recorder's precision for `conv2d`, and `packed` for
+/// `conv3x3.wgsl` / `conv1x1.wgsl`: f32 [c_in, k, k, c_out rounded up to 8] (zeros past
+/// c_out), so the 8 output channels of a tap are two vec4 loads. The packed values are
+/// the stored ones (rounded to f16 first in an f16 recorder), so every kernel sums the
+/// same numbers.
 pub struct PackedConv {
     pub plain: Tensor,
     pub packed: Tensor,
     pub c_in: usize,
     pub c_out: usize,
+    pub kernel: usize,
 }
 
 impl PackedConv {
-    /// `values` [c_out, c_in, 3, 3] as PyTorch stores them.
+    /// `values` [c_out, c_in, k, k] as PyTorch stores them.
     pub fn new(
         gpu: &GpuContext,
         label: &str,
         values: &[f32],
-        c_out: usize,
-        c_in: usize,
+        [c_out, c_in, kernel]: [usize; 3],
         precision: Precision,
     ) -> Result<Self, GpuError> {
-        let plain = Tensor::upload(gpu, label, &[c_out, c_in, 3, 3], values, precision)?;
+        assert!(
+            kernel == 1 || kernel == 3,
+            "packed convolutions are 1×1 or 3×3"
+        );
+        let taps = kernel * kernel;
+        let plain = Tensor::upload(
+            gpu,
+            label,
+            &[c_out, c_in, kernel, kernel],
+            values,
+            precision,
+        )?;
         let stored = precision.decode(&precision.encode(values));
         let lanes = c_out.next_multiple_of(8);
-        let mut packed = vec![0.0f32; c_in * 9 * lanes];
+        let mut packed = vec![0.0f32; c_in * taps * lanes];
         for co in 0..c_out {
             for ci in 0..c_in {
-                for tap in 0..9 {
-                    packed[(ci * 9 + tap) * lanes + co] = stored[(co * c_in + ci) * 9 + tap];
+                for tap in 0..taps {
+                    packed[(ci * taps + tap) * lanes + co] = stored[(co * c_in + ci) * taps + tap];
                 }
             }
         }
         let packed = Tensor::upload(
             gpu,
             &format!("{label} (packed)"),
-            &[c_in * 9, lanes],
+            &[c_in * taps, lanes],
             &packed,
             Precision::F32,
         )?;
@@ -256,6 +268,7 @@ impl PackedConv {
             packed,
             c_in,
             c_out,
+            kernel,
         })
     }
 }
@@ -557,7 +570,7 @@ impl<'a> Recorder<'a> {
         let [n, c_in, h, w] = x.shape[..] else {
             panic!("conv3x3 input must be NCHW, got {:?}", x.shape)
         };
-        assert_eq!(c_in, weights.c_in, "conv3x3 channel mismatch");
+        assert_eq!((c_in, weights.kernel), (weights.c_in, 3), "conv3x3 weights");
         if w < 8 || self.kernels == Kernels::Simple {
             return self.conv2d(x, &weights.plain, bias, 1, 1);
         }
@@ -585,6 +598,50 @@ impl<'a> Recorder<'a> {
         let buffers = [&x.buffer, &weights.packed.buffer, &bias.buffer, &y.buffer];
         self.steps
             .dispatch(&kernels::CONV3X3, &params, &buffers, grid);
+        Ok(y)
+    }
+
+    /// A 1×1 convolution from weights packed by [`PackedConv`]: register tiles of 8
+    /// pixels × 8 channels (`conv1x1.wgsl`), the same sums in the same order as
+    /// [`Recorder::conv2d`]. With [`Kernels::Simple`], and for planes whose pixel count
+    /// is not a multiple of 4, it records `conv2d` instead.
+    pub fn conv1x1(
+        &mut self,
+        x: &Tensor,
+        weights: &PackedConv,
+        bias: Option<&Tensor>,
+    ) -> Result<Tensor, GpuError> {
+        let [n, c_in, h, w] = x.shape[..] else {
+            panic!("conv1x1 input must be NCHW, got {:?}", x.shape)
+        };
+        assert_eq!((c_in, weights.kernel), (weights.c_in, 1), "conv1x1 weights");
+        if !(h * w).is_multiple_of(4) || self.kernels == Kernels::Simple {
+            return self.conv2d(x, &weights.plain, bias, 1, 0);
+        }
+        let c_out = weights.c_out;
+        let y = self.output("conv1x1.y", &[n, c_out, h, w])?;
+        let params = Conv2dParams {
+            batch: n as u32,
+            c_in: c_in as u32,
+            c_out: c_out as u32,
+            h_in: h as u32,
+            w_in: w as u32,
+            h_out: h as u32,
+            w_out: w as u32,
+            kernel: 1,
+            stride: 1,
+            pad: 0,
+            has_bias: u32::from(bias.is_some()),
+            reserved: 0,
+        };
+        self.flops += 2 * (y.len() * c_in) as u64;
+        // A bias binding must exist even without a bias; the input stands in (unread).
+        let bias = bias.unwrap_or(x);
+        self.check(&[x, bias, &y]);
+        let grid = self.grid(n * c_out.div_ceil(8) * (h * w / 4).div_ceil(2));
+        let buffers = [&x.buffer, &weights.packed.buffer, &bias.buffer, &y.buffer];
+        self.steps
+            .dispatch(&kernels::CONV1X1, &params, &buffers, grid);
         Ok(y)
     }
 

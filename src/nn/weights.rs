@@ -123,23 +123,21 @@ impl<'a> Weights<'a> {
         self.precision
     }
 
-    /// The first `keep` output channels of a 3×3 convolution's weights of shape
-    /// [c_out, c_in, 3, 3], in both layouts [`PackedConv`] keeps.
-    pub fn conv3x3(
+    /// The first `keep` output channels of a k×k convolution's weights of shape
+    /// [c_out, c_in, k, k], in both layouts [`PackedConv`] keeps.
+    pub fn packed_conv(
         &self,
         name: &str,
-        c_out: usize,
-        c_in: usize,
+        [c_out, c_in, kernel]: [usize; 3],
         keep: usize,
     ) -> Result<PackedConv, LoadError> {
-        let values = self.host(name, &[c_out, c_in, 3, 3])?;
+        let values = self.host(name, &[c_out, c_in, kernel, kernel])?;
         let label = format!("{}{name}", self.prefix);
         Ok(PackedConv::new(
             self.gpu,
             &label,
-            &values[..keep * c_in * 9],
-            keep,
-            c_in,
+            &values[..keep * c_in * kernel * kernel],
+            [keep, c_in, kernel],
             self.precision,
         )?)
     }
