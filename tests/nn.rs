@@ -708,11 +708,13 @@ fn every_variant_of_the_group_norm_and_the_packed_convolutions_agrees_on_odd_sha
     )
     .unwrap();
     let bias = Tensor::upload(&f.gpu, "bias", &[12], &wave(12, 0.5), Precision::F32).unwrap();
+    // A per-image addend for the 3×3 convolution's two images (a ResBlock's embedding).
+    let extra = Tensor::upload(&f.gpu, "extra", &[2, 12], &wave(24, 0.9), Precision::F32).unwrap();
     let run = |kernels: Kernels, pipelines: &mut PipelineCache| {
         let mut r = Recorder::new(&f.gpu, pipelines, Precision::F32);
         r.set_kernels(kernels);
         let norm = r.group_norm(&x, &gamma, &beta, 4, true).unwrap();
-        let conv = r.conv3x3(&x2, &weights, Some(&bias)).unwrap();
+        let conv = r.conv3x3(&x2, &weights, Some(&bias), Some(&extra)).unwrap();
         let point = r.conv1x1(&x3, &pointwise, Some(&bias)).unwrap();
         r.submit();
         let read = |t: &Tensor| t.read(&f.gpu).unwrap();

@@ -4,13 +4,16 @@
 // a tap's 8 channels are two vec4 loads, and the 10 input values a row of 8 outputs
 // needs are loaded once per (c_in, ky) for all 3 taps: 16 loads per 192 multiply-adds.
 // Taps outside the input add an exact zero, so each output sums the same terms in the
-// same order (bias, then c_in, ky, kx) as conv2d.wgsl. Optional bias [c_out].
+// same order (bias, then c_in, ky, kx) as conv2d.wgsl. Optional bias [c_out], and an
+// optional per-image addend added after the sums.
 
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read> weight: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read> bias: array<Elem>;
-@group(0) @binding(4) var<storage, read_write> y: array<Elem>;
+// With `p.reserved` set: [N, c_out] added to each image's channels after the sums.
+@group(0) @binding(4) var<storage, read> extra: array<Elem>;
+@group(0) @binding(5) var<storage, read_write> y: array<Elem>;
 
 // x at column `ix` of the row starting at `row`; zero outside it.
 fn column(row: u32, ix: i32) -> f32 {
@@ -157,11 +160,20 @@ fn store(n: u32, block: u32, oy: u32, ox: u32, lo: vec4<f32>, hi: vec4<f32>) {
     let plane = p.h_out * p.w_out;
     let out = (n * p.c_out + 8u * block) * plane + oy * p.w_out + ox;
     for (var c = 0u; c < 4u; c++) {
-        if 8u * block + c < p.c_out {
-            y[out + c * plane] = Elem(lo[c]);
+        let co = 8u * block + c;
+        if co < p.c_out {
+            var v = lo[c];
+            if p.reserved != 0u {
+                v += f32(extra[n * p.c_out + co]);
+            }
+            y[out + c * plane] = Elem(v);
         }
-        if 8u * block + 4u + c < p.c_out {
-            y[out + (4u + c) * plane] = Elem(hi[c]);
+        if co + 4u < p.c_out {
+            var v = hi[c];
+            if p.reserved != 0u {
+                v += f32(extra[n * p.c_out + co + 4u]);
+            }
+            y[out + (4u + c) * plane] = Elem(v);
         }
     }
 }

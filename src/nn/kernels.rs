@@ -31,6 +31,8 @@ pub const ADD: Shader = shader!("nn/add.wgsl", [AddParams], elem);
 /// The cross-attention to one action token, as a per-action bias.
 pub const ADD_ACTION_BIAS: Shader = shader!("nn/add_action_bias.wgsl", [ActionBiasParams], elem);
 pub const PERMUTE: Shader = shader!("nn/permute.wgsl", [PermuteParams], elem);
+/// `a + permute(x)`: the attention layers' residual.
+pub const PERMUTE_ADD: Shader = shader!("nn/permute_add.wgsl", [PermuteParams], elem);
 pub const CONCAT: Shader = shader!("nn/concat.wgsl", [ConcatParams], elem);
 pub const AXPBY: Shader = shader!("nn/axpby.wgsl", [AxpbyParams], elem);
 pub const ATTENTION: Shader = shader!("nn/attention.wgsl", [AttentionParams], elem)
@@ -57,6 +59,7 @@ pub const ALL: &[Shader] = &[
     ADD,
     ADD_ACTION_BIAS,
     PERMUTE,
+    PERMUTE_ADD,
     CONCAT,
     AXPBY,
     ATTENTION,

@@ -56,15 +56,30 @@ impl Conv {
     }
 
     pub fn forward(&self, r: &mut Recorder, x: &Tensor) -> Result<Tensor, GpuError> {
-        match &self.weights {
-            ConvWeights::Packed(weights) if weights.kernel == 1 => {
-                r.conv1x1(x, weights, Some(&self.bias))
+        self.forward_plus(r, x, None)
+    }
+
+    /// The convolution, plus `extra` [N, c_out] on every pixel of image n's channels
+    /// (fused into the 3×3 kernel; a separate add otherwise).
+    pub fn forward_plus(
+        &self,
+        r: &mut Recorder,
+        x: &Tensor,
+        extra: Option<&Tensor>,
+    ) -> Result<Tensor, GpuError> {
+        let y = match &self.weights {
+            ConvWeights::Packed(weights) if weights.kernel == 3 => {
+                return r.conv3x3(x, weights, Some(&self.bias), extra);
             }
-            ConvWeights::Packed(weights) => r.conv3x3(x, weights, Some(&self.bias)),
+            ConvWeights::Packed(weights) => r.conv1x1(x, weights, Some(&self.bias))?,
             ConvWeights::Plain(weight) => {
                 let pad = weight.shape[2] / 2;
-                r.conv2d(x, weight, Some(&self.bias), self.stride, pad)
+                r.conv2d(x, weight, Some(&self.bias), self.stride, pad)?
             }
+        };
+        match extra {
+            Some(e) => r.add(&y, e, Broadcast::Leading),
+            None => Ok(y),
         }
     }
 }
@@ -157,11 +172,13 @@ impl ResBlock {
         emb: Option<&Tensor>,
     ) -> Result<Tensor, GpuError> {
         let h = self.norm1.forward(r, x, true)?;
-        let mut h = self.conv1.forward(r, &h)?;
-        if let Some(layer) = &self.emb {
-            let projected = layer.forward(r, emb.expect("this block takes an embedding"), true)?;
-            h = r.add(&h, &projected, Broadcast::Leading)?;
-        }
+        let projected = match &self.emb {
+            Some(layer) => {
+                Some(layer.forward(r, emb.expect("this block takes an embedding"), true)?)
+            }
+            None => None,
+        };
+        let h = self.conv1.forward_plus(r, &h, projected.as_ref())?;
         let h = self.norm2.forward(r, &h, true)?;
         let h = self.conv2.forward(r, &h)?;
         let skip = match &self.skip {
@@ -233,8 +250,7 @@ fn add_tokens(r: &mut Recorder, x: &Tensor, tokens: &Tensor) -> Result<Tensor, G
     let [n, c, h, w] = x.shape[..] else {
         panic!("NCHW expected, got {:?}", x.shape)
     };
-    let image = r.permute(tokens, [1, n, h * w, c], [0, 1, 3, 2])?;
-    r.add(x, &image.reshaped(&x.shape), Broadcast::Leading)
+    r.add_permuted(x, tokens, [1, n, h * w, c], [0, 1, 3, 2])
 }
 
 /// Self-attention among the H×W positions of each image.
@@ -424,7 +440,6 @@ impl TemporalAttention {
         };
         let mixed = r.attention(&qkv, &kv, params)?; // [N·HW, F, C]
         let out = self.out.forward(r, &mixed, false)?;
-        let image = r.permute(&out, [n, hw, f, c], [0, 2, 3, 1])?; // [N, F, C, HW]
-        r.add(x, &image.reshaped(&x.shape), Broadcast::Leading)
+        r.add_permuted(x, &out, [n, hw, f, c], [0, 2, 3, 1]) // [N, F, C, HW]
     }
 }

@@ -561,18 +561,29 @@ impl<'a> Recorder<'a> {
     /// register tiles of 8 pixels × 8 channels (`conv3x3.wgsl`), the same sums in the same
     /// order as [`Recorder::conv2d`]. With [`Kernels::Simple`], and for rows narrower than 8,
     /// it records `conv2d` instead.
+    ///
+    /// `extra` [N, c_out], when given, is added to every pixel of image n's channel after
+    /// the sums (a ResBlock's embedding), as an `add` after the convolution would.
     pub fn conv3x3(
         &mut self,
         x: &Tensor,
         weights: &PackedConv,
         bias: Option<&Tensor>,
+        extra: Option<&Tensor>,
     ) -> Result<Tensor, GpuError> {
         let [n, c_in, h, w] = x.shape[..] else {
             panic!("conv3x3 input must be NCHW, got {:?}", x.shape)
         };
         assert_eq!((c_in, weights.kernel), (weights.c_in, 3), "conv3x3 weights");
+        if let Some(e) = extra {
+            assert_eq!(e.len(), n * weights.c_out, "conv3x3 extra {:?}", e.shape);
+        }
         if w < 8 || self.kernels == Kernels::Simple {
-            return self.conv2d(x, &weights.plain, bias, 1, 1);
+            let y = self.conv2d(x, &weights.plain, bias, 1, 1)?;
+            return match extra {
+                Some(e) => self.add(&y, e, Broadcast::Leading),
+                None => Ok(y),
+            };
         }
         let c_out = weights.c_out;
         let y = self.output("conv3x3.y", &[n, c_out, h, w])?;
@@ -588,14 +599,22 @@ impl<'a> Recorder<'a> {
             stride: 1,
             pad: 1,
             has_bias: u32::from(bias.is_some()),
-            reserved: 0,
+            reserved: u32::from(extra.is_some()),
         };
         self.flops += 2 * (y.len() * c_in * 9) as u64;
-        // A bias binding must exist even without a bias; the input stands in (unread).
+        // Bias and extra bindings must exist even when absent; the input stands in
+        // (unread).
         let bias = bias.unwrap_or(x);
-        self.check(&[x, bias, &y]);
+        let extra = extra.unwrap_or(x);
+        self.check(&[x, bias, extra, &y]);
         let grid = self.grid(n * c_out.div_ceil(8) * h * w.div_ceil(8));
-        let buffers = [&x.buffer, &weights.packed.buffer, &bias.buffer, &y.buffer];
+        let buffers = [
+            &x.buffer,
+            &weights.packed.buffer,
+            &bias.buffer,
+            &extra.buffer,
+            &y.buffer,
+        ];
         self.steps
             .dispatch(&kernels::CONV3X3, &params, &buffers, grid);
         Ok(y)
@@ -853,6 +872,32 @@ impl<'a> Recorder<'a> {
         };
         let grid = self.grid(y.len());
         self.launch(&kernels::PERMUTE, &params, &[x, &y], grid);
+        Ok(y)
+    }
+
+    /// `a + permute(x)` in one dispatch: `x` viewed as `shape`, permuted as
+    /// [`Recorder::permute`] does, must have `a`'s size; the result has `a`'s shape.
+    pub fn add_permuted(
+        &mut self,
+        a: &Tensor,
+        x: &Tensor,
+        shape: [usize; 4],
+        perm: [usize; 4],
+    ) -> Result<Tensor, GpuError> {
+        assert_eq!(
+            (shape.iter().product::<usize>(), x.len()),
+            (a.len(), a.len()),
+            "add_permuted: {shape:?} of {:?} onto {:?}",
+            x.shape,
+            a.shape
+        );
+        let y = self.output("permute_add.y", &a.shape)?;
+        let params = PermuteParams {
+            shape: shape.map(|s| s as u32),
+            perm: perm.map(|k| k as u32),
+        };
+        let grid = self.grid(y.len());
+        self.launch(&kernels::PERMUTE_ADD, &params, &[x, a, &y], grid);
         Ok(y)
     }
 
