@@ -171,14 +171,36 @@ impl ResBlock {
         x: &Tensor,
         emb: Option<&Tensor>,
     ) -> Result<Tensor, GpuError> {
-        let h = self.norm1.forward(r, x, true)?;
-        let projected = match &self.emb {
-            Some(layer) => {
-                Some(layer.forward(r, emb.expect("this block takes an embedding"), true)?)
-            }
+        let projected = match emb {
+            Some(emb) => self.project(r, emb)?,
             None => None,
         };
-        let h = self.conv1.forward_plus(r, &h, projected.as_ref())?;
+        self.forward_projected(r, x, projected.as_ref())
+    }
+
+    /// The block's projection of the embedding `emb` [N, E] to [N, C_out] (None when the
+    /// block takes no embedding).
+    pub fn project(&self, r: &mut Recorder, emb: &Tensor) -> Result<Option<Tensor>, GpuError> {
+        self.emb
+            .as_ref()
+            .map(|layer| layer.forward(r, emb, true))
+            .transpose()
+    }
+
+    /// [`ResBlock::forward`] with the embedding already projected ([`ResBlock::project`]).
+    pub fn forward_projected(
+        &self,
+        r: &mut Recorder,
+        x: &Tensor,
+        projected: Option<&Tensor>,
+    ) -> Result<Tensor, GpuError> {
+        assert_eq!(
+            projected.is_some(),
+            self.emb.is_some(),
+            "this block's embedding"
+        );
+        let h = self.norm1.forward(r, x, true)?;
+        let h = self.conv1.forward_plus(r, &h, projected)?;
         let h = self.norm2.forward(r, &h, true)?;
         let h = self.conv2.forward(r, &h)?;
         let skip = match &self.skip {

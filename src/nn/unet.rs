@@ -322,30 +322,55 @@ impl UNet {
         );
         assert_eq!(frames, ids.len() * pass.frames(), "timesteps per frame");
         let x = x.reshaped(&[frames, c, h, w]);
-        let t = r.upload("unet.timesteps", &[frames], timesteps)?;
-        let te = r.timestep_embedding(&t, self.cfg.embed)?;
-        let te = self.time_in.forward(r, &te, false)?;
-        let emb = self.time_out.forward(r, &te, true)?; // [frames, E]
-        let emb = Some(&emb);
+        let [e0, e1, e2, e3, e4, e5] = self.embeddings(r, timesteps)?;
 
         let h0 = self.conv_in.forward(r, &x)?;
-        let h0 = self.down0.forward(r, &h0, emb)?;
+        let h0 = self.down0.forward_projected(r, &h0, e0.as_ref())?;
         let h0 = pass.temporal(r, &self.temporal0, &h0)?;
         let h1 = self.down.forward(r, &h0)?;
-        let h1 = self.down1.forward(r, &h1, emb)?;
+        let h1 = self.down1.forward_projected(r, &h1, e1.as_ref())?;
         let h1 = self.attend(r, &self.attn1, &h1, ids, &mut pass)?;
-        let m = self.mid1.forward(r, &h1, emb)?;
+        let m = self.mid1.forward_projected(r, &h1, e2.as_ref())?;
         let m = self.attend(r, &self.mid_attn, &m, ids, &mut pass)?;
-        let m = self.mid2.forward(r, &m, emb)?;
+        let m = self.mid2.forward_projected(r, &m, e3.as_ref())?;
         let u1 = r.concat(&m, &h1, 1)?;
-        let u1 = self.up1.forward(r, &u1, emb)?;
+        let u1 = self.up1.forward_projected(r, &u1, e4.as_ref())?;
         let u1 = self.attend(r, &self.up_attn, &u1, ids, &mut pass)?;
         let u0 = self.up.forward(r, &u1)?;
         let u0 = r.concat(&u0, &h0, 1)?;
-        let u0 = self.up0.forward(r, &u0, emb)?;
+        let u0 = self.up0.forward_projected(r, &u0, e5.as_ref())?;
         let u0 = pass.temporal(r, &self.temporal_up0, &u0)?;
         let out = self.norm_out.forward(r, &u0, true)?;
         self.conv_out.forward(r, &out)
+    }
+
+    /// Each ResBlock's projection of the timestep embedding, [frames, C] per block in
+    /// order. They depend only on the timesteps, which a recording fixes (a captured
+    /// plan's steps have theirs), so they are computed here, once, in their own
+    /// submission, with the recorder's kernel variant: a generated frame does not repeat
+    /// them.
+    fn embeddings(&self, r: &Recorder, timesteps: &[f32]) -> Result<[Option<Tensor>; 6], GpuError> {
+        let mut pipelines = PipelineCache::default();
+        let mut s = Recorder::new(r.gpu(), &mut pipelines, r.precision());
+        s.set_kernels(r.kernels());
+        let t = s.upload("unet.timesteps", &[timesteps.len()], timesteps)?;
+        let te = s.timestep_embedding(&t, self.cfg.embed)?;
+        let te = self.time_in.forward(&mut s, &te, false)?;
+        let emb = self.time_out.forward(&mut s, &te, true)?; // [frames, E]
+        let blocks = [
+            &self.down0,
+            &self.down1,
+            &self.mid1,
+            &self.mid2,
+            &self.up1,
+            &self.up0,
+        ];
+        let mut projected = [None, None, None, None, None, None];
+        for (slot, block) in projected.iter_mut().zip(blocks) {
+            *slot = block.project(&mut s, &emb)?;
+        }
+        s.submit();
+        Ok(projected)
     }
 
     fn attend(
