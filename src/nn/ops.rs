@@ -1,7 +1,8 @@
 //! The kernels of the geometry model, recorded into one command encoder by a [`Recorder`]:
 //! convolution, nearest upsampling, group norm (+SiLU), linear, broadcast adds, permutes,
 //! concatenation, axpby, multi-head attention and the timestep embedding. Each call
-//! allocates its output and records one dispatch; nothing is read back.
+//! allocates its output and records one dispatch, in the [`Kernels`] variant that suits
+//! the adapter (all variants compute the same thing); nothing is read back.
 
 use super::Tensor;
 use super::kernels;
