@@ -95,8 +95,8 @@ enum Command {
         /// The dataset folder written by `unica bake`
         dir: PathBuf,
     },
-    /// Headless scripted session to numbered PNGs per view + manifest.json (today with
-    /// --teacher CHARACTER; the neural --bundle arrives with the live model)
+    /// Headless scripted session to numbered PNGs per view + manifest.json: the neural
+    /// avatar of --bundle DIR, or the teacher of --teacher CHARACTER
     Render(RenderArgs),
     /// Evaluate a bundle against the teacher: image, sequence, long-run and ablation
     /// metrics in OUT/report.md with plots (runs the trainer's evaluation: python3 with
