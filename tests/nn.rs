@@ -145,6 +145,14 @@ enum Scope {
 
 /// Runs `module` on the fixture's `inputs` (recording with its weights) in every
 /// precision and compares its result with the stored `output` at `scope`'s tolerance.
+/// Every kernel variant (simple, CPU, GPU) in every precision to test.
+fn variants() -> Vec<(Precision, Kernels)> {
+    precisions()
+        .into_iter()
+        .flat_map(|p| Kernels::ALL.map(|k| (p, k)))
+        .collect()
+}
+
 fn check(
     name: &str,
     inputs: &[&str],
@@ -152,11 +160,7 @@ fn check(
     scope: Scope,
     module: impl Fn(&mut Recorder, &Weights, &[Tensor]) -> Tensor,
 ) {
-    // Every kernel variant (simple, CPU, GPU), each in every precision.
-    for (precision, kernels) in precisions()
-        .into_iter()
-        .flat_map(|p| Kernels::ALL.map(|k| (p, k)))
-    {
+    for (precision, kernels) in variants() {
         let mut f = Fixture::open(name, precision);
         let inputs: Vec<Tensor> = inputs.iter().map(|n| f.input(n)).collect();
         let (mut r, w) = f.recorder();
@@ -613,10 +617,7 @@ fn the_refiner_matches_pytorch() {
         stride: 4,
         mean_bound: 0.004,
     };
-    for (precision, kernels) in precisions()
-        .into_iter()
-        .flat_map(|p| Kernels::ALL.map(|k| (p, k)))
-    {
+    for (precision, kernels) in variants() {
         let mut f = Fixture::open("refiner", precision);
         let unit = points(&f, "io.in.unit");
         let features = f.input("io.in.features");
@@ -633,10 +634,7 @@ fn the_refiner_matches_pytorch() {
 
 #[test]
 fn the_shipped_refiner_matches_pytorch_on_a_witch_frame() {
-    for (precision, kernels) in precisions()
-        .into_iter()
-        .flat_map(|p| Kernels::ALL.map(|k| (p, k)))
-    {
+    for (precision, kernels) in variants() {
         let mut f = Fixture::open("witch_refiner", precision);
         let manifest: serde_json::Value = serde_json::from_str(
             &std::fs::read_to_string(witch_bundle().join("manifest.json")).unwrap(),
@@ -744,10 +742,7 @@ fn every_variant_of_the_group_norm_and_the_packed_convolutions_agrees_on_odd_sha
 fn the_action_table_gives_the_cross_attention_bit_for_bit() {
     // One token per sample: the UNet's table lookup must equal the layer exactly, in
     // every kernel variant and precision (and the layer itself matches PyTorch above).
-    for (precision, kernels) in precisions()
-        .into_iter()
-        .flat_map(|p| Kernels::ALL.map(|k| (p, k)))
-    {
+    for (precision, kernels) in variants() {
         let mut f = Fixture::open("cross_attention", precision);
         let (x, ctx) = (f.input("io.in.x"), f.input("io.in.ctx"));
         let (mut r, w) = f.recorder();

@@ -152,6 +152,14 @@ fn main(invocation: Invocation) {
     store(n, block, oy, ox0 + 7u, a7, b7);
 }
 
+// Image n's channel co after the sums: plus its addend when there is one.
+fn finish(n: u32, co: u32, v: f32) -> f32 {
+    if p.reserved != 0u {
+        return v + f32(extra[n * p.c_out + co]);
+    }
+    return v;
+}
+
 // Output pixel `ox` of row `oy`: channels 8·block … 8·block + 7 (those below c_out).
 fn store(n: u32, block: u32, oy: u32, ox: u32, lo: vec4<f32>, hi: vec4<f32>) {
     if ox >= p.w_out {
@@ -162,18 +170,10 @@ fn store(n: u32, block: u32, oy: u32, ox: u32, lo: vec4<f32>, hi: vec4<f32>) {
     for (var c = 0u; c < 4u; c++) {
         let co = 8u * block + c;
         if co < p.c_out {
-            var v = lo[c];
-            if p.reserved != 0u {
-                v += f32(extra[n * p.c_out + co]);
-            }
-            y[out + c * plane] = Elem(v);
+            y[out + c * plane] = Elem(finish(n, co, lo[c]));
         }
         if co + 4u < p.c_out {
-            var v = hi[c];
-            if p.reserved != 0u {
-                v += f32(extra[n * p.c_out + co + 4u]);
-            }
-            y[out + (4u + c) * plane] = Elem(v);
+            y[out + (4u + c) * plane] = Elem(finish(n, co + 4u, hi[c]));
         }
     }
 }

@@ -9,7 +9,6 @@ use super::kernel::{Grid, PipelineCache, Precision, uniform};
 use super::shaders::Shader;
 
 /// One piece of recorded work: everything it binds was created when it was recorded.
-#[derive(Clone)]
 enum Step {
     Dispatch {
         /// The shader's file (profiles).
@@ -29,7 +28,11 @@ enum Step {
 
 /// Records a run of steps into `encoder`: consecutive dispatches share one compute pass
 /// (wgpu orders each dispatch's storage writes before the next one's reads).
-fn encode_steps(gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, steps: &[Step]) {
+fn encode_steps<'s>(
+    gpu: &GpuContext,
+    encoder: &mut wgpu::CommandEncoder,
+    steps: impl IntoIterator<Item = &'s Step>,
+) {
     let mut pass: Option<wgpu::ComputePass> = None;
     let mut dispatches = 0;
     for step in steps {
@@ -72,6 +75,21 @@ fn encode_steps(gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, steps: &[S
         }
     }
     gpu.counters.dispatches(dispatches);
+}
+
+/// Records `steps` in one submission, waits for it, and returns the milliseconds taken
+/// (profiles; the steps' effects happen once more).
+fn run_timed<'s>(gpu: &GpuContext, steps: impl IntoIterator<Item = &'s Step>) -> f64 {
+    let clock = std::time::Instant::now();
+    let mut encoder = gpu
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("profile"),
+        });
+    encode_steps(gpu, &mut encoder, steps);
+    gpu.submit([encoder.finish()]);
+    gpu.wait_idle();
+    clock.elapsed().as_secs_f64() * 1e3
 }
 
 /// Recorded work kept to run again: its buffers, uniforms and bind groups were made when
@@ -133,16 +151,7 @@ impl Plan {
     pub fn profile(&self, gpu: &GpuContext) -> Vec<(&'static str, usize, f64)> {
         let mut by_name: Vec<(&'static str, usize, f64)> = Vec::new();
         for step in self.parts.iter().flatten() {
-            let clock = std::time::Instant::now();
-            let mut encoder = gpu
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("profile"),
-                });
-            encode_steps(gpu, &mut encoder, std::slice::from_ref(step));
-            gpu.submit([encoder.finish()]);
-            gpu.wait_idle();
-            let ms = clock.elapsed().as_secs_f64() * 1e3;
+            let ms = run_timed(gpu, [step]);
             let name = match step {
                 Step::Dispatch { name, .. } => *name,
                 Step::Copy { .. } => "copy",
@@ -181,17 +190,8 @@ impl Plan {
             let (end, end_flops) = marks
                 .get(k + 1)
                 .map_or((steps.len(), self.flops), |next| (next.step, next.flops));
-            let range: Vec<Step> = steps[mark.step..end].iter().map(|&s| s.clone()).collect();
-            let clock = std::time::Instant::now();
-            let mut encoder = gpu
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("profile stage"),
-                });
-            encode_steps(gpu, &mut encoder, &range);
-            gpu.submit([encoder.finish()]);
-            gpu.wait_idle();
-            let ms = clock.elapsed().as_secs_f64() * 1e3;
+            let range = &steps[mark.step..end];
+            let ms = run_timed(gpu, range.iter().copied());
             let dispatches = range
                 .iter()
                 .filter(|s| matches!(s, Step::Dispatch { .. }))

@@ -586,23 +586,8 @@ impl<'a> Recorder<'a> {
                 None => Ok(y),
             };
         }
+        let (y, params) = self.packed_output(x, weights, bias.is_some(), extra.is_some())?;
         let c_out = weights.c_out;
-        let y = self.output("conv3x3.y", &[n, c_out, h, w])?;
-        let params = Conv2dParams {
-            batch: n as u32,
-            c_in: c_in as u32,
-            c_out: c_out as u32,
-            h_in: h as u32,
-            w_in: w as u32,
-            h_out: h as u32,
-            w_out: w as u32,
-            kernel: 3,
-            stride: 1,
-            pad: 1,
-            has_bias: u32::from(bias.is_some()),
-            reserved: u32::from(extra.is_some()),
-        };
-        self.flops += 2 * (y.len() * c_in * 9) as u64;
         // Bias and extra bindings must exist even when absent; the input stands in
         // (unread).
         let bias = bias.unwrap_or(x);
@@ -619,6 +604,38 @@ impl<'a> Recorder<'a> {
         self.steps
             .dispatch(&kernels::CONV3X3, &params, &buffers, grid);
         Ok(y)
+    }
+
+    /// The output [N, c_out, H, W] and parameters of a stride-1 "same" convolution
+    /// from packed weights (`conv3x3` and `conv1x1`), its FLOPs counted.
+    fn packed_output(
+        &mut self,
+        x: &Tensor,
+        weights: &PackedConv,
+        has_bias: bool,
+        has_extra: bool,
+    ) -> Result<(Tensor, Conv2dParams), GpuError> {
+        let [n, c_in, h, w] = x.shape[..] else {
+            panic!("a convolution's input must be NCHW, got {:?}", x.shape)
+        };
+        let k = weights.kernel;
+        let y = self.output("packed_conv.y", &[n, weights.c_out, h, w])?;
+        let params = Conv2dParams {
+            batch: n as u32,
+            c_in: c_in as u32,
+            c_out: weights.c_out as u32,
+            h_in: h as u32,
+            w_in: w as u32,
+            h_out: h as u32,
+            w_out: w as u32,
+            kernel: k as u32,
+            stride: 1,
+            pad: (k / 2) as u32,
+            has_bias: u32::from(has_bias),
+            reserved: u32::from(has_extra),
+        };
+        self.flops += 2 * (y.len() * c_in * k * k) as u64;
+        Ok((y, params))
     }
 
     /// A 1×1 convolution from weights packed by [`PackedConv`]: register tiles of 8
@@ -638,23 +655,8 @@ impl<'a> Recorder<'a> {
         if !(h * w).is_multiple_of(4) || self.kernels == Kernels::Simple {
             return self.conv2d(x, &weights.plain, bias, 1, 0);
         }
+        let (y, params) = self.packed_output(x, weights, bias.is_some(), false)?;
         let c_out = weights.c_out;
-        let y = self.output("conv1x1.y", &[n, c_out, h, w])?;
-        let params = Conv2dParams {
-            batch: n as u32,
-            c_in: c_in as u32,
-            c_out: c_out as u32,
-            h_in: h as u32,
-            w_in: w as u32,
-            h_out: h as u32,
-            w_out: w as u32,
-            kernel: 1,
-            stride: 1,
-            pad: 0,
-            has_bias: u32::from(bias.is_some()),
-            reserved: 0,
-        };
-        self.flops += 2 * (y.len() * c_in) as u64;
         // A bias binding must exist even without a bias; the input stands in (unread).
         let bias = bias.unwrap_or(x);
         self.check(&[x, bias, &y]);
