@@ -12,8 +12,8 @@ use crate::gpu::{self, GpuContext, GpuOptions};
 
 /// Environment variable naming the character file the app shows by default.
 pub const CHARACTER_ENV: &str = "UNICA_CHARACTER";
-/// The default avatar's source, relative to the repository (DESIGN: ../shared/assets).
-const DEFAULT_CHARACTER: &str = "../shared/assets/witch/Witch.gltf";
+/// The default avatar's source, shipped in the repository (CC0; see its SOURCE.md).
+const DEFAULT_CHARACTER: &str = "assets/witch/source/Witch.gltf";
 /// The default neural avatar, shipped in the repository.
 const DEFAULT_BUNDLE: &str = "assets/witch/bundle";
 
@@ -36,7 +36,7 @@ pub struct Cli {
 
     /// Character file (.gltf, .glb, .obj): without --bundle its teacher is shown alone;
     /// with --bundle it runs beside the neural avatar [default with neither: the shipped
-    /// Witch bundle beside $UNICA_CHARACTER, else ../shared/assets/witch/Witch.gltf]
+    /// Witch bundle beside $UNICA_CHARACTER, else assets/witch/source/Witch.gltf]
     #[arg(long, value_name = "FILE")]
     character: Option<PathBuf>,
 

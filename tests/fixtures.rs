@@ -20,7 +20,7 @@ fn fixtures() -> PathBuf {
 
 /// Bakes the quick dataset into `dir/dataset_quick` and writes `dir/dataset_expected.safetensors`.
 fn generate(dir: &Path) {
-    let witch = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets/witch/Witch.gltf");
+    let witch = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/source/Witch.gltf");
     let data_dir = dir.join("dataset_quick");
     let options = BakeOptions {
         quick: true,

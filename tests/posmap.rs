@@ -11,7 +11,7 @@ use unica::posmap::table::VIEWS;
 use unica::posmap::{MAP_SIZE, SurfaceTable};
 
 fn witch_teacher() -> Teacher {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets/witch/Witch.gltf");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/source/Witch.gltf");
     let character = load_character(&path).unwrap();
     let description = Description::find(&character, None).unwrap();
     Teacher::new(character, description).unwrap()

@@ -8,7 +8,7 @@ use std::process::Command;
 fn the_teacher_session_follows_the_keys() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("session");
-    let witch = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets/witch/Witch.gltf");
+    let witch = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/source/Witch.gltf");
     let run = Command::new(env!("CARGO_BIN_EXE_unica"))
         .args([
             "render",

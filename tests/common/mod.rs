@@ -5,9 +5,9 @@
 
 use std::path::{Path, PathBuf};
 
-/// The default avatar's source, beside the checkout (DESIGN: ../shared/assets).
+/// The default avatar's source, shipped in assets/witch/source (CC0).
 pub fn witch() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets/witch/Witch.gltf")
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/source/Witch.gltf")
 }
 
 /// Every file under `dir` with its path relative to `dir`, sorted.

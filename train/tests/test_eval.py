@@ -1,5 +1,5 @@
 """`unica eval --quick` end to end: the shipped Witch bundle against a short dataset baked
-from ../shared/assets/witch/Witch.gltf with renders (the binary from `cargo test
+from assets/witch/source/Witch.gltf with renders (the binary from `cargo test
 --release`, which the README's test command runs first)."""
 
 import json
