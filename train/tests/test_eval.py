@@ -9,12 +9,12 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 BINARY = ROOT / "target" / "release" / "unica"
-WITCH = ROOT.parent / "shared" / "assets" / "witch" / "Witch.gltf"
+WITCH = ROOT / "assets" / "witch" / "source" / "Witch.gltf"
 
 
 def test_unica_eval_quick_writes_a_report_with_finite_numbers(tmp_path):
     assert BINARY.is_file(), f"{BINARY} is missing: run `cargo build --release` (the README's test command does)"
-    assert WITCH.is_file(), f"{WITCH} is missing: the shared assets belong beside the checkout"
+    assert WITCH.is_file(), f"{WITCH} is missing: the Witch ships in assets/witch/source"
     data, out = tmp_path / "data", tmp_path / "report"
     subprocess.run([str(BINARY), "bake", str(WITCH), "--out", str(data), "--quick"], check=True, cwd=ROOT)
     subprocess.run([str(BINARY), "eval", "--bundle", "assets/witch/bundle", "--data", str(data), "--out", str(out), "--quick"],
