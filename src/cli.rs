@@ -45,7 +45,9 @@ pub struct Cli {
     bundle: Option<PathBuf>,
 
     /// Drive the avatar from a key script instead of the keyboard, e.g. "60W 60S 60A 20I"
-    /// (one action per rendered frame; keys W A S D, I = idle)
+    /// (keys W A S D, I = idle). Counts are generated frames: the neural avatar's (the
+    /// teacher beside it steps with them), or, for a teacher alone, one step per drawn
+    /// frame. Idle after the script ends
     #[arg(long, value_name = "SCRIPT")]
     keys: Option<String>,
 
@@ -118,6 +120,11 @@ enum Command {
     /// Measure the auto-rigger on held-out synthetic pairs and a rigged file with its skin
     /// removed (J2J, J2B, B2B, skin L1, motion L2; learned vs the geometric baselines)
     RigEval(RigEvalArgs),
+    /// Make a neural avatar from a character file: bake, train the geometry model and the
+    /// refiner, evaluate; resumable (run it again to continue). Needs Python 3 with the
+    /// trainer (pip install -e ./train). Full run ≈ 2 hours on a 2-core CPU; --quick:
+    /// minutes
+    Make(crate::make::MakeArgs),
 }
 
 #[derive(clap::Args, Debug)]
@@ -402,6 +409,11 @@ pub fn run() -> anyhow::Result<()> {
         Some(Command::RigData(args)) => rig_data(args),
         Some(Command::Rig(args)) => rig(args),
         Some(Command::RigEval(args)) => rig_eval(args),
+        Some(Command::Make(args)) => {
+            let exe = std::env::current_exe().context("finding the unica executable")?;
+            let python = std::env::var("UNICA_PYTHON").unwrap_or_else(|_| "python3".into());
+            crate::make::make(&args, &exe, &python)
+        }
     }
 }
 

@@ -12,6 +12,7 @@ pub mod engine;
 pub mod files;
 pub mod gpu;
 pub mod headless;
+pub mod make;
 pub mod mesh;
 pub mod nn;
 pub mod posmap;

@@ -151,7 +151,8 @@ fn the_witch_window_screenshot_is_not_blank_and_keys_drive_the_action() {
 fn the_neural_witch_is_generated_and_drawn() {
     // The shipped bundle alone (no teacher beside it), one DDIM step: on lavapipe the
     // model works in slices between window frames (the window keeps ~14 fps), so 600
-    // window frames see the load and a generated frame or two.
+    // window frames see the load and a generated frame or two. The key script counts
+    // generated frames, not window frames (by window frames, frame 600 would be D).
     let dir = tempfile::tempdir().unwrap();
     let shot = dir.path().join("neural.png");
     let bundle = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle");
@@ -162,7 +163,7 @@ fn the_neural_witch_is_generated_and_drawn() {
             "--steps",
             "1",
             "--keys",
-            "2000W",
+            "2I 100W 10000D",
             "--screenshot",
             shot.to_str().unwrap(),
             "--exit-after",
@@ -177,6 +178,15 @@ fn the_neural_witch_is_generated_and_drawn() {
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("no generated frame count: {stdout}"));
     assert!(generated >= 1, "{stdout}");
+    let next = match generated {
+        0..2 => "Idle",
+        2..102 => "Forward",
+        _ => "Right",
+    };
+    assert!(
+        stdout.contains(&format!("action {next};")),
+        "after {generated} generated frames the script's next action is {next}: {stdout}"
+    );
     let (variance, covered) = viewport_stats(&shot);
     eprintln!(
         "neural viewport: luma variance {variance:.1}, {:.1}% covered",

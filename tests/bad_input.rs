@@ -619,3 +619,57 @@ fn descriptions_with_huge_chain_counts_or_speeds_are_refused() {
         .to_string();
     assert!(err.contains("run_speed Some(inf) is not a speed"), "{err}");
 }
+
+// ---------- unica make ----------
+
+#[test]
+fn make_refuses_a_missing_character_a_foreign_folder_and_a_missing_trainer() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("made");
+    let out_s = out.to_str().unwrap();
+    let missing = dir.path().join("nobody.glb");
+    let run = |args: &[&str], python: &str| {
+        Command::new(env!("CARGO_BIN_EXE_unica"))
+            .args(args)
+            .env("UNICA_PYTHON", python)
+            .output()
+            .expect("the unica binary runs")
+    };
+    let out1 = run(
+        &["make", missing.to_str().unwrap(), "--out", out_s, "--quick"],
+        "python3",
+    );
+    assert_one_line_error(&out1, &["nobody.glb: no such character file"]);
+
+    // A folder made from another character is not overwritten.
+    std::fs::create_dir_all(&out).unwrap();
+    let state = json!({"asked": {"character": "/elsewhere/other.glb", "quick": true,
+                                 "avatar": null}, "done": ["bake"]});
+    std::fs::write(out.join("make.json"), state.to_string()).unwrap();
+    let witch = common::witch();
+    let out2 = run(
+        &["make", witch.to_str().unwrap(), "--out", out_s, "--quick"],
+        "python3",
+    );
+    assert_one_line_error(
+        &out2,
+        &["make.json: this folder holds a make of /elsewhere/other.glb"],
+    );
+    assert_eq!(
+        std::fs::read_to_string(out.join("make.json")).unwrap(),
+        state.to_string(),
+        "the other make's state is kept"
+    );
+
+    // No trainer: one line before any stage runs.
+    std::fs::remove_file(out.join("make.json")).unwrap();
+    let out3 = run(
+        &["make", witch.to_str().unwrap(), "--out", out_s, "--quick"],
+        "false",
+    );
+    assert_one_line_error(
+        &out3,
+        &["false cannot run the trainer", "pip install -e ./train"],
+    );
+    assert!(!out.join("data").exists(), "nothing was baked");
+}

@@ -21,6 +21,7 @@ use unica::gpu::{GpuContext, GpuOptions};
 use unica::nn::layers::{
     Conv, CrossAttention, Frames, ResBlock, SpatialAttention, TemporalAttention, Up,
 };
+use unica::nn::ops::Broadcast;
 use unica::nn::refiner::{Refiner, RefinerConfig};
 use unica::nn::sampler::{self, Sampling, Schedule};
 use unica::nn::unet::{UNet, UNetConfig};
@@ -715,7 +716,9 @@ fn every_variant_of_the_group_norm_and_the_packed_convolutions_agrees_on_odd_sha
         let mut r = Recorder::new(&f.gpu, pipelines, Precision::F32);
         r.set_kernels(kernels);
         let norm = r.group_norm(&x, &gamma, &beta, 4, true).unwrap();
-        let conv = r.conv3x3(&x2, &weights, Some(&bias), Some(&extra)).unwrap();
+        let conv = r
+            .conv3x3(&x2, &weights, Some(&bias), Some(&extra), None)
+            .unwrap();
         let point = r.conv1x1(&x3, &pointwise, Some(&bias)).unwrap();
         r.submit();
         let read = |t: &Tensor| t.read(&f.gpu).unwrap();
@@ -735,6 +738,58 @@ fn every_variant_of_the_group_norm_and_the_packed_convolutions_agrees_on_odd_sha
         assert!(norm_error < 1e-5, "{kernels:?} group norm: {norm_error}");
         assert!(conv_error < 1e-6, "{kernels:?} conv3x3: {conv_error}");
         assert!(point_error < 1e-6, "{kernels:?} conv1x1: {point_error}");
+    }
+}
+
+#[test]
+fn the_convolution_with_its_residual_equals_a_separate_add_bit_for_bit() {
+    // A ResBlock's `skip + conv2(h)`: the residual fused into conv3x3's epilogue must give
+    // exactly what conv3x3 then add.wgsl gives, in every kernel variant and precision
+    // (the ResBlock fixtures then check both against PyTorch).
+    let wave = |n: usize, k: f32| -> Vec<f32> { (0..n).map(|i| (i as f32 * k).sin()).collect() };
+    for (precision, kernels) in variants() {
+        let f = Fixture::open("down", precision);
+        let mut pipelines = PipelineCache::default();
+        let upload = |name: &str, shape: &[usize], k: f32| {
+            let n = shape.iter().product();
+            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
+        };
+        let x = upload("x", &[2, 5, 11, 13], 0.11);
+        let skip = upload("skip", &[2, 12, 11, 13], 0.17);
+        let bias = upload("bias", &[12], 0.5);
+        let extra = upload("extra", &[2, 12], 0.9);
+        let weights = unica::nn::ops::PackedConv::new(
+            &f.gpu,
+            "w",
+            &wave(12 * 5 * 9, 0.23),
+            [12, 5, 3],
+            precision,
+        )
+        .unwrap();
+        // The fused form is one dispatch (the simple variant: conv2d and two adds).
+        let mut c = Recorder::capture(&f.gpu, &mut pipelines, precision);
+        c.set_kernels(kernels);
+        c.conv3x3(&x, &weights, Some(&bias), Some(&extra), Some(&skip))
+            .unwrap();
+        let fused_dispatches = c.finish().dispatches();
+        let mut r = Recorder::new(&f.gpu, &mut pipelines, precision);
+        r.set_kernels(kernels);
+        let fused = r
+            .conv3x3(&x, &weights, Some(&bias), Some(&extra), Some(&skip))
+            .unwrap();
+        let conv = r
+            .conv3x3(&x, &weights, Some(&bias), Some(&extra), None)
+            .unwrap();
+        let separate = r.add(&skip, &conv, Broadcast::Leading).unwrap();
+        r.submit();
+        let (a, b) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
+        assert!(
+            a.iter().zip(&b).all(|(p, q)| p.to_bits() == q.to_bits()),
+            "{precision:?} {kernels:?}: worst difference {}",
+            worst_difference(&a, &b)
+        );
+        let expected = if kernels == Kernels::Simple { 3 } else { 1 };
+        assert_eq!(fused_dispatches, expected, "{kernels:?}");
     }
 }
 

@@ -4,16 +4,19 @@
 // a tap's 8 channels are two vec4 loads, and the 10 input values a row of 8 outputs
 // needs are loaded once per (c_in, ky) for all 3 taps: 16 loads per 192 multiply-adds.
 // Taps outside the input add an exact zero, so each output sums the same terms in the
-// same order (bias, then c_in, ky, kx) as conv2d.wgsl. Optional bias [c_out], and an
-// optional per-image addend added after the sums.
+// same order (bias, then c_in, ky, kx) as conv2d.wgsl. Optional bias [c_out], an
+// optional per-image addend added after the sums, and an optional residual added to the
+// result rounded to Elem (so it equals a separate add.wgsl exactly).
 
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read> weight: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read> bias: array<Elem>;
-// With `p.reserved` set: [N, c_out] added to each image's channels after the sums.
+// With `p.has_extra` set: [N, c_out] added to each image's channels after the sums.
 @group(0) @binding(4) var<storage, read> extra: array<Elem>;
-@group(0) @binding(5) var<storage, read_write> y: array<Elem>;
+// With `p.has_residual` set: [N, c_out, H, W] added last.
+@group(0) @binding(5) var<storage, read> residual: array<Elem>;
+@group(0) @binding(6) var<storage, read_write> y: array<Elem>;
 
 // x at column `ix` of the row starting at `row`; zero outside it.
 fn column(row: u32, ix: i32) -> f32 {
@@ -152,12 +155,17 @@ fn main(invocation: Invocation) {
     store(n, block, oy, ox0 + 7u, a7, b7);
 }
 
-// Image n's channel co after the sums: plus its addend when there is one.
-fn finish(n: u32, co: u32, v: f32) -> f32 {
-    if p.reserved != 0u {
-        return v + f32(extra[n * p.c_out + co]);
+// Output element `at` (image n, channel co) after the sums: plus its addend when there
+// is one, rounded to Elem, plus its residual when there is one.
+fn finish(at: u32, n: u32, co: u32, v: f32) -> Elem {
+    var out = v;
+    if p.has_extra != 0u {
+        out += f32(extra[n * p.c_out + co]);
     }
-    return v;
+    if p.has_residual != 0u {
+        return Elem(f32(residual[at]) + f32(Elem(out)));
+    }
+    return Elem(out);
 }
 
 // Output pixel `ox` of row `oy`: channels 8·block … 8·block + 7 (those below c_out).
@@ -170,10 +178,10 @@ fn store(n: u32, block: u32, oy: u32, ox: u32, lo: vec4<f32>, hi: vec4<f32>) {
     for (var c = 0u; c < 4u; c++) {
         let co = 8u * block + c;
         if co < p.c_out {
-            y[out + c * plane] = Elem(finish(n, co, lo[c]));
+            y[out + c * plane] = finish(out + c * plane, n, co, lo[c]);
         }
         if co + 4u < p.c_out {
-            y[out + (4u + c) * plane] = Elem(finish(n, co + 4u, hi[c]));
+            y[out + (4u + c) * plane] = finish(out + (4u + c) * plane, n, co + 4u, hi[c]);
         }
     }
 }

@@ -149,9 +149,14 @@ impl UnicaApp {
         let character = options.character.as_deref();
         let shown = match (&options.splats, &options.bundle) {
             (Some(file), _) => Shown::splat_file(&gpu, &viewport.renderer, file),
-            (None, Some(dir)) => {
-                Shown::neural(&gpu, &viewport.renderer, dir, character, options.steps)
-            }
+            (None, Some(dir)) => Shown::neural(
+                &gpu,
+                &viewport.renderer,
+                dir,
+                character,
+                options.steps,
+                options.keys.clone(),
+            ),
             (None, None) => Shown::load(&gpu, &viewport.renderer, character),
         };
         viewport.camera = behind(&shown);
@@ -195,7 +200,14 @@ impl UnicaApp {
     fn open(&mut self, path: PathBuf) {
         let renderer = &self.viewport.renderer;
         self.shown = if path.is_dir() {
-            Shown::neural(&self.gpu, renderer, &path, None, self.options.steps)
+            Shown::neural(
+                &self.gpu,
+                renderer,
+                &path,
+                None,
+                self.options.steps,
+                self.options.keys.clone(),
+            )
         } else {
             Shown::load(&self.gpu, renderer, Some(&path))
         };
@@ -301,8 +313,13 @@ impl UnicaApp {
             steps as u32
         };
         let before = self.shown.focus();
-        self.shown
-            .advance(&self.gpu, &self.viewport.renderer, self.action, steps);
+        self.shown.advance(
+            &self.gpu,
+            &self.viewport.renderer,
+            self.action,
+            self.options.keys.as_ref(),
+            steps,
+        );
         let after = self.shown.focus();
         if let (true, Some(before), Some(after)) = (self.follow, before, after) {
             self.viewport.camera.target += after - before;
@@ -400,7 +417,10 @@ impl UnicaApp {
             }
         });
         if self.options.keys.is_some() {
-            ui.label(format!("Key script, frame {}", self.frame));
+            ui.label(format!(
+                "Key script: generated frame {}",
+                self.shown.generated_frames()
+            ));
         }
         if let Some(neural) = &mut self.shown.neural {
             neural_hud(ui, neural);
@@ -576,10 +596,14 @@ impl eframe::App for UnicaApp {
         }
         self.handle_input(&ctx);
         self.action = match &self.options.keys {
-            Some(script) => script.action_at(self.frame as usize),
+            Some(script) => script.action_at(self.shown.generated_frames() as usize),
             None => self.keys.current(),
         };
         self.animate(dt * 1e-3);
+        if let Some(script) = &self.options.keys {
+            // The action the next generated frame takes.
+            self.action = script.action_at(self.shown.generated_frames() as usize);
+        }
 
         egui::Panel::top("menu").show(ui, |ui| self.menu_bar(ui));
         egui::Panel::right("hud")
@@ -605,9 +629,16 @@ impl eframe::App for UnicaApp {
                 let meshes = self.shown.gpu_meshes();
                 let scene = self.shown.scene_generation();
                 let splats = self.shown.splats();
-                let timings =
-                    self.viewport
-                        .show(ui, &self.gpu, &state.renderer, &meshes, scene, splats);
+                let labels = self.shown.labels();
+                let timings = self.viewport.show(
+                    ui,
+                    &self.gpu,
+                    &state.renderer,
+                    &meshes,
+                    scene,
+                    splats,
+                    &labels,
+                );
                 if !timings.is_empty() {
                     self.timings = timings;
                 }

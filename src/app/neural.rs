@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use glam::Vec3;
 
-use crate::action::Action;
+use crate::action::{Action, KeyScript};
 use crate::avatar::locomotion::FRAME_RATE;
 use crate::engine::appearance::{self, Appearance};
 use crate::engine::surface::MapSurface;
@@ -96,7 +96,14 @@ pub struct NeuralAvatar {
 
 impl NeuralAvatar {
     /// Starts loading `dir` on a worker thread (`steps`: DDIM steps, else the bundle's).
-    pub fn start(gpu: &GpuContext, dir: &Path, steps: Option<usize>) -> Self {
+    /// With a key `script`, generated frame `i` takes the script's action `i` (the held
+    /// action is ignored), so a scripted run is the same however fast the model runs.
+    pub fn start(
+        gpu: &GpuContext,
+        dir: &Path,
+        steps: Option<usize>,
+        script: Option<KeyScript>,
+    ) -> Self {
         let action = Arc::new(AtomicU32::new(Action::Idle.id()));
         let settings: Arc<Mutex<Option<Settings>>> = Arc::default();
         let stop = Arc::new(AtomicBool::new(false));
@@ -104,6 +111,7 @@ impl NeuralAvatar {
         let (send, updates) = channel();
         let worker = Worker {
             steps,
+            script,
             window_frames: window_frames.clone(),
             gpu: gpu.clone(),
             dir: dir.to_path_buf(),
@@ -194,6 +202,7 @@ impl Drop for NeuralAvatar {
 
 struct Worker {
     steps: Option<usize>,
+    script: Option<KeyScript>,
     window_frames: Arc<AtomicU64>,
     gpu: GpuContext,
     dir: PathBuf,
@@ -283,7 +292,10 @@ impl Worker {
                 new_buffer = before != engine.splat_level() || new.refine != settings.refine;
                 settings = new;
             }
-            let action = Action::from_id(self.action.load(Ordering::Relaxed));
+            let action = match &self.script {
+                Some(script) => script.action_at(engine.frames() as usize),
+                None => Action::from_id(self.action.load(Ordering::Relaxed)),
+            };
             engine.frame(action)?;
             engine.poll();
             let points = if settings.splats {

@@ -7,7 +7,7 @@ use std::path::Path;
 use glam::Vec3;
 
 use super::neural::{NeuralAvatar, Settings, Update};
-use crate::action::Action;
+use crate::action::{Action, KeyScript};
 use crate::avatar::description::Description;
 use crate::avatar::load_character;
 use crate::avatar::teacher::Teacher;
@@ -110,6 +110,8 @@ pub struct Shown {
     gpu_mesh: GpuMesh,
     /// Changes whenever the teacher's mesh on the GPU does.
     generation: u64,
+    /// Frames the teacher has stepped (beside the neural avatar: one per generated frame).
+    teacher_frames: u64,
 }
 
 impl Shown {
@@ -141,6 +143,7 @@ impl Shown {
             neural: None,
             show_teacher: false,
             generation: 0,
+            teacher_frames: 0,
             file_splats: None,
             problem,
         }
@@ -184,13 +187,14 @@ impl Shown {
         dir: &Path,
         character: Option<&Path>,
         steps: Option<usize>,
+        script: Option<KeyScript>,
     ) -> Self {
         let mut shown = Self::load(gpu, renderer, character);
         shown.show_teacher = shown.teacher.is_some();
         shown.name = format!("{} (neural)", dir.display());
         shown.problem = Some("Loading the neural avatar…".into());
         shown.neural = Some(Neural {
-            avatar: NeuralAvatar::start(gpu, dir, steps),
+            avatar: NeuralAvatar::start(gpu, dir, steps, script),
             settings: None,
             surface: None,
             mesh: Mesh::default(),
@@ -205,14 +209,16 @@ impl Shown {
         shown
     }
 
-    /// Advances the avatar under `action`: the teacher alone by `steps` frames; beside
-    /// the neural avatar, the teacher moves one frame per generated frame (offset by
-    /// `TEACHER_OFFSET`) so the two stay comparable.
+    /// Advances the avatar under `action`, or under a key `script` indexed by generated
+    /// frame: the teacher alone by `steps` frames; beside the neural avatar, the teacher
+    /// moves one frame per generated frame (offset by `TEACHER_OFFSET`) so the two stay
+    /// comparable.
     pub fn advance(
         &mut self,
         gpu: &GpuContext,
         renderer: &SceneRenderer,
         action: Action,
+        script: Option<&KeyScript>,
         steps: u32,
     ) {
         let steps = match &mut self.neural {
@@ -232,7 +238,9 @@ impl Shown {
             return;
         }
         for _ in 0..steps {
+            let action = script.map_or(action, |s| s.action_at(self.teacher_frames as usize));
             teacher.step(action);
+            self.teacher_frames += 1;
         }
         self.mesh = teacher.mesh();
         if self.neural.is_some() {
@@ -243,6 +251,14 @@ impl Shown {
         }
         self.gpu_mesh.write_vertices(gpu, &self.mesh);
         self.generation += 1;
+    }
+
+    /// Frames generated so far: the neural avatar's, else the teacher's steps. A key
+    /// script is indexed by this count.
+    pub fn generated_frames(&self) -> u64 {
+        self.neural
+            .as_ref()
+            .map_or(self.teacher_frames, |n| n.frames)
     }
 
     /// The splats to draw: a PLY file's, or the neural avatar's when it shows splats.
@@ -290,6 +306,24 @@ impl Shown {
             (None, Some(t)) => Some(t.root()),
             (None, None) => None,
         }
+    }
+
+    /// Labels for the viewport when the neural avatar and its teacher are both drawn:
+    /// a world point just above each one's head and its name.
+    pub fn labels(&self) -> Vec<(Vec3, &'static str)> {
+        let (Some(neural), Some(_)) = (&self.neural, &self.teacher) else {
+            return Vec::new();
+        };
+        if !self.show_teacher || neural.surface.is_none() {
+            return Vec::new();
+        }
+        let Some((lo, hi)) = self.mesh.bounds() else {
+            return Vec::new();
+        };
+        let above = hi.y + 0.15;
+        let teacher = Vec3::new((lo.x + hi.x) * 0.5, above, (lo.z + hi.z) * 0.5);
+        let model = Vec3::new(neural.root.x, above, neural.root.z);
+        vec![(model, "neural (model)"), (teacher, "teacher (rig)")]
     }
 
     pub fn bounds(&self) -> (Vec3, Vec3) {

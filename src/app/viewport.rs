@@ -97,6 +97,7 @@ impl Viewport {
         meshes: &[&GpuMesh],
         scene: (u64, u64, usize),
         splats: Option<Splats>,
+        labels: &[(glam::Vec3, &str)],
     ) -> Vec<StageTiming> {
         let size = ui.available_size();
         let ppp = ui.ctx().pixels_per_point();
@@ -138,7 +139,7 @@ impl Viewport {
         // A splat image drawn small while the camera moved is redrawn at full size.
         let settled = self.cached.as_ref().is_none_or(|c| c.divisor == 1);
         if self.drawn.as_ref() == Some(&key) && settled {
-            return self.respond(ui, texture, size);
+            return self.respond(ui, texture, size, labels);
         }
         self.drawn = Some(key);
         // One encoder and one submission, never waited for: on a CPU driver a wait would
@@ -191,21 +192,38 @@ impl Viewport {
             self.cached = None;
         }
         gpu.submit([encoder.finish()]);
-        self.respond(ui, texture, size);
+        self.respond(ui, texture, size, labels);
         timings
     }
 
-    /// Shows the target and applies the mouse to the camera.
+    /// Shows the target with the labels over it and applies the mouse to the camera.
     fn respond(
         &mut self,
         ui: &mut egui::Ui,
         texture: egui::TextureId,
         size: egui::Vec2,
+        labels: &[(glam::Vec3, &str)],
     ) -> Vec<StageTiming> {
         let response = ui.add(
             egui::Image::new(egui::load::SizedTexture::new(texture, size))
                 .sense(egui::Sense::click_and_drag()),
         );
+        let rect = response.rect;
+        let view_projection = self.camera.view_projection(rect.width() / rect.height());
+        let painter = ui.painter_at(rect);
+        for &(point, text) in labels {
+            if let Some((x, y)) =
+                screen_point(view_projection, (rect.width(), rect.height()), point)
+            {
+                painter.text(
+                    rect.min + egui::vec2(x, y),
+                    egui::Align2::CENTER_BOTTOM,
+                    text,
+                    egui::FontId::proportional(15.0),
+                    egui::Color32::WHITE,
+                );
+            }
+        }
         self.handle_mouse(ui, &response);
         Vec::new()
     }
@@ -227,5 +245,53 @@ impl Viewport {
                 self.camera.zoom((scroll * ZOOM_SPEED).exp());
             }
         }
+    }
+}
+
+/// Where a world point lands in a `size` (width, height) rectangle, from its top-left
+/// corner; `None` behind the camera.
+pub fn screen_point(
+    view_projection: glam::Mat4,
+    size: (f32, f32),
+    point: glam::Vec3,
+) -> Option<(f32, f32)> {
+    let clip = view_projection * point.extend(1.0);
+    if clip.w <= 1e-6 {
+        return None;
+    }
+    let ndc = clip.truncate() / clip.w;
+    Some(((ndc.x * 0.5 + 0.5) * size.0, (0.5 - ndc.y * 0.5) * size.1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::{Mat4, Vec3};
+
+    #[test]
+    fn labels_land_where_the_camera_sees_their_points() {
+        // A 90° camera at the origin looking down -z with a square aspect: the point
+        // (1, 1, -1) is on the top-right corner; (0, 0, -2) in the centre; behind: none.
+        let projection = glam::camera::rh::proj::directx::perspective(
+            std::f32::consts::FRAC_PI_2,
+            1.0,
+            0.1,
+            10.0,
+        );
+        let vp = projection * Mat4::IDENTITY;
+        let size = (200.0, 100.0);
+        let (x, y) = screen_point(vp, size, Vec3::new(1.0, 1.0, -1.0)).unwrap();
+        assert!((x - 200.0).abs() < 1e-3 && y.abs() < 1e-3, "{x} {y}");
+        let (x, y) = screen_point(vp, size, Vec3::new(0.0, 0.0, -2.0)).unwrap();
+        assert!(
+            (x - 100.0).abs() < 1e-3 && (y - 50.0).abs() < 1e-3,
+            "{x} {y}"
+        );
+        let (x, y) = screen_point(vp, size, Vec3::new(-0.5, -0.25, -1.0)).unwrap();
+        assert!(
+            (x - 50.0).abs() < 1e-3 && (y - 62.5).abs() < 1e-3,
+            "{x} {y}"
+        );
+        assert!(screen_point(vp, size, Vec3::new(0.0, 0.0, 1.0)).is_none());
     }
 }

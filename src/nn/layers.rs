@@ -67,9 +67,21 @@ impl Conv {
         x: &Tensor,
         extra: Option<&Tensor>,
     ) -> Result<Tensor, GpuError> {
+        self.forward_with(r, x, extra, None)
+    }
+
+    /// [`Conv::forward_plus`], then `residual + ` the result (`residual` of the output's
+    /// shape; fused into the 3×3 kernel, a separate add otherwise).
+    pub fn forward_with(
+        &self,
+        r: &mut Recorder,
+        x: &Tensor,
+        extra: Option<&Tensor>,
+        residual: Option<&Tensor>,
+    ) -> Result<Tensor, GpuError> {
         let y = match &self.weights {
             ConvWeights::Packed(weights) if weights.kernel == 3 => {
-                return r.conv3x3(x, weights, Some(&self.bias), extra);
+                return r.conv3x3(x, weights, Some(&self.bias), extra, residual);
             }
             ConvWeights::Packed(weights) => r.conv1x1(x, weights, Some(&self.bias))?,
             ConvWeights::Plain(weight) => {
@@ -77,8 +89,12 @@ impl Conv {
                 r.conv2d(x, weight, Some(&self.bias), self.stride, pad)?
             }
         };
-        match extra {
-            Some(e) => r.add(&y, e, Broadcast::Leading),
+        let y = match extra {
+            Some(e) => r.add(&y, e, Broadcast::Leading)?,
+            None => y,
+        };
+        match residual {
+            Some(skip) => r.add(skip, &y, Broadcast::Leading),
             None => Ok(y),
         }
     }
@@ -202,12 +218,12 @@ impl ResBlock {
         let h = self.norm1.forward(r, x, true)?;
         let h = self.conv1.forward_plus(r, &h, projected)?;
         let h = self.norm2.forward(r, &h, true)?;
-        let h = self.conv2.forward(r, &h)?;
         let skip = match &self.skip {
             Some(conv) => conv.forward(r, x)?,
             None => x.clone(),
         };
-        r.add(&skip, &h, Broadcast::Leading)
+        // skip + conv2(h), the add fused into the convolution.
+        self.conv2.forward_with(r, &h, None, Some(&skip))
     }
 }
 

@@ -26,7 +26,13 @@ gpu_struct! {
         pub stride: u32,
         pub pad: u32,
         pub has_bias: u32,
-        pub reserved: u32,
+        /// conv3x3: add a per-image addend [N, c_out] after the sums.
+        pub has_extra: u32,
+        /// conv3x3: then add a residual of the output's shape.
+        pub has_residual: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
+        pub reserved2: u32,
     }
 }
 
@@ -535,7 +541,11 @@ impl<'a> Recorder<'a> {
             stride: stride as u32,
             pad: pad as u32,
             has_bias: u32::from(bias.is_some()),
-            reserved: 0,
+            has_extra: 0,
+            has_residual: 0,
+            reserved0: 0,
+            reserved1: 0,
+            reserved2: 0,
         };
         self.flops += 2 * (y.len() * c_in * k * k) as u64;
         // A bias binding must exist even without a bias; the weight stands in (unread).
@@ -571,6 +581,7 @@ impl<'a> Recorder<'a> {
         weights: &PackedConv,
         bias: Option<&Tensor>,
         extra: Option<&Tensor>,
+        residual: Option<&Tensor>,
     ) -> Result<Tensor, GpuError> {
         let [n, c_in, h, w] = x.shape[..] else {
             panic!("conv3x3 input must be NCHW, got {:?}", x.shape)
@@ -579,26 +590,41 @@ impl<'a> Recorder<'a> {
         if let Some(e) = extra {
             assert_eq!(e.len(), n * weights.c_out, "conv3x3 extra {:?}", e.shape);
         }
+        if let Some(r) = residual {
+            assert_eq!(
+                r.len(),
+                n * weights.c_out * h * w,
+                "conv3x3 residual {:?}",
+                r.shape
+            );
+        }
         if w < 8 || self.kernels == Kernels::Simple {
             let y = self.conv2d(x, &weights.plain, bias, 1, 1)?;
-            return match extra {
-                Some(e) => self.add(&y, e, Broadcast::Leading),
+            let y = match extra {
+                Some(e) => self.add(&y, e, Broadcast::Leading)?,
+                None => y,
+            };
+            return match residual {
+                Some(r) => self.add(r, &y, Broadcast::Leading),
                 None => Ok(y),
             };
         }
-        let (y, params) = self.packed_output(x, weights, bias.is_some(), extra.is_some())?;
+        let (y, mut params) = self.packed_output(x, weights, bias.is_some(), extra.is_some())?;
+        params.has_residual = u32::from(residual.is_some());
         let c_out = weights.c_out;
-        // Bias and extra bindings must exist even when absent; the input stands in
-        // (unread).
+        // Bias, extra and residual bindings must exist even when absent; the input stands
+        // in (unread).
         let bias = bias.unwrap_or(x);
         let extra = extra.unwrap_or(x);
-        self.check(&[x, bias, extra, &y]);
+        let residual = residual.unwrap_or(x);
+        self.check(&[x, bias, extra, residual, &y]);
         let grid = self.grid(n * c_out.div_ceil(8) * h * w.div_ceil(8));
         let buffers = [
             &x.buffer,
             &weights.packed.buffer,
             &bias.buffer,
             &extra.buffer,
+            &residual.buffer,
             &y.buffer,
         ];
         self.steps
@@ -632,7 +658,11 @@ impl<'a> Recorder<'a> {
             stride: 1,
             pad: (k / 2) as u32,
             has_bias: u32::from(has_bias),
-            reserved: u32::from(has_extra),
+            has_extra: u32::from(has_extra),
+            has_residual: 0,
+            reserved0: 0,
+            reserved1: 0,
+            reserved2: 0,
         };
         self.flops += 2 * (y.len() * c_in * k * k) as u64;
         Ok((y, params))

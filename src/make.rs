@@ -1,0 +1,308 @@
+//! `unica make`: from a character file to a neural avatar bundle in one command. It runs
+//! the four stages a person would run by hand — bake the teacher's dataset, train the
+//! geometry model, train the splat refiner, evaluate — each as its own process with its
+//! own progress bar, and records in `OUT/make.json` what it was asked and which stages
+//! finished, so a second run with the same arguments continues where the first stopped
+//! (the trainers resume from their checkpoints). The bundle the app opens is `OUT/bundle`.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+
+/// The stages in order, with what each one writes under OUT.
+pub const STAGES: [(&str, &str); 4] = [
+    ("bake", "data/"),
+    ("geometry", "geometry/ (VAE + UNet run; bundle/ from it)"),
+    ("refiner", "refiner/ (adds the refiner to bundle/)"),
+    ("eval", "eval/report.md"),
+];
+
+/// The geometry schedule of the shipped Witch (train/configs/witch_cpu.json): about
+/// 50 minutes on a 2-core CPU.
+const FULL_GEOMETRY: &str = include_str!("../train/configs/witch_cpu.json");
+/// The shipped Witch's refiner steps (about 50 minutes on a 2-core CPU).
+const FULL_REFINER_STEPS: u32 = 3000;
+
+/// `--quick`: a tiny model and a few steps of each stage on the quick dataset (4 clips;
+/// clip 2 held out), minutes in all: it proves the pipeline, not the avatar.
+const QUICK_GEOMETRY: &str = r#"{
+  "vae": {"channels": [16, 12, 8, 8], "latent": 4, "kl_weight": 1e-6},
+  "unet": {"latent": 4, "channels": [16, 32], "embed": 32, "heads": 2, "frames": 4, "actions": 5},
+  "vae_steps": 20, "vae_batch": 2, "unet_steps": 20, "stage2_steps": 10, "unet_batch": 2,
+  "pca_components": 8, "pca_frames": 20, "held_out_clips": [2], "rollout_frames": 3,
+  "ddim_steps": 2, "checkpoint_every": 10
+}
+"#;
+const QUICK_REFINER: &str = r#"{
+  "model": {"channels": [8, 16], "depths": [1, 1], "heads": [2, 2], "decoder_depth": 1,
+            "patch": 16, "stride": 4, "mean_bound": 0.004},
+  "steps": 10, "image_size": 32, "held_out_clips": [2], "eval_frames": 2,
+  "checkpoint_every": 5
+}
+"#;
+
+#[derive(clap::Args, Debug)]
+pub struct MakeArgs {
+    /// The character file (.gltf, .glb, .obj with its rig), as for `unica bake`
+    pub character: PathBuf,
+    /// Output folder: data/, geometry/, refiner/, eval/ and bundle/ (the neural avatar:
+    /// `unica --bundle OUT/bundle`). Run again with the same arguments to continue an
+    /// interrupted make
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// A tiny model and a few steps of each stage (minutes; proves the pipeline, the
+    /// avatar will not look like anything)
+    #[arg(long)]
+    pub quick: bool,
+    /// Where the trainers run: auto (CUDA when PyTorch sees a GPU), cpu or cuda. The
+    /// refiner trains on the CPU either way
+    #[arg(long, default_value = "auto", value_parser = ["auto", "cpu", "cuda"])]
+    pub device: String,
+    /// Avatar description (JSON) passed to `unica bake` [default: inferred]
+    #[arg(long, value_name = "FILE")]
+    pub avatar: Option<PathBuf>,
+}
+
+/// What a make was asked; a later run must ask the same to continue it.
+#[derive(serde::Serialize, serde::Deserialize, Clone, Debug, PartialEq)]
+struct Asked {
+    character: PathBuf,
+    quick: bool,
+    avatar: Option<PathBuf>,
+}
+
+#[derive(serde::Serialize, serde::Deserialize, Debug)]
+struct State {
+    asked: Asked,
+    /// Stages finished, in order.
+    done: Vec<String>,
+}
+
+/// Runs the stages not yet done; `exe` is this program (for bake and eval), `python` the
+/// interpreter with the trainer.
+pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
+    if !args.character.is_file() {
+        bail!("{}: no such character file", args.character.display());
+    }
+    std::fs::create_dir_all(&args.out).with_context(|| args.out.display().to_string())?;
+    let state_path = args.out.join("make.json");
+    let asked = Asked {
+        character: std::path::absolute(&args.character)
+            .with_context(|| args.character.display().to_string())?,
+        quick: args.quick,
+        avatar: args.avatar.clone(),
+    };
+    let mut state = read_state(&state_path)?.unwrap_or(State {
+        asked: asked.clone(),
+        done: Vec::new(),
+    });
+    if state.asked != asked {
+        bail!(
+            "{}: this folder holds a make of {} (quick {}); give another --out, or the same \
+             arguments to continue it",
+            state_path.display(),
+            state.asked.character.display(),
+            state.asked.quick
+        );
+    }
+    check_trainer(python)?;
+    let started = Instant::now();
+    let (data, geometry, refiner, bundle, eval) = (
+        args.out.join("data"),
+        args.out.join("geometry"),
+        args.out.join("refiner"),
+        args.out.join("bundle"),
+        args.out.join("eval"),
+    );
+    for (index, (stage, writes)) in STAGES.iter().enumerate() {
+        let header = format!("[{}/{}] {stage} → {}", index + 1, STAGES.len(), writes);
+        if state.done.iter().any(|d| d == stage) {
+            println!("{header}: done before, kept");
+            continue;
+        }
+        println!("{header}");
+        let clock = Instant::now();
+        match *stage {
+            "bake" => {
+                let mut command = Command::new(exe);
+                command
+                    .arg("bake")
+                    .arg(&args.character)
+                    .arg("--out")
+                    .arg(&data);
+                if args.quick {
+                    command.arg("--quick");
+                }
+                if let Some(avatar) = &args.avatar {
+                    command.arg("--avatar").arg(avatar);
+                }
+                run(command, "unica bake")?;
+            }
+            "geometry" => {
+                let config = args.out.join("geometry_config.json");
+                let text = if args.quick {
+                    QUICK_GEOMETRY
+                } else {
+                    FULL_GEOMETRY
+                };
+                crate::files::write_atomic(&config, text.as_bytes())?;
+                let mut command = trainer(python, "unica_train.train");
+                command
+                    .arg("--data")
+                    .arg(&data)
+                    .arg("--out")
+                    .arg(&geometry)
+                    .arg("--config")
+                    .arg(&config)
+                    .args(["--device", &args.device]);
+                if geometry.join("checkpoints").is_dir() {
+                    command.arg("--resume");
+                }
+                run(command, "the geometry trainer")?;
+            }
+            "refiner" => {
+                // The refiner is added to a copy of the geometry bundle, so a rerun of
+                // this stage starts from the same geometry.
+                copy_dir(&geometry.join("bundle"), &bundle)?;
+                let mut command = trainer(python, "unica_train.refiner");
+                command
+                    .arg("--bundle")
+                    .arg(&bundle)
+                    .arg("--data")
+                    .arg(&data)
+                    .arg("--out")
+                    .arg(&refiner)
+                    .arg("--write-bundle");
+                if args.quick {
+                    let config = args.out.join("refiner_config.json");
+                    crate::files::write_atomic(&config, QUICK_REFINER.as_bytes())?;
+                    command.arg("--config").arg(&config);
+                } else {
+                    command.args(["--steps", &FULL_REFINER_STEPS.to_string()]);
+                }
+                if refiner.join("refiner_checkpoint.pt").is_file() {
+                    command.arg("--resume");
+                }
+                run(command, "the refiner trainer")?;
+            }
+            "eval" => {
+                let mut command = Command::new(exe);
+                command
+                    .arg("eval")
+                    .arg("--bundle")
+                    .arg(&bundle)
+                    .arg("--data")
+                    .arg(&data)
+                    .arg("--out")
+                    .arg(&eval)
+                    .arg("--character")
+                    .arg(&args.character)
+                    .arg("--quick");
+                run(command, "unica eval")?;
+            }
+            _ => unreachable!("a stage of STAGES"),
+        }
+        state.done.push(stage.to_string());
+        write_state(&state_path, &state)?;
+        println!(
+            "[{}/{}] {stage}: done in {:.0} s",
+            index + 1,
+            STAGES.len(),
+            clock.elapsed().as_secs_f64()
+        );
+    }
+    println!(
+        "made {} in {:.0} s: play it with `unica --bundle {}`; the evaluation is in {}",
+        bundle.display(),
+        started.elapsed().as_secs_f64(),
+        bundle.display(),
+        eval.join("report.md").display()
+    );
+    Ok(())
+}
+
+fn read_state(path: &Path) -> anyhow::Result<Option<State>> {
+    match std::fs::read(path) {
+        Ok(bytes) => serde_json::from_slice(&bytes)
+            .map(Some)
+            .with_context(|| format!("{}: not a make state file", path.display())),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(e).with_context(|| path.display().to_string()),
+    }
+}
+
+fn write_state(path: &Path, state: &State) -> anyhow::Result<()> {
+    let text = serde_json::to_string_pretty(state)? + "\n";
+    crate::files::write_atomic(path, text.as_bytes())?;
+    Ok(())
+}
+
+/// `python -m module`, finding the trainer in this source tree when it is not installed.
+fn trainer(python: &str, module: &str) -> Command {
+    let mut command = Command::new(python);
+    command.args(["-u", "-m", module]);
+    command
+}
+
+/// PYTHONPATH with this source tree's trainer first, for every process a make starts
+/// (`unica eval` runs the trainer's evaluation too).
+fn python_path() -> std::ffi::OsString {
+    let mut path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("train")
+        .into_os_string();
+    if let Some(old) = std::env::var_os("PYTHONPATH").filter(|p| !p.is_empty()) {
+        path.push(":");
+        path.push(old);
+    }
+    path
+}
+
+/// Fails in one line when the trainer cannot be imported (before any stage runs).
+fn check_trainer(python: &str) -> anyhow::Result<()> {
+    let output = trainer(python, "unica_train.bundle")
+        .arg("--help")
+        .env("PYTHONPATH", python_path())
+        .output()
+        .with_context(|| format!("running {python}: unica make needs Python 3 with PyTorch"))?;
+    if !output.status.success() {
+        let err = String::from_utf8_lossy(&output.stderr);
+        let last = err.lines().last().unwrap_or("").trim().to_string();
+        bail!(
+            "{python} cannot run the trainer ({last}); install it with \
+             `python3 -m pip install -e ./train` (or set UNICA_PYTHON)"
+        );
+    }
+    Ok(())
+}
+
+fn run(mut command: Command, what: &str) -> anyhow::Result<()> {
+    let status = command
+        .env("PYTHONPATH", python_path())
+        .status()
+        .with_context(|| format!("starting {what}"))?;
+    if !status.success() {
+        bail!("{what} failed ({status}); run the same `unica make` again to continue");
+    }
+    Ok(())
+}
+
+/// Replaces `to` with a copy of the files of `from` (a flat bundle folder).
+fn copy_dir(from: &Path, to: &Path) -> anyhow::Result<()> {
+    if !from.join("manifest.json").is_file() {
+        bail!("{}: the geometry stage wrote no bundle", from.display());
+    }
+    if to.exists() {
+        std::fs::remove_dir_all(to).with_context(|| to.display().to_string())?;
+    }
+    std::fs::create_dir_all(to).with_context(|| to.display().to_string())?;
+    for entry in std::fs::read_dir(from).with_context(|| from.display().to_string())? {
+        let path = entry?.path();
+        if path.is_file() {
+            let name = path.file_name().expect("a file name");
+            std::fs::copy(&path, to.join(name)).with_context(|| path.display().to_string())?;
+        }
+    }
+    Ok(())
+}

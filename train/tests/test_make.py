@@ -1,0 +1,49 @@
+"""`unica make --quick` end to end: the shipped Witch from her character file to a bundle
+with a refiner and an evaluation, through the binary that `cargo test --release` builds (the
+README's test command runs it first); then a rerun keeps every stage, and a make cut off
+during its refiner continues it from its checkpoint."""
+
+import json
+import subprocess
+from pathlib import Path
+
+from unica_train import bundle
+
+ROOT = Path(__file__).resolve().parents[2]
+BINARY = ROOT / "target" / "release" / "unica"
+WITCH = ROOT / "assets" / "witch" / "source" / "Witch.gltf"
+
+
+def make(out: Path) -> str:
+    done = subprocess.run([str(BINARY), "make", str(WITCH), "--out", str(out), "--quick", "--device", "cpu"],
+                          cwd=ROOT, capture_output=True, text=True)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    return done.stdout
+
+
+def test_make_quick_writes_a_bundle_that_loads_and_continues_where_it_stopped(tmp_path):
+    assert BINARY.is_file(), f"{BINARY} is missing: run `cargo build --release` (the README's test command does)"
+    out = tmp_path / "made"
+    log = make(out)
+    for stage in ("[1/4] bake", "[2/4] geometry", "[3/4] refiner", "[4/4] eval"):
+        assert f"{stage}: done in" in log, log
+    vae, unet, extra, manifest = bundle.load(out / "bundle")
+    assert manifest["avatar"] == "Witch" and "refiner" in manifest, sorted(manifest)
+    assert any(name.startswith("refiner.") for name in extra), sorted(extra)[:10]
+    assert (out / "eval" / "report.md").is_file()
+    state = json.loads((out / "make.json").read_text())
+    assert state["done"] == ["bake", "geometry", "refiner", "eval"]
+
+    # The same command again: nothing is redone.
+    log = make(out)
+    assert log.count("done before, kept") == 4, log
+
+    # A make cut off during its refiner: the refiner resumes from its last checkpoint
+    # (the geometry trainer's resume is tested in test_train.py), the evaluation reruns.
+    state["done"] = ["bake", "geometry"]
+    (out / "make.json").write_text(json.dumps(state))
+    log = make(out)
+    assert "[2/4] geometry → geometry/ (VAE + UNet run; bundle/ from it): done before, kept" in log, log
+    assert "resumed at step 10" in log and "[4/4] eval: done in" in log, log
+    _, _, extra, manifest = bundle.load(out / "bundle")
+    assert "refiner" in manifest
