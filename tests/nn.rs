@@ -794,6 +794,65 @@ fn the_convolution_with_its_residual_equals_a_separate_add_bit_for_bit() {
 }
 
 #[test]
+fn attention_over_a_cached_prefix_equals_attention_over_the_concatenation_bit_for_bit() {
+    // The temporal layers' target pass: 3 cached frames' packed qkv rows and 1 new frame,
+    // causal, 2 heads of 8 — read in place must equal reading their concatenation, in
+    // every kernel variant and precision (head 8: the CPU variant applies).
+    let wave = |n: usize, k: f32| -> Vec<f32> { (0..n).map(|i| (i as f32 * k).sin()).collect() };
+    let (sequences, cached_keys, c) = (6usize, 3usize, 16usize);
+    for (precision, kernels) in variants() {
+        let f = Fixture::open("down", precision);
+        let mut pipelines = PipelineCache::default();
+        let upload = |name: &str, shape: &[usize], k: f32| {
+            let n = shape.iter().product();
+            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
+        };
+        let cached = upload("cached", &[1, sequences, cached_keys, 3 * c], 0.37);
+        let fresh = upload("fresh", &[1, sequences, 1, 3 * c], 0.61);
+        let params = unica::nn::ops::AttentionParams {
+            sequences: sequences as u32,
+            heads: 2,
+            queries: 1,
+            keys: (cached_keys + 1) as u32,
+            channels: c as u32,
+            q_stride: (3 * c) as u32,
+            q_offset: 0,
+            kv_stride: (3 * c) as u32,
+            k_offset: c as u32,
+            v_offset: (2 * c) as u32,
+            causal: 1,
+            kv_share: 1,
+            prefix_keys: 0,
+            reserved0: 0,
+            reserved1: 0,
+            reserved2: 0,
+        };
+        let mut r = Recorder::new(&f.gpu, &mut pipelines, precision);
+        r.set_kernels(kernels);
+        let joined = r.concat(&cached, &fresh, 2).unwrap();
+        let whole = r.attention(&fresh, &joined, params).unwrap();
+        let in_place = r
+            .attention_after(
+                &fresh,
+                Some(&cached),
+                &fresh,
+                unica::nn::ops::AttentionParams {
+                    prefix_keys: cached_keys as u32,
+                    ..params
+                },
+            )
+            .unwrap();
+        r.submit();
+        let (a, b) = (whole.read(&f.gpu).unwrap(), in_place.read(&f.gpu).unwrap());
+        assert!(
+            a.iter().zip(&b).all(|(p, q)| p.to_bits() == q.to_bits()),
+            "{precision:?} {kernels:?}: worst difference {}",
+            worst_difference(&a, &b)
+        );
+    }
+}
+
+#[test]
 fn the_action_table_gives_the_cross_attention_bit_for_bit() {
     // One token per sample: the UNet's table lookup must equal the layer exactly, in
     // every kernel variant and precision (and the layer itself matches PyTorch above).

@@ -5,11 +5,22 @@
 // every frame of a group). One thread per (sequence, head, query), an online softmax in
 // one pass over the keys. With `causal` set, query i sees keys j <= i + keys - queries
 // (the queries are the last ones of the sequence). Head size at most MAX_HEAD_SIZE (host-checked).
+// The first `prefix_keys` keys of a sequence are rows of `prefix` (a cache), the rest rows
+// of `kv`: the same keys in the same order as one concatenated buffer.
 
 @group(0) @binding(0) var<uniform> p: AttentionParams;
 @group(0) @binding(1) var<storage, read> q: array<Elem>;
-@group(0) @binding(2) var<storage, read> kv: array<Elem>;
-@group(0) @binding(3) var<storage, read_write> out: array<Elem>;
+@group(0) @binding(2) var<storage, read> prefix: array<Elem>;
+@group(0) @binding(3) var<storage, read> kv: array<Elem>;
+@group(0) @binding(4) var<storage, read_write> out: array<Elem>;
+
+// Value `at` of key j's rows: from the prefix for the first prefix_keys keys.
+fn key_value(cached: bool, at: u32) -> f32 {
+    if cached {
+        return f32(prefix[at]);
+    }
+    return f32(kv[at]);
+}
 
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {
@@ -31,11 +42,16 @@ fn main(invocation: Invocation) {
     var acc: array<f32, MAX_HEAD_SIZE>;
     var best = -3.0e38;
     var total = 0.0;
+    let fresh = p.keys - p.prefix_keys;
     for (var j = 0u; j < keys; j++) {
-        let row = (kv_sequence * p.keys + j) * p.kv_stride + h * d;
+        let cached = j < p.prefix_keys;
+        var row = (kv_sequence * fresh + j - p.prefix_keys) * p.kv_stride + h * d;
+        if cached {
+            row = (kv_sequence * p.prefix_keys + j) * p.kv_stride + h * d;
+        }
         var dot = 0.0;
         for (var e = 0u; e < d; e++) {
-            dot += f32(q[q_row + e]) * f32(kv[row + p.k_offset + e]);
+            dot += f32(q[q_row + e]) * key_value(cached, row + p.k_offset + e);
         }
         let score = dot * scale;
         let new_best = max(best, score);
@@ -43,7 +59,7 @@ fn main(invocation: Invocation) {
         let weight = exp(score - new_best);
         total = total * rescale + weight;
         for (var e = 0u; e < d; e++) {
-            acc[e] = acc[e] * rescale + weight * f32(kv[row + p.v_offset + e]);
+            acc[e] = acc[e] * rescale + weight * key_value(cached, row + p.v_offset + e);
         }
         best = new_best;
     }

@@ -2,17 +2,23 @@
 // for heads of at most 32 values with every row offset and stride a multiple of 4
 // (host-checked). q, the accumulator and each key and value row are held as up to 8
 // vec4 registers written out by name (a CPU driver keeps a dynamically indexed array in
-// memory), and the rows are read as vec4 loads. Dot products sum in vec4 chunks.
+// memory), and the rows are read as vec4 loads. Dot products sum in vec4 chunks. The
+// first `prefix_keys` keys come from `prefix`, as in attention.wgsl.
 
 @group(0) @binding(0) var<uniform> p: AttentionParams;
 @group(0) @binding(1) var<storage, read> q: array<vec4<Elem>>;
-@group(0) @binding(2) var<storage, read> kv: array<vec4<Elem>>;
-@group(0) @binding(3) var<storage, read_write> out: array<vec4<Elem>>;
+@group(0) @binding(2) var<storage, read> prefix: array<vec4<Elem>>;
+@group(0) @binding(3) var<storage, read> kv: array<vec4<Elem>>;
+@group(0) @binding(4) var<storage, read_write> out: array<vec4<Elem>>;
 
-// Chunk `c` (4 values) of the row starting at vec4 `row` of kv, zero past the head.
-fn kv_chunk(row: u32, c: u32, chunks: u32) -> vec4<f32> {
+// Chunk `c` (4 values) of the row starting at vec4 `row` of the prefix (`cached`) or kv,
+// zero past the head.
+fn kv_chunk(cached: bool, row: u32, c: u32, chunks: u32) -> vec4<f32> {
     if c >= chunks {
         return vec4<f32>(0.0);
+    }
+    if cached {
+        return vec4<f32>(prefix[row + c]);
     }
     return vec4<f32>(kv[row + c]);
 }
@@ -62,29 +68,34 @@ fn main(invocation: Invocation) {
     var acc7 = vec4<f32>(0.0);
     var best = -3.0e38;
     var total = 0.0;
+    let fresh = p.keys - p.prefix_keys;
     for (var j = 0u; j < keys; j++) {
-        let row = (kv_sequence * p.keys + j) * p.kv_stride + h * d;
+        let cached = j < p.prefix_keys;
+        var row = (kv_sequence * fresh + j - p.prefix_keys) * p.kv_stride + h * d;
+        if cached {
+            row = (kv_sequence * p.prefix_keys + j) * p.kv_stride + h * d;
+        }
         let k_row = (row + p.k_offset) / 4u;
         let v_row = (row + p.v_offset) / 4u;
-        var score = dot(q0, kv_chunk(k_row, 0u, chunks)) + dot(q1, kv_chunk(k_row, 1u, chunks));
-        score += dot(q2, kv_chunk(k_row, 2u, chunks)) + dot(q3, kv_chunk(k_row, 3u, chunks));
+        var score = dot(q0, kv_chunk(cached, k_row, 0u, chunks)) + dot(q1, kv_chunk(cached, k_row, 1u, chunks));
+        score += dot(q2, kv_chunk(cached, k_row, 2u, chunks)) + dot(q3, kv_chunk(cached, k_row, 3u, chunks));
         if chunks > 4u {
-            score += dot(q4, kv_chunk(k_row, 4u, chunks)) + dot(q5, kv_chunk(k_row, 5u, chunks));
-            score += dot(q6, kv_chunk(k_row, 6u, chunks)) + dot(q7, kv_chunk(k_row, 7u, chunks));
+            score += dot(q4, kv_chunk(cached, k_row, 4u, chunks)) + dot(q5, kv_chunk(cached, k_row, 5u, chunks));
+            score += dot(q6, kv_chunk(cached, k_row, 6u, chunks)) + dot(q7, kv_chunk(cached, k_row, 7u, chunks));
         }
         let new_best = max(best, score);
         let rescale = exp(best - new_best);
         let weight = exp(score - new_best);
         total = total * rescale + weight;
-        acc0 = acc0 * rescale + weight * kv_chunk(v_row, 0u, chunks);
-        acc1 = acc1 * rescale + weight * kv_chunk(v_row, 1u, chunks);
-        acc2 = acc2 * rescale + weight * kv_chunk(v_row, 2u, chunks);
-        acc3 = acc3 * rescale + weight * kv_chunk(v_row, 3u, chunks);
+        acc0 = acc0 * rescale + weight * kv_chunk(cached, v_row, 0u, chunks);
+        acc1 = acc1 * rescale + weight * kv_chunk(cached, v_row, 1u, chunks);
+        acc2 = acc2 * rescale + weight * kv_chunk(cached, v_row, 2u, chunks);
+        acc3 = acc3 * rescale + weight * kv_chunk(cached, v_row, 3u, chunks);
         if chunks > 4u {
-            acc4 = acc4 * rescale + weight * kv_chunk(v_row, 4u, chunks);
-            acc5 = acc5 * rescale + weight * kv_chunk(v_row, 5u, chunks);
-            acc6 = acc6 * rescale + weight * kv_chunk(v_row, 6u, chunks);
-            acc7 = acc7 * rescale + weight * kv_chunk(v_row, 7u, chunks);
+            acc4 = acc4 * rescale + weight * kv_chunk(cached, v_row, 4u, chunks);
+            acc5 = acc5 * rescale + weight * kv_chunk(cached, v_row, 5u, chunks);
+            acc6 = acc6 * rescale + weight * kv_chunk(cached, v_row, 6u, chunks);
+            acc7 = acc7 * rescale + weight * kv_chunk(cached, v_row, 7u, chunks);
         }
         best = new_best;
     }

@@ -273,6 +273,10 @@ fn attention_params(
         v_offset: (k_offset + channels) as u32,
         causal: 0,
         kv_share: 1,
+        prefix_keys: 0,
+        reserved0: 0,
+        reserved1: 0,
+        reserved2: 0,
     }
 }
 
@@ -463,20 +467,23 @@ impl TemporalAttention {
             Broadcast::Trailing,
         )?;
         let qkv = self.qkv.forward(r, &tokens, false)?;
-        let kv = match frames {
+        // The keys: the cached context rows (read in place, no concatenation), then
+        // this batch's.
+        let prefix = match frames {
             Frames::First { keep, .. } => {
                 if let Some(keep) = keep {
                     keep.push(qkv.clone());
                 }
-                qkv.clone()
+                None
             }
-            Frames::Next { cached } => r.concat(cached, &qkv, 2)?,
+            Frames::Next { cached } => Some(cached),
         };
         let params = AttentionParams {
             causal: 1,
+            prefix_keys: first as u32,
             ..attention_params(n * hw, f, first + f, c, self.heads, true)
         };
-        let mixed = r.attention(&qkv, &kv, params)?; // [N·HW, F, C]
+        let mixed = r.attention_after(&qkv, prefix, &qkv, params)?; // [N·HW, F, C]
         let out = self.out.forward(r, &mixed, false)?;
         r.add_permuted(x, &out, [n, hw, f, c], [0, 2, 3, 1]) // [N, F, C, HW]
     }

@@ -114,6 +114,14 @@ gpu_struct! {
         pub causal: u32,
         /// Consecutive sequences that read the same keys and values.
         pub kv_share: u32,
+        /// The first `prefix_keys` of each sequence's `keys` come from a second buffer
+        /// (rows [sequence, prefix_keys] of the same stride and offsets), the rest from
+        /// `kv` (rows [sequence, keys - prefix_keys]): a cache and the new rows need no
+        /// concatenation. 0: all from `kv`.
+        pub prefix_keys: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
+        pub reserved2: u32,
     }
 }
 
@@ -1003,6 +1011,28 @@ impl<'a> Recorder<'a> {
         kv: &Tensor,
         params: AttentionParams,
     ) -> Result<Tensor, GpuError> {
+        self.attention_after(q, None, kv, params)
+    }
+
+    /// [`Recorder::attention`] whose first `params.prefix_keys` keys of each sequence are
+    /// the rows of `prefix` (e.g. a context cache) and the rest the rows of `kv`: the
+    /// same keys in the same order as attention over their concatenation.
+    pub fn attention_after(
+        &mut self,
+        q: &Tensor,
+        prefix: Option<&Tensor>,
+        kv: &Tensor,
+        params: AttentionParams,
+    ) -> Result<Tensor, GpuError> {
+        assert_eq!(
+            prefix.is_some(),
+            params.prefix_keys > 0,
+            "attention: a prefix buffer goes with prefix_keys"
+        );
+        assert!(
+            params.prefix_keys <= params.keys,
+            "attention prefix of {params:?}"
+        );
         assert!(
             (params.channels / params.heads) as usize <= MAX_HEAD_SIZE,
             "attention heads of {} values (at most {MAX_HEAD_SIZE})",
@@ -1032,7 +1062,8 @@ impl<'a> Recorder<'a> {
         } else {
             &kernels::ATTENTION
         };
-        self.launch(shader, &params, &[q, kv, &y], grid);
+        // The prefix binding must exist without a prefix; kv stands in (unread).
+        self.launch(shader, &params, &[q, prefix.unwrap_or(kv), kv, &y], grid);
         Ok(y)
     }
 

@@ -175,6 +175,10 @@ fn patch_attention(
         v_offset: (first_row * c3 + 2 * c) as u32,
         causal: 0,
         kv_share: 1,
+        prefix_keys: 0,
+        reserved0: 0,
+        reserved1: 0,
+        reserved2: 0,
     };
     let body = (full > 0)
         .then(|| r.attention(qkv, qkv, params(full, patch, 0)))
