@@ -853,6 +853,44 @@ fn attention_over_a_cached_prefix_equals_attention_over_the_concatenation_bit_fo
 }
 
 #[test]
+fn the_residual_with_the_action_bias_equals_the_two_ops_bit_for_bit() {
+    // The spatial attention's residual (a + permuted tokens) and the cross-attention's
+    // action bias in one pass must equal add_permuted then add_action_bias exactly, in
+    // every precision (one kernel serves every variant): 2 samples × 3 frames of 4×5
+    // images with 8 channels, actions 2 and 0 of a 3-row table.
+    let wave = |n: usize, k: f32| -> Vec<f32> { (0..n).map(|i| (i as f32 * k).sin()).collect() };
+    for (precision, kernels) in variants() {
+        let f = Fixture::open("down", precision);
+        let mut pipelines = PipelineCache::default();
+        let upload = |name: &str, shape: &[usize], k: f32| {
+            let n = shape.iter().product();
+            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
+        };
+        let a = upload("a", &[6, 8, 4, 5], 0.31);
+        let tokens = upload("tokens", &[6, 20, 8], 0.53);
+        let table = upload("table", &[3, 8], 0.77);
+        let mut r = Recorder::new(&f.gpu, &mut pipelines, precision);
+        r.set_kernels(kernels);
+        let ids = r.indices("ids", &[2, 0]).unwrap();
+        let (shape, perm) = ([1, 6, 20, 8], [0, 1, 3, 2]);
+        let fused = r
+            .add_permuted_bias(&a, &tokens, shape, perm, Some((&table, &ids, 3)))
+            .unwrap();
+        let sum = r.add_permuted(&a, &tokens, shape, perm).unwrap();
+        let separate = r.add_action_bias(&sum, &table, &ids, 3).unwrap();
+        r.submit();
+        let (x, y) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
+        let plain = sum.read(&f.gpu).unwrap();
+        assert!(
+            x.iter().zip(&y).all(|(p, q)| p.to_bits() == q.to_bits()),
+            "{precision:?} {kernels:?}: worst difference {}",
+            worst_difference(&x, &y)
+        );
+        assert!(worst_difference(&x, &plain) > 0.1, "the bias was added");
+    }
+}
+
+#[test]
 fn the_action_table_gives_the_cross_attention_bit_for_bit() {
     // One token per sample: the UNet's table lookup must equal the layer exactly, in
     // every kernel variant and precision (and the layer itself matches PyTorch above).

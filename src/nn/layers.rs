@@ -3,7 +3,7 @@
 //! their PyTorch names and recorded with a [`Recorder`].
 
 use super::Tensor;
-use super::ops::{AttentionParams, Broadcast, PackedConv, Recorder};
+use super::ops::{AttentionParams, Broadcast, Indices, PackedConv, Recorder};
 use super::weights::{LoadError, Weights};
 use crate::gpu::GpuError;
 
@@ -314,6 +314,18 @@ impl SpatialAttention {
     }
 
     pub fn forward(&self, r: &mut Recorder, x: &Tensor) -> Result<Tensor, GpuError> {
+        self.forward_with_bias(r, x, None)
+    }
+
+    /// [`SpatialAttention::forward`], then plus a row of an action table per sample
+    /// (`table`, `ids`, images per sample), fused into the residual's pass: what
+    /// [`Recorder::add_action_bias`] after `forward` gives, bit for bit.
+    pub fn forward_with_bias(
+        &self,
+        r: &mut Recorder,
+        x: &Tensor,
+        bias: Option<(&Tensor, &Indices, usize)>,
+    ) -> Result<Tensor, GpuError> {
         let [n, c, h, w] = x.shape[..] else {
             panic!("NCHW expected, got {:?}", x.shape)
         };
@@ -326,7 +338,7 @@ impl SpatialAttention {
             attention_params(n, h * w, h * w, c, self.heads, true),
         )?;
         let out = self.out.forward(r, &mixed, false)?;
-        add_tokens(r, x, &out)
+        r.add_permuted_bias(x, &out, [1, n, h * w, c], [0, 1, 3, 2], bias)
     }
 }
 

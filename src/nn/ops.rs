@@ -99,6 +99,19 @@ gpu_struct! {
 }
 
 gpu_struct! {
+    /// `a + permute(x)` (as [`PermuteParams`]), then, with `has_bias`, plus a row of an
+    /// action table as [`ActionBiasParams`] lays it over NCHW images.
+    pub struct PermuteAddParams {
+        pub shape: [u32; 4],
+        pub perm: [u32; 4],
+        pub hw: u32,
+        pub channels: u32,
+        pub frames: u32,
+        pub has_bias: u32,
+    }
+}
+
+gpu_struct! {
     /// Multi-head attention over `sequences` independent sequences (see attention.wgsl).
     pub struct AttentionParams {
         pub sequences: u32,
@@ -925,6 +938,20 @@ impl<'a> Recorder<'a> {
         shape: [usize; 4],
         perm: [usize; 4],
     ) -> Result<Tensor, GpuError> {
+        self.add_permuted_bias(a, x, shape, perm, None)
+    }
+
+    /// [`Recorder::add_permuted`] onto NCHW images `a`, then plus `table[ids[sample]]`
+    /// per channel as [`Recorder::add_action_bias`] adds it (`frames` images per sample)
+    /// — one pass, the same two roundings as the two ops.
+    pub fn add_permuted_bias(
+        &mut self,
+        a: &Tensor,
+        x: &Tensor,
+        shape: [usize; 4],
+        perm: [usize; 4],
+        bias: Option<(&Tensor, &Indices, usize)>,
+    ) -> Result<Tensor, GpuError> {
         assert_eq!(
             (shape.iter().product::<usize>(), x.len()),
             (a.len(), a.len()),
@@ -932,13 +959,36 @@ impl<'a> Recorder<'a> {
             x.shape,
             a.shape
         );
+        let (hw, channels, frames) = match bias {
+            Some((table, ids, frames)) => {
+                let [nf, c, h, w] = a.shape[..] else {
+                    panic!("NCHW expected, got {:?}", a.shape)
+                };
+                assert_eq!(table.shape[1], c, "action bias table {:?}", table.shape);
+                assert_eq!(nf, ids.len * frames, "{} ids for {nf} images", ids.len);
+                (h * w, c, frames)
+            }
+            None => (1, 1, 1),
+        };
         let y = self.output("permute_add.y", &a.shape)?;
-        let params = PermuteParams {
+        let params = PermuteAddParams {
             shape: shape.map(|s| s as u32),
             perm: perm.map(|k| k as u32),
+            hw: hw as u32,
+            channels: channels as u32,
+            frames: frames as u32,
+            has_bias: u32::from(bias.is_some()),
         };
+        // Without a bias its bindings still exist; `a` stands in (unread).
+        let (table, ids) = match bias {
+            Some((table, ids, _)) => (table, &ids.buffer),
+            None => (a, &a.buffer),
+        };
+        self.check(&[x, a, table, &y]);
         let grid = self.grid(y.len());
-        self.launch(&kernels::PERMUTE_ADD, &params, &[x, a, &y], grid);
+        let buffers = [&x.buffer, &a.buffer, &table.buffer, ids, &y.buffer];
+        self.steps
+            .dispatch(&kernels::PERMUTE_ADD, &params, &buffers, grid);
         Ok(y)
     }
 

@@ -381,8 +381,9 @@ impl UNet {
         ids: &Indices,
         pass: &mut Pass,
     ) -> Result<Tensor, GpuError> {
-        let h = stack.spatial.forward(r, x)?;
-        let h = r.add_action_bias(&h, &stack.cross, ids, pass.frames())?;
+        let h = stack
+            .spatial
+            .forward_with_bias(r, x, Some((&stack.cross, ids, pass.frames())))?;
         pass.temporal(r, &stack.temporal, &h)
     }
 }
