@@ -75,7 +75,7 @@ pub fn decode(bytes: &[u8]) -> Result<Vec<Splat>, String> {
     if bytes.is_empty() {
         return Err("the .splat file is empty (no splats)".into());
     }
-    if bytes.len() % RECORD != 0 {
+    if !bytes.len().is_multiple_of(RECORD) {
         return Err(format!(
             "the .splat file is truncated: {} bytes is not a whole number of {RECORD}-byte splats",
             bytes.len()
