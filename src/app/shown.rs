@@ -1,8 +1,8 @@
 //! What the viewport shows: the neural avatar of a bundle (with the teacher beside it
 //! when its character file loads), the teacher alone, a static mesh when the character
 //! cannot be animated, the splats of a file (PLY, compressed PLY, .splat), or a
-//! placeholder, with the reason. A splat file or a neural avatar without a character
-//! shows no placeholder (there is nothing missing to stand in for).
+//! placeholder, with the reason. A splat file shows no placeholder (it needs no
+//! character).
 
 use std::path::Path;
 
@@ -179,11 +179,7 @@ impl Shown {
         character: Option<&Path>,
         steps: Option<usize>,
     ) -> Self {
-        let parts = match character {
-            Some(_) => character_parts(character),
-            None => nothing(String::new()),
-        };
-        let mut shown = Self::from_parts(gpu, renderer, parts);
+        let mut shown = Self::load(gpu, renderer, character);
         shown.show_teacher = shown.teacher.is_some();
         shown.name = format!("{} (neural)", dir.display());
         shown.problem = Some("Loading the neural avatar…".into());
@@ -329,7 +325,7 @@ fn character_parts(path: Option<&Path>) -> Parts {
     }
 }
 
-/// No character and no problem: what a splat file or a neural avatar shows beside it.
+/// No character and no problem: what a splat file shows beside its splats.
 fn nothing(name: String) -> Parts {
     (name, None, Mesh::default(), None)
 }
