@@ -9,6 +9,7 @@ use clap::{Parser, Subcommand};
 use crate::action::KeyScript;
 use crate::app::{self, AppOptions};
 use crate::gpu::{self, GpuContext, GpuOptions};
+use crate::splat::files::{self, Up};
 
 /// Environment variable naming the character file the app shows by default.
 pub const CHARACTER_ENV: &str = "UNICA_CHARACTER";
@@ -104,9 +105,11 @@ enum Command {
     /// metrics in OUT/report.md with plots (runs the trainer's evaluation: python3 with
     /// `pip install -e ./train`)
     Eval(EvalArgs),
-    /// Export the neural avatar's splats after a key script as a 3DGS PLY
+    /// Export the neural avatar's splats after a key script as a 3DGS PLY or an
+    /// antimatter15 .splat (optionally Z-up)
     Export(ExportArgs),
-    /// Open a 3DGS PLY file (unica's or another program's) in the viewer
+    /// Open a splat file in the viewer: a 3DGS PLY (unica's or another program's),
+    /// SuperSplat's compressed PLY, or an antimatter15 .splat (optionally Z-up)
     View(ViewArgs),
     /// Write the auto-rigger's training pairs: synthetic characters (humanoids,
     /// quadrupeds, creatures in random poses) with their skeleton tokens, skin weights and
@@ -273,6 +276,14 @@ struct SplatArgs {
     no_refiner: bool,
 }
 
+fn parse_up(text: &str) -> Result<Up, String> {
+    match text {
+        "y" | "Y" => Ok(Up::Y),
+        "z" | "Z" => Ok(Up::Z),
+        _ => Err(format!("'{text}' is not an up axis: give y or z")),
+    }
+}
+
 fn parse_level(text: &str) -> Result<usize, String> {
     let levels = crate::engine::appearance::LEVELS;
     text.parse::<usize>()
@@ -331,8 +342,10 @@ struct RenderArgs {
 
 #[derive(clap::Args, Debug)]
 struct ExportArgs {
-    /// What to export: `ply` (the only format)
-    #[arg(value_parser = ["ply"])]
+    /// What to export: `ply` (3DGS PLY, float properties) or `splat` (antimatter15's
+    /// .splat: 32 bytes per splat, 8-bit colour and rotation, largest size × opacity
+    /// first)
+    #[arg(value_parser = ["ply", "splat"])]
     format: String,
     /// The bundle whose neural avatar is driven
     #[arg(long, value_name = "DIR")]
@@ -340,8 +353,8 @@ struct ExportArgs {
     /// Key script run before the export, e.g. "30W 10D" (the last frame is exported)
     #[arg(long, value_name = "SCRIPT", default_value = "1I")]
     keys: String,
-    /// Output file
-    #[arg(long, value_name = "FILE.ply")]
+    /// Output file (FILE.ply or FILE.splat, as the format says)
+    #[arg(long, value_name = "FILE")]
     out: PathBuf,
     /// DDIM steps per generated frame [default: the bundle's]
     #[arg(long)]
@@ -349,14 +362,23 @@ struct ExportArgs {
     /// Seed of the sampler noise
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// The file's up axis: y (unica's) or z (turned +90° about X on the way out, for
+    /// Z-up tools)
+    #[arg(long, value_name = "y|z", default_value = "y", value_parser = parse_up)]
+    up: Up,
     #[command(flatten)]
     look: SplatArgs,
 }
 
 #[derive(clap::Args, Debug)]
 struct ViewArgs {
-    /// A 3DGS PLY file
+    /// A splat file: .splat (antimatter15) by its extension, else a PLY (3DGS, or
+    /// SuperSplat's compressed layout, found by its content)
     file: PathBuf,
+    /// The file's up axis: y (as unica draws) or z (a Z-up file: turned −90° about X so
+    /// +Z becomes +Y)
+    #[arg(long, value_name = "y|z", default_value = "y", value_parser = parse_up)]
+    up: Up,
     /// Render this many frames, then exit
     #[arg(long, value_name = "N")]
     exit_after: Option<u64>,
@@ -746,7 +768,11 @@ fn export(args: ExportArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     } else {
         engine.read_splats()?
     };
-    crate::splat::ply::write(&args.out, &splats)?;
+    let format = match args.format.as_str() {
+        "splat" => files::Format::Splat,
+        _ => files::Format::Ply,
+    };
+    files::write(&args.out, &splats, format, args.up)?;
     println!("wrote {} splats to {}", splats.len(), args.out.display());
     Ok(())
 }
@@ -756,9 +782,10 @@ fn view(args: ViewArgs, gpu: GpuOptions) -> anyhow::Result<()> {
         bail!("--exit-after must be at least 1");
     }
     // Refuse an unreadable file before the window opens.
-    crate::splat::ply::read(&args.file)?;
+    files::read(&args.file, args.up)?;
     app::run(AppOptions {
         splats: Some(args.file),
+        splat_up: args.up,
         exit_after: args.exit_after,
         screenshot: args.screenshot,
         record_fps: crate::app::recorder::DEFAULT_FPS,
@@ -859,6 +886,7 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
     app::run(AppOptions {
         bundle,
         splats: None,
+        splat_up: Up::Y,
         character,
         keys,
         exit_after: cli.exit_after,

@@ -551,6 +551,70 @@ fn view_refuses_an_empty_ply_in_one_line() {
     assert_one_line_error(&out, &["empty.ply", "0 vertices"]);
 }
 
+/// A compressed PLY (SuperSplat's layout) header with `chunks` chunks of the 12 bound
+/// floats and `vertices` packed vertices, with a zero body of the size it declares.
+fn compressed_ply(chunks: usize, vertices: usize) -> Vec<u8> {
+    let mut header = "ply\nformat binary_little_endian 1.0\n".to_string();
+    if chunks > 0 {
+        header += &format!("element chunk {chunks}\n");
+        for axis in ["x", "y", "z", "scale_x", "scale_y", "scale_z"] {
+            header += &format!("property float min_{axis}\n");
+        }
+        for axis in ["x", "y", "z", "scale_x", "scale_y", "scale_z"] {
+            header += &format!("property float max_{axis}\n");
+        }
+    }
+    header += &format!("element vertex {vertices}\n");
+    for name in ["position", "rotation", "scale", "color"] {
+        header += &format!("property uint packed_{name}\n");
+    }
+    header += "end_header\n";
+    let mut bytes = header.into_bytes();
+    bytes.resize(bytes.len() + 48 * chunks + 16 * vertices, 0);
+    bytes
+}
+
+#[test]
+fn view_refuses_malformed_compressed_plys_and_truncated_splat_files_in_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let view = |name: &str, bytes: &[u8]| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, bytes).unwrap();
+        unica(&["view", path.to_str().unwrap(), "--exit-after", "1"])
+    };
+    // The file itself is well formed: 300 zero splats in 2 chunks decode.
+    let good = compressed_ply(2, 300);
+    assert_eq!(decode(&good).unwrap().len(), 300);
+    assert_one_line_error(
+        &view("few_chunks.ply", &compressed_ply(1, 300)),
+        &[
+            "few_chunks.ply",
+            "300 vertices need 2 chunks of 256, the 'chunk' element has 1",
+        ],
+    );
+    assert_one_line_error(
+        &view("no_chunk.ply", &compressed_ply(0, 10)),
+        &["no_chunk.ply", "needs a 'chunk' element"],
+    );
+    assert_one_line_error(
+        &view("cut.ply", &good[..good.len() - 3]),
+        &["cut.ply", "truncated", "'vertex'"],
+    );
+    // .splat: 32 bytes per splat; 2.5 splats, and none.
+    assert_one_line_error(
+        &view("cut.splat", &[0u8; 80]),
+        &["cut.splat", "truncated: 80 bytes"],
+    );
+    assert_one_line_error(&view("empty.splat", &[]), &["empty.splat", "empty"]);
+    // An up axis that is neither y nor z.
+    let out = unica(&["view", "any.ply", "--up", "x"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("'x' is not an up axis"),
+        "{err}"
+    );
+}
+
 // ---------- write errors ----------
 
 #[test]

@@ -57,6 +57,23 @@ fn help_explains_the_commands_and_the_gpu_choice() {
 }
 
 #[test]
+fn view_and_export_help_explain_the_formats_and_the_up_axis() {
+    let out = unica(&["view", "--help"], &[]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    for needle in ["--up", "compressed", ".splat", "+Z becomes +Y"] {
+        assert!(text.contains(needle), "view --help lacks {needle}:\n{text}");
+    }
+    let out = unica(&["export", "--help"], &[]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    for needle in ["--up", "splat", "antimatter15", "32 bytes"] {
+        assert!(
+            text.contains(needle),
+            "export --help lacks {needle}:\n{text}"
+        );
+    }
+}
+
+#[test]
 fn eval_names_a_missing_dataset_or_character() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("report");
@@ -233,6 +250,67 @@ fn export_writes_the_neural_avatars_splats_and_view_refuses_bad_files() {
         (1.5..2.5).contains(&height),
         "a person-sized avatar: {height} m"
     );
+    // The same frame as an antimatter15 .splat, Z-up: read back Z-up it is the PLY's
+    // splats (largest size × opacity first). Positions and scales are f32 (turned twice:
+    // 1e-5); colour (clamped to 0..1) and opacity 8-bit truncated (within 1/255);
+    // rotations 8-bit per component (|q·q'| > 1 − 2e-4).
+    let splat_out = dir.path().join("witch.splat");
+    let run = unica(
+        &[
+            "export",
+            "splat",
+            "--bundle",
+            bundle,
+            "--keys",
+            "1W",
+            "--steps",
+            "1",
+            "--splat-level",
+            "128",
+            "--up",
+            "z",
+            "--out",
+            splat_out.to_str().unwrap(),
+        ],
+        &[],
+    );
+    assert!(run.status.success(), "{}", stderr(&run));
+    use unica::splat::files::{Up, read};
+    let z_up = read(&splat_out, Up::Y).unwrap();
+    let (lo_z, hi_z) = z_up.iter().fold(
+        (glam::Vec3::INFINITY, glam::Vec3::NEG_INFINITY),
+        |(lo, hi), s| (lo.min(s.position), hi.max(s.position)),
+    );
+    assert!(
+        ((hi_z.z - lo_z.z) - height).abs() < 1e-3,
+        "the file stands along Z: {lo_z} {hi_z}"
+    );
+    let back = read(&splat_out, Up::Z).unwrap();
+    assert_eq!(back.len(), splats.len());
+    let weight = |s: &unica::splat::ply::Splat| s.scale.x * s.scale.y * s.scale.z * s.opacity;
+    let mut unmatched = 0;
+    let mut previous = f32::INFINITY;
+    for b in &back {
+        let close = |a: &&unica::splat::ply::Splat| {
+            a.position.distance(b.position) < 1e-5
+                && (a.scale - b.scale).abs().max_element() < 1e-5
+                && (a.color().clamp(glam::Vec3::ZERO, glam::Vec3::ONE) - b.color())
+                    .abs()
+                    .max_element()
+                    < 1.0 / 255.0 + 1e-6
+                && (a.opacity - b.opacity).abs() < 1.0 / 255.0 + 1e-6
+                && a.rotation.dot(b.rotation).abs() > 1.0 - 2e-4
+        };
+        match splats.iter().find(close) {
+            Some(a) => {
+                // Largest first (1 %: a near-twin at the same point may be matched).
+                assert!(weight(a) <= previous * 1.01, "sorted largest first");
+                previous = weight(a);
+            }
+            None => unmatched += 1,
+        }
+    }
+    assert_eq!(unmatched, 0, "every .splat splat is one of the PLY's");
     // A malformed file is refused before any window opens, naming the file.
     let bad = dir.path().join("bad.ply");
     std::fs::write(

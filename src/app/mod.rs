@@ -26,8 +26,10 @@ use viewport::Viewport;
 pub struct AppOptions {
     /// Neural avatar bundle to play; `None` shows the character's teacher.
     pub bundle: Option<PathBuf>,
-    /// A 3DGS PLY file to show instead of an avatar (`unica view`).
+    /// A splat file to show instead of an avatar (`unica view`).
     pub splats: Option<PathBuf>,
+    /// The up axis of `splats`.
+    pub splat_up: crate::splat::files::Up,
     /// Character file: the teacher (beside the neural avatar when there is a bundle);
     /// `None` without a bundle shows the placeholder.
     pub character: Option<PathBuf>,
@@ -148,7 +150,7 @@ impl UnicaApp {
         let mut viewport = Viewport::new(&gpu);
         let character = options.character.as_deref();
         let shown = match (&options.splats, &options.bundle) {
-            (Some(file), _) => Shown::splat_file(&gpu, &viewport.renderer, file),
+            (Some(file), _) => Shown::splat_file(&gpu, &viewport.renderer, file, options.splat_up),
             (None, Some(dir)) => Shown::neural(
                 &gpu,
                 &viewport.renderer,

@@ -1,6 +1,8 @@
 //! What the viewport shows: the neural avatar of a bundle (with the teacher beside it
 //! when its character file loads), the teacher alone, a static mesh when the character
-//! cannot be animated, the splats of a PLY file, or a placeholder, with the reason.
+//! cannot be animated, the splats of a file (PLY, compressed PLY, .splat), or a
+//! placeholder, with the reason. A splat file shows no placeholder (it needs no
+//! character).
 
 use std::path::Path;
 
@@ -117,21 +119,12 @@ pub struct Shown {
 impl Shown {
     /// The teacher of a character file (or a static mesh, or a placeholder).
     pub fn load(gpu: &GpuContext, renderer: &SceneRenderer, path: Option<&Path>) -> Self {
-        let (name, teacher, mesh, problem) = match path.map(load_character) {
-            None => placeholder("no character file given (--character)".into()),
-            Some(Err(e)) => placeholder(e.to_string()),
-            Some(Ok(character)) => {
-                let name = character.name.clone();
-                let rest = character.rest_mesh();
-                match Description::find(&character, None).and_then(|d| Teacher::new(character, d)) {
-                    Ok(teacher) => {
-                        let mesh = teacher.mesh();
-                        (name, Some(teacher), mesh, None)
-                    }
-                    Err(e) => (name, None, rest, Some(format!("Not animated: {e}"))),
-                }
-            }
-        };
+        Self::from_parts(gpu, renderer, character_parts(path))
+    }
+
+    /// What `parts` says, its problem logged.
+    fn from_parts(gpu: &GpuContext, renderer: &SceneRenderer, parts: Parts) -> Self {
+        let (name, teacher, mesh, problem) = parts;
         if let Some(problem) = &problem {
             log::warn!("{problem}");
         }
@@ -149,10 +142,16 @@ impl Shown {
         }
     }
 
-    /// The splats of a 3DGS PLY file (a placeholder with the reason if it cannot be read).
-    pub fn splat_file(gpu: &GpuContext, renderer: &SceneRenderer, path: &Path) -> Self {
+    /// The splats of a splat file whose up axis is `up` (a placeholder with the reason if
+    /// it cannot be read).
+    pub fn splat_file(
+        gpu: &GpuContext,
+        renderer: &SceneRenderer,
+        path: &Path,
+        up: crate::splat::files::Up,
+    ) -> Self {
         let name = path.display().to_string();
-        let loaded = crate::splat::ply::read(path)
+        let loaded = crate::splat::files::read(path, up)
             .map_err(|e| e.to_string())
             .and_then(|splats| {
                 let first = splats.first().ok_or(format!("{name}: no splats"))?.position;
@@ -165,17 +164,12 @@ impl Shown {
             });
         match loaded {
             Ok(file_splats) => {
-                let mut shown = Self::load(gpu, renderer, None);
-                shown.name = format!("{name} ({} splats)", file_splats.1);
-                shown.problem = None;
+                let parts = nothing(format!("{name} ({} splats)", file_splats.1));
+                let mut shown = Self::from_parts(gpu, renderer, parts);
                 shown.file_splats = Some(file_splats);
                 shown
             }
-            Err(problem) => {
-                let mut shown = Self::load(gpu, renderer, None);
-                shown.problem = Some(format!("Showing a placeholder: {problem}"));
-                shown
-            }
+            Err(problem) => Self::from_parts(gpu, renderer, placeholder(problem)),
         }
     }
 
@@ -342,7 +336,33 @@ impl Shown {
     }
 }
 
+/// What the viewport shows of a character: name, teacher, mesh and the problem, if any.
 type Parts = (String, Option<Teacher>, Mesh, Option<String>);
+
+/// The teacher of a character file, its static mesh when it cannot be animated, or a
+/// placeholder with the reason.
+fn character_parts(path: Option<&Path>) -> Parts {
+    match path.map(load_character) {
+        None => placeholder("no character file given (--character)".into()),
+        Some(Err(e)) => placeholder(e.to_string()),
+        Some(Ok(character)) => {
+            let name = character.name.clone();
+            let rest = character.rest_mesh();
+            match Description::find(&character, None).and_then(|d| Teacher::new(character, d)) {
+                Ok(teacher) => {
+                    let mesh = teacher.mesh();
+                    (name, Some(teacher), mesh, None)
+                }
+                Err(e) => (name, None, rest, Some(format!("Not animated: {e}"))),
+            }
+        }
+    }
+}
+
+/// No character and no problem: what a splat file shows beside its splats.
+fn nothing(name: String) -> Parts {
+    (name, None, Mesh::default(), None)
+}
 
 fn placeholder(problem: String) -> Parts {
     let mesh = Mesh::cuboid(
@@ -356,4 +376,59 @@ fn placeholder(problem: String) -> Parts {
         mesh,
         Some(format!("Showing a placeholder: {problem}")),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_a_missing_or_broken_character_gets_a_placeholder() {
+        let (name, teacher, mesh, problem) = nothing("scene.splat (3 splats)".into());
+        assert_eq!(name, "scene.splat (3 splats)");
+        assert!(teacher.is_none() && mesh.positions.is_empty() && problem.is_none());
+        let (name, _, mesh, problem) = character_parts(None);
+        assert_eq!(name, "placeholder");
+        assert!(!mesh.positions.is_empty());
+        assert!(problem.unwrap().contains("no character file given"));
+        let (_, _, _, problem) = character_parts(Some(Path::new("/no/such/hero.glb")));
+        assert!(problem.unwrap().contains("hero.glb"));
+    }
+
+    /// `unica view` builds this: the file's splats, no placeholder mesh, no message.
+    #[test]
+    fn a_splat_file_shows_its_splats_and_no_placeholder() {
+        let gpu = GpuContext::headless(&crate::gpu::GpuOptions::from_env()).unwrap();
+        let renderer = SceneRenderer::new(&gpu);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("one.splat");
+        let splat = crate::splat::ply::Splat {
+            position: Vec3::new(0.0, 0.0, 1.0),
+            f_dc: Vec3::ZERO,
+            opacity: 0.5,
+            scale: Vec3::splat(0.1),
+            rotation: glam::Quat::IDENTITY,
+        };
+        crate::splat::dotsplat::write(&path, &[splat]).unwrap();
+        let up = crate::splat::files::Up::Z;
+        let shown = Shown::splat_file(&gpu, &renderer, &path, up);
+        assert!(shown.problem.is_none(), "{:?}", shown.problem);
+        assert!(shown.teacher.is_none() && shown.mesh.positions.is_empty());
+        assert!(shown.gpu_meshes().is_empty(), "no mesh is drawn");
+        assert!(
+            shown.name.ends_with("one.splat (1 splats)"),
+            "{}",
+            shown.name
+        );
+        assert_eq!(shown.splats().map(|(_, n, _)| n), Some(1));
+        // Read Z-up: the splat at +Z stands at +Y.
+        let (lo, hi) = shown.bounds();
+        assert!(lo.distance(Vec3::Y) < 1e-6 && hi.distance(Vec3::Y) < 1e-6);
+        // An unreadable file: the placeholder with the file's problem.
+        let bad = dir.path().join("bad.splat");
+        std::fs::write(&bad, [0u8; 5]).unwrap();
+        let shown = Shown::splat_file(&gpu, &renderer, &bad, up);
+        let problem = shown.problem.unwrap();
+        assert!(problem.starts_with("Showing a placeholder: ") && problem.contains("bad.splat"));
+    }
 }

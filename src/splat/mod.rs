@@ -1,12 +1,16 @@
 //! Appearance (DESIGN §7): Gaussian splats from position maps — base splats in each
 //! pixel's local surface frame, the foreground-aware map upscale, the projection with a
 //! CPU reference renderer, the WGSL tile rasterizer, compositing, world alignment and the
-//! 3DGS PLY format. The refiner is in `nn::refiner`; `engine::appearance` puts it all
+//! splat file formats (3DGS PLY, SuperSplat's compressed PLY, antimatter15 .splat, Z-up
+//! files). The refiner is in `nn::refiner`; `engine::appearance` puts it all
 //! together per frame.
 
 pub mod align;
 pub mod base;
 pub mod composite;
+pub mod compressed_ply;
+pub mod dotsplat;
+pub mod files;
 pub mod frame;
 pub mod kernels;
 pub mod ply;

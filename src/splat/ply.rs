@@ -2,6 +2,8 @@
 //! vertices with x y z, nx ny nz, f_dc_0..2 (SH degree 0), opacity (logit), scale_0..2
 //! (log), rot_0..3 (w x y z). Reading also takes ASCII and big-endian files, float or
 //! double properties in any order, and ignores extra ones (higher SH degrees: f_rest_*).
+//! A file in SuperSplat's compressed layout (`packed_position` vertices) is handed to
+//! [`super::compressed_ply`].
 
 use std::path::{Path, PathBuf};
 
@@ -106,14 +108,14 @@ pub fn read(path: &Path) -> Result<Vec<Splat>, PlyError> {
 }
 
 #[derive(Clone, Copy, PartialEq)]
-enum Format {
+pub(super) enum Format {
     Ascii,
     Little,
     Big,
 }
 
 /// A property's byte size by PLY type name.
-fn type_size(name: &str) -> Option<usize> {
+pub(super) fn type_size(name: &str) -> Option<usize> {
     Some(match name {
         "char" | "uchar" | "int8" | "uint8" => 1,
         "short" | "ushort" | "int16" | "uint16" => 2,
@@ -124,16 +126,16 @@ fn type_size(name: &str) -> Option<usize> {
 }
 
 /// One property of a PLY element: a scalar, or a list (its count's type and its items').
-enum Property {
+pub(super) enum Property {
     Scalar(String, String),
     List(String, String),
 }
 
 /// An element of the header: name, count and properties, in file order.
-struct Element {
-    name: String,
-    count: usize,
-    properties: Vec<Property>,
+pub(super) struct Element {
+    pub(super) name: String,
+    pub(super) count: usize,
+    pub(super) properties: Vec<Property>,
 }
 
 /// Where the header ends and the body starts (after `end_header` and its LF or CRLF).
@@ -218,6 +220,12 @@ pub fn decode(bytes: &[u8]) -> Result<Vec<Splat>, String> {
     if count == 0 {
         return Err("the PLY file has 0 vertices".into());
     }
+    let body = &bytes[body_start..];
+    let packed = |p: &Property| matches!(p, Property::Scalar(_, n) if n == "packed_position");
+    if vertex.properties.iter().any(packed) {
+        // SuperSplat's compressed layout: quantised vertices in 256-splat chunks.
+        return super::compressed_ply::decode(&elements, body, format);
+    }
     let properties: Vec<(String, String)> = vertex
         .properties
         .iter()
@@ -240,7 +248,6 @@ pub fn decode(bytes: &[u8]) -> Result<Vec<Splat>, String> {
         .filter(|n| !["nx", "ny", "nz"].contains(n))
         .collect();
     let wanted: Vec<usize> = names.iter().map(|n| column(n)).collect::<Result<_, _>>()?;
-    let body = &bytes[body_start..];
     let rows = match format {
         Format::Ascii => {
             let text = std::str::from_utf8(body).map_err(|_| "the ASCII body is not text")?;
@@ -315,7 +322,7 @@ fn skip_ascii<'a>(
 }
 
 /// Skips a binary element from `offset`; returns the offset after it.
-fn skip_binary(
+pub(super) fn skip_binary(
     body: &[u8],
     mut offset: usize,
     format: Format,
@@ -366,7 +373,7 @@ fn skip_binary(
 }
 
 /// One value of PLY type `ty` in `format`, as f32.
-fn number(ty: &str, raw: &[u8], format: Format) -> f32 {
+pub(super) fn number(ty: &str, raw: &[u8], format: Format) -> f32 {
     let mut raw = raw.to_vec();
     if format == Format::Big {
         raw.reverse();
