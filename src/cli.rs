@@ -40,6 +40,12 @@ pub struct Cli {
     #[arg(long, value_name = "FILE")]
     character: Option<PathBuf>,
 
+    /// Animation libraries (.gltf/.glb with a skeleton and clips, a mesh or not) whose
+    /// clips join the --character's, matched to its joints by name; for characters whose
+    /// animations ship in separate files
+    #[arg(long, value_name = "FILE", num_args = 1..)]
+    clips: Vec<PathBuf>,
+
     /// Neural avatar bundle to play [default: assets/witch/bundle unless --character]
     #[arg(long, value_name = "DIR")]
     bundle: Option<PathBuf>,
@@ -249,9 +255,17 @@ struct BakeArgs {
     #[arg(long)]
     no_renders: bool,
     /// Avatar description (JSON) [default: <character>.avatar.json beside it, a shipped
-    /// one for its name, or inferred from bone and clip names]
+    /// one for its name, or inferred: the waist and feet from bone names, else from the
+    /// skeleton (the hips where the leg chains meet, the feet their lowest leaf joints);
+    /// idle/walk/run from clip names, else from how fast the feet slide under the hips
+    /// (still: idle, slower: walk, faster: run). What was inferred is printed in one line]
     #[arg(long, value_name = "FILE")]
     avatar: Option<PathBuf>,
+    /// Animation libraries (.gltf/.glb with a skeleton and clips, a mesh or not) whose
+    /// clips join the character's, matched to its joints by name; for characters whose
+    /// animations ship in separate files
+    #[arg(long, value_name = "FILE", num_args = 1..)]
+    clips: Vec<PathBuf>,
 }
 
 /// How the neural avatar's splats are made.
@@ -320,6 +334,11 @@ struct RenderArgs {
     /// Avatar description for --teacher (see `unica bake --help`)
     #[arg(long, value_name = "FILE")]
     avatar: Option<PathBuf>,
+    /// Animation libraries (.gltf/.glb with a skeleton and clips, a mesh or not) whose
+    /// clips join the --teacher's, matched to its joints by name; for characters whose
+    /// animations ship in separate files
+    #[arg(long, value_name = "FILE", num_args = 1..)]
+    clips: Vec<PathBuf>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -372,6 +391,10 @@ struct EvalArgs {
     /// The teacher's character file [default: the one the dataset was baked from]
     #[arg(long, value_name = "FILE")]
     character: Option<PathBuf>,
+    /// Animation libraries for the teacher's character [default: those the dataset was
+    /// baked with]
+    #[arg(long, value_name = "FILE", num_args = 1..)]
+    clips: Vec<PathBuf>,
     /// A short script and fewer frames (a few minutes; CI)
     #[arg(long)]
     quick: bool,
@@ -583,6 +606,7 @@ fn bake(args: BakeArgs) -> anyhow::Result<()> {
     );
     let options = crate::dataset::bake::BakeOptions {
         description: args.avatar,
+        clips: args.clips,
         quick: args.quick,
         preview: args.preview,
         no_renders: args.no_renders,
@@ -614,6 +638,7 @@ fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     let avatar = match (args.teacher, args.bundle) {
         (Some(character), None) => Avatar::Teacher {
             character,
+            clips: args.clips,
             description: args.avatar,
         },
         (None, Some(dir)) => {
@@ -782,7 +807,12 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
     } else {
         EVAL_KEYS
     })?;
-    let roots = crate::headless::teacher_roots(&character, &keys)?;
+    let clips: Vec<PathBuf> = if args.clips.is_empty() {
+        manifest.clip_files.iter().map(PathBuf::from).collect()
+    } else {
+        args.clips
+    };
+    let roots = crate::headless::teacher_roots(&character, &clips, &keys)?;
     let teacher = args.out.join("teacher.json");
     let frames: Vec<_> = roots
         .iter()
@@ -848,6 +878,7 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
         bundle,
         splats: None,
         character,
+        clips: cli.clips,
         keys,
         exit_after: cli.exit_after,
         steps: cli.steps.map(|s| s as usize),

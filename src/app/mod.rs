@@ -31,6 +31,8 @@ pub struct AppOptions {
     /// Character file: the teacher (beside the neural avatar when there is a bundle);
     /// `None` without a bundle shows the placeholder.
     pub character: Option<PathBuf>,
+    /// Animation libraries whose clips join the character's (`--clips`).
+    pub clips: Vec<PathBuf>,
     /// Drive the action from this script instead of the keyboard.
     pub keys: Option<KeyScript>,
     /// Render this many frames, then exit.
@@ -150,9 +152,10 @@ impl UnicaApp {
         let shown = match (&options.splats, &options.bundle) {
             (Some(file), _) => Shown::splat_file(&gpu, &viewport.renderer, file),
             (None, Some(dir)) => {
-                Shown::neural(&gpu, &viewport.renderer, dir, character, options.steps)
+                let clips = &options.clips;
+                Shown::neural(&gpu, &viewport.renderer, dir, character, clips, options.steps)
             }
-            (None, None) => Shown::load(&gpu, &viewport.renderer, character),
+            (None, None) => Shown::load(&gpu, &viewport.renderer, character, &options.clips),
         };
         viewport.camera = behind(&shown);
         log::info!("adapter: {}; {:?}", gpu.adapter_label(), gpu.caps);
@@ -195,9 +198,9 @@ impl UnicaApp {
     fn open(&mut self, path: PathBuf) {
         let renderer = &self.viewport.renderer;
         self.shown = if path.is_dir() {
-            Shown::neural(&self.gpu, renderer, &path, None, self.options.steps)
+            Shown::neural(&self.gpu, renderer, &path, None, &[], self.options.steps)
         } else {
-            Shown::load(&self.gpu, renderer, Some(&path))
+            Shown::load(&self.gpu, renderer, Some(&path), &[])
         };
         self.message = self.shown.problem.clone();
         self.viewport.camera = behind(&self.shown);

@@ -2,14 +2,14 @@
 //! when its character file loads), the teacher alone, a static mesh when the character
 //! cannot be animated, the splats of a PLY file, or a placeholder, with the reason.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
 use super::neural::{NeuralAvatar, Settings, Update};
 use crate::action::Action;
 use crate::avatar::description::Description;
-use crate::avatar::load_character;
+use crate::avatar::load_character_with;
 use crate::avatar::teacher::Teacher;
 use crate::engine::surface::MapSurface;
 use crate::gpu::GpuContext;
@@ -114,8 +114,13 @@ pub struct Shown {
 
 impl Shown {
     /// The teacher of a character file (or a static mesh, or a placeholder).
-    pub fn load(gpu: &GpuContext, renderer: &SceneRenderer, path: Option<&Path>) -> Self {
-        let (name, teacher, mesh, problem) = match path.map(load_character) {
+    pub fn load(
+        gpu: &GpuContext,
+        renderer: &SceneRenderer,
+        path: Option<&Path>,
+        clips: &[PathBuf],
+    ) -> Self {
+        let (name, teacher, mesh, problem) = match path.map(|p| load_character_with(p, clips)) {
             None => placeholder("no character file given (--character)".into()),
             Some(Err(e)) => placeholder(e.to_string()),
             Some(Ok(character)) => {
@@ -162,14 +167,14 @@ impl Shown {
             });
         match loaded {
             Ok(file_splats) => {
-                let mut shown = Self::load(gpu, renderer, None);
+                let mut shown = Self::load(gpu, renderer, None, &[]);
                 shown.name = format!("{name} ({} splats)", file_splats.1);
                 shown.problem = None;
                 shown.file_splats = Some(file_splats);
                 shown
             }
             Err(problem) => {
-                let mut shown = Self::load(gpu, renderer, None);
+                let mut shown = Self::load(gpu, renderer, None, &[]);
                 shown.problem = Some(format!("Showing a placeholder: {problem}"));
                 shown
             }
@@ -183,9 +188,10 @@ impl Shown {
         renderer: &SceneRenderer,
         dir: &Path,
         character: Option<&Path>,
+        clips: &[PathBuf],
         steps: Option<usize>,
     ) -> Self {
-        let mut shown = Self::load(gpu, renderer, character);
+        let mut shown = Self::load(gpu, renderer, character, clips);
         shown.show_teacher = shown.teacher.is_some();
         shown.name = format!("{} (neural)", dir.display());
         shown.problem = Some("Loading the neural avatar…".into());

@@ -290,5 +290,6 @@ pub fn description_for(skeleton: &Skeleton) -> Description {
             collider("Head", None),
         ],
         spring_chains,
+        inferred: None,
     }
 }
