@@ -520,7 +520,7 @@ fn bone_numbers_and_unnamed_clips_are_read_from_the_skeleton_and_the_motion() {
     // Bone.001 is where the legs meet, Bone.007/Bone.010 their lowest leaves; clip0 runs,
     // clip1 stands, clip2 walks.
     assert!(
-        line.contains("waist=Bone.001 feet=Bone.007,Bone.010 idle=clip1 walk=clip2 (")
+        line.contains("waist=Bone.001 feet=Bone.007,Bone.010 idle=clip1 (0.00 m/s) walk=clip2 (")
             && line.contains("run=clip0 (")
             && line.contains("bones from the skeleton, clips from motion"),
         "{line}"

@@ -140,10 +140,21 @@ fn read_clip_library(path: &Path, rig: &Rig) -> Result<Vec<Clip>, LoadError> {
     Ok(clips)
 }
 
-/// The first `most` node names of `rig`, comma-separated, with "…" when there are more.
+/// The first `most` node names of `rig` — its skin joints in skin order, then the other
+/// nodes — comma-separated, with "…" when there are more.
 pub fn node_names(rig: &Rig, most: usize) -> String {
-    let mut names: Vec<&str> = rig.nodes.iter().take(most).map(|n| n.name.as_str()).collect();
-    if rig.nodes.len() > most {
+    let mut order: Vec<usize> = Vec::new();
+    for n in rig.bones.iter().map(|b| b.node).chain(0..rig.nodes.len()) {
+        if !order.contains(&n) {
+            order.push(n);
+        }
+    }
+    let mut names: Vec<&str> = order
+        .iter()
+        .take(most)
+        .map(|&n| rig.nodes[n].name.as_str())
+        .collect();
+    if order.len() > most {
         names.push("…");
     }
     names.join(", ")
