@@ -161,7 +161,8 @@ pub fn render(
         let (lo, hi) = step.mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ONE));
         let distance = *distance.get_or_insert_with(|| {
             // The whole first frame's bounding sphere in view, with room for the motion.
-            let sphere = 1.15 * (hi - lo).length() * 0.5 / (crate::render::camera::FOV_Y * 0.5).sin();
+            let sphere =
+                1.15 * (hi - lo).length() * 0.5 / (crate::render::camera::FOV_Y * 0.5).sin();
             ((hi - lo).max_element() * 1.8).max(sphere)
         });
         // The teacher is framed head to feet (the root's ground position, the mesh's

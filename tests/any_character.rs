@@ -43,8 +43,8 @@ struct Body {
 }
 
 const CONVENTIONAL: [&str; 16] = [
-    "root", "pelvis", "spine", "neck", "head", "thigh.L", "shin.L", "foot.L", "thigh.R",
-    "shin.R", "foot.R", "arm.L", "hand.L", "arm.R", "hand.R", "tail",
+    "root", "pelvis", "spine", "neck", "head", "thigh.L", "shin.L", "foot.L", "thigh.R", "shin.R",
+    "foot.R", "arm.L", "hand.L", "arm.R", "hand.R", "tail",
 ];
 
 fn bone_names() -> [&'static str; 16] {
@@ -108,18 +108,34 @@ impl Body {
         let limb = |a: usize, b: usize, r: f32| (a, mid(a, b), Vec3::new(r, half_len(a, b), r));
         let h = self.head * 0.5;
         vec![
-            (1, p[1] + Vec3::new(0.0, 0.02, 0.0), Vec3::new(0.17, 0.1, 0.11)),
+            (
+                1,
+                p[1] + Vec3::new(0.0, 0.02, 0.0),
+                Vec3::new(0.17, 0.1, 0.11),
+            ),
             (2, mid(2, 3), Vec3::new(0.15, half_len(2, 3) + 0.02, 0.09)),
             limb(5, 6, 0.06),
             limb(6, 7, 0.05),
-            (7, p[7] + Vec3::new(0.0, 0.01, 0.03), Vec3::new(0.05, 0.03, 0.09)),
+            (
+                7,
+                p[7] + Vec3::new(0.0, 0.01, 0.03),
+                Vec3::new(0.05, 0.03, 0.09),
+            ),
             limb(8, 9, 0.06),
             limb(9, 10, 0.05),
-            (10, p[10] + Vec3::new(0.0, 0.01, 0.03), Vec3::new(0.05, 0.03, 0.09)),
+            (
+                10,
+                p[10] + Vec3::new(0.0, 0.01, 0.03),
+                Vec3::new(0.05, 0.03, 0.09),
+            ),
             limb(11, 12, 0.04),
             limb(13, 14, 0.04),
             (4, p[4] + Vec3::new(0.0, h, 0.0), Vec3::splat(h)),
-            (15, p[15] + Vec3::new(0.0, -0.05, -0.05), Vec3::new(0.03, 0.03, 0.06)),
+            (
+                15,
+                p[15] + Vec3::new(0.0, -0.05, -0.05),
+                Vec3::new(0.03, 0.03, 0.06),
+            ),
         ]
     }
 }
@@ -144,7 +160,10 @@ fn clip(name: &str, kind: &str) -> ClipOut {
                 (-amplitude + 4.0 * amplitude * s, 0.0)
             } else {
                 let u = (s - 0.5) * 2.0;
-                (amplitude - 2.0 * amplitude * u, 1.2 * (std::f32::consts::PI * u).sin())
+                (
+                    amplitude - 2.0 * amplitude * u,
+                    1.2 * (std::f32::consts::PI * u).sin(),
+                )
             }
         };
         if amplitude > 0.0 {
@@ -311,7 +330,11 @@ fn renders_whole(character: &Path, clips: &[&Path], dir: &Path) {
         let path = entry.unwrap().path();
         if path.extension().is_some_and(|e| e == "png") {
             let (top, bottom, count) = red_rows(&path);
-            assert!(count > 40, "{}: the character is not in view", path.display());
+            assert!(
+                count > 40,
+                "{}: the character is not in view",
+                path.display()
+            );
             assert!(
                 top > 0 && bottom < 63,
                 "{}: the character touches the border (rows {top}..{bottom})",
@@ -350,7 +373,10 @@ fn bakes_and_validates(
     let report = unica(&["validate", data.to_str().unwrap()]);
     ok(&report);
     let report: Value = serde_json::from_slice(&report.stdout).unwrap();
-    let (min, max) = (report["min"].as_f64().unwrap(), report["max"].as_f64().unwrap());
+    let (min, max) = (
+        report["min"].as_f64().unwrap(),
+        report["max"].as_f64().unwrap(),
+    );
     assert!(min >= 0.04 && max <= 0.96, "margin kept: {report}");
     (stderr, report)
 }
@@ -392,7 +418,10 @@ fn clips_from_separate_animation_files() {
         json.as_object_mut().unwrap().remove("animations");
     });
     // Two libraries, skeletons only: one with the idle, one with walk and run.
-    let (idle_lib, move_lib) = (dir.path().join("anim_idle.glb"), dir.path().join("anim_move.glb"));
+    let (idle_lib, move_lib) = (
+        dir.path().join("anim_idle.glb"),
+        dir.path().join("anim_move.glb"),
+    );
     write_character(&idle_lib, &body, &[clip("Breathe", "idle")]);
     write_character(
         &move_lib,
@@ -414,7 +443,9 @@ fn clips_from_separate_animation_files() {
     assert!(!out.status.success());
     let err = common::error_line(&out);
     assert!(
-        err.contains("meshonly.glb") && err.contains("no animation clips") && err.contains("--clips"),
+        err.contains("meshonly.glb")
+            && err.contains("no animation clips")
+            && err.contains("--clips"),
         "{err}"
     );
 
@@ -424,7 +455,9 @@ fn clips_from_separate_animation_files() {
     let line = inferred(&stderr);
     // Names say nothing of Breathe/Stroll/Dash: the roles come from the feet.
     assert!(
-        line.contains("idle=Breathe") && line.contains("walk=Stroll (") && line.contains("run=Dash (")
+        line.contains("idle=Breathe")
+            && line.contains("walk=Stroll (")
+            && line.contains("run=Dash (")
             && line.contains("clips from motion"),
         "{line}"
     );
@@ -455,7 +488,12 @@ fn a_big_head_over_a_low_waist_stays_in_the_unit_cube_and_in_frame() {
     assert!(report["renders"].as_u64().unwrap() > 50, "{report}");
     // The bake's own renders (transparent background) frame the whole character too.
     let data = dir.path().join("data/renders");
-    for file in ["rest/cam_00.png", "rest/cam_25.png", "clip_001/f0010_front.png", "clip_003/f0020_left.png"] {
+    for file in [
+        "rest/cam_00.png",
+        "rest/cam_25.png",
+        "clip_001/f0010_front.png",
+        "clip_003/f0020_left.png",
+    ] {
         let image = image::open(data.join(file)).unwrap().to_rgba8();
         let rows: Vec<u32> = image
             .enumerate_pixels()
@@ -463,7 +501,10 @@ fn a_big_head_over_a_low_waist_stays_in_the_unit_cube_and_in_frame() {
             .map(|(_, y, _)| y)
             .collect();
         let (top, bottom) = (*rows.iter().min().unwrap(), *rows.iter().max().unwrap());
-        assert!(top > 0 && bottom + 1 < image.height(), "{file}: rows {top}..{bottom}");
+        assert!(
+            top > 0 && bottom + 1 < image.height(),
+            "{file}: rows {top}..{bottom}"
+        );
     }
     // The head passes 1 at the extent's scale (0.7 / 1.55 m from a waist 0.35 m up):
     // the bake lowered the scale.
@@ -479,11 +520,7 @@ fn bone_numbers_and_unnamed_clips_are_read_from_the_skeleton_and_the_motion() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("numbered.glb");
     let body = normal_body(bone_names());
-    let clips = [
-        clip("a", "run"),
-        clip("b", "idle"),
-        clip("c", "walk"),
-    ];
+    let clips = [clip("a", "run"), clip("b", "idle"), clip("c", "walk")];
     write_character(&path, &body, &clips);
     edit_glb(&path, |json| {
         for animation in json["animations"].as_array_mut().unwrap() {
@@ -510,7 +547,9 @@ fn bone_numbers_and_unnamed_clips_are_read_from_the_skeleton_and_the_motion() {
     ]);
     let err = common::error_line(&out);
     assert!(
-        err.contains("bone 'Hips'") && err.contains("Bone.000, Bone.001") && err.contains("Bone.015"),
+        err.contains("bone 'Hips'")
+            && err.contains("Bone.000, Bone.001")
+            && err.contains("Bone.015"),
         "{err}"
     );
 
@@ -556,7 +595,10 @@ fn bad_clip_files_are_named() {
     write_character(&other, &normal_body(bone_names()), &[clip("Walk", "walk")]);
     let missing = dir.path().join("missing.glb");
     for (clips, expect) in [
-        (&other, "no animation moves a joint of the character by name"),
+        (
+            &other,
+            "no animation moves a joint of the character by name",
+        ),
         (&missing, "no such file"),
         (&path, "the file has no animations"),
     ] {

@@ -11,7 +11,8 @@ use unica::avatar::load_character;
 
 #[test]
 fn the_witch_loads_in_its_rest_pose() {
-    let character = load_character(&witch()).expect("the shipped Witch (assets/witch/source) loads");
+    let character =
+        load_character(&witch()).expect("the shipped Witch (assets/witch/source) loads");
     assert_eq!(character.name, "Witch");
     let mesh = &character.rest_mesh();
     // SOURCE.md: 4 skinned meshes, 13,884 vertices, about 6.9k triangles.

@@ -153,7 +153,14 @@ impl UnicaApp {
             (Some(file), _) => Shown::splat_file(&gpu, &viewport.renderer, file),
             (None, Some(dir)) => {
                 let clips = &options.clips;
-                Shown::neural(&gpu, &viewport.renderer, dir, character, clips, options.steps)
+                Shown::neural(
+                    &gpu,
+                    &viewport.renderer,
+                    dir,
+                    character,
+                    clips,
+                    options.steps,
+                )
             }
             (None, None) => Shown::load(&gpu, &viewport.renderer, character, &options.clips),
         };

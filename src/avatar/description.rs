@@ -263,7 +263,11 @@ impl Description {
         let world = rig.world(&rig.rest_pose(), glam::Mat4::IDENTITY);
         let positions: Vec<Vec3> = world.iter().map(|m| m.w_axis.truncate()).collect();
         let (waist, feet, skeleton_said) = if !named_waist.is_empty() && !named_feet.is_empty() {
-            (named_waist[0], named_feet.iter().take(2).copied().collect(), false)
+            (
+                named_waist[0],
+                named_feet.iter().take(2).copied().collect(),
+                false,
+            )
         } else {
             let parents: Vec<Option<usize>> = rig.nodes.iter().map(|n| n.parent).collect();
             let mut joints: Vec<usize> = rig.bones.iter().map(|b| b.node).collect();
@@ -306,8 +310,12 @@ impl Description {
                 .iter()
                 .map(|c| stance_speed(character, c, &feet, waist))
                 .collect();
-            let leg = (positions[waist].y - feet.iter().map(|&f| positions[f].y).fold(f32::MAX, f32::min))
-                .max(1e-3);
+            let leg = (positions[waist].y
+                - feet
+                    .iter()
+                    .map(|&f| positions[f].y)
+                    .fold(f32::MAX, f32::min))
+            .max(1e-3);
             let (idle, walk, run) = assign_roles(&measured, STILL * leg).ok_or_else(|| {
                 let list: Vec<String> = unused
                     .iter()
@@ -359,9 +367,16 @@ impl Description {
         let inferred = format!(
             "inferred: waist={} feet={} idle={idle_shown} walk={} run={run_shown} (bones from {}, clips from {})",
             node_name(waist),
-            feet.iter().map(|&f| node_name(f)).collect::<Vec<_>>().join(","),
+            feet.iter()
+                .map(|&f| node_name(f))
+                .collect::<Vec<_>>()
+                .join(","),
             shown(&walk),
-            if skeleton_said { "the skeleton" } else { "names" },
+            if skeleton_said {
+                "the skeleton"
+            } else {
+                "names"
+            },
             if from_motion { "motion" } else { "names" },
         );
         Ok(Self {
@@ -519,7 +534,10 @@ mod tests {
         );
         // No clip stands still: the rest pose is idle; one moving clip walks and runs.
         assert_eq!(assign_roles(&[1.2], still), Some((None, 0, 0)));
-        assert_eq!(assign_roles(&[0.4, 0.9, 0.05], still), Some((Some(2), 0, 1)));
+        assert_eq!(
+            assign_roles(&[0.4, 0.9, 0.05], still),
+            Some((Some(2), 0, 1))
+        );
         // Nothing moves: no walk.
         assert_eq!(assign_roles(&[0.01, 0.0], still), None);
         assert_eq!(assign_roles(&[], still), None);

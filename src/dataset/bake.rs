@@ -163,7 +163,11 @@ pub fn bake(
         version: VERSION,
         avatar: start.character.name.clone(),
         character: character.display().to_string(),
-        clip_files: options.clips.iter().map(|c| c.display().to_string()).collect(),
+        clip_files: options
+            .clips
+            .iter()
+            .map(|c| c.display().to_string())
+            .collect(),
         frame_rate: FRAME_RATE,
         actions: Action::ALL.iter().map(|a| a.to_string()).collect(),
         map_size: MAP_SIZE,
