@@ -512,7 +512,7 @@ fn a_big_head_over_a_low_waist_stays_in_the_unit_cube_and_in_frame() {
         serde_json::from_slice(&std::fs::read(dir.path().join("data/manifest.json")).unwrap())
             .unwrap();
     let extent_scale = 0.7 / (0.35 + 0.3 + 0.05 + 0.9);
-    assert!(manifest["norm_scale"].as_f64().unwrap() < extent_scale as f64 - 1e-3);
+    assert!(manifest["norm_scale"].as_f64().unwrap() < extent_scale - 1e-3);
 }
 
 #[test]
