@@ -162,6 +162,10 @@ struct RigArgs {
     /// The rigged humanoid whose clips are retargeted [default: the default character]
     #[arg(long, value_name = "FILE")]
     clips_from: Option<PathBuf>,
+    /// Animation libraries (.gltf/.glb) whose clips join --clips-from's by joint name
+    /// (its idle/walk/run: clips named Idle/Walk/Run, else as its description says)
+    #[arg(long, value_name = "FILE", num_args = 1..)]
+    clips: Vec<PathBuf>,
     /// Seed of the surface sampling
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -501,6 +505,7 @@ fn rig(args: RigArgs) -> anyhow::Result<()> {
         &args.out,
         &models,
         &clips_from,
+        &args.clips,
         args.seed,
         &|stage| eprintln!("rig: {stage}…"),
     )?;
