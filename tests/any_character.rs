@@ -564,6 +564,15 @@ fn bone_numbers_and_unnamed_clips_are_read_from_the_skeleton_and_the_motion() {
             && line.contains("bones from the skeleton, clips from motion"),
         "{line}"
     );
+    // The planted foot slides back over 4 x amplitude radians of thigh swing per cycle on
+    // a 0.88 m leg: about 0.88 * 4 * 0.35 / 1.0 s = 1.23 m/s walking and
+    // 0.88 * 4 * 0.55 / 0.6 s = 3.23 m/s running (less a little for cos(angle)).
+    let speed = |clip: &str| -> f32 {
+        let rest = &line[line.find(&format!("={clip} (")).unwrap() + clip.len() + 3..];
+        rest[..rest.find(' ').unwrap()].parse().unwrap()
+    };
+    assert!((1.1..1.3).contains(&speed("clip2")), "{line}");
+    assert!((2.9..3.3).contains(&speed("clip0")), "{line}");
 }
 
 #[test]
