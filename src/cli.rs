@@ -41,6 +41,12 @@ pub struct Cli {
     #[arg(long, value_name = "FILE")]
     character: Option<PathBuf>,
 
+    /// Animation libraries (.gltf/.glb with a skeleton and clips, a mesh or not) whose
+    /// clips join the --character's, matched to its joints by name; for characters whose
+    /// animations ship in separate files
+    #[arg(long, value_name = "FILE", num_args = 1..)]
+    clips: Vec<PathBuf>,
+
     /// Neural avatar bundle to play [default: assets/witch/bundle unless --character]
     #[arg(long, value_name = "DIR")]
     bundle: Option<PathBuf>,
@@ -166,6 +172,10 @@ struct RigArgs {
     /// The rigged humanoid whose clips are retargeted [default: the default character]
     #[arg(long, value_name = "FILE")]
     clips_from: Option<PathBuf>,
+    /// Animation libraries (.gltf/.glb) whose clips join --clips-from's by joint name
+    /// (its idle/walk/run: clips named Idle/Walk/Run, else as its description says)
+    #[arg(long, value_name = "FILE", num_args = 1..)]
+    clips: Vec<PathBuf>,
     /// Seed of the surface sampling
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -259,9 +269,17 @@ struct BakeArgs {
     #[arg(long)]
     no_renders: bool,
     /// Avatar description (JSON) [default: <character>.avatar.json beside it, a shipped
-    /// one for its name, or inferred from bone and clip names]
+    /// one for its name, or inferred: the waist and feet from bone names, else from the
+    /// skeleton (the hips where the leg chains meet, the feet their lowest leaf joints);
+    /// idle/walk/run from clip names, else from how fast the feet slide under the hips
+    /// (still: idle, slower: walk, faster: run). What was inferred is printed in one line]
     #[arg(long, value_name = "FILE")]
     avatar: Option<PathBuf>,
+    /// Animation libraries (.gltf/.glb with a skeleton and clips, a mesh or not) whose
+    /// clips join the character's, matched to its joints by name; for characters whose
+    /// animations ship in separate files
+    #[arg(long, value_name = "FILE", num_args = 1..)]
+    clips: Vec<PathBuf>,
 }
 
 /// How the neural avatar's splats are made.
@@ -338,6 +356,11 @@ struct RenderArgs {
     /// Avatar description for --teacher (see `unica bake --help`)
     #[arg(long, value_name = "FILE")]
     avatar: Option<PathBuf>,
+    /// Animation libraries (.gltf/.glb with a skeleton and clips, a mesh or not) whose
+    /// clips join the --teacher's, matched to its joints by name; for characters whose
+    /// animations ship in separate files
+    #[arg(long, value_name = "FILE", num_args = 1..)]
+    clips: Vec<PathBuf>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -401,6 +424,10 @@ struct EvalArgs {
     /// The teacher's character file [default: the one the dataset was baked from]
     #[arg(long, value_name = "FILE")]
     character: Option<PathBuf>,
+    /// Animation libraries for the teacher's character [default: those the dataset was
+    /// baked with]
+    #[arg(long, value_name = "FILE", num_args = 1..)]
+    clips: Vec<PathBuf>,
     /// A short script and fewer frames (a few minutes; CI)
     #[arg(long)]
     quick: bool,
@@ -512,6 +539,7 @@ fn rig(args: RigArgs) -> anyhow::Result<()> {
         &args.out,
         &models,
         &clips_from,
+        &args.clips,
         args.seed,
         &|stage| eprintln!("rig: {stage}…"),
     )?;
@@ -617,6 +645,7 @@ fn bake(args: BakeArgs) -> anyhow::Result<()> {
     );
     let options = crate::dataset::bake::BakeOptions {
         description: args.avatar,
+        clips: args.clips,
         quick: args.quick,
         preview: args.preview,
         no_renders: args.no_renders,
@@ -648,6 +677,7 @@ fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     let avatar = match (args.teacher, args.bundle) {
         (Some(character), None) => Avatar::Teacher {
             character,
+            clips: args.clips,
             description: args.avatar,
         },
         (None, Some(dir)) => {
@@ -821,7 +851,12 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
     } else {
         EVAL_KEYS
     })?;
-    let roots = crate::headless::teacher_roots(&character, &keys)?;
+    let clips: Vec<PathBuf> = if args.clips.is_empty() {
+        manifest.clip_files.iter().map(PathBuf::from).collect()
+    } else {
+        args.clips
+    };
+    let roots = crate::headless::teacher_roots(&character, &clips, &keys)?;
     let teacher = args.out.join("teacher.json");
     let frames: Vec<_> = roots
         .iter()
@@ -888,6 +923,7 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
         splats: None,
         splat_up: Up::Y,
         character,
+        clips: cli.clips,
         keys,
         exit_after: cli.exit_after,
         steps: cli.steps.map(|s| s as usize),

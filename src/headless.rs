@@ -12,7 +12,7 @@ use glam::Vec3;
 
 use crate::action::{Action, KeyScript};
 use crate::avatar::description::Description;
-use crate::avatar::load_character;
+use crate::avatar::load_character_with;
 use crate::avatar::teacher::Teacher;
 use crate::engine::appearance;
 use crate::engine::surface::MapSurface;
@@ -28,6 +28,8 @@ use crate::render::scene::DrawOptions;
 pub enum Avatar {
     Teacher {
         character: PathBuf,
+        /// Animation libraries merged into the character's clips (`--clips`).
+        clips: Vec<PathBuf>,
         description: Option<PathBuf>,
     },
     Bundle {
@@ -85,9 +87,10 @@ impl Driver {
         Ok(match avatar {
             Avatar::Teacher {
                 character,
+                clips,
                 description,
             } => {
-                let character = load_character(character)?;
+                let character = load_character_with(character, clips)?;
                 let description = Description::find(&character, description.as_deref())?;
                 Driver::Teacher(Box::new(Teacher::new(character, description)?))
             }
@@ -155,14 +158,23 @@ pub fn render(
         let clock = Instant::now();
         let step = driver.step(action)?;
         step_ms += clock.elapsed().as_secs_f64() * 1e3;
+        let (lo, hi) = step.mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ONE));
         let distance = *distance.get_or_insert_with(|| {
-            let (lo, hi) = step.mesh.bounds().unwrap_or((Vec3::ZERO, Vec3::ONE));
-            (hi - lo).max_element() * 1.8
+            // The whole first frame's bounding sphere in view, with room for the motion.
+            let sphere =
+                1.15 * (hi - lo).length() * 0.5 / (crate::render::camera::FOV_Y * 0.5).sin();
+            ((hi - lo).max_element() * 1.8).max(sphere)
         });
+        // The teacher is framed head to feet (the root's ground position, the mesh's
+        // vertical middle); the neural avatar follows its root.
+        let target = match &driver {
+            Driver::Teacher(_) => Vec3::new(step.root.x, (lo.y + hi.y) * 0.5, step.root.z),
+            Driver::Neural(..) => step.root,
+        };
         let mut files = Vec::new();
         for (k, &yaw) in yaws.iter().enumerate() {
             let camera = OrbitCamera {
-                target: step.root,
+                target,
                 yaw,
                 pitch: 0.2,
                 distance,
@@ -225,7 +237,10 @@ pub fn render(
         "frame_rate": crate::avatar::locomotion::FRAME_RATE,
         "size": job.size,
         "view_yaws": yaws,
-        "camera": { "pitch": 0.2, "distance": distance, "target": "the root of each frame" },
+        "camera": { "pitch": 0.2, "distance": distance, "target": match job.avatar {
+            Avatar::Teacher { .. } => "above the root of each frame, at the mesh's vertical middle",
+            Avatar::Bundle { .. } => "the root of each frame",
+        } },
         "frames": frames,
         "timings_ms": {
             "step": step_ms, "render": render_ms, "write": write_ms,
@@ -240,8 +255,12 @@ pub fn render(
 }
 
 /// The teacher's world root after each step of `keys` (geometry only, no pictures).
-pub fn teacher_roots(character: &std::path::Path, keys: &KeyScript) -> anyhow::Result<Vec<Vec3>> {
-    let loaded = load_character(character)?;
+pub fn teacher_roots(
+    character: &std::path::Path,
+    clips: &[PathBuf],
+    keys: &KeyScript,
+) -> anyhow::Result<Vec<Vec3>> {
+    let loaded = load_character_with(character, clips)?;
     let description = Description::find(&loaded, None)?;
     let mut teacher = Teacher::new(loaded, description)?;
     Ok((0..keys.len())

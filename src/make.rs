@@ -63,6 +63,10 @@ pub struct MakeArgs {
     /// Avatar description (JSON) passed to `unica bake` [default: inferred]
     #[arg(long, value_name = "FILE")]
     pub avatar: Option<PathBuf>,
+    /// Animation libraries (.gltf/.glb) whose clips join the character's, matched to its
+    /// joints by name (as for `unica bake`)
+    #[arg(long, value_name = "FILE", num_args = 1..)]
+    pub clips: Vec<PathBuf>,
 }
 
 /// What a make was asked; a later run must ask the same to continue it.
@@ -71,6 +75,8 @@ struct Asked {
     character: PathBuf,
     quick: bool,
     avatar: Option<PathBuf>,
+    #[serde(default)]
+    clips: Vec<PathBuf>,
 }
 
 #[derive(serde::Serialize, serde::Deserialize, Debug)]
@@ -93,6 +99,7 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
             .with_context(|| args.character.display().to_string())?,
         quick: args.quick,
         avatar: args.avatar.clone(),
+        clips: args.clips.clone(),
     };
     let mut state = read_state(&state_path)?.unwrap_or(State {
         asked: asked.clone(),
@@ -137,6 +144,9 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
                 }
                 if let Some(avatar) = &args.avatar {
                     command.arg("--avatar").arg(avatar);
+                }
+                if !args.clips.is_empty() {
+                    command.arg("--clips").args(&args.clips);
                 }
                 run(command, "unica bake")?;
             }

@@ -75,7 +75,7 @@ fn rig_bake_and_walk(
     use unica::avatar::teacher::Teacher;
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("rigged.glb");
-    let summary = rig_file(input, &out, models, &witch(), 0, &|_| {}).unwrap();
+    let summary = rig_file(input, &out, models, &witch(), &[], 0, &|_| {}).unwrap();
     assert_eq!(summary.clips, 3);
     let rigged = load_character(&out).unwrap();
     let source = load_character(input).unwrap().rest_mesh();

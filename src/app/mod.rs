@@ -33,6 +33,8 @@ pub struct AppOptions {
     /// Character file: the teacher (beside the neural avatar when there is a bundle);
     /// `None` without a bundle shows the placeholder.
     pub character: Option<PathBuf>,
+    /// Animation libraries whose clips join the character's (`--clips`).
+    pub clips: Vec<PathBuf>,
     /// Drive the action from this script instead of the keyboard.
     pub keys: Option<KeyScript>,
     /// Render this many frames, then exit.
@@ -156,10 +158,11 @@ impl UnicaApp {
                 &viewport.renderer,
                 dir,
                 character,
+                &options.clips,
                 options.steps,
                 options.keys.clone(),
             ),
-            (None, None) => Shown::load(&gpu, &viewport.renderer, character),
+            (None, None) => Shown::load(&gpu, &viewport.renderer, character, &options.clips),
         };
         viewport.camera = behind(&shown);
         log::info!("adapter: {}; {:?}", gpu.adapter_label(), gpu.caps);
@@ -207,11 +210,12 @@ impl UnicaApp {
                 renderer,
                 &path,
                 None,
+                &[],
                 self.options.steps,
                 self.options.keys.clone(),
             )
         } else {
-            Shown::load(&self.gpu, renderer, Some(&path))
+            Shown::load(&self.gpu, renderer, Some(&path), &[])
         };
         self.message = self.shown.problem.clone();
         self.viewport.camera = behind(&self.shown);

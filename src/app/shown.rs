@@ -4,14 +4,14 @@
 //! placeholder, with the reason. A splat file shows no placeholder (it needs no
 //! character).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
 use super::neural::{NeuralAvatar, Settings, Update};
 use crate::action::{Action, KeyScript};
 use crate::avatar::description::Description;
-use crate::avatar::load_character;
+use crate::avatar::load_character_with;
 use crate::avatar::teacher::Teacher;
 use crate::engine::surface::MapSurface;
 use crate::gpu::GpuContext;
@@ -118,8 +118,13 @@ pub struct Shown {
 
 impl Shown {
     /// The teacher of a character file (or a static mesh, or a placeholder).
-    pub fn load(gpu: &GpuContext, renderer: &SceneRenderer, path: Option<&Path>) -> Self {
-        Self::from_parts(gpu, renderer, character_parts(path))
+    pub fn load(
+        gpu: &GpuContext,
+        renderer: &SceneRenderer,
+        path: Option<&Path>,
+        clips: &[PathBuf],
+    ) -> Self {
+        Self::from_parts(gpu, renderer, character_parts(path, clips))
     }
 
     /// What `parts` says, its problem logged.
@@ -180,10 +185,11 @@ impl Shown {
         renderer: &SceneRenderer,
         dir: &Path,
         character: Option<&Path>,
+        clips: &[PathBuf],
         steps: Option<usize>,
         script: Option<KeyScript>,
     ) -> Self {
-        let mut shown = Self::load(gpu, renderer, character);
+        let mut shown = Self::load(gpu, renderer, character, clips);
         shown.show_teacher = shown.teacher.is_some();
         shown.name = format!("{} (neural)", dir.display());
         shown.problem = Some("Loading the neural avatar…".into());
@@ -341,8 +347,8 @@ type Parts = (String, Option<Teacher>, Mesh, Option<String>);
 
 /// The teacher of a character file, its static mesh when it cannot be animated, or a
 /// placeholder with the reason.
-fn character_parts(path: Option<&Path>) -> Parts {
-    match path.map(load_character) {
+fn character_parts(path: Option<&Path>, clips: &[PathBuf]) -> Parts {
+    match path.map(|p| load_character_with(p, clips)) {
         None => placeholder("no character file given (--character)".into()),
         Some(Err(e)) => placeholder(e.to_string()),
         Some(Ok(character)) => {
@@ -387,11 +393,11 @@ mod tests {
         let (name, teacher, mesh, problem) = nothing("scene.splat (3 splats)".into());
         assert_eq!(name, "scene.splat (3 splats)");
         assert!(teacher.is_none() && mesh.positions.is_empty() && problem.is_none());
-        let (name, _, mesh, problem) = character_parts(None);
+        let (name, _, mesh, problem) = character_parts(None, &[]);
         assert_eq!(name, "placeholder");
         assert!(!mesh.positions.is_empty());
         assert!(problem.unwrap().contains("no character file given"));
-        let (_, _, _, problem) = character_parts(Some(Path::new("/no/such/hero.glb")));
+        let (_, _, _, problem) = character_parts(Some(Path::new("/no/such/hero.glb")), &[]);
         assert!(problem.unwrap().contains("hero.glb"));
     }
 

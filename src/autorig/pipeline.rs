@@ -15,8 +15,8 @@ use super::skeleton::{BODY, Class, Skeleton, UnitCube};
 use super::synth;
 use super::voxel::{Voxels, bone_tails};
 use crate::avatar::description::{ClipNames, ColliderSpec, Description, SpringChain};
-use crate::avatar::load_character;
 use crate::avatar::rig::Transform;
+use crate::avatar::{load_character, load_character_with};
 use crate::mesh::Mesh;
 use crate::random::Rng;
 
@@ -178,12 +178,15 @@ pub struct Summary {
 }
 
 /// Rigs the mesh of `input` (any skin it has is ignored) into `out` (.glb) plus the
-/// teacher's description beside it, clips retargeted from `clips_from`.
+/// teacher's description beside it, clips retargeted from `clips_from` (plus the clips of
+/// the animation libraries `clip_files`, merged by joint name): its clips named
+/// Idle/Walk/Run, else those its description (found or inferred) names.
 pub fn rig_file(
     input: &Path,
     out: &Path,
     models: &Models,
     clips_from: &Path,
+    clip_files: &[std::path::PathBuf],
     seed: u64,
     progress: &dyn Fn(&str),
 ) -> anyhow::Result<Summary> {
@@ -205,10 +208,22 @@ pub fn rig_file(
     let (skin_joints, skin_weights): (Vec<[u16; 4]>, Vec<[f32; 4]>) =
         weights.iter().map(|w| top4(w)).unzip();
     progress("clips");
-    let source = load_character(clips_from)?;
+    let source = load_character_with(clips_from, clip_files)?;
+    let named = CLIPS.iter().all(|name| source.clip(name).is_ok());
+    let roles: [String; 3] = if named {
+        CLIPS.map(String::from)
+    } else {
+        let described = crate::avatar::description::Description::find(&source, None)?.clips;
+        [described.idle, described.walk, described.run]
+    };
     let clips: Vec<ClipOut> = CLIPS
         .iter()
-        .map(|name| retarget(&source, name, &skeleton))
+        .zip(&roles)
+        .map(|(name, role)| {
+            let mut clip = retarget(&source, role, &skeleton)?;
+            clip.name = name.to_string();
+            Ok(clip)
+        })
         .collect::<anyhow::Result<_>>()?;
     let joints: Vec<JointOut> = rest_offsets(&skeleton)
         .into_iter()
@@ -290,5 +305,6 @@ pub fn description_for(skeleton: &Skeleton) -> Description {
             collider("Head", None),
         ],
         spring_chains,
+        inferred: None,
     }
 }

@@ -59,6 +59,107 @@ pub(crate) fn fail(path: &Path, problem: impl Into<String>) -> LoadError {
     }
 }
 
+/// Loads a character and merges the clips of animation libraries `clips` into it (see
+/// [`merge_clip_files`]).
+pub fn load_character_with(path: &Path, clips: &[PathBuf]) -> Result<Character, LoadError> {
+    let mut character = load_character(path)?;
+    merge_clip_files(&mut character, clips)?;
+    Ok(character)
+}
+
+/// Adds the animations of glTF/GLB animation libraries (files with a skeleton and clips,
+/// a mesh or not) to `character`'s clips, each channel retargeted onto the character's
+/// node of the same name (channels of nodes it lacks are dropped). A clip whose name is
+/// taken gets the library's file stem appended.
+pub fn merge_clip_files(character: &mut Character, files: &[PathBuf]) -> Result<(), LoadError> {
+    for file in files {
+        let ext = file
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase)
+            .unwrap_or_default();
+        if !file.is_file() {
+            return Err(fail(file, "no such file (given with --clips)"));
+        }
+        if ext != "gltf" && ext != "glb" {
+            return Err(fail(
+                file,
+                format!("unsupported animation file type '.{ext}' (expected .gltf or .glb)"),
+            ));
+        }
+        let clips = super::gltf_check::guarded(file, || read_clip_library(file, &character.rig))?;
+        let stem = file
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        for mut clip in clips {
+            if character.clips.iter().any(|c| c.name == clip.name) {
+                clip.name = format!("{} ({stem})", clip.name);
+            }
+            character.clips.push(clip);
+        }
+    }
+    Ok(())
+}
+
+/// The clips of an animation library, on `rig`'s nodes matched by name.
+fn read_clip_library(path: &Path, rig: &Rig) -> Result<Vec<Clip>, LoadError> {
+    let (doc, buffers, _) = super::gltf_check::import(path)?;
+    if doc.animations().len() == 0 {
+        return Err(fail(path, "the file has no animations"));
+    }
+    let index_of: Vec<Option<usize>> = doc
+        .nodes()
+        .map(|n| n.name().and_then(|name| rig.find(name)))
+        .collect();
+    let mut clips = Vec::new();
+    for animation in doc.animations() {
+        let clip = read_clip(path, &animation, &buffers, &index_of)?;
+        if clip.channels.is_empty() {
+            log::warn!(
+                "{}: clip '{}' moves no joint of the character; skipped",
+                path.display(),
+                clip.name
+            );
+            continue;
+        }
+        clips.push(clip);
+    }
+    if clips.is_empty() {
+        let mut names: Vec<&str> = doc.nodes().filter_map(|n| n.name()).collect();
+        names.truncate(12);
+        return Err(fail(
+            path,
+            format!(
+                "no animation moves a joint of the character by name (its nodes: {}; the character's: {})",
+                names.join(", "),
+                node_names(rig, 12)
+            ),
+        ));
+    }
+    Ok(clips)
+}
+
+/// The first `most` node names of `rig` — its skin joints in skin order, then the other
+/// nodes — comma-separated, with "…" when there are more.
+pub fn node_names(rig: &Rig, most: usize) -> String {
+    let mut order: Vec<usize> = Vec::new();
+    for n in rig.bones.iter().map(|b| b.node).chain(0..rig.nodes.len()) {
+        if !order.contains(&n) {
+            order.push(n);
+        }
+    }
+    let mut names: Vec<&str> = order
+        .iter()
+        .take(most)
+        .map(|&n| rig.nodes[n].name.as_str())
+        .collect();
+    if order.len() > most {
+        names.push("…");
+    }
+    names.join(", ")
+}
+
 /// Loads a character by extension: `.gltf`/`.glb` or `.obj`.
 pub fn load_character(path: &Path) -> Result<Character, LoadError> {
     if !path.is_file() {

@@ -6,8 +6,11 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use glam::Vec3;
+
 use super::Character;
 use super::character::{LoadError, fail};
+use super::clip::Clip;
 
 /// Descriptions shipped with unica, by lower-case character file stem.
 const SHIPPED: &[(&str, &str)] = &[(
@@ -38,6 +41,9 @@ pub struct Description {
     /// Spring chains already in the rig (as `unica rig` writes them).
     #[serde(default)]
     pub spring_chains: Vec<SpringChain>,
+    /// What [`Description::infer`] inferred, in one line (none for a written description).
+    #[serde(skip)]
+    pub inferred: Option<String>,
 }
 
 /// A chain of existing rig nodes driven by spring physics: `root` and its descendants
@@ -147,7 +153,8 @@ impl Description {
     }
 
     /// The description for `character`: `explicit` if given, else `<file>.avatar.json`
-    /// beside the character, else a shipped one for its name, else inferred.
+    /// beside the character, else a shipped one for its name, else inferred (printing what
+    /// was inferred in one line on standard error).
     pub fn find(character: &Character, explicit: Option<&Path>) -> Result<Self, LoadError> {
         if let Some(path) = explicit {
             return Self::read(path);
@@ -160,7 +167,11 @@ impl Description {
         if let Some((_, text)) = SHIPPED.iter().find(|(name, _)| *name == stem) {
             return Self::parse(text, Path::new(&format!("<shipped {stem}.avatar.json>")));
         }
-        Self::infer(character)
+        let inferred = Self::infer(character)?;
+        if let Some(line) = &inferred.inferred {
+            eprintln!("{}: {line}", character.path.display());
+        }
+        Ok(inferred)
     }
 
     pub fn read(path: &Path) -> Result<Self, LoadError> {
@@ -227,10 +238,57 @@ impl Description {
         Ok(description)
     }
 
-    /// Defaults from names: clips containing idle/walk/run, a hips or pelvis bone, bones
-    /// named foot or ankle; no loose parts.
+    /// Inferred defaults: the waist and feet from bone names (hips or pelvis; foot or
+    /// ankle), else from the skeleton ([`legs`]); each clip role from clip names
+    /// (containing idle/walk/run), else from the motion ([`assign_roles`] on each clip's
+    /// [`stance_speed`]); no loose parts. `inferred` says what was inferred, in one line.
     pub fn infer(character: &Character) -> Result<Self, LoadError> {
-        let clip = |word: &str| {
+        if character.clips.is_empty() {
+            return Err(fail(
+                &character.path,
+                "the file has no animation clips; give animation files with --clips FILE… \
+                 (glTF/GLB with idle/walk/run clips on the same joint names)",
+            ));
+        }
+        let rig = &character.rig;
+        let bones = |words: &[&str]| -> Vec<usize> {
+            (0..rig.nodes.len())
+                .filter(|&n| {
+                    let name = rig.nodes[n].name.to_lowercase();
+                    words.iter().any(|w| name.contains(w))
+                })
+                .collect()
+        };
+        let (named_waist, named_feet) = (bones(&["hips", "pelvis"]), bones(&["foot", "ankle"]));
+        let world = rig.world(&rig.rest_pose(), glam::Mat4::IDENTITY);
+        let positions: Vec<Vec3> = world.iter().map(|m| m.w_axis.truncate()).collect();
+        let (waist, feet, skeleton_said) = if !named_waist.is_empty() && !named_feet.is_empty() {
+            (
+                named_waist[0],
+                named_feet.iter().take(2).copied().collect(),
+                false,
+            )
+        } else {
+            let parents: Vec<Option<usize>> = rig.nodes.iter().map(|n| n.parent).collect();
+            let mut joints: Vec<usize> = rig.bones.iter().map(|b| b.node).collect();
+            joints.sort_unstable();
+            joints.dedup();
+            let (hips, feet) = legs(&parents, &positions, &joints).ok_or_else(|| {
+                fail(
+                    &character.path,
+                    format!(
+                        "cannot tell the waist and feet: no bone is named hips/pelvis and \
+                         foot/ankle, and the skeleton has no two leg chains (lowest leaf joints \
+                         left and right); write a {}.avatar.json description (bones: {})",
+                        character.name,
+                        super::character::node_names(rig, 30)
+                    ),
+                )
+            })?;
+            (hips, feet.to_vec(), true)
+        };
+        let feet: Vec<usize> = feet;
+        let by_name = |word: &str| {
             character
                 .clips
                 .iter()
@@ -238,52 +296,206 @@ impl Description {
                 .filter(|n| n.to_lowercase().contains(word))
                 .min_by_key(|n| n.len())
                 .map(str::to_string)
-                .ok_or_else(|| {
-                    fail(
-                        &character.path,
-                        format!(
-                            "no clip name contains '{word}'; write a {}.avatar.json description",
-                            character.name
-                        ),
-                    )
-                })
         };
-        let bones = |words: &[&str]| -> Vec<String> {
-            character
-                .rig
-                .nodes
+        let mut roles = [by_name("idle"), by_name("walk"), by_name("run")];
+        let mut speeds: Vec<(String, f32)> = Vec::new();
+        let from_motion = roles.iter().any(Option::is_none);
+        if from_motion {
+            let unused: Vec<&super::clip::Clip> = character
+                .clips
                 .iter()
-                .map(|n| n.name.clone())
-                .filter(|n| words.iter().any(|w| n.to_lowercase().contains(w)))
-                .collect()
-        };
-        let waist = bones(&["hips", "pelvis"]);
-        let feet = bones(&["foot", "ankle"]);
-        if waist.is_empty() || feet.is_empty() {
-            return Err(fail(
-                &character.path,
-                format!(
-                    "cannot tell the waist and feet bones; write a {}.avatar.json description",
-                    character.name
-                ),
-            ));
+                .filter(|c| !roles.iter().flatten().any(|r| *r == c.name))
+                .collect();
+            let measured: Vec<f32> = unused
+                .iter()
+                .map(|c| stance_speed(character, c, &feet, waist))
+                .collect();
+            let leg = (positions[waist].y
+                - feet
+                    .iter()
+                    .map(|&f| positions[f].y)
+                    .fold(f32::MAX, f32::min))
+            .max(1e-3);
+            let (idle, walk, run) = assign_roles(&measured, STILL * leg).ok_or_else(|| {
+                let list: Vec<String> = unused
+                    .iter()
+                    .zip(&measured)
+                    .map(|(c, s)| format!("{} {s:.2} m/s", c.name))
+                    .collect();
+                fail(
+                    &character.path,
+                    format!(
+                        "cannot tell the walk and run clips: names do not say and no clip moves \
+                         the feet (clips: {}); write a {}.avatar.json description",
+                        list.join(", "),
+                        character.name
+                    ),
+                )
+            })?;
+            let name = |i: usize| unused[i].name.clone();
+            roles[0] = roles[0]
+                .take()
+                .or_else(|| Some(idle.map_or(REST_CLIP.to_string(), name)));
+            roles[1] = roles[1].take().or_else(|| Some(name(walk)));
+            roles[2] = roles[2].take().or_else(|| Some(name(run)));
+            speeds = unused
+                .iter()
+                .zip(&measured)
+                .map(|(c, &s)| (c.name.clone(), s))
+                .collect();
         }
-        Ok(Self {
-            clips: ClipNames {
-                idle: clip("idle")?,
-                walk: clip("walk")?,
-                run: clip("run")?,
+        let [idle, walk, run] = roles.map(|r| r.expect("every role is assigned"));
+        let node_name = |n: usize| rig.nodes[n].name.clone();
+        let shown = |clip: &str| {
+            let speed = speeds
+                .iter()
+                .find(|(n, _)| n == clip)
+                .map(|(_, s)| format!(" ({s:.2} m/s)"))
+                .unwrap_or_default();
+            format!("{clip}{speed}")
+        };
+        let run_shown = if run == walk {
+            "- (the walk clip played faster)".to_string()
+        } else {
+            shown(&run)
+        };
+        let idle_shown = if idle == REST_CLIP {
+            "- (the rest pose)".to_string()
+        } else {
+            shown(&idle)
+        };
+        let inferred = format!(
+            "inferred: waist={} feet={} idle={idle_shown} walk={} run={run_shown} (bones from {}, clips from {})",
+            node_name(waist),
+            feet.iter()
+                .map(|&f| node_name(f))
+                .collect::<Vec<_>>()
+                .join(","),
+            shown(&walk),
+            if skeleton_said {
+                "the skeleton"
+            } else {
+                "names"
             },
-            waist_bones: waist.into_iter().take(1).collect(),
-            feet: feet.into_iter().take(2).collect(),
+            if from_motion { "motion" } else { "names" },
+        );
+        Ok(Self {
+            clips: ClipNames { idle, walk, run },
+            waist_bones: vec![node_name(waist)],
+            feet: feet.iter().map(|&f| node_name(f)).collect(),
             forward: default_forward(),
             walk_speed: None,
             run_speed: None,
             loose_parts: Vec::new(),
             colliders: Vec::new(),
             spring_chains: Vec::new(),
+            inferred: Some(inferred),
         })
     }
+}
+
+/// The idle clip's name when no clip stands still: the rig's rest pose (a clip with no
+/// channels, added by the teacher).
+pub const REST_CLIP: &str = "(rest pose)";
+
+/// Below this stance speed, in leg lengths (hips height above the feet) per second, a clip
+/// stands still (idle); walks are around 1.5, runs 3 or more.
+pub const STILL: f32 = 0.2;
+
+/// Clip roles from measured stance speeds: idle the slowest clip under `still` (none if
+/// no clip is that slow), walk the slowest and run the fastest of the others (the same
+/// clip when only one moves). `None` when no clip moves.
+pub fn assign_roles(speeds: &[f32], still: f32) -> Option<(Option<usize>, usize, usize)> {
+    let by_speed = |a: &usize, b: &usize| speeds[*a].total_cmp(&speeds[*b]).then(a.cmp(b));
+    let idle = (0..speeds.len())
+        .filter(|&i| speeds[i] < still)
+        .min_by(by_speed);
+    let moving: Vec<usize> = (0..speeds.len()).filter(|&i| speeds[i] >= still).collect();
+    let walk = moving.iter().copied().min_by(by_speed)?;
+    let run = moving.iter().copied().max_by(by_speed)?;
+    Some((idle, walk, run))
+}
+
+/// The hips and the two feet of a skeleton: the feet are the lowest leaf joints left and
+/// right (x) of the joints' mean, each in the bottom quarter of the skeleton's height; the hips the joint where
+/// their chains meet (nearest common ancestor). `parents` and `positions` (rest, world)
+/// cover every node; `joints` are the skeleton's nodes. `None` without two such legs.
+pub fn legs(
+    parents: &[Option<usize>],
+    positions: &[Vec3],
+    joints: &[usize],
+) -> Option<(usize, [usize; 2])> {
+    let is_joint = |n: usize| joints.contains(&n);
+    let leaves: Vec<usize> = joints
+        .iter()
+        .copied()
+        .filter(|&j| !joints.iter().any(|&k| parents[k] == Some(j)))
+        .collect();
+    let centre = joints.iter().map(|&j| positions[j].x).sum::<f32>() / joints.len().max(1) as f32;
+    let (bottom, top) = joints.iter().fold((f32::MAX, f32::MIN), |(lo, hi), &j| {
+        (lo.min(positions[j].y), hi.max(positions[j].y))
+    });
+    let low = bottom + 0.25 * (top - bottom);
+    let lowest = |side: f32| {
+        leaves
+            .iter()
+            .copied()
+            .filter(|&l| (positions[l].x - centre) * side > 0.0 && positions[l].y <= low)
+            .min_by(|&a, &b| positions[a].y.total_cmp(&positions[b].y).then(a.cmp(&b)))
+    };
+    let (left, right) = (lowest(1.0)?, lowest(-1.0)?);
+    let ancestors = |mut n: usize| {
+        let mut chain = vec![n];
+        while let Some(p) = parents[n] {
+            chain.push(p);
+            n = p;
+        }
+        chain
+    };
+    let of_right = ancestors(right);
+    let hips = ancestors(left)
+        .into_iter()
+        .skip(1)
+        .find(|a| of_right.contains(a) && is_joint(*a))?;
+    Some((hips, [left, right]))
+}
+
+/// How fast a clip's planted (lowest) foot slides horizontally relative to `hips` (so
+/// in-place and root-motion clips read alike); the median over the cycle, m/s.
+pub fn stance_speed(character: &Character, clip: &Clip, feet: &[usize], hips: usize) -> f32 {
+    const SAMPLES: usize = 60;
+    let rig = &character.rig;
+    let dt = clip.duration.max(1e-3) / SAMPLES as f32;
+    let at = |k: usize| {
+        let mut pose = rig.rest_pose();
+        clip.sample_looped(k as f32 * dt, &mut pose);
+        let world = rig.world(&pose, glam::Mat4::IDENTITY);
+        let hip = world[hips].w_axis.truncate();
+        feet.iter()
+            .map(|&f| world[f].w_axis.truncate() - Vec3::new(hip.x, 0.0, hip.z))
+            .collect::<Vec<Vec3>>()
+    };
+    let planted = |f: &[Vec3]| {
+        (0..f.len())
+            .min_by(|&a, &b| f[a].y.total_cmp(&f[b].y))
+            .expect("feet")
+    };
+    let mut speeds = Vec::new();
+    let mut previous = at(0);
+    for k in 1..=SAMPLES {
+        let current = at(k);
+        let foot = planted(&current);
+        if planted(&previous) == foot {
+            let step = current[foot] - previous[foot];
+            speeds.push(Vec3::new(step.x, 0.0, step.z).length() / dt);
+        }
+        previous = current;
+    }
+    if speeds.is_empty() {
+        return 0.0;
+    }
+    speeds.sort_by(f32::total_cmp);
+    speeds[speeds.len() / 2]
 }
 
 #[cfg(test)]
@@ -310,5 +522,63 @@ mod tests {
         let text = SHIPPED[0].1.replace("\"+z\"", "\"up\"");
         let err = Description::parse(&text, Path::new("y.avatar.json")).unwrap_err();
         assert!(err.to_string().contains("forward 'up'"), "{err}");
+    }
+
+    #[test]
+    fn roles_from_foot_speeds() {
+        // Leg 0.9 m: still below 0.18 m/s.
+        let still = STILL * 0.9;
+        assert_eq!(
+            assign_roles(&[3.1, 0.02, 1.3, 0.1], still),
+            Some((Some(1), 2, 0))
+        );
+        // No clip stands still: the rest pose is idle; one moving clip walks and runs.
+        assert_eq!(assign_roles(&[1.2], still), Some((None, 0, 0)));
+        assert_eq!(
+            assign_roles(&[0.4, 0.9, 0.05], still),
+            Some((Some(2), 0, 1))
+        );
+        // Nothing moves: no walk.
+        assert_eq!(assign_roles(&[0.01, 0.0], still), None);
+        assert_eq!(assign_roles(&[], still), None);
+    }
+
+    #[test]
+    fn hips_where_the_leg_chains_meet_and_feet_the_lowest_leaves() {
+        // 0 root (ground) > 1 pelvis > {2 spine > 3 head, 4 thigh.l > 5 shin.l > 6 toe.l,
+        // 7 thigh.r > 8 shin.r > 9 toe.r}; 10 an arm leaf hanging low on the left but
+        // above the toes.
+        let parents = [
+            None,
+            Some(0),
+            Some(1),
+            Some(2),
+            Some(1),
+            Some(4),
+            Some(5),
+            Some(1),
+            Some(7),
+            Some(8),
+            Some(2),
+        ];
+        let p = |x: f32, y: f32| Vec3::new(x, y, 0.0);
+        let positions = [
+            p(0.0, 0.0),
+            p(0.0, 0.5),
+            p(0.0, 0.9),
+            p(0.0, 1.3),
+            p(0.15, 0.45),
+            p(0.15, 0.25),
+            p(0.15, 0.02),
+            p(-0.15, 0.45),
+            p(-0.15, 0.25),
+            p(-0.15, 0.03),
+            p(0.5, 0.3),
+        ];
+        let joints: Vec<usize> = (0..11).collect();
+        assert_eq!(legs(&parents, &positions, &joints), Some((1, [6, 9])));
+        // One leg only (nothing on the right): no answer.
+        let one_sided: Vec<usize> = (0..7).collect();
+        assert_eq!(legs(&parents, &positions, &one_sided), None);
     }
 }

@@ -12,4 +12,4 @@ pub mod rig;
 pub mod springs;
 pub mod teacher;
 
-pub use character::{Character, LoadError, load_character};
+pub use character::{Character, LoadError, load_character, load_character_with};

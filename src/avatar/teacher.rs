@@ -4,15 +4,18 @@
 
 use glam::{Mat4, Vec3};
 
-use super::character::{Character, LoadError, fail};
+use super::character::{Character, LoadError, fail, node_names};
 use super::clip::Clip;
-use super::description::Description;
+use super::description::{Description, REST_CLIP};
 use super::locomotion::{FRAME_RATE, GaitParams, Locomotion};
 use super::loose::add_spring_chains;
 use super::rig::Transform;
 use super::springs::SpringSystem;
 use crate::action::Action;
 use crate::mesh::Mesh;
+
+/// Run speed over walk speed when one clip serves both gaits.
+pub const RUN_FROM_WALK: f32 = 1.8;
 
 #[derive(Clone)]
 pub struct Teacher {
@@ -31,6 +34,13 @@ pub struct Teacher {
 impl Teacher {
     pub fn new(mut character: Character, description: Description) -> Result<Self, LoadError> {
         let springs = add_spring_chains(&mut character, &description)?;
+        if description.clips.idle == REST_CLIP && character.clip(REST_CLIP).is_err() {
+            character.clips.push(Clip {
+                name: REST_CLIP.into(),
+                duration: 1.0,
+                channels: Vec::new(),
+            });
+        }
         let clip_index = |name: &str| {
             character.clip(name)?;
             Ok::<_, LoadError>(
@@ -50,7 +60,10 @@ impl Teacher {
             character.rig.find(name).ok_or_else(|| {
                 fail(
                     &character.path,
-                    format!("bone '{name}' (from the avatar description) not found"),
+                    format!(
+                        "bone '{name}' (from the avatar description) not found; the rig's nodes: {}",
+                        node_names(&character.rig, 80)
+                    ),
                 )
             })
         };
@@ -76,9 +89,15 @@ impl Teacher {
         let walk_speed = description
             .walk_speed
             .unwrap_or_else(|| ground_speed(&character, walk, &feet, forward));
-        let run_speed = description
-            .run_speed
-            .unwrap_or_else(|| ground_speed(&character, run, &feet, forward));
+        // One clip for both gaits: the run plays the walk faster, its stride kept.
+        let same = clips[1] == clips[2];
+        let run_speed = description.run_speed.unwrap_or_else(|| {
+            if same {
+                walk_speed * RUN_FROM_WALK
+            } else {
+                ground_speed(&character, run, &feet, forward)
+            }
+        });
         if !(walk_speed > 0.0 && run_speed > walk_speed) {
             return Err(fail(
                 &character.path,
@@ -88,7 +107,12 @@ impl Teacher {
                 ),
             ));
         }
-        let params = GaitParams::new(walk_speed, run_speed, walk.duration, run.duration);
+        let run_cycle = if same {
+            walk.duration * walk_speed / run_speed
+        } else {
+            run.duration
+        };
+        let params = GaitParams::new(walk_speed, run_speed, walk.duration, run_cycle);
         let mut teacher = Self {
             world: Vec::new(),
             character,

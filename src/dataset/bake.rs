@@ -6,10 +6,10 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::{ClipInfo, FORMAT, Manifest, VERSION};
+use super::{ANCHOR, ClipInfo, FORMAT, GROUP, Manifest, VERSION};
 use crate::action::Action;
 use crate::avatar::description::Description;
-use crate::avatar::load_character;
+use crate::avatar::load_character_with;
 use crate::avatar::locomotion::FRAME_RATE;
 use crate::avatar::reference::Reference;
 use crate::avatar::teacher::Teacher;
@@ -27,6 +27,8 @@ const PREVIEW_EVERY: usize = 3;
 
 #[derive(Clone, Debug, Default)]
 pub struct BakeOptions {
+    /// Animation libraries (glTF/GLB) whose clips join the character's, by joint name.
+    pub clips: Vec<PathBuf>,
     /// An explicit avatar description instead of the one found for the character.
     pub description: Option<PathBuf>,
     /// A few short clips (tests, smoke runs) instead of the full table.
@@ -77,10 +79,10 @@ pub fn bake(
     options: &BakeOptions,
     progress: &dyn Fn(u64, u64),
 ) -> anyhow::Result<Manifest> {
-    let loaded = load_character(character)?;
+    let loaded = load_character_with(character, &options.clips)?;
     let description = Description::find(&loaded, options.description.as_deref())?;
     let start = Teacher::new(loaded, description)?;
-    let reference = Reference::new(&start)?;
+    let mut reference = Reference::new(&start)?;
     let coverage = reference.report(&start);
     let clips_dir = out.join("clips");
     std::fs::create_dir_all(&clips_dir)
@@ -98,17 +100,23 @@ pub fn bake(
     let mut done = 0;
     let mut clips = Vec::new();
     let mut previews = Vec::new();
+    let mut reach = 0.0f32;
     let mesh_indices = &start.character.skinned.bind.indices;
     for (index, &(first, second, first_frames, second_frames)) in plan.iter().enumerate() {
         let mut teacher = start.clone();
         let frames = first_frames + second_frames;
         let (mut skin, mut actions, mut roots) = (Vec::new(), Vec::new(), Vec::new());
+        let mut bounds = Vec::new();
         for f in 0..frames {
             let action = if f < first_frames { first } else { second };
             // Frame f is the pose before step f; its action moves it to frame f + 1.
             let mesh = teacher.mesh();
             let points = reference.gather(&mesh.positions, mesh_indices);
             roots.push(GroupNorm::root(&points, &reference.waist));
+            bounds.push(points.iter().fold(
+                (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+                |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+            ));
             for m in teacher.skin_matrices() {
                 skin.extend_from_slice(&m.transpose().to_cols_array()[..12]);
             }
@@ -123,6 +131,7 @@ pub fn bake(
             done += 1;
             progress(done as u64, total as u64);
         }
+        reach = reach.max(GroupNorm::reach(&bounds, &roots, GROUP, ANCHOR));
         let file = format!("clips/clip_{index:03}.safetensors");
         let bones = start.character.rig.bones.len();
         let flat_roots: Vec<f32> = roots.iter().flat_map(|r| r.to_array()).collect();
@@ -145,12 +154,20 @@ pub fn bake(
     if let Some(renders) = renders {
         renders.finish()?;
     }
+    // Every group inside the unit cube with a margin, whatever the proportions (the
+    // Witch's motion fits at the extent's scale, which stays).
+    reference.norm = reference.norm.fitted(reach);
     let p = start.locomotion.params;
     let manifest = Manifest {
         format: FORMAT.into(),
         version: VERSION,
         avatar: start.character.name.clone(),
         character: character.display().to_string(),
+        clip_files: options
+            .clips
+            .iter()
+            .map(|c| c.display().to_string())
+            .collect(),
         frame_rate: FRAME_RATE,
         actions: Action::ALL.iter().map(|a| a.to_string()).collect(),
         map_size: MAP_SIZE,

@@ -27,6 +27,9 @@ pub struct Manifest {
     pub avatar: String,
     /// The character file as given to `bake`.
     pub character: String,
+    /// The animation libraries given to `bake` (`--clips`), if any.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub clip_files: Vec<String>,
     pub frame_rate: f32,
     /// Action names by id.
     pub actions: Vec<String>,
@@ -34,7 +37,8 @@ pub struct Manifest {
     pub foreground_pixels: usize,
     pub vertices: usize,
     pub bones: usize,
-    /// Scale of the group normalisation (0.7 / the reference's largest extent).
+    /// Scale of the group normalisation: 0.7 / the reference's largest extent, lowered
+    /// where the baked motion would come nearer than 0.05 to the unit cube's faces.
     pub norm_scale: f32,
     pub walk_speed: f32,
     pub run_speed: f32,

@@ -1,5 +1,6 @@
-//! Group normalisation: one scale for the avatar (0.7 / the reference's largest extent)
-//! and, per group of frames, the translation that puts one frame's root (the mean of its
+//! Group normalisation: one scale for the avatar (0.7 / the reference's largest extent, or
+//! less where the baked motion would otherwise reach past the unit cube's margin — a big
+//! head above a low waist) and, per group of frames, the translation that puts one frame's root (the mean of its
 //! waist pixels) at 0.5 — so differences between the frames of a group are true motion.
 
 use glam::Vec3;
@@ -7,6 +8,9 @@ use glam::Vec3;
 /// Share of the unit cube the reference's largest extent spans (the rest is margin for
 /// the motion within a group).
 pub const FILL: f32 = 0.7;
+
+/// The least distance between the baked motion and the unit cube's faces.
+pub const MARGIN: f32 = 0.05;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GroupNorm {
@@ -27,6 +31,28 @@ impl GroupNorm {
         Self {
             scale: FILL / extent.max(1e-6),
         }
+    }
+
+    /// This scale, lowered where needed so that points up to `reach` (world units, any
+    /// axis) from a group's root stay [`MARGIN`] inside the unit cube.
+    pub fn fitted(self, reach: f32) -> Self {
+        Self {
+            scale: self.scale.min((0.5 - MARGIN) / reach.max(1e-6)),
+        }
+    }
+
+    /// The farthest any point of a group's frames gets from the group's root along any
+    /// axis, over every group of `group` consecutive frames with root frame `anchor`;
+    /// `bounds` are each frame's point bounds (min, max), `roots` its roots.
+    pub fn reach(bounds: &[(Vec3, Vec3)], roots: &[Vec3], group: usize, anchor: usize) -> f32 {
+        let mut reach = 0.0f32;
+        for start in 0..bounds.len().saturating_sub(group - 1) {
+            let root = roots[start + anchor];
+            for (lo, hi) in &bounds[start..start + group] {
+                reach = reach.max((*hi - root).max_element().max((root - *lo).max_element()));
+            }
+        }
+        reach
     }
 
     /// The root of a frame: the mean of its waist points.
@@ -111,5 +137,23 @@ mod tests {
         let err = norm.normalise(&frames, &[0], 0).unwrap_err();
         assert_eq!((err.frame, err.point), (0, 1));
         assert!(err.to_string().contains("leaves [0, 1]"));
+    }
+
+    #[test]
+    fn the_scale_shrinks_only_when_the_motion_reaches_too_far() {
+        // Two frames of a group of 2 anchored on frame 1: the root moves 1 m in x and a
+        // point 2 m above the root at frame 0 -> reach 2 (the head) and 1 (the move).
+        let bounds = [
+            (Vec3::new(-0.2, 0.0, -0.1), Vec3::new(0.2, 2.0, 0.1)),
+            (Vec3::new(0.8, 0.0, -0.1), Vec3::new(1.2, 1.5, 0.1)),
+        ];
+        let roots = [Vec3::ZERO, Vec3::new(1.0, 0.0, 0.0)];
+        let reach = GroupNorm::reach(&bounds, &roots, 2, 1);
+        assert!((reach - 2.0).abs() < 1e-6, "{reach}");
+        // 0.7 / 2 m = 0.35 would put the top at 0.5 + 0.7: lowered to 0.45 / 2.
+        let fitted = GroupNorm::for_extent(2.0).fitted(reach);
+        assert!((fitted.scale - 0.225).abs() < 1e-6, "{}", fitted.scale);
+        // A small reach keeps the extent's scale.
+        assert_eq!(GroupNorm::for_extent(2.0).fitted(0.5).scale, 0.35);
     }
 }
