@@ -67,6 +67,9 @@ pub struct MakeArgs {
     /// joints by name (as for `unica bake`)
     #[arg(long, value_name = "FILE", num_args = 1..)]
     pub clips: Vec<PathBuf>,
+    /// Stop after this stage (a later run with the same arguments goes on from there)
+    #[arg(long, value_name = "STAGE", value_parser = ["bake", "geometry", "refiner", "eval"])]
+    pub until: Option<String>,
 }
 
 /// What a make was asked; a later run must ask the same to continue it.
@@ -222,6 +225,10 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
             STAGES.len(),
             clock.elapsed().as_secs_f64()
         );
+        if args.until.as_deref() == Some(*stage) {
+            println!("stopped after {stage} (--until); the same command without --until goes on");
+            return Ok(());
+        }
     }
     println!(
         "made {} in {:.0} s: play it with `unica --bundle {}`; the evaluation is in {}",

@@ -853,7 +853,7 @@ fn attention_over_a_cached_prefix_equals_attention_over_the_concatenation_bit_fo
 }
 
 #[test]
-fn the_residual_with_the_action_bias_equals_the_two_ops_bit_for_bit() {
+fn the_permute_with_its_addends_equals_the_separate_ops_bit_for_bit() {
     // The spatial attention's residual (a + permuted tokens) and the cross-attention's
     // action bias in one pass must equal add_permuted then add_action_bias exactly, in
     // every precision (one kernel serves every variant): 2 samples × 3 frames of 4×5
@@ -887,6 +887,28 @@ fn the_residual_with_the_action_bias_equals_the_two_ops_bit_for_bit() {
             worst_difference(&x, &y)
         );
         assert!(worst_difference(&x, &plain) > 0.1, "the bias was added");
+
+        // The temporal layers' tokens: permuted, plus frame positions 1..4 of a 5-row
+        // table repeated over the leading axes, equal to a permute then add_part.
+        let mut r = Recorder::new(&f.gpu, &mut pipelines, precision);
+        r.set_kernels(kernels);
+        let positions = upload("positions", &[5, 8], 0.43);
+        let (shape, perm) = ([2, 3, 8, 20], [0, 3, 1, 2]);
+        let fused = r
+            .permute_add_rows(&a, shape, perm, &positions, 8..32)
+            .unwrap();
+        let permuted = r.permute(&a, shape, perm).unwrap();
+        let separate = r
+            .add_part(&permuted, &positions, 8..32, Broadcast::Trailing)
+            .unwrap();
+        r.submit();
+        let (x, y) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
+        assert_eq!(fused.shape, vec![2, 20, 3, 8]);
+        assert!(
+            x.iter().zip(&y).all(|(p, q)| p.to_bits() == q.to_bits()),
+            "{precision:?} {kernels:?} rows: worst difference {}",
+            worst_difference(&x, &y)
+        );
     }
 }
 

@@ -1,9 +1,16 @@
-// Permutes the axes of a 4-D tensor: output axis k is input axis perm[k].
-// Moves images between NCHW and token-major layouts for the attention layers.
+// Permutes the axes of a 4-D tensor (output axis k is input axis perm[k]) and adds to it:
+// moves images between NCHW and token-major layouts for the attention layers, with their
+// residual (`a`), frame positions (`rows`) and action bias (`table`) in the same pass.
+// Each addend is added to the sum rounded to Elem, as add.wgsl and add_action_bias.wgsl
+// would add it after a plain permute (see PermuteParams).
 
 @group(0) @binding(0) var<uniform> p: PermuteParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
-@group(0) @binding(2) var<storage, read_write> y: array<Elem>;
+@group(0) @binding(2) var<storage, read> a: array<Elem>;
+@group(0) @binding(3) var<storage, read> rows: array<Elem>;
+@group(0) @binding(4) var<storage, read> table: array<Elem>;
+@group(0) @binding(5) var<storage, read> ids: array<u32>;
+@group(0) @binding(6) var<storage, read_write> y: array<Elem>;
 
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {
@@ -22,5 +29,17 @@ fn main(invocation: Invocation) {
     let c1 = rest % out_shape.y;
     let c0 = rest / out_shape.y;
     let src = c0 * in_stride[p.perm.x] + c1 * in_stride[p.perm.y] + c2 * in_stride[p.perm.z] + c3 * in_stride[p.perm.w];
-    y[i] = x[src];
+    var sum = x[src];
+    if p.has_a != 0u {
+        sum = Elem(f32(a[i]) + f32(sum));
+    }
+    if p.has_rows != 0u {
+        sum = Elem(f32(sum) + f32(rows[p.rows_offset + i % p.rows_len]));
+    }
+    if p.has_bias != 0u {
+        let channel = (i / p.hw) % p.channels;
+        let sample = i / (p.hw * p.channels * p.frames);
+        sum = Elem(f32(sum) + f32(table[ids[sample] * p.channels + channel]));
+    }
+    y[i] = sum;
 }

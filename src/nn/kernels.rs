@@ -3,8 +3,8 @@
 
 use super::ops::{
     ActionBiasParams, AddParams, AttentionParams, AxpbyParams, ConcatParams, Conv2dParams,
-    EmbeddingParams, GatherParams, GroupNormParams, LinearParams, PermuteAddParams, PermuteParams,
-    SegmentParams, UpsampleParams,
+    EmbeddingParams, GatherParams, GroupNormParams, LinearParams, PermuteParams, SegmentParams,
+    UpsampleParams,
 };
 use crate::gpu::shaders::Shader;
 use crate::wgsl_shader as shader;
@@ -32,7 +32,6 @@ pub const ADD: Shader = shader!("nn/add.wgsl", [AddParams], elem);
 pub const ADD_ACTION_BIAS: Shader = shader!("nn/add_action_bias.wgsl", [ActionBiasParams], elem);
 pub const PERMUTE: Shader = shader!("nn/permute.wgsl", [PermuteParams], elem);
 /// `a + permute(x)`: the attention layers' residual.
-pub const PERMUTE_ADD: Shader = shader!("nn/permute_add.wgsl", [PermuteAddParams], elem);
 pub const CONCAT: Shader = shader!("nn/concat.wgsl", [ConcatParams], elem);
 pub const AXPBY: Shader = shader!("nn/axpby.wgsl", [AxpbyParams], elem);
 pub const ATTENTION: Shader = shader!("nn/attention.wgsl", [AttentionParams], elem)
@@ -59,7 +58,6 @@ pub const ALL: &[Shader] = &[
     ADD,
     ADD_ACTION_BIAS,
     PERMUTE,
-    PERMUTE_ADD,
     CONCAT,
     AXPBY,
     ATTENTION,

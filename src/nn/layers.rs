@@ -471,12 +471,13 @@ impl TemporalAttention {
         let n = nf / f;
         let hw = h * w;
         let normed = self.norm.forward(r, x, false)?;
-        let tokens = r.permute(&normed, [n, f, c, hw], [0, 3, 1, 2])?; // [N, HW, F, C]
-        let tokens = r.add_part(
-            &tokens,
+        // [N, HW, F, C] with each frame's position added, in one pass.
+        let tokens = r.permute_add_rows(
+            &normed,
+            [n, f, c, hw],
+            [0, 3, 1, 2],
             &self.position,
             first * c..(first + f) * c,
-            Broadcast::Trailing,
         )?;
         let qkv = self.qkv.forward(r, &tokens, false)?;
         // The keys: the cached context rows (read in place, no concatenation), then

@@ -91,23 +91,23 @@ gpu_struct! {
 }
 
 gpu_struct! {
-    /// A 4-D permutation: output axis k is input axis `perm[k]` of `shape`.
+    /// A 4-D permutation (output axis k is input axis `perm[k]` of `shape`) and what is
+    /// added to it, each sum rounded to Elem as add.wgsl rounds: with `has_a`, `a + `
+    /// the permuted value; with `has_rows`, plus `rows[rows_offset + i % rows_len]` (a
+    /// trailing broadcast, e.g. frame positions); with `has_bias`, plus a row of an
+    /// action table as [`ActionBiasParams`] lays it over NCHW images (`hw`, `channels`,
+    /// `frames` images per sample).
     pub struct PermuteParams {
         pub shape: [u32; 4],
         pub perm: [u32; 4],
-    }
-}
-
-gpu_struct! {
-    /// `a + permute(x)` (as [`PermuteParams`]), then, with `has_bias`, plus a row of an
-    /// action table as [`ActionBiasParams`] lays it over NCHW images.
-    pub struct PermuteAddParams {
-        pub shape: [u32; 4],
-        pub perm: [u32; 4],
+        pub has_a: u32,
+        pub has_rows: u32,
+        pub rows_offset: u32,
+        pub rows_len: u32,
+        pub has_bias: u32,
         pub hw: u32,
         pub channels: u32,
         pub frames: u32,
-        pub has_bias: u32,
     }
 }
 
@@ -913,20 +913,21 @@ impl<'a> Recorder<'a> {
         shape: [usize; 4],
         perm: [usize; 4],
     ) -> Result<Tensor, GpuError> {
-        assert_eq!(
-            shape.iter().product::<usize>(),
-            x.len(),
-            "permute shape {shape:?} for {:?}",
-            x.shape
-        );
-        let y = self.output("permute.y", &perm.map(|k| shape[k]))?;
-        let params = PermuteParams {
-            shape: shape.map(|s| s as u32),
-            perm: perm.map(|k| k as u32),
-        };
-        let grid = self.grid(y.len());
-        self.launch(&kernels::PERMUTE, &params, &[x, &y], grid);
-        Ok(y)
+        self.permute_plus(x, shape, perm, None, None, None)
+    }
+
+    /// The permutation of `x` plus the values `part` of `rows` repeated over the leading
+    /// axes (as [`Recorder::add_part`] with [`Broadcast::Trailing`] after the permute),
+    /// in one dispatch.
+    pub fn permute_add_rows(
+        &mut self,
+        x: &Tensor,
+        shape: [usize; 4],
+        perm: [usize; 4],
+        rows: &Tensor,
+        part: std::ops::Range<usize>,
+    ) -> Result<Tensor, GpuError> {
+        self.permute_plus(x, shape, perm, None, Some((rows, part)), None)
     }
 
     /// `a + permute(x)` in one dispatch: `x` viewed as `shape`, permuted as
@@ -938,7 +939,7 @@ impl<'a> Recorder<'a> {
         shape: [usize; 4],
         perm: [usize; 4],
     ) -> Result<Tensor, GpuError> {
-        self.add_permuted_bias(a, x, shape, perm, None)
+        self.permute_plus(x, shape, perm, Some(a), None, None)
     }
 
     /// [`Recorder::add_permuted`] onto NCHW images `a`, then plus `table[ids[sample]]`
@@ -952,17 +953,49 @@ impl<'a> Recorder<'a> {
         perm: [usize; 4],
         bias: Option<(&Tensor, &Indices, usize)>,
     ) -> Result<Tensor, GpuError> {
+        self.permute_plus(x, shape, perm, Some(a), None, bias)
+    }
+
+    /// permute.wgsl with what is added to the permuted values (see [`PermuteParams`]).
+    fn permute_plus(
+        &mut self,
+        x: &Tensor,
+        shape: [usize; 4],
+        perm: [usize; 4],
+        a: Option<&Tensor>,
+        rows: Option<(&Tensor, std::ops::Range<usize>)>,
+        bias: Option<(&Tensor, &Indices, usize)>,
+    ) -> Result<Tensor, GpuError> {
         assert_eq!(
-            (shape.iter().product::<usize>(), x.len()),
-            (a.len(), a.len()),
-            "add_permuted: {shape:?} of {:?} onto {:?}",
-            x.shape,
-            a.shape
+            shape.iter().product::<usize>(),
+            x.len(),
+            "permute shape {shape:?} for {:?}",
+            x.shape
         );
+        let out_shape = match a {
+            Some(a) => {
+                assert_eq!(
+                    a.len(),
+                    x.len(),
+                    "add_permuted: {:?} onto {:?}",
+                    x.shape,
+                    a.shape
+                );
+                a.shape.clone()
+            }
+            None => perm.map(|k| shape[k]).to_vec(),
+        };
+        if let Some((rows, part)) = &rows {
+            assert!(
+                !part.is_empty() && part.end <= rows.len() && x.len().is_multiple_of(part.len()),
+                "cannot broadcast values {part:?} of {:?} onto {out_shape:?}",
+                rows.shape
+            );
+        }
         let (hw, channels, frames) = match bias {
             Some((table, ids, frames)) => {
-                let [nf, c, h, w] = a.shape[..] else {
-                    panic!("NCHW expected, got {:?}", a.shape)
+                let [nf, c, h, w] = out_shape[..] else {
+                    panic!("NCHW expected, got {out_shape:?}")
                 };
                 assert_eq!(table.shape[1], c, "action bias table {:?}", table.shape);
                 assert_eq!(nf, ids.len * frames, "{} ids for {nf} images", ids.len);
@@ -970,25 +1003,39 @@ impl<'a> Recorder<'a> {
             }
             None => (1, 1, 1),
         };
-        let y = self.output("permute_add.y", &a.shape)?;
-        let params = PermuteAddParams {
+        let y = self.output("permute.y", &out_shape)?;
+        let part = rows.as_ref().map_or(0..1, |(_, part)| part.clone());
+        let params = PermuteParams {
             shape: shape.map(|s| s as u32),
             perm: perm.map(|k| k as u32),
+            has_a: u32::from(a.is_some()),
+            has_rows: u32::from(rows.is_some()),
+            rows_offset: part.start as u32,
+            rows_len: part.len() as u32,
+            has_bias: u32::from(bias.is_some()),
             hw: hw as u32,
             channels: channels as u32,
             frames: frames as u32,
-            has_bias: u32::from(bias.is_some()),
         };
-        // Without a bias its bindings still exist; `a` stands in (unread).
+        // Absent addends keep their bindings; `x` stands in (unread).
+        let a = a.unwrap_or(x);
+        let rows = rows.map_or(x, |(rows, _)| rows);
         let (table, ids) = match bias {
             Some((table, ids, _)) => (table, &ids.buffer),
-            None => (a, &a.buffer),
+            None => (x, &x.buffer),
         };
-        self.check(&[x, a, table, &y]);
+        self.check(&[x, a, rows, table, &y]);
         let grid = self.grid(y.len());
-        let buffers = [&x.buffer, &a.buffer, &table.buffer, ids, &y.buffer];
+        let buffers = [
+            &x.buffer,
+            &a.buffer,
+            &rows.buffer,
+            &table.buffer,
+            ids,
+            &y.buffer,
+        ];
         self.steps
-            .dispatch(&kernels::PERMUTE_ADD, &params, &buffers, grid);
+            .dispatch(&kernels::PERMUTE, &params, &buffers, grid);
         Ok(y)
     }
 

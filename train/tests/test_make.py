@@ -14,8 +14,8 @@ BINARY = ROOT / "target" / "release" / "unica"
 WITCH = ROOT / "assets" / "witch" / "source" / "Witch.gltf"
 
 
-def make(out: Path) -> str:
-    done = subprocess.run([str(BINARY), "make", str(WITCH), "--out", str(out), "--quick", "--device", "cpu"],
+def make(out: Path, *extra: str) -> str:
+    done = subprocess.run([str(BINARY), "make", str(WITCH), "--out", str(out), "--quick", "--device", "cpu", *extra],
                           cwd=ROOT, capture_output=True, text=True)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     return done.stdout
@@ -39,11 +39,12 @@ def test_make_quick_writes_a_bundle_that_loads_and_continues_where_it_stopped(tm
     assert log.count("done before, kept") == 4, log
 
     # A make cut off during its refiner: the refiner resumes from its last checkpoint
-    # (the geometry trainer's resume is tested in test_train.py), the evaluation reruns.
+    # (the geometry trainer's resume is tested in test_train.py); --until stops there.
     state["done"] = ["bake", "geometry"]
     (out / "make.json").write_text(json.dumps(state))
-    log = make(out)
+    log = make(out, "--until", "refiner")
     assert "[2/4] geometry → geometry/ (VAE + UNet run; bundle/ from it): done before, kept" in log, log
-    assert "resumed at step 10" in log and "[4/4] eval: done in" in log, log
+    assert "resumed at step 10" in log and "stopped after refiner (--until)" in log, log
+    assert "[4/4]" not in log, log
     _, _, extra, manifest = bundle.load(out / "bundle")
     assert "refiner" in manifest
