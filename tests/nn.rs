@@ -823,7 +823,7 @@ fn attention_over_a_cached_prefix_equals_attention_over_the_concatenation_bit_fo
             causal: 1,
             kv_share: 1,
             prefix_keys: 0,
-            reserved0: 0,
+            rows: 0,
             reserved1: 0,
             reserved2: 0,
         };

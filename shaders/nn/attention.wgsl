@@ -6,7 +6,8 @@
 // one pass over the keys. With `causal` set, query i sees keys j <= i + keys - queries
 // (the queries are the last ones of the sequence). Head size at most MAX_HEAD_SIZE (host-checked).
 // The first `prefix_keys` keys of a sequence are rows of `prefix` (a cache), the rest rows
-// of `kv`: the same keys in the same order as one concatenated buffer.
+// of `kv`: the same keys in the same order as one concatenated buffer. With `rows` set,
+// self-attention runs over consecutive runs of rows cut at row `rows` (a shorter last run).
 
 @group(0) @binding(0) var<uniform> p: AttentionParams;
 @group(0) @binding(1) var<storage, read> q: array<Elem>;
@@ -38,6 +39,14 @@ fn main(invocation: Invocation) {
     var keys = p.keys;
     if p.causal != 0u {
         keys = min(keys, i + 1u + p.keys - p.queries);
+    }
+    if p.rows != 0u {
+        // Runs of `queries` rows that end at row p.rows: the last one is shorter.
+        let first = s * p.queries;
+        if first + i >= p.rows {
+            return;
+        }
+        keys = min(keys, p.rows - first);
     }
     var acc: array<f32, MAX_HEAD_SIZE>;
     var best = -3.0e38;

@@ -41,6 +41,14 @@ fn main(invocation: Invocation) {
     if p.causal != 0u {
         keys = min(keys, i + 1u + p.keys - p.queries);
     }
+    if p.rows != 0u {
+        // Runs of `queries` rows that end at row p.rows: the last one is shorter.
+        let first = s * p.queries;
+        if first + i >= p.rows {
+            return;
+        }
+        keys = min(keys, p.rows - first);
+    }
 
     var q0 = vec4<f32>(0.0);
     var q1 = vec4<f32>(0.0);

@@ -274,7 +274,7 @@ fn attention_params(
         causal: 0,
         kv_share: 1,
         prefix_keys: 0,
-        reserved0: 0,
+        rows: 0,
         reserved1: 0,
         reserved2: 0,
     }

@@ -132,7 +132,10 @@ gpu_struct! {
         /// `kv` (rows [sequence, keys - prefix_keys]): a cache and the new rows need no
         /// concatenation. 0: all from `kv`.
         pub prefix_keys: u32,
-        pub reserved0: u32,
+        /// Self-attention within consecutive runs of `queries` rows that stops at row
+        /// `rows` (the last run shorter: its queries and keys end there) and writes
+        /// [rows, channels]; 0: every run whole.
+        pub rows: u32,
         pub reserved1: u32,
         pub reserved2: u32,
     }
@@ -1135,13 +1138,24 @@ impl<'a> Recorder<'a> {
             "attention heads of {} values (at most {MAX_HEAD_SIZE})",
             params.channels / params.heads
         );
-        let shape = [
-            params.sequences as usize,
-            params.queries as usize,
-            params.channels as usize,
-        ];
+        let shape = if params.rows > 0 {
+            vec![params.rows as usize, params.channels as usize]
+        } else {
+            vec![
+                params.sequences as usize,
+                params.queries as usize,
+                params.channels as usize,
+            ]
+        };
         let y = self.output("attention.y", &shape)?;
-        self.flops += 4 * (y.len() as u64) * params.keys as u64;
+        // Each query row against its keys: a cut last run has fewer of both.
+        let (run, c) = (params.queries as u64, params.channels as u64);
+        self.flops += if params.rows > 0 {
+            let (full, tail) = (params.rows as u64 / run, params.rows as u64 % run);
+            4 * c * (full * run * run + tail * tail)
+        } else {
+            4 * (y.len() as u64) * params.keys as u64
+        };
         let grid = self.grid((params.sequences * params.heads * params.queries) as usize);
         let head = params.channels / params.heads;
         let rows_in_vec4s = [

@@ -148,8 +148,7 @@ impl Block {
 }
 
 /// Attention within consecutive patches of `patch` rows of packed qkv rows [n, 3C] (the
-/// last patch is shorter): the full patches as one batch of sequences, the rest as one
-/// more, joined.
+/// last patch is shorter), one dispatch: [n, C].
 fn patch_attention(
     r: &mut Recorder,
     qkv: &Tensor,
@@ -159,40 +158,27 @@ fn patch_attention(
     let [n, c3] = qkv.shape[..] else {
         panic!("packed qkv of {:?}", qkv.shape)
     };
+    assert!(n > 0, "patch attention over no points");
     let c = c3 / 3;
-    let full = n / patch;
-    let tail = n - full * patch;
-    let params = |sequences: usize, length: usize, first_row: usize| AttentionParams {
-        sequences: sequences as u32,
+    let params = AttentionParams {
+        sequences: n.div_ceil(patch) as u32,
         heads: heads as u32,
-        queries: length as u32,
-        keys: length as u32,
+        queries: patch as u32,
+        keys: patch as u32,
         channels: c as u32,
         q_stride: c3 as u32,
-        q_offset: (first_row * c3) as u32,
+        q_offset: 0,
         kv_stride: c3 as u32,
-        k_offset: (first_row * c3 + c) as u32,
-        v_offset: (first_row * c3 + 2 * c) as u32,
+        k_offset: c as u32,
+        v_offset: (2 * c) as u32,
         causal: 0,
         kv_share: 1,
         prefix_keys: 0,
-        reserved0: 0,
+        rows: n as u32,
         reserved1: 0,
         reserved2: 0,
     };
-    let body = (full > 0)
-        .then(|| r.attention(qkv, qkv, params(full, patch, 0)))
-        .transpose()?
-        .map(|t| t.reshaped(&[full * patch, c]));
-    let rest = (tail > 0)
-        .then(|| r.attention(qkv, qkv, params(1, tail, full * patch)))
-        .transpose()?
-        .map(|t| t.reshaped(&[tail, c]));
-    match (body, rest) {
-        (Some(a), Some(b)) => r.concat(&a, &b, 0),
-        (Some(a), None) | (None, Some(a)) => Ok(a),
-        (None, None) => panic!("patch attention over no points"),
-    }
+    r.attention(qkv, qkv, params)
 }
 
 pub struct Refiner {
