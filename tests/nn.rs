@@ -913,6 +913,40 @@ fn the_permute_with_its_addends_equals_the_separate_ops_bit_for_bit() {
 }
 
 #[test]
+fn the_linear_layer_with_its_residual_equals_a_separate_add_bit_for_bit() {
+    // The refiner's `x + proj(a)` and `x + fc2(silu(h))`: the residual in the linear
+    // kernels' epilogue equals linear then add.wgsl, in every variant and precision, for
+    // 7 rows (a partial 4-row tile) and 1 row (the one-output-per-invocation kernel).
+    let wave = |n: usize, k: f32| -> Vec<f32> { (0..n).map(|i| (i as f32 * k).sin()).collect() };
+    for (precision, kernels) in variants() {
+        let f = Fixture::open("down", precision);
+        let mut pipelines = PipelineCache::default();
+        let upload = |name: &str, shape: &[usize], k: f32| {
+            let n = shape.iter().product();
+            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
+        };
+        let weight = upload("w", &[12, 8], 0.29);
+        let bias = upload("b", &[12], 0.5);
+        for rows in [7, 1] {
+            let x = upload("x", &[rows, 8], 0.13);
+            let res = upload("res", &[rows, 12], 0.71);
+            let mut r = Recorder::new(&f.gpu, &mut pipelines, precision);
+            r.set_kernels(kernels);
+            let fused = r.linear_plus(&x, &weight, &bias, true, Some(&res)).unwrap();
+            let plain = r.linear(&x, &weight, &bias, true).unwrap();
+            let separate = r.add(&res, &plain, Broadcast::Trailing).unwrap();
+            r.submit();
+            let (a, b) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
+            assert!(
+                a.iter().zip(&b).all(|(p, q)| p.to_bits() == q.to_bits()),
+                "{precision:?} {kernels:?} {rows} rows: worst difference {}",
+                worst_difference(&a, &b)
+            );
+        }
+    }
+}
+
+#[test]
 fn the_action_table_gives_the_cross_attention_bit_for_bit() {
     // One token per sample: the UNet's table lookup must equal the layer exactly, in
     // every kernel variant and precision (and the layer itself matches PyTorch above).

@@ -10,7 +10,17 @@
 @group(0) @binding(1) var<storage, read> x: array<vec4<Elem>>;
 @group(0) @binding(2) var<storage, read> weight: array<vec4<Elem>>;
 @group(0) @binding(3) var<storage, read> bias: array<Elem>;
-@group(0) @binding(4) var<storage, read_write> y: array<Elem>;
+// With `p.has_residual`: added to the rounded result (rows × outputs).
+@group(0) @binding(4) var<storage, read> residual: array<Elem>;
+@group(0) @binding(5) var<storage, read_write> y: array<Elem>;
+
+// Output `at`: the sum rounded to Elem, plus its residual when there is one.
+fn finish(at: u32, v: f32) -> Elem {
+    if p.has_residual != 0u {
+        return Elem(f32(residual[at]) + f32(Elem(v)));
+    }
+    return Elem(v);
+}
 
 fn act(v: vec4<Elem>) -> vec4<f32> {
     let f = vec4<f32>(v);
@@ -26,7 +36,7 @@ fn store(row: u32, o0: u32, v: vec4<f32>) {
     }
     for (var c = 0u; c < 4u; c++) {
         if o0 + c < p.outputs {
-            y[row * p.outputs + o0 + c] = Elem(v[c]);
+            y[row * p.outputs + o0 + c] = finish(row * p.outputs + o0 + c, v[c]);
         }
     }
 }

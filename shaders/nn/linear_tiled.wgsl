@@ -9,7 +9,17 @@
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read> weight: array<Elem>;
 @group(0) @binding(3) var<storage, read> bias: array<Elem>;
-@group(0) @binding(4) var<storage, read_write> y: array<Elem>;
+// With `p.has_residual`: added to the rounded result (rows × outputs).
+@group(0) @binding(4) var<storage, read> residual: array<Elem>;
+@group(0) @binding(5) var<storage, read_write> y: array<Elem>;
+
+// Output `at`: the sum rounded to Elem, plus its residual when there is one.
+fn finish(at: u32, v: f32) -> Elem {
+    if p.has_residual != 0u {
+        return Elem(f32(residual[at]) + f32(Elem(v)));
+    }
+    return Elem(v);
+}
 
 fn act(v: f32) -> f32 {
     if p.input_silu != 0u {
@@ -58,7 +68,7 @@ fn main(invocation: Invocation) {
         for (var c = 0u; c < 4u; c++) {
             let o = o0 + c;
             if o < p.outputs {
-                y[row * p.outputs + o] = Elem(acc[r][c]);
+                y[row * p.outputs + o] = finish(row * p.outputs + o, acc[r][c]);
             }
         }
     }

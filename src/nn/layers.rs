@@ -146,6 +146,17 @@ impl Linear {
     ) -> Result<Tensor, GpuError> {
         r.linear(x, &self.weight, &self.bias, input_silu)
     }
+
+    /// `residual + forward(x)` in one dispatch ([`Recorder::linear_plus`]).
+    pub fn forward_plus(
+        &self,
+        r: &mut Recorder,
+        x: &Tensor,
+        input_silu: bool,
+        residual: &Tensor,
+    ) -> Result<Tensor, GpuError> {
+        r.linear_plus(x, &self.weight, &self.bias, input_silu, Some(residual))
+    }
 }
 
 /// GroupNorm-SiLU-Conv twice, an optional per-sample embedding added in between, and a

@@ -67,6 +67,12 @@ gpu_struct! {
         pub inputs: u32,
         pub outputs: u32,
         pub input_silu: u32,
+        /// Add a residual of the output's shape to the result rounded to Elem (the sum
+        /// add.wgsl would make after the layer).
+        pub has_residual: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
+        pub reserved2: u32,
     }
 }
 
@@ -797,6 +803,19 @@ impl<'a> Recorder<'a> {
         bias: &Tensor,
         input_silu: bool,
     ) -> Result<Tensor, GpuError> {
+        self.linear_plus(x, weight, bias, input_silu, None)
+    }
+
+    /// `residual + linear(x)` in one dispatch (`residual` of the output's shape), the
+    /// sum add.wgsl would make after [`Recorder::linear`].
+    pub fn linear_plus(
+        &mut self,
+        x: &Tensor,
+        weight: &Tensor,
+        bias: &Tensor,
+        input_silu: bool,
+        residual: Option<&Tensor>,
+    ) -> Result<Tensor, GpuError> {
         let inputs = *x.shape.last().expect("a tensor has a shape");
         let [outputs, w_inputs] = weight.shape[..] else {
             panic!(
@@ -814,7 +833,16 @@ impl<'a> Recorder<'a> {
             inputs: inputs as u32,
             outputs: outputs as u32,
             input_silu: u32::from(input_silu),
+            has_residual: u32::from(residual.is_some()),
+            reserved0: 0,
+            reserved1: 0,
+            reserved2: 0,
         };
+        if let Some(res) = residual {
+            assert_eq!(res.len(), y.len(), "linear residual {:?}", res.shape);
+        }
+        // Without a residual its binding still exists; x stands in (unread).
+        let residual = residual.unwrap_or(x);
         // Register tiles of 4 rows × 4 outputs where there are rows to share a tile;
         // one invocation per output otherwise (the timestep and action embeddings).
         // Both sum in the same order; both are parity-tested (tests/nn.rs).
@@ -829,12 +857,17 @@ impl<'a> Recorder<'a> {
                     &kernels::LINEAR_TILED
                 },
                 &params,
-                &[x, weight, bias, &y],
+                &[x, weight, bias, residual, &y],
                 grid,
             );
         } else {
             let grid = self.grid(y.len());
-            self.launch(&kernels::LINEAR, &params, &[x, weight, bias, &y], grid);
+            self.launch(
+                &kernels::LINEAR,
+                &params,
+                &[x, weight, bias, residual, &y],
+                grid,
+            );
         }
         Ok(y)
     }

@@ -138,12 +138,11 @@ impl Block {
         let sorted = r.gather(&qkv, &order.sort)?;
         let attended = patch_attention(r, &sorted, self.heads, patch)?;
         let unsorted = r.gather(&attended, &order.unsort)?;
-        let a = self.proj.forward(r, &unsorted, false)?;
-        let x = r.add(x, &a, super::Broadcast::Trailing)?;
+        // The residual adds ride in the projections' epilogues.
+        let x = self.proj.forward_plus(r, &unsorted, false, x)?;
         let normed = self.norm2.forward(r, &x)?;
         let h = self.fc1.forward(r, &normed, false)?;
-        let m = self.fc2.forward(r, &h, true)?;
-        r.add(&x, &m, super::Broadcast::Trailing)
+        self.fc2.forward_plus(r, &h, true, &x)
     }
 }
 
