@@ -636,15 +636,13 @@ impl eframe::App for UnicaApp {
                 let scene = self.shown.scene_generation();
                 let splats = self.shown.splats();
                 let labels = self.shown.labels();
-                let timings = self.viewport.show(
-                    ui,
-                    &self.gpu,
-                    &state.renderer,
-                    &meshes,
-                    scene,
+                let scene = viewport::Scene {
+                    meshes: &meshes,
+                    generation: scene,
                     splats,
-                    &labels,
-                );
+                    labels: &labels,
+                };
+                let timings = self.viewport.show(ui, &self.gpu, &state.renderer, scene);
                 if !timings.is_empty() {
                     self.timings = timings;
                 }

@@ -56,6 +56,15 @@ type SceneKey = (
 /// whenever the buffer's contents do (e.g. the generated frame's number).
 pub type Splats<'a> = (&'a wgpu::Buffer, usize, u64);
 
+/// What one window frame shows: the meshes and a generation that changes whenever they
+/// do, the splats, and labels (a world point and its text).
+pub struct Scene<'a> {
+    pub meshes: &'a [&'a GpuMesh],
+    pub generation: (u64, u64, usize),
+    pub splats: Option<Splats<'a>>,
+    pub labels: &'a [(glam::Vec3, &'a str)],
+}
+
 struct Cached {
     key: (OrbitCamera, (u32, u32), wgpu::Buffer, usize, u64),
     image: wgpu::Buffer,
@@ -94,11 +103,14 @@ impl Viewport {
         ui: &mut egui::Ui,
         gpu: &GpuContext,
         egui_renderer: &egui::mutex::RwLock<eframe::egui_wgpu::Renderer>,
-        meshes: &[&GpuMesh],
-        scene: (u64, u64, usize),
-        splats: Option<Splats>,
-        labels: &[(glam::Vec3, &str)],
+        scene: Scene,
     ) -> Vec<StageTiming> {
+        let Scene {
+            meshes,
+            generation: scene,
+            splats,
+            labels,
+        } = scene;
         let size = ui.available_size();
         let ppp = ui.ctx().pixels_per_point();
         let (w, h) = (
