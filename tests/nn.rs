@@ -947,6 +947,50 @@ fn the_linear_layer_with_its_residual_equals_a_separate_add_bit_for_bit() {
 }
 
 #[test]
+fn the_upsampled_convolution_equals_upsample_then_convolution_bit_for_bit() {
+    // Up (decoder and UNet): nearest ×2 upsampling fused into the 3×3 convolution's loads
+    // must equal the two ops, in every variant and precision, on 5 × 6 images (12-pixel
+    // rows: a partial 8-pixel tile) and 3 × 3 ones (6-pixel rows: the two-op fallback).
+    let wave = |n: usize, k: f32| -> Vec<f32> { (0..n).map(|i| (i as f32 * k).sin()).collect() };
+    for (precision, kernels) in variants() {
+        let f = Fixture::open("down", precision);
+        let mut pipelines = PipelineCache::default();
+        let bias = Tensor::upload(&f.gpu, "b", &[12], &wave(12, 0.5), precision).unwrap();
+        let weights = unica::nn::ops::PackedConv::new(
+            &f.gpu,
+            "w",
+            &wave(12 * 5 * 9, 0.23),
+            [12, 5, 3],
+            precision,
+        )
+        .unwrap();
+        for (h, w) in [(5, 6), (3, 3)] {
+            let x = Tensor::upload(
+                &f.gpu,
+                "x",
+                &[2, 5, h, w],
+                &wave(2 * 5 * h * w, 0.11),
+                precision,
+            )
+            .unwrap();
+            let mut r = Recorder::new(&f.gpu, &mut pipelines, precision);
+            r.set_kernels(kernels);
+            let fused = r.upsampled_conv3x3(&x, &weights, Some(&bias)).unwrap();
+            let up = r.upsample_nearest2x(&x).unwrap();
+            let separate = r.conv3x3(&up, &weights, Some(&bias), None, None).unwrap();
+            r.submit();
+            assert_eq!(fused.shape, vec![2, 12, 2 * h, 2 * w]);
+            let (a, b) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
+            assert!(
+                a.iter().zip(&b).all(|(p, q)| p.to_bits() == q.to_bits()),
+                "{precision:?} {kernels:?} {h}x{w}: worst difference {}",
+                worst_difference(&a, &b)
+            );
+        }
+    }
+}
+
+#[test]
 fn the_action_table_gives_the_cross_attention_bit_for_bit() {
     // One token per sample: the UNet's table lookup must equal the layer exactly, in
     // every kernel variant and precision (and the layer itself matches PyTorch above).

@@ -6,7 +6,8 @@
 // Taps outside the input add an exact zero, so each output sums the same terms in the
 // same order (bias, then c_in, ky, kx) as conv2d.wgsl. Optional bias [c_out], an
 // optional per-image addend added after the sums, and an optional residual added to the
-// result rounded to Elem (so it equals a separate add.wgsl exactly).
+// result rounded to Elem (so it equals a separate add.wgsl exactly). With `upsample`, the
+// input is read upsampled ×2 (upsample_nearest.wgsl fused into the loads).
 
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
@@ -18,10 +19,14 @@
 @group(0) @binding(5) var<storage, read> residual: array<Elem>;
 @group(0) @binding(6) var<storage, read_write> y: array<Elem>;
 
-// x at column `ix` of the row starting at `row`; zero outside it.
+// The image the taps see is w_out × h_out ("same" padding): x itself, or with
+// `p.upsample` x upsampled ×2 (nearest), read from its source pixels.
+
+// The seen image at column `ix` of the seen row whose x row starts at `row`; zero outside.
 fn column(row: u32, ix: i32) -> f32 {
-    let inside = ix >= 0 && ix < i32(p.w_in);
-    return select(0.0, f32(x[row + u32(clamp(ix, 0, i32(p.w_in) - 1))]), inside);
+    let inside = ix >= 0 && ix < i32(p.w_out);
+    let seen = u32(clamp(ix, 0, i32(p.w_out) - 1));
+    return select(0.0, f32(x[row + (seen >> p.upsample)]), inside);
 }
 
 @compute @workgroup_size(WORKGROUP)
@@ -69,10 +74,10 @@ fn main(invocation: Invocation) {
         let plane = (n * p.c_in + ci) * p.h_in * p.w_in;
         for (var ky = 0u; ky < 3u; ky++) {
             let iy = i32(oy + ky) - 1;
-            if iy < 0 || iy >= i32(p.h_in) {
+            if iy < 0 || iy >= i32(p.h_out) {
                 continue;
             }
-            let row = plane + u32(iy) * p.w_in;
+            let row = plane + (u32(iy) >> p.upsample) * p.w_in;
             let v0 = column(row, left + 0);
             let v1 = column(row, left + 1);
             let v2 = column(row, left + 2);

@@ -251,8 +251,16 @@ impl Up {
     }
 
     pub fn forward(&self, r: &mut Recorder, x: &Tensor) -> Result<Tensor, GpuError> {
-        let up = r.upsample_nearest2x(x)?;
-        self.conv.forward(r, &up)
+        match &self.conv.weights {
+            // The upsampling fused into the convolution's loads.
+            ConvWeights::Packed(weights) if weights.kernel == 3 => {
+                r.upsampled_conv3x3(x, weights, Some(&self.conv.bias))
+            }
+            _ => {
+                let up = r.upsample_nearest2x(x)?;
+                self.conv.forward(r, &up)
+            }
+        }
     }
 }
 

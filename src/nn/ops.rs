@@ -30,7 +30,9 @@ gpu_struct! {
         pub has_extra: u32,
         /// conv3x3: then add a residual of the output's shape.
         pub has_residual: u32,
-        pub reserved0: u32,
+        /// conv3x3: the input is read upsampled ×2 (nearest): output pixel (y, x) of the
+        /// 2H × 2W image sees input pixel (y / 2, x / 2) through each tap.
+        pub upsample: u32,
         pub reserved1: u32,
         pub reserved2: u32,
     }
@@ -573,7 +575,7 @@ impl<'a> Recorder<'a> {
             has_bias: u32::from(bias.is_some()),
             has_extra: 0,
             has_residual: 0,
-            reserved0: 0,
+            upsample: 0,
             reserved1: 0,
             reserved2: 0,
         };
@@ -662,6 +664,59 @@ impl<'a> Recorder<'a> {
         Ok(y)
     }
 
+    /// Nearest ×2 upsampling then a 3×3 convolution, in one dispatch: the kernel reads
+    /// each upsampled pixel from its source (the same sums as upsample_nearest then
+    /// conv3x3). With [`Kernels::Simple`] and for rows under 8 pixels, the two ops.
+    pub fn upsampled_conv3x3(
+        &mut self,
+        x: &Tensor,
+        weights: &PackedConv,
+        bias: Option<&Tensor>,
+    ) -> Result<Tensor, GpuError> {
+        let [n, c_in, h, w] = x.shape[..] else {
+            panic!("conv3x3 input must be NCHW, got {:?}", x.shape)
+        };
+        assert_eq!((c_in, weights.kernel), (weights.c_in, 3), "conv3x3 weights");
+        if 2 * w < 8 || self.kernels == Kernels::Simple {
+            let up = self.upsample_nearest2x(x)?;
+            return self.conv3x3(&up, weights, bias, None, None);
+        }
+        let y = self.output("packed_conv.y", &[n, weights.c_out, 2 * h, 2 * w])?;
+        let params = Conv2dParams {
+            batch: n as u32,
+            c_in: c_in as u32,
+            c_out: weights.c_out as u32,
+            h_in: h as u32,
+            w_in: w as u32,
+            h_out: 2 * h as u32,
+            w_out: 2 * w as u32,
+            kernel: 3,
+            stride: 1,
+            pad: 1,
+            has_bias: u32::from(bias.is_some()),
+            has_extra: 0,
+            has_residual: 0,
+            upsample: 1,
+            reserved1: 0,
+            reserved2: 0,
+        };
+        self.flops += 2 * (y.len() * c_in * 9) as u64;
+        let bias = bias.unwrap_or(x);
+        self.check(&[x, bias, &y]);
+        let grid = self.grid(n * weights.c_out.div_ceil(8) * 2 * h * (2 * w).div_ceil(8));
+        let buffers = [
+            &x.buffer,
+            &weights.packed.buffer,
+            &bias.buffer,
+            &x.buffer,
+            &x.buffer,
+            &y.buffer,
+        ];
+        self.steps
+            .dispatch(&kernels::CONV3X3, &params, &buffers, grid);
+        Ok(y)
+    }
+
     /// The output [N, c_out, H, W] and parameters of a stride-1 "same" convolution
     /// from packed weights (`conv3x3` and `conv1x1`), its FLOPs counted.
     fn packed_output(
@@ -690,7 +745,7 @@ impl<'a> Recorder<'a> {
             has_bias: u32::from(has_bias),
             has_extra: u32::from(has_extra),
             has_residual: 0,
-            reserved0: 0,
+            upsample: 0,
             reserved1: 0,
             reserved2: 0,
         };
