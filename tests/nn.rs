@@ -147,6 +147,21 @@ enum Scope {
 /// Runs `module` on the fixture's `inputs` (recording with its weights) in every
 /// precision and compares its result with the stored `output` at `scope`'s tolerance.
 /// Every kernel variant (simple, CPU, GPU) in every precision to test.
+/// Smooth deterministic test values: sin(k·i).
+fn wave(n: usize, k: f32) -> Vec<f32> {
+    (0..n).map(|i| (i as f32 * k).sin()).collect()
+}
+
+/// Every value of `a` equals `b`'s bit for bit (a fused kernel against the ops it fuses).
+fn assert_same_bits(a: &[f32], b: &[f32], what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}: lengths");
+    assert!(
+        a.iter().zip(b).all(|(p, q)| p.to_bits() == q.to_bits()),
+        "{what}: worst difference {}",
+        worst_difference(a, b)
+    );
+}
+
 fn variants() -> Vec<(Precision, Kernels)> {
     precisions()
         .into_iter()
@@ -664,7 +679,6 @@ fn every_variant_of_the_group_norm_and_the_packed_convolutions_agrees_on_odd_sha
     // The simple kernels are the PyTorch-tested reference here.
     let f = Fixture::open("down", Precision::F32);
     let mut pipelines = PipelineCache::default();
-    let wave = |n: usize, k: f32| -> Vec<f32> { (0..n).map(|i| (i as f32 * k).sin()).collect() };
     let x = Tensor::upload(
         &f.gpu,
         "x",
@@ -746,7 +760,6 @@ fn the_convolution_with_its_residual_equals_a_separate_add_bit_for_bit() {
     // A ResBlock's `skip + conv2(h)`: the residual fused into conv3x3's epilogue must give
     // exactly what conv3x3 then add.wgsl gives, in every kernel variant and precision
     // (the ResBlock fixtures then check both against PyTorch).
-    let wave = |n: usize, k: f32| -> Vec<f32> { (0..n).map(|i| (i as f32 * k).sin()).collect() };
     for (precision, kernels) in variants() {
         let f = Fixture::open("down", precision);
         let mut pipelines = PipelineCache::default();
@@ -783,11 +796,7 @@ fn the_convolution_with_its_residual_equals_a_separate_add_bit_for_bit() {
         let separate = r.add(&skip, &conv, Broadcast::Leading).unwrap();
         r.submit();
         let (a, b) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
-        assert!(
-            a.iter().zip(&b).all(|(p, q)| p.to_bits() == q.to_bits()),
-            "{precision:?} {kernels:?}: worst difference {}",
-            worst_difference(&a, &b)
-        );
+        assert_same_bits(&a, &b, &format!("{precision:?} {kernels:?}"));
         let expected = if kernels == Kernels::Simple { 3 } else { 1 };
         assert_eq!(fused_dispatches, expected, "{kernels:?}");
     }
@@ -798,7 +807,6 @@ fn attention_over_a_cached_prefix_equals_attention_over_the_concatenation_bit_fo
     // The temporal layers' target pass: 3 cached frames' packed qkv rows and 1 new frame,
     // causal, 2 heads of 8 — read in place must equal reading their concatenation, in
     // every kernel variant and precision (head 8: the CPU variant applies).
-    let wave = |n: usize, k: f32| -> Vec<f32> { (0..n).map(|i| (i as f32 * k).sin()).collect() };
     let (sequences, cached_keys, c) = (6usize, 3usize, 16usize);
     for (precision, kernels) in variants() {
         let f = Fixture::open("down", precision);
@@ -844,11 +852,7 @@ fn attention_over_a_cached_prefix_equals_attention_over_the_concatenation_bit_fo
             .unwrap();
         r.submit();
         let (a, b) = (whole.read(&f.gpu).unwrap(), in_place.read(&f.gpu).unwrap());
-        assert!(
-            a.iter().zip(&b).all(|(p, q)| p.to_bits() == q.to_bits()),
-            "{precision:?} {kernels:?}: worst difference {}",
-            worst_difference(&a, &b)
-        );
+        assert_same_bits(&a, &b, &format!("{precision:?} {kernels:?}"));
     }
 }
 
@@ -858,7 +862,6 @@ fn the_permute_with_its_addends_equals_the_separate_ops_bit_for_bit() {
     // action bias in one pass must equal add_permuted then add_action_bias exactly, in
     // every precision (one kernel serves every variant): 2 samples × 3 frames of 4×5
     // images with 8 channels, actions 2 and 0 of a 3-row table.
-    let wave = |n: usize, k: f32| -> Vec<f32> { (0..n).map(|i| (i as f32 * k).sin()).collect() };
     for (precision, kernels) in variants() {
         let f = Fixture::open("down", precision);
         let mut pipelines = PipelineCache::default();
@@ -881,11 +884,7 @@ fn the_permute_with_its_addends_equals_the_separate_ops_bit_for_bit() {
         r.submit();
         let (x, y) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
         let plain = sum.read(&f.gpu).unwrap();
-        assert!(
-            x.iter().zip(&y).all(|(p, q)| p.to_bits() == q.to_bits()),
-            "{precision:?} {kernels:?}: worst difference {}",
-            worst_difference(&x, &y)
-        );
+        assert_same_bits(&x, &y, &format!("{precision:?} {kernels:?}"));
         assert!(worst_difference(&x, &plain) > 0.1, "the bias was added");
 
         // The temporal layers' tokens: permuted, plus frame positions 1..4 of a 5-row
@@ -904,11 +903,7 @@ fn the_permute_with_its_addends_equals_the_separate_ops_bit_for_bit() {
         r.submit();
         let (x, y) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
         assert_eq!(fused.shape, vec![2, 20, 3, 8]);
-        assert!(
-            x.iter().zip(&y).all(|(p, q)| p.to_bits() == q.to_bits()),
-            "{precision:?} {kernels:?} rows: worst difference {}",
-            worst_difference(&x, &y)
-        );
+        assert_same_bits(&x, &y, &format!("{precision:?} {kernels:?} rows"));
     }
 }
 
@@ -917,7 +912,6 @@ fn the_linear_layer_with_its_residual_equals_a_separate_add_bit_for_bit() {
     // The refiner's `x + proj(a)` and `x + fc2(silu(h))`: the residual in the linear
     // kernels' epilogue equals linear then add.wgsl, in every variant and precision, for
     // 7 rows (a partial 4-row tile) and 1 row (the one-output-per-invocation kernel).
-    let wave = |n: usize, k: f32| -> Vec<f32> { (0..n).map(|i| (i as f32 * k).sin()).collect() };
     for (precision, kernels) in variants() {
         let f = Fixture::open("down", precision);
         let mut pipelines = PipelineCache::default();
@@ -937,11 +931,7 @@ fn the_linear_layer_with_its_residual_equals_a_separate_add_bit_for_bit() {
             let separate = r.add(&res, &plain, Broadcast::Trailing).unwrap();
             r.submit();
             let (a, b) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
-            assert!(
-                a.iter().zip(&b).all(|(p, q)| p.to_bits() == q.to_bits()),
-                "{precision:?} {kernels:?} {rows} rows: worst difference {}",
-                worst_difference(&a, &b)
-            );
+            assert_same_bits(&a, &b, &format!("{precision:?} {kernels:?} {rows} rows"));
         }
     }
 }
@@ -951,7 +941,6 @@ fn the_upsampled_convolution_equals_upsample_then_convolution_bit_for_bit() {
     // Up (decoder and UNet): nearest ×2 upsampling fused into the 3×3 convolution's loads
     // must equal the two ops, in every variant and precision, on 5 × 6 images (12-pixel
     // rows: a partial 8-pixel tile) and 3 × 3 ones (6-pixel rows: the two-op fallback).
-    let wave = |n: usize, k: f32| -> Vec<f32> { (0..n).map(|i| (i as f32 * k).sin()).collect() };
     for (precision, kernels) in variants() {
         let f = Fixture::open("down", precision);
         let mut pipelines = PipelineCache::default();
@@ -981,11 +970,7 @@ fn the_upsampled_convolution_equals_upsample_then_convolution_bit_for_bit() {
             r.submit();
             assert_eq!(fused.shape, vec![2, 12, 2 * h, 2 * w]);
             let (a, b) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
-            assert!(
-                a.iter().zip(&b).all(|(p, q)| p.to_bits() == q.to_bits()),
-                "{precision:?} {kernels:?} {h}x{w}: worst difference {}",
-                worst_difference(&a, &b)
-            );
+            assert_same_bits(&a, &b, &format!("{precision:?} {kernels:?} {h}x{w}"));
         }
     }
 }
@@ -1006,10 +991,6 @@ fn the_action_table_gives_the_cross_attention_bit_for_bit() {
         let looked_up = r.add_action_bias(&x, &table, &ids, 1).unwrap();
         r.submit();
         let (a, b) = (full.read(&f.gpu).unwrap(), looked_up.read(&f.gpu).unwrap());
-        assert!(
-            a.iter().zip(&b).all(|(p, q)| p.to_bits() == q.to_bits()),
-            "{precision:?} {kernels:?}: worst difference {}",
-            worst_difference(&a, &b)
-        );
+        assert_same_bits(&a, &b, &format!("{precision:?} {kernels:?}"));
     }
 }

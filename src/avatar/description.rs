@@ -464,38 +464,10 @@ pub fn legs(
 /// in-place and root-motion clips read alike); the median over the cycle, m/s.
 pub fn stance_speed(character: &Character, clip: &Clip, feet: &[usize], hips: usize) -> f32 {
     const SAMPLES: usize = 60;
-    let rig = &character.rig;
     let dt = clip.duration.max(1e-3) / SAMPLES as f32;
-    let at = |k: usize| {
-        let mut pose = rig.rest_pose();
-        clip.sample_looped(k as f32 * dt, &mut pose);
-        let world = rig.world(&pose, glam::Mat4::IDENTITY);
-        let hip = world[hips].w_axis.truncate();
-        feet.iter()
-            .map(|&f| world[f].w_axis.truncate() - Vec3::new(hip.x, 0.0, hip.z))
-            .collect::<Vec<Vec3>>()
-    };
-    let planted = |f: &[Vec3]| {
-        (0..f.len())
-            .min_by(|&a, &b| f[a].y.total_cmp(&f[b].y))
-            .expect("feet")
-    };
-    let mut speeds = Vec::new();
-    let mut previous = at(0);
-    for k in 1..=SAMPLES {
-        let current = at(k);
-        let foot = planted(&current);
-        if planted(&previous) == foot {
-            let step = current[foot] - previous[foot];
-            speeds.push(Vec3::new(step.x, 0.0, step.z).length() / dt);
-        }
-        previous = current;
-    }
-    if speeds.is_empty() {
-        return 0.0;
-    }
-    speeds.sort_by(f32::total_cmp);
-    speeds[speeds.len() / 2]
+    super::teacher::planted_speed(character, clip, feet, Some(hips), SAMPLES, dt, |step| {
+        Vec3::new(step.x, 0.0, step.z).length()
+    })
 }
 
 #[cfg(test)]

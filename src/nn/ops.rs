@@ -641,7 +641,8 @@ impl<'a> Recorder<'a> {
                 None => Ok(y),
             };
         }
-        let (y, mut params) = self.packed_output(x, weights, bias.is_some(), extra.is_some())?;
+        let (y, mut params) =
+            self.packed_output(x, weights, bias.is_some(), extra.is_some(), false)?;
         params.has_residual = u32::from(residual.is_some());
         let c_out = weights.c_out;
         // Bias, extra and residual bindings must exist even when absent; the input stands
@@ -681,26 +682,7 @@ impl<'a> Recorder<'a> {
             let up = self.upsample_nearest2x(x)?;
             return self.conv3x3(&up, weights, bias, None, None);
         }
-        let y = self.output("packed_conv.y", &[n, weights.c_out, 2 * h, 2 * w])?;
-        let params = Conv2dParams {
-            batch: n as u32,
-            c_in: c_in as u32,
-            c_out: weights.c_out as u32,
-            h_in: h as u32,
-            w_in: w as u32,
-            h_out: 2 * h as u32,
-            w_out: 2 * w as u32,
-            kernel: 3,
-            stride: 1,
-            pad: 1,
-            has_bias: u32::from(bias.is_some()),
-            has_extra: 0,
-            has_residual: 0,
-            upsample: 1,
-            reserved1: 0,
-            reserved2: 0,
-        };
-        self.flops += 2 * (y.len() * c_in * 9) as u64;
+        let (y, params) = self.packed_output(x, weights, bias.is_some(), false, true)?;
         let bias = bias.unwrap_or(x);
         self.check(&[x, bias, &y]);
         let grid = self.grid(n * weights.c_out.div_ceil(8) * 2 * h * (2 * w).div_ceil(8));
@@ -717,35 +699,39 @@ impl<'a> Recorder<'a> {
         Ok(y)
     }
 
-    /// The output [N, c_out, H, W] and parameters of a stride-1 "same" convolution
-    /// from packed weights (`conv3x3` and `conv1x1`), its FLOPs counted.
+    /// The output [N, c_out, H, W] (2H × 2W with `upsample`) and parameters of a
+    /// stride-1 "same" convolution from packed weights (`conv3x3` and `conv1x1`), its
+    /// FLOPs counted.
     fn packed_output(
         &mut self,
         x: &Tensor,
         weights: &PackedConv,
         has_bias: bool,
         has_extra: bool,
+        upsample: bool,
     ) -> Result<(Tensor, Conv2dParams), GpuError> {
         let [n, c_in, h, w] = x.shape[..] else {
             panic!("a convolution's input must be NCHW, got {:?}", x.shape)
         };
         let k = weights.kernel;
-        let y = self.output("packed_conv.y", &[n, weights.c_out, h, w])?;
+        let scale = if upsample { 2 } else { 1 };
+        let (h_out, w_out) = (scale * h, scale * w);
+        let y = self.output("packed_conv.y", &[n, weights.c_out, h_out, w_out])?;
         let params = Conv2dParams {
             batch: n as u32,
             c_in: c_in as u32,
             c_out: weights.c_out as u32,
             h_in: h as u32,
             w_in: w as u32,
-            h_out: h as u32,
-            w_out: w as u32,
+            h_out: h_out as u32,
+            w_out: w_out as u32,
             kernel: k as u32,
             stride: 1,
             pad: (k / 2) as u32,
             has_bias: u32::from(has_bias),
             has_extra: u32::from(has_extra),
             has_residual: 0,
-            upsample: 0,
+            upsample: u32::from(upsample),
             reserved1: 0,
             reserved2: 0,
         };
@@ -770,7 +756,7 @@ impl<'a> Recorder<'a> {
         if !(h * w).is_multiple_of(4) || self.kernels == Kernels::Simple {
             return self.conv2d(x, &weights.plain, bias, 1, 0);
         }
-        let (y, params) = self.packed_output(x, weights, bias.is_some(), false)?;
+        let (y, params) = self.packed_output(x, weights, bias.is_some(), false, false)?;
         let c_out = weights.c_out;
         // A bias binding must exist even without a bias; the input stands in (unread).
         let bias = bias.unwrap_or(x);

@@ -60,14 +60,7 @@ pub fn write(path: &Path, splats: &[Splat]) -> Result<(), crate::files::WriteErr
 }
 
 pub fn read(path: &Path) -> Result<Vec<Splat>, PlyError> {
-    let bytes = std::fs::read(path).map_err(|e| PlyError {
-        path: path.to_path_buf(),
-        problem: e.to_string(),
-    })?;
-    decode(&bytes).map_err(|problem| PlyError {
-        path: path.to_path_buf(),
-        problem,
-    })
+    super::ply::read_with(path, decode)
 }
 
 /// Splats from a `.splat` file's bytes; the error says what is wrong.

@@ -97,6 +97,14 @@ pub fn write(path: &Path, splats: &[Splat]) -> Result<(), crate::files::WriteErr
 }
 
 pub fn read(path: &Path) -> Result<Vec<Splat>, PlyError> {
+    read_with(path, decode)
+}
+
+/// The splats of the file at `path` as `decode` reads its bytes, errors naming the file.
+pub(crate) fn read_with(
+    path: &Path,
+    decode: fn(&[u8]) -> Result<Vec<Splat>, String>,
+) -> Result<Vec<Splat>, PlyError> {
     let bytes = std::fs::read(path).map_err(|e| PlyError {
         path: path.to_path_buf(),
         problem: e.to_string(),
