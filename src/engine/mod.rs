@@ -505,11 +505,11 @@ impl Engine {
                             .collect(),
                         groups: Indices::from_buffer(inputs.groups, inputs.points),
                     };
-                    let features = Tensor {
-                        buffer: inputs.features.clone(),
-                        shape: vec![inputs.points, crate::splat::frame::FEATURES],
-                        precision: self.precision,
-                    };
+                    let features = Tensor::from_buffer(
+                        inputs.features.clone(),
+                        &[inputs.points, crate::splat::frame::FEATURES],
+                        self.precision,
+                    );
                     r.stage("refiner");
                     let residuals = refiner.forward_with(&mut r, &features, &orders)?;
                     r.stage("splats");

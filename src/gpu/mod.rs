@@ -6,6 +6,7 @@ pub mod kernel;
 pub mod plan;
 pub mod readback;
 pub mod shaders;
+pub mod texels;
 pub mod timing;
 
 use std::fmt;
@@ -199,6 +200,13 @@ pub fn device_descriptor(
     }
 }
 
+/// What a binding of a kernel holds: a whole buffer, or texels ([`texels`]).
+#[derive(Clone, Copy, Debug)]
+pub enum Bound<'a> {
+    Buffer(&'a wgpu::Buffer),
+    Texels(&'a texels::Texels),
+}
+
 /// A device and queue with the facts the kernels need about them.
 #[derive(Clone)]
 pub struct GpuContext {
@@ -278,12 +286,21 @@ impl GpuContext {
         layout: &wgpu::BindGroupLayout,
         buffers: &[&wgpu::Buffer],
     ) -> wgpu::BindGroup {
-        let entries: Vec<wgpu::BindGroupEntry> = buffers
+        let bound: Vec<Bound> = buffers.iter().map(|&b| Bound::Buffer(b)).collect();
+        self.bind(layout, &bound)
+    }
+
+    /// A bind group of `layout` with `resources` at bindings 0, 1, … (counted).
+    pub fn bind(&self, layout: &wgpu::BindGroupLayout, resources: &[Bound]) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = resources
             .iter()
             .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry {
+            .map(|(i, r)| wgpu::BindGroupEntry {
                 binding: i as u32,
-                resource: b.as_entire_binding(),
+                resource: match r {
+                    Bound::Buffer(b) => b.as_entire_binding(),
+                    Bound::Texels(t) => wgpu::BindingResource::TextureView(&t.view),
+                },
             })
             .collect();
         self.create_bind_group(&wgpu::BindGroupDescriptor {

@@ -4,9 +4,10 @@
 //! command encoders without creating anything. Stages (the model, the splats, the engine)
 //! record their own kernels through it; it knows no model.
 
-use super::GpuContext;
 use super::kernel::{Grid, PipelineCache, Precision, uniform};
 use super::shaders::Shader;
+use super::texels::Texels;
+use super::{Bound, GpuContext};
 
 /// One piece of recorded work: everything it binds was created when it was recorded.
 enum Step {
@@ -23,6 +24,11 @@ enum Step {
         target: wgpu::Buffer,
         target_offset: u64,
         size: u64,
+    },
+    /// A buffer's values copied into texels (see [`Texels::record_copy`]).
+    CopyToTexels {
+        source: wgpu::Buffer,
+        target: Texels,
     },
 }
 
@@ -71,6 +77,10 @@ fn encode_steps<'s>(
                     *target_offset,
                     *size,
                 );
+            }
+            Step::CopyToTexels { source, target } => {
+                pass = None;
+                target.record_copy(encoder, source);
             }
         }
     }
@@ -155,6 +165,7 @@ impl Plan {
             let name = match step {
                 Step::Dispatch { name, .. } => *name,
                 Step::Copy { .. } => "copy",
+                Step::CopyToTexels { .. } => "copy to texels",
             };
             match by_name.iter_mut().find(|(n, ..)| *n == name) {
                 Some(entry) => {
@@ -289,26 +300,36 @@ impl<'a> Builder<'a> {
         buffers: &[&wgpu::Buffer],
         grid: Grid,
     ) {
+        let bound: Vec<Bound> = buffers.iter().map(|&b| Bound::Buffer(b)).collect();
+        self.dispatch_bound(shader, params, &bound, grid);
+    }
+
+    /// [`Builder::dispatch`] with buffers or texels at bindings 1, 2, ….
+    pub fn dispatch_bound<P: bytemuck::Pod>(
+        &mut self,
+        shader: &Shader,
+        params: &P,
+        resources: &[Bound],
+        grid: Grid,
+    ) {
         let declared = self.pipelines.bindings(shader, self.precision);
         assert_eq!(
-            buffers.len() + 1,
+            resources.len() + 1,
             declared,
-            "{}: {} buffers bound after the parameters, the shader declares {} bindings",
+            "{}: {} resources bound after the parameters, the shader declares {} bindings",
             shader.file,
-            buffers.len(),
+            resources.len(),
             declared
         );
         let params = uniform(self.gpu, params);
-        let bindings: Vec<&wgpu::Buffer> = std::iter::once(&params)
-            .chain(buffers.iter().copied())
+        let bindings: Vec<Bound> = std::iter::once(Bound::Buffer(&params))
+            .chain(resources.iter().copied())
             .collect();
         let pipeline = self
             .pipelines
             .get(&self.gpu.device, shader, self.precision)
             .clone();
-        let bind_group = self
-            .gpu
-            .bind_buffers(&pipeline.get_bind_group_layout(0), &bindings);
+        let bind_group = self.gpu.bind(&pipeline.get_bind_group_layout(0), &bindings);
         self.push(Step::Dispatch {
             name: shader.file,
             pipeline,
@@ -332,6 +353,14 @@ impl<'a> Builder<'a> {
             target: target.clone(),
             target_offset,
             size,
+        });
+    }
+
+    /// Records a copy of `source` into `target` (see [`Texels::record_copy`]).
+    pub fn copy_to_texels(&mut self, source: &wgpu::Buffer, target: &Texels) {
+        self.push(Step::CopyToTexels {
+            source: source.clone(),
+            target: target.clone(),
         });
     }
 

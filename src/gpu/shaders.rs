@@ -102,9 +102,10 @@ pub struct Shader {
 }
 
 /// What every shader starts with (after its `enable` and `Elem` lines): the workgroup
-/// size of the 1-D kernels from [`WORKGROUP_SIZE`](super::kernel::WORKGROUP_SIZE), and
-/// the entry point's builtins with the linear index of a 2-D dispatch grid
-/// (see [`Grid`](super::kernel::Grid)), so no kernel repeats them.
+/// size of the 1-D kernels from [`WORKGROUP_SIZE`](super::kernel::WORKGROUP_SIZE), the
+/// entry point's builtins with the linear index of a 2-D dispatch grid
+/// (see [`Grid`](super::kernel::Grid)), and the fetch of one texel of a flat array held
+/// as [`Texels`](super::texels::Texels), so no kernel repeats them.
 pub fn prelude() -> String {
     format!(
         "const WORKGROUP: u32 = {}u;
@@ -117,8 +118,14 @@ fn linear_index(invocation: Invocation) -> u32 {{
     return (invocation.group.x + invocation.group.y * invocation.groups.x) * WORKGROUP
         + invocation.lane;
 }}
+const TEXEL_ROW: u32 = {}u;
+// Texel `i` (values 4i … 4i + 3) of a flat array held as texels (src/gpu/texels.rs).
+fn texel(t: texture_2d<f32>, i: u32) -> vec4<f32> {{
+    return textureLoad(t, vec2<u32>(i & (TEXEL_ROW - 1u), i / TEXEL_ROW), 0);
+}}
 ",
-        super::kernel::WORKGROUP_SIZE
+        super::kernel::WORKGROUP_SIZE,
+        super::texels::TEXEL_ROW
     )
 }
 

@@ -15,6 +15,8 @@ pub const CONV2D_TILED: Shader = shader!("nn/conv2d_tiled.wgsl", [Conv2dParams],
 /// The 3×3 stride-1 convolution in register tiles of 8 pixels × 8 channels, from
 /// repacked f32 weights (`ops::PackedConv`).
 pub const CONV3X3: Shader = shader!("nn/conv3x3.wgsl", [Conv2dParams], elem);
+/// `CONV3X3` for CPU drivers: the input and the weights read as texels.
+pub const CONV3X3_CPU: Shader = shader!("nn/conv3x3_cpu.wgsl", [Conv2dParams], elem);
 /// The 1×1 convolution in register tiles of 8 pixels × 8 channels, from repacked f32
 /// weights (`ops::PackedConv`).
 pub const CONV1X1: Shader = shader!("nn/conv1x1.wgsl", [Conv2dParams], elem);
@@ -48,6 +50,7 @@ pub const ALL: &[Shader] = &[
     CONV2D,
     CONV2D_TILED,
     CONV3X3,
+    CONV3X3_CPU,
     CONV1X1,
     UPSAMPLE_NEAREST,
     GROUP_NORM,

@@ -9,7 +9,8 @@ use super::kernels;
 use crate::gpu::kernel::{Grid, PipelineCache, Precision};
 pub use crate::gpu::plan::{Builder, Plan};
 use crate::gpu::shaders::Shader;
-use crate::gpu::{GpuContext, GpuError};
+use crate::gpu::texels::Texels;
+use crate::gpu::{Bound, GpuContext, GpuError};
 use crate::gpu_struct;
 
 gpu_struct! {
@@ -534,6 +535,14 @@ impl<'a> Recorder<'a> {
         self.steps.copy(source, 0, target, 0, size);
     }
 
+    /// `t`'s values as texels, copied from its buffer at this point of the work: the
+    /// CPU-driver kernels read their big inputs this way (see [`Texels`]).
+    fn texels(&mut self, t: &Tensor) -> Result<Texels, GpuError> {
+        let texels = Texels::new(self.gpu, "texels", t.len(), t.precision)?;
+        self.steps.copy_to_texels(&t.buffer, &texels);
+        Ok(texels)
+    }
+
     /// One thread per element at 64 threads per workgroup.
     pub fn grid(&self, threads: usize) -> Grid {
         self.steps.grid(threads)
@@ -652,16 +661,7 @@ impl<'a> Recorder<'a> {
         let residual = residual.unwrap_or(x);
         self.check(&[x, bias, extra, residual, &y]);
         let grid = self.grid(n * c_out.div_ceil(8) * h * w.div_ceil(8));
-        let buffers = [
-            &x.buffer,
-            &weights.packed.buffer,
-            &bias.buffer,
-            &extra.buffer,
-            &residual.buffer,
-            &y.buffer,
-        ];
-        self.steps
-            .dispatch(&kernels::CONV3X3, &params, &buffers, grid);
+        self.packed_conv3x3(&params, x, weights, [bias, extra, residual, &y], grid)?;
         Ok(y)
     }
 
@@ -686,17 +686,39 @@ impl<'a> Recorder<'a> {
         let bias = bias.unwrap_or(x);
         self.check(&[x, bias, &y]);
         let grid = self.grid(n * weights.c_out.div_ceil(8) * 2 * h * (2 * w).div_ceil(8));
-        let buffers = [
-            &x.buffer,
-            &weights.packed.buffer,
-            &bias.buffer,
-            &x.buffer,
-            &x.buffer,
-            &y.buffer,
-        ];
-        self.steps
-            .dispatch(&kernels::CONV3X3, &params, &buffers, grid);
+        self.packed_conv3x3(&params, x, weights, [bias, x, x, &y], grid)?;
         Ok(y)
+    }
+
+    /// Records `conv3x3.wgsl` (or, for CPU drivers, `conv3x3_cpu.wgsl`, which reads the
+    /// input and the weights as texels) over `x` and `weights`, then `rest`: bias, addend,
+    /// residual and output.
+    fn packed_conv3x3(
+        &mut self,
+        params: &Conv2dParams,
+        x: &Tensor,
+        weights: &PackedConv,
+        rest: [&Tensor; 4],
+        grid: Grid,
+    ) -> Result<(), GpuError> {
+        let rest = rest.map(|t| Bound::Buffer(&t.buffer));
+        if self.kernels == Kernels::Cpu {
+            let input = self.texels(x)?;
+            let packed = weights.packed.constant_texels(self.gpu)?;
+            let mut bound = vec![Bound::Texels(&input), Bound::Texels(packed)];
+            bound.extend(rest);
+            self.steps
+                .dispatch_bound(&kernels::CONV3X3_CPU, params, &bound, grid);
+        } else {
+            let mut bound = vec![
+                Bound::Buffer(&x.buffer),
+                Bound::Buffer(&weights.packed.buffer),
+            ];
+            bound.extend(rest);
+            self.steps
+                .dispatch_bound(&kernels::CONV3X3, params, &bound, grid);
+        }
+        Ok(())
     }
 
     /// The output [N, c_out, H, W] (2H × 2W with `upsample`) and parameters of a

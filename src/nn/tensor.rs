@@ -1,20 +1,59 @@
 //! A tensor in a GPU storage buffer (f32 or f16 storage), NCHW for images.
 
+use std::sync::{Arc, OnceLock};
+
 use crate::gpu::kernel::Precision;
+use crate::gpu::texels::Texels;
 use crate::gpu::{GpuContext, GpuError, readback};
 
-/// Values in a storage buffer; cloning shares the buffer.
+/// Values in a storage buffer; cloning shares the buffer (and its constant texels).
 #[derive(Clone, Debug)]
 pub struct Tensor {
     pub buffer: wgpu::Buffer,
     pub shape: Vec<usize>,
     pub precision: Precision,
+    /// A copy as texels, made on first use by [`Tensor::constant_texels`].
+    constant: Arc<OnceLock<Texels>>,
 }
 
 impl Tensor {
-    /// Size in bytes, padded to 4 so f16 tensors of odd length still bind and copy.
+    /// Size in bytes, padded to 16 so f16 tensors of odd length still bind and copy, and
+    /// every tensor copies into whole texels (four values; see [`Texels`]).
     fn bytes(len: usize, precision: Precision) -> u64 {
-        ((len.max(1) * precision.bytes()) as u64).next_multiple_of(4)
+        ((len.max(1) * precision.bytes()) as u64).next_multiple_of(16)
+    }
+
+    /// A tensor over an existing buffer (at least the values' bytes long).
+    pub fn from_buffer(buffer: wgpu::Buffer, shape: &[usize], precision: Precision) -> Self {
+        let len: usize = shape.iter().product();
+        assert!(
+            buffer.size() >= (len * precision.bytes()) as u64,
+            "a {}-byte buffer for a {shape:?} tensor",
+            buffer.size()
+        );
+        Self {
+            buffer,
+            shape: shape.to_vec(),
+            precision,
+            constant: Arc::default(),
+        }
+    }
+
+    /// The values as texels, for a tensor that never changes after it is written (the
+    /// weights): copied once, on first use, in a submission of its own.
+    pub fn constant_texels(&self, gpu: &GpuContext) -> Result<&Texels, GpuError> {
+        if let Some(texels) = self.constant.get() {
+            return Ok(texels);
+        }
+        let texels = Texels::new(gpu, "constant texels", self.len(), self.precision)?;
+        let mut encoder = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("constant texels"),
+            });
+        texels.record_copy(&mut encoder, &self.buffer);
+        gpu.submit([encoder.finish()]);
+        Ok(self.constant.get_or_init(|| texels))
     }
 
     pub fn upload(
@@ -48,6 +87,7 @@ impl Tensor {
             buffer: gpu.storage_buffer(label, bytes, usage)?,
             shape: shape.to_vec(),
             precision,
+            constant: Arc::default(),
         })
     }
 

@@ -358,7 +358,8 @@ impl SplatFrame {
                     stride,
                     features: gpu.storage_buffer(
                         "splat.features",
-                        (elem * (FEATURES * n.max(1)) as u64).next_multiple_of(4),
+                        // Whole 16-byte texels: the refiner may read it as texels.
+                        (elem * (FEATURES * n.max(1)) as u64).next_multiple_of(16),
                         wgpu::BufferUsages::COPY_SRC,
                     )?,
                     codes: gpu.storage_buffer(

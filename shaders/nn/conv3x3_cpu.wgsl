@@ -1,0 +1,216 @@
+// 3×3 convolution for CPU drivers: conv3x3.wgsl's register tiles (8 neighbouring output
+// pixels of a row × 8 output channels; the same terms summed in the same order: bias,
+// then c_in, ky, kx) with the input and the packed weights read as texels
+// (src/gpu/texels.rs), which lavapipe fetches as vector gathers where a storage load is a
+// loop over lanes. Per (c_in, ky): 4 input texels (3 when upsampling) and 6 weight texels
+// for 192 multiply-adds. The 10 input values a row of 8 outputs needs start anywhere in
+// a texel, so they are picked from four texels by their offset. Optional bias, addend
+// and residual as in conv3x3.wgsl; `upsample` reads the input upsampled ×2 (nearest).
+
+@group(0) @binding(0) var<uniform> p: Conv2dParams;
+@group(0) @binding(1) var x: texture_2d<f32>;
+@group(0) @binding(2) var weight: texture_2d<f32>;
+@group(0) @binding(3) var<storage, read> bias: array<Elem>;
+// With `p.has_extra` set: [N, c_out] added to each image's channels after the sums.
+@group(0) @binding(4) var<storage, read> extra: array<Elem>;
+// With `p.has_residual` set: [N, c_out, H, W] added last.
+@group(0) @binding(5) var<storage, read> residual: array<Elem>;
+@group(0) @binding(6) var<storage, read_write> y: array<Elem>;
+
+// Values s … s + 3 of the eight values (a, b), for s in 0 … 3.
+fn pick(a: vec4<f32>, b: vec4<f32>, s: u32) -> vec4<f32> {
+    let s1 = vec4<f32>(a.y, a.z, a.w, b.x);
+    let s2 = vec4<f32>(a.z, a.w, b.x, b.y);
+    let s3 = vec4<f32>(a.w, b.x, b.y, b.z);
+    return select(select(select(a, s1, s == 1u), s2, s == 2u), s3, s == 3u);
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let i = linear_index(invocation);
+    let blocks = (p.c_out + 7u) / 8u;
+    let tiles = (p.w_out + 7u) / 8u;
+    if i >= p.batch * blocks * p.h_out * tiles {
+        return;
+    }
+    let ox0 = (i % tiles) * 8u;
+    let oy = (i / tiles) % p.h_out;
+    let block = (i / (tiles * p.h_out)) % blocks;
+    let n = i / (tiles * p.h_out * blocks);
+    var lo = vec4<f32>(0.0);
+    var hi = vec4<f32>(0.0);
+    if p.has_bias != 0u {
+        let last = p.c_out - 1u;
+        let co = min(vec4<u32>(8u * block) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
+        let co2 = min(co + vec4<u32>(4u), vec4<u32>(last));
+        lo = vec4<f32>(f32(bias[co.x]), f32(bias[co.y]), f32(bias[co.z]), f32(bias[co.w]));
+        hi = vec4<f32>(f32(bias[co2.x]), f32(bias[co2.y]), f32(bias[co2.z]), f32(bias[co2.w]));
+    }
+    // Seen column ox0 - 1 + j is inside the image for j < inside (and j > 0 or ox0 > 0).
+    let inside = p.w_out + 1u - ox0;
+    let m0 = vec4<bool>(ox0 > 0u, 1u < inside, 2u < inside, 3u < inside);
+    let m1 = vec4<bool>(4u < inside, 5u < inside, 6u < inside, 7u < inside);
+    let m2 = vec4<bool>(8u < inside, 9u < inside, false, false);
+    // The first source column the tile reads, relative to its row (+1: never negative).
+    let first = select(ox0, ox0 >> 1u, p.upsample != 0u);
+    var a0 = lo;
+    var a1 = lo;
+    var a2 = lo;
+    var a3 = lo;
+    var a4 = lo;
+    var a5 = lo;
+    var a6 = lo;
+    var a7 = lo;
+    var b0 = hi;
+    var b1 = hi;
+    var b2 = hi;
+    var b3 = hi;
+    var b4 = hi;
+    var b5 = hi;
+    var b6 = hi;
+    var b7 = hi;
+    let quads = 2u * blocks;
+    for (var ci = 0u; ci < p.c_in; ci++) {
+        let plane = (n * p.c_in + ci) * p.h_in * p.w_in;
+        for (var ky = 0u; ky < 3u; ky++) {
+            let iy = i32(oy + ky) - 1;
+            if iy < 0 || iy >= i32(p.h_out) {
+                continue;
+            }
+            // Flat index + 4 of the tile's first source value (one before the first
+            // column: -1 at the very start of the array).
+            let start4 = plane + (u32(iy) >> p.upsample) * p.w_in + first + 3u;
+            let t = i32(start4 >> 2u) - 1;
+            let s = start4 & 3u;
+            let q0 = texel(x, u32(max(t, 0)));
+            let q1 = texel(x, u32(t + 1));
+            let q2 = texel(x, u32(t + 2));
+            var u0 = pick(q0, q1, s);
+            var u1 = pick(q1, q2, s);
+            var u2 = vec4<f32>(0.0);
+            if p.upsample != 0u {
+                // Seen columns ox0 - 1 … ox0 + 8 are source values 0, 1, 1, 2, 2, 3, 3,
+                // 4, 4, 5 from the first (ox0 is even).
+                let w0 = u0;
+                let w1 = u1;
+                u0 = vec4<f32>(w0.x, w0.y, w0.y, w0.z);
+                u1 = vec4<f32>(w0.z, w0.w, w0.w, w1.x);
+                u2 = vec4<f32>(w1.x, w1.y, 0.0, 0.0);
+            } else {
+                u2 = pick(q2, texel(x, u32(t + 3)), s);
+            }
+            u0 = select(vec4<f32>(0.0), u0, m0);
+            u1 = select(vec4<f32>(0.0), u1, m1);
+            u2 = select(vec4<f32>(0.0), u2, m2);
+            let v0 = u0.x;
+            let v1 = u0.y;
+            let v2 = u0.z;
+            let v3 = u0.w;
+            let v4 = u1.x;
+            let v5 = u1.y;
+            let v6 = u1.z;
+            let v7 = u1.w;
+            let v8 = u2.x;
+            let v9 = u2.y;
+            var w = (ci * 3u + ky) * 3u * quads + 2u * block;
+            // kx = 0
+            let wa0 = texel(weight, w);
+            let wb0 = texel(weight, w + 1u);
+            a0 += v0 * wa0;
+            a1 += v1 * wa0;
+            a2 += v2 * wa0;
+            a3 += v3 * wa0;
+            a4 += v4 * wa0;
+            a5 += v5 * wa0;
+            a6 += v6 * wa0;
+            a7 += v7 * wa0;
+            b0 += v0 * wb0;
+            b1 += v1 * wb0;
+            b2 += v2 * wb0;
+            b3 += v3 * wb0;
+            b4 += v4 * wb0;
+            b5 += v5 * wb0;
+            b6 += v6 * wb0;
+            b7 += v7 * wb0;
+            w += quads;
+            // kx = 1
+            let wa1 = texel(weight, w);
+            let wb1 = texel(weight, w + 1u);
+            a0 += v1 * wa1;
+            a1 += v2 * wa1;
+            a2 += v3 * wa1;
+            a3 += v4 * wa1;
+            a4 += v5 * wa1;
+            a5 += v6 * wa1;
+            a6 += v7 * wa1;
+            a7 += v8 * wa1;
+            b0 += v1 * wb1;
+            b1 += v2 * wb1;
+            b2 += v3 * wb1;
+            b3 += v4 * wb1;
+            b4 += v5 * wb1;
+            b5 += v6 * wb1;
+            b6 += v7 * wb1;
+            b7 += v8 * wb1;
+            w += quads;
+            // kx = 2
+            let wa2 = texel(weight, w);
+            let wb2 = texel(weight, w + 1u);
+            a0 += v2 * wa2;
+            a1 += v3 * wa2;
+            a2 += v4 * wa2;
+            a3 += v5 * wa2;
+            a4 += v6 * wa2;
+            a5 += v7 * wa2;
+            a6 += v8 * wa2;
+            a7 += v9 * wa2;
+            b0 += v2 * wb2;
+            b1 += v3 * wb2;
+            b2 += v4 * wb2;
+            b3 += v5 * wb2;
+            b4 += v6 * wb2;
+            b5 += v7 * wb2;
+            b6 += v8 * wb2;
+            b7 += v9 * wb2;
+        }
+    }
+    store(n, block, oy, ox0 + 0u, a0, b0);
+    store(n, block, oy, ox0 + 1u, a1, b1);
+    store(n, block, oy, ox0 + 2u, a2, b2);
+    store(n, block, oy, ox0 + 3u, a3, b3);
+    store(n, block, oy, ox0 + 4u, a4, b4);
+    store(n, block, oy, ox0 + 5u, a5, b5);
+    store(n, block, oy, ox0 + 6u, a6, b6);
+    store(n, block, oy, ox0 + 7u, a7, b7);
+}
+
+// Output element `at` (image n, channel co) after the sums: plus its addend when there
+// is one, rounded to Elem, plus its residual when there is one (as conv3x3.wgsl).
+fn finish(at: u32, n: u32, co: u32, v: f32) -> Elem {
+    var out = v;
+    if p.has_extra != 0u {
+        out += f32(extra[n * p.c_out + co]);
+    }
+    if p.has_residual != 0u {
+        return Elem(f32(residual[at]) + f32(Elem(out)));
+    }
+    return Elem(out);
+}
+
+// Output pixel `ox` of row `oy`: channels 8·block … 8·block + 7 (those below c_out).
+fn store(n: u32, block: u32, oy: u32, ox: u32, lo: vec4<f32>, hi: vec4<f32>) {
+    if ox >= p.w_out {
+        return;
+    }
+    let plane = p.h_out * p.w_out;
+    let out = (n * p.c_out + 8u * block) * plane + oy * p.w_out + ox;
+    for (var c = 0u; c < 4u; c++) {
+        let co = 8u * block + c;
+        if co < p.c_out {
+            y[out + c * plane] = finish(out + c * plane, n, co, lo[c]);
+        }
+        if co + 4u < p.c_out {
+            y[out + (4u + c) * plane] = finish(out + (4u + c) * plane, n, co + 4u, hi[c]);
+        }
+    }
+}

@@ -1,0 +1,170 @@
+//! Flat arrays held in 2-D textures ("texels"): four values a texel, [`TEXEL_ROW`] texels
+//! a row, read in WGSL with the prelude's `texel(t, i)` (texel `i`, values 4i … 4i + 3).
+//!
+//! Why: on a CPU driver (Mesa lavapipe) a storage-buffer load is a loop over the SIMD
+//! lanes with two branches per lane and value, while a texture fetch is one vector
+//! gather. A register-tiled product reading both operands as texels ran 8× faster than
+//! the same kernel reading storage buffers (18 against 2.3 GFLOP/s, measured here). The
+//! CPU-driver kernels therefore read their big operands as texels: constant arrays
+//! (weights) get theirs once ([`Texels::upload`]), and a tensor written by an earlier
+//! kernel is copied into its texels just before the kernel that reads it
+//! ([`Texels::record_copy`]: a plain copy, no shader).
+
+use super::kernel::Precision;
+use super::{GpuContext, GpuError};
+
+/// Texels per texture row (a power of two: the WGSL side splits an index with a mask).
+pub const TEXEL_ROW: u32 = 1024;
+
+/// Values per texel.
+pub const TEXEL_VALUES: usize = 4;
+
+/// A flat array of `len` values (f32 or f16, as stored) in a texture.
+#[derive(Clone, Debug)]
+pub struct Texels {
+    pub texture: wgpu::Texture,
+    pub view: wgpu::TextureView,
+    /// Texels holding values (the last may be part padding).
+    pub texels: u32,
+    pub precision: Precision,
+}
+
+impl Texels {
+    /// Room for `len` values, uninitialised.
+    pub fn new(
+        gpu: &GpuContext,
+        label: &str,
+        len: usize,
+        precision: Precision,
+    ) -> Result<Self, GpuError> {
+        let texels = len.max(1).div_ceil(TEXEL_VALUES);
+        let rows = texels.div_ceil(TEXEL_ROW as usize);
+        let max = gpu.device.limits().max_texture_dimension_2d as usize;
+        if rows > max {
+            return Err(GpuError::BufferTooLarge {
+                label: format!("{label} (texels)"),
+                size: (len * precision.bytes()) as u64,
+                max: (max * TEXEL_ROW as usize * TEXEL_VALUES * precision.bytes()) as u64,
+            });
+        }
+        let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d {
+                width: TEXEL_ROW.min(texels as u32),
+                height: rows as u32,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: Self::format(precision),
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+        Ok(Self {
+            texture,
+            view,
+            texels: texels as u32,
+            precision,
+        })
+    }
+
+    /// The texture format of a precision: four stored values a texel.
+    pub fn format(precision: Precision) -> wgpu::TextureFormat {
+        match precision {
+            Precision::F32 => wgpu::TextureFormat::Rgba32Float,
+            Precision::F16 => wgpu::TextureFormat::Rgba16Float,
+        }
+    }
+
+    /// Bytes per texel.
+    fn texel_bytes(&self) -> u32 {
+        (TEXEL_VALUES * self.precision.bytes()) as u32
+    }
+
+    /// The buffer bytes the texels are copied from: every texel whole.
+    pub fn bytes(&self) -> u64 {
+        u64::from(self.texels) * u64::from(self.texel_bytes())
+    }
+
+    /// Texels holding a copy of `values` (made now, through the queue).
+    pub fn upload(
+        gpu: &GpuContext,
+        label: &str,
+        values: &[f32],
+        precision: Precision,
+    ) -> Result<Self, GpuError> {
+        let texels = Self::new(gpu, label, values.len(), precision)?;
+        let mut bytes = precision.encode(values);
+        bytes.resize(texels.padded_bytes() as usize, 0);
+        let row_bytes = TEXEL_ROW * texels.texel_bytes();
+        let size = texels.texture.size();
+        gpu.queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &texels.texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            &bytes,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(row_bytes.min(size.width * texels.texel_bytes())),
+                rows_per_image: None,
+            },
+            size,
+        );
+        Ok(texels)
+    }
+
+    /// Bytes of the whole texture (full rows).
+    fn padded_bytes(&self) -> u64 {
+        let size = self.texture.size();
+        u64::from(size.width) * u64::from(size.height) * u64::from(self.texel_bytes())
+    }
+
+    /// Records a copy of `source` (at least [`Self::bytes`] long, values as stored) into
+    /// the texels: the full rows in one copy, the last partial row in another.
+    pub fn record_copy(&self, encoder: &mut wgpu::CommandEncoder, source: &wgpu::Buffer) {
+        assert!(
+            source.size() >= self.bytes(),
+            "a {}-byte buffer copied into {} texels",
+            source.size(),
+            self.texels
+        );
+        let texel_bytes = self.texel_bytes();
+        let width = self.texture.size().width;
+        let full_rows = self.texels / width;
+        let rest = self.texels % width;
+        let copy = |encoder: &mut wgpu::CommandEncoder, row: u32, width: u32, rows: u32| {
+            encoder.copy_buffer_to_texture(
+                wgpu::TexelCopyBufferInfo {
+                    buffer: source,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: u64::from(row) * u64::from(TEXEL_ROW * texel_bytes),
+                        bytes_per_row: Some(TEXEL_ROW * texel_bytes),
+                        rows_per_image: None,
+                    },
+                },
+                wgpu::TexelCopyTextureInfo {
+                    texture: &self.texture,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d { x: 0, y: row, z: 0 },
+                    aspect: wgpu::TextureAspect::All,
+                },
+                wgpu::Extent3d {
+                    width,
+                    height: rows,
+                    depth_or_array_layers: 1,
+                },
+            );
+        };
+        if full_rows > 0 {
+            copy(encoder, 0, width, full_rows);
+        }
+        if rest > 0 {
+            copy(encoder, full_rows, rest, 1);
+        }
+    }
+}
