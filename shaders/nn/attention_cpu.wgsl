@@ -2,13 +2,14 @@
 // for heads of at most 32 values with every row offset and stride a multiple of 4
 // (host-checked). q, the accumulator and each key and value row are held as up to 8
 // vec4 registers written out by name (a CPU driver keeps a dynamically indexed array in
-// memory), and the rows are read as vec4 loads. Dot products sum in vec4 chunks. The
-// first `prefix_keys` keys come from `prefix`, as in attention.wgsl.
+// memory), and the rows are read as texels (src/gpu/texels.rs: a vector gather on
+// lavapipe, where a storage load is a loop over lanes). Dot products sum in vec4 chunks.
+// The first `prefix_keys` keys come from `prefix`, as in attention.wgsl.
 
 @group(0) @binding(0) var<uniform> p: AttentionParams;
-@group(0) @binding(1) var<storage, read> q: array<vec4<Elem>>;
-@group(0) @binding(2) var<storage, read> prefix: array<vec4<Elem>>;
-@group(0) @binding(3) var<storage, read> kv: array<vec4<Elem>>;
+@group(0) @binding(1) var q: texture_2d<f32>;
+@group(0) @binding(2) var prefix: texture_2d<f32>;
+@group(0) @binding(3) var kv: texture_2d<f32>;
 @group(0) @binding(4) var<storage, read_write> out: array<vec4<Elem>>;
 
 // Chunk `c` (4 values) of the row starting at vec4 `row` of the prefix (`cached`) or kv,
@@ -18,9 +19,9 @@ fn kv_chunk(cached: bool, row: u32, c: u32, chunks: u32) -> vec4<f32> {
         return vec4<f32>(0.0);
     }
     if cached {
-        return vec4<f32>(prefix[row + c]);
+        return texel(prefix, row + c);
     }
-    return vec4<f32>(kv[row + c]);
+    return texel(kv, row + c);
 }
 
 @compute @workgroup_size(WORKGROUP)
@@ -58,14 +59,14 @@ fn main(invocation: Invocation) {
     var q5 = vec4<f32>(0.0);
     var q6 = vec4<f32>(0.0);
     var q7 = vec4<f32>(0.0);
-    if chunks > 0u { q0 = vec4<f32>(q[q_row]) * scale; }
-    if chunks > 1u { q1 = vec4<f32>(q[q_row + 1u]) * scale; }
-    if chunks > 2u { q2 = vec4<f32>(q[q_row + 2u]) * scale; }
-    if chunks > 3u { q3 = vec4<f32>(q[q_row + 3u]) * scale; }
-    if chunks > 4u { q4 = vec4<f32>(q[q_row + 4u]) * scale; }
-    if chunks > 5u { q5 = vec4<f32>(q[q_row + 5u]) * scale; }
-    if chunks > 6u { q6 = vec4<f32>(q[q_row + 6u]) * scale; }
-    if chunks > 7u { q7 = vec4<f32>(q[q_row + 7u]) * scale; }
+    if chunks > 0u { q0 = texel(q, q_row) * scale; }
+    if chunks > 1u { q1 = texel(q, q_row + 1u) * scale; }
+    if chunks > 2u { q2 = texel(q, q_row + 2u) * scale; }
+    if chunks > 3u { q3 = texel(q, q_row + 3u) * scale; }
+    if chunks > 4u { q4 = texel(q, q_row + 4u) * scale; }
+    if chunks > 5u { q5 = texel(q, q_row + 5u) * scale; }
+    if chunks > 6u { q6 = texel(q, q_row + 6u) * scale; }
+    if chunks > 7u { q7 = texel(q, q_row + 7u) * scale; }
     var acc0 = vec4<f32>(0.0);
     var acc1 = vec4<f32>(0.0);
     var acc2 = vec4<f32>(0.0);

@@ -1,14 +1,15 @@
 // Fully connected layer for CPU drivers (Elem storage, f32 sums): linear_tiled.wgsl's
 // 4 rows × 4 outputs of y[b, o] = sum_i act(x[b, i]) * weight[o, i] + bias[o] per
-// invocation, with every load a vec4 along the contiguous input axis (inputs a multiple
-// of 4, host-checked): 8 loads per 64 multiply-adds. The four weight vectors are
-// transposed in registers, so each sum still runs over i in order from the bias, as
-// linear.wgsl's does. Rows and outputs past the end are clamped for the loads and not
-// stored.
+// invocation, with x and the weights read as texels (src/gpu/texels.rs: a vector
+// gather on lavapipe, where a storage load is a loop over lanes) along the contiguous
+// input axis (inputs a multiple of 4, host-checked): 8 texels per 64 multiply-adds. The
+// four weight vectors are transposed in registers, so each sum still runs over i in
+// order from the bias, as linear.wgsl's does. Rows and outputs past the end are clamped
+// for the loads and not stored.
 
 @group(0) @binding(0) var<uniform> p: LinearParams;
-@group(0) @binding(1) var<storage, read> x: array<vec4<Elem>>;
-@group(0) @binding(2) var<storage, read> weight: array<vec4<Elem>>;
+@group(0) @binding(1) var x: texture_2d<f32>;
+@group(0) @binding(2) var weight: texture_2d<f32>;
 @group(0) @binding(3) var<storage, read> bias: array<Elem>;
 // With `p.has_residual`: added to the rounded result (rows × outputs).
 @group(0) @binding(4) var<storage, read> residual: array<Elem>;
@@ -22,12 +23,28 @@ fn finish(at: u32, v: f32) -> Elem {
     return Elem(v);
 }
 
-fn act(v: vec4<Elem>) -> vec4<f32> {
-    let f = vec4<f32>(v);
-    if p.input_silu != 0u {
-        return f / (1.0 + exp(-f));
-    }
-    return f;
+fn silu(f: vec4<f32>) -> vec4<f32> {
+    return f / (1.0 + exp(-f));
+}
+
+// Four inputs (4k … 4k + 3) of the four outputs' weight rows at texels `rows`, as
+// columns: column j holds input 4k + j of outputs o0 … o0 + 3.
+fn transposed(rows: vec4<u32>) -> mat4x4<f32> {
+    let w0 = texel(weight, rows.x);
+    let w1 = texel(weight, rows.y);
+    let w2 = texel(weight, rows.z);
+    let w3 = texel(weight, rows.w);
+    return mat4x4<f32>(
+        vec4<f32>(w0.x, w1.x, w2.x, w3.x),
+        vec4<f32>(w0.y, w1.y, w2.y, w3.y),
+        vec4<f32>(w0.z, w1.z, w2.z, w3.z),
+        vec4<f32>(w0.w, w1.w, w2.w, w3.w),
+    );
+}
+
+// a + the four inputs x times their weights, summed input by input in order.
+fn mac(a: vec4<f32>, x: vec4<f32>, t: mat4x4<f32>) -> vec4<f32> {
+    return a + x.x * t[0] + x.y * t[1] + x.z * t[2] + x.w * t[3];
 }
 
 fn store(row: u32, o0: u32, v: vec4<f32>) {
@@ -66,36 +83,24 @@ fn main(invocation: Invocation) {
     var a1 = b;
     var a2 = b;
     var a3 = b;
-    for (var k = 0u; k < quads; k++) {
-        let x0 = act(x[xr.x + k]);
-        let x1 = act(x[xr.y + k]);
-        let x2 = act(x[xr.z + k]);
-        let x3 = act(x[xr.w + k]);
-        let w0 = vec4<f32>(weight[wo.x + k]);
-        let w1 = vec4<f32>(weight[wo.y + k]);
-        let w2 = vec4<f32>(weight[wo.z + k]);
-        let w3 = vec4<f32>(weight[wo.w + k]);
-        // Input 4k + j of the four outputs.
-        let t0 = vec4<f32>(w0.x, w1.x, w2.x, w3.x);
-        let t1 = vec4<f32>(w0.y, w1.y, w2.y, w3.y);
-        let t2 = vec4<f32>(w0.z, w1.z, w2.z, w3.z);
-        let t3 = vec4<f32>(w0.w, w1.w, w2.w, w3.w);
-        a0 += x0.x * t0;
-        a1 += x1.x * t0;
-        a2 += x2.x * t0;
-        a3 += x3.x * t0;
-        a0 += x0.y * t1;
-        a1 += x1.y * t1;
-        a2 += x2.y * t1;
-        a3 += x3.y * t1;
-        a0 += x0.z * t2;
-        a1 += x1.z * t2;
-        a2 += x2.z * t2;
-        a3 += x3.z * t2;
-        a0 += x0.w * t3;
-        a1 += x1.w * t3;
-        a2 += x2.w * t3;
-        a3 += x3.w * t3;
+    // Two loops rather than a branch inside one: a CPU driver runs both sides of a
+    // branch under a lane mask, so the SiLU's exp would cost every layer.
+    if p.input_silu != 0u {
+        for (var k = 0u; k < quads; k++) {
+            let t = transposed(wo + k);
+            a0 = mac(a0, silu(texel(x, xr.x + k)), t);
+            a1 = mac(a1, silu(texel(x, xr.y + k)), t);
+            a2 = mac(a2, silu(texel(x, xr.z + k)), t);
+            a3 = mac(a3, silu(texel(x, xr.w + k)), t);
+        }
+    } else {
+        for (var k = 0u; k < quads; k++) {
+            let t = transposed(wo + k);
+            a0 = mac(a0, texel(x, xr.x + k), t);
+            a1 = mac(a1, texel(x, xr.y + k), t);
+            a2 = mac(a2, texel(x, xr.z + k), t);
+            a3 = mac(a3, texel(x, xr.w + k), t);
+        }
     }
     store(r0, o0, a0);
     store(r0 + 1u, o0, a1);

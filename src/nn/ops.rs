@@ -870,7 +870,8 @@ impl<'a> Recorder<'a> {
     }
 
     /// `residual + linear(x)` in one dispatch (`residual` of the output's shape), the
-    /// sum add.wgsl would make after [`Recorder::linear`].
+    /// sum add.wgsl would make after [`Recorder::linear`]. `weight` is constant: the
+    /// CPU-driver kernel reads the texels copied from it on first use.
     pub fn linear_plus(
         &mut self,
         x: &Tensor,
@@ -912,17 +913,28 @@ impl<'a> Recorder<'a> {
         let rows = x.len() / inputs;
         if rows >= 4 && self.kernels != Kernels::Simple {
             let grid = self.grid(rows.div_ceil(4) * outputs.div_ceil(4));
-            let vec4_rows = self.kernels == Kernels::Cpu && inputs.is_multiple_of(4);
-            self.launch(
-                if vec4_rows {
-                    &kernels::LINEAR_CPU
-                } else {
-                    &kernels::LINEAR_TILED
-                },
-                &params,
-                &[x, weight, bias, residual, &y],
-                grid,
-            );
+            if self.kernels == Kernels::Cpu && inputs.is_multiple_of(4) {
+                // x and the (constant) weights as texels.
+                self.check(&[x, weight, bias, residual]);
+                let input = self.texels(x)?;
+                let weight = weight.constant_texels(self.gpu)?;
+                let bound = [
+                    Bound::Texels(&input),
+                    Bound::Texels(weight),
+                    Bound::Buffer(&bias.buffer),
+                    Bound::Buffer(&residual.buffer),
+                    Bound::Buffer(&y.buffer),
+                ];
+                self.steps
+                    .dispatch_bound(&kernels::LINEAR_CPU, &params, &bound, grid);
+            } else {
+                self.launch(
+                    &kernels::LINEAR_TILED,
+                    &params,
+                    &[x, weight, bias, residual, &y],
+                    grid,
+                );
+            }
         } else {
             let grid = self.grid(y.len());
             self.launch(
@@ -1264,13 +1276,30 @@ impl<'a> Recorder<'a> {
         ]
         .iter()
         .all(|v| v % 4 == 0);
-        let shader = if self.kernels == Kernels::Cpu && head <= 32 && rows_in_vec4s {
-            &kernels::ATTENTION_CPU
-        } else {
-            &kernels::ATTENTION
-        };
         // The prefix binding must exist without a prefix; kv stands in (unread).
-        self.launch(shader, &params, &[q, prefix.unwrap_or(kv), kv, &y], grid);
+        let prefix = prefix.unwrap_or(kv);
+        if self.kernels == Kernels::Cpu && head <= 32 && rows_in_vec4s {
+            // q, the prefix and kv as texels (one copy of a buffer they share).
+            self.check(&[q, prefix, kv]);
+            let kv_texels = self.texels(kv)?;
+            let same = |t: &Tensor| t.buffer == kv.buffer;
+            let q_texels = if same(q) { None } else { Some(self.texels(q)?) };
+            let prefix_texels = if same(prefix) {
+                None
+            } else {
+                Some(self.texels(prefix)?)
+            };
+            let bound = [
+                Bound::Texels(q_texels.as_ref().unwrap_or(&kv_texels)),
+                Bound::Texels(prefix_texels.as_ref().unwrap_or(&kv_texels)),
+                Bound::Texels(&kv_texels),
+                Bound::Buffer(&y.buffer),
+            ];
+            self.steps
+                .dispatch_bound(&kernels::ATTENTION_CPU, &params, &bound, grid);
+        } else {
+            self.launch(&kernels::ATTENTION, &params, &[q, prefix, kv, &y], grid);
+        }
         Ok(y)
     }
 
