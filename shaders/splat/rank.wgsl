@@ -1,10 +1,12 @@
 // One serialisation order from curve `curve`'s codes, by counting: a point's rank is the
 // number of points with a smaller code plus those with the same code and a smaller index
 // (a stable sort). sort[rank] = i, unsort[i] = rank, and with `groups` set, each point's
-// pooled group rank / stride.
+// pooled group rank / stride. The codes are read as texels (src/gpu/texels.rs): every
+// invocation reads them all, and lavapipe fetches a texel as one vector gather where a
+// storage load is a loop over lanes.
 
 @group(0) @binding(0) var<uniform> p: SplatParams;
-@group(0) @binding(1) var<storage, read> codes: array<vec4<u32>>;
+@group(0) @binding(1) var codes: texture_2d<u32>;
 @group(0) @binding(2) var<storage, read_write> sort: array<u32>;
 @group(0) @binding(3) var<storage, read_write> unsort: array<u32>;
 @group(0) @binding(4) var<storage, read_write> groups_out: array<u32>;
@@ -19,12 +21,12 @@ fn main(invocation: Invocation) {
     // largest u32, which no code reaches, so padding never counts).
     let quads = (p.points + 3u) / 4u;
     let base = p.curve * quads;
-    let c = codes[base + i / 4u][i % 4u];
+    let c = texel_u32(codes, base + i / 4u)[i % 4u];
     let cv = vec4<u32>(c);
     let iv = vec4<u32>(i);
     var counts = vec4<u32>(0u);
     for (var q = 0u; q < quads; q++) {
-        let d = codes[base + q];
+        let d = texel_u32(codes, base + q);
         let j = vec4<u32>(4u * q) + vec4<u32>(0u, 1u, 2u, 3u);
         let before = (d < cv) | ((d == cv) & (j < iv));
         counts += select(vec4<u32>(0u), vec4<u32>(1u), before);

@@ -123,6 +123,9 @@ const TEXEL_ROW: u32 = {}u;
 fn texel(t: texture_2d<f32>, i: u32) -> vec4<f32> {{
     return textureLoad(t, vec2<u32>(i & (TEXEL_ROW - 1u), i / TEXEL_ROW), 0);
 }}
+fn texel_u32(t: texture_2d<u32>, i: u32) -> vec4<u32> {{
+    return textureLoad(t, vec2<u32>(i & (TEXEL_ROW - 1u), i / TEXEL_ROW), 0);
+}}
 ",
         super::kernel::WORKGROUP_SIZE,
         super::texels::TEXEL_ROW

@@ -19,32 +19,51 @@ pub const TEXEL_ROW: u32 = 1024;
 /// Values per texel.
 pub const TEXEL_VALUES: usize = 4;
 
-/// A flat array of `len` values (f32 or f16, as stored) in a texture.
+/// A flat array of `len` values (f32 or f16 as stored, or u32) in a texture.
 #[derive(Clone, Debug)]
 pub struct Texels {
     pub texture: wgpu::Texture,
     pub view: wgpu::TextureView,
     /// Texels holding values (the last may be part padding).
     pub texels: u32,
-    pub precision: Precision,
+    /// Bytes per texel.
+    texel_bytes: u32,
 }
 
 impl Texels {
-    /// Room for `len` values, uninitialised.
+    /// Room for `len` values of `precision`, uninitialised (WGSL: `texture_2d<f32>`).
     pub fn new(
         gpu: &GpuContext,
         label: &str,
         len: usize,
         precision: Precision,
     ) -> Result<Self, GpuError> {
+        Self::with_format(gpu, label, len, Self::format(precision))
+    }
+
+    /// Room for `len` u32 values, uninitialised (WGSL: `texture_2d<u32>`, read with the
+    /// prelude's `texel_u32`).
+    pub fn new_u32(gpu: &GpuContext, label: &str, len: usize) -> Result<Self, GpuError> {
+        Self::with_format(gpu, label, len, wgpu::TextureFormat::Rgba32Uint)
+    }
+
+    fn with_format(
+        gpu: &GpuContext,
+        label: &str,
+        len: usize,
+        format: wgpu::TextureFormat,
+    ) -> Result<Self, GpuError> {
+        let texel_bytes = format
+            .block_copy_size(None)
+            .expect("an uncompressed colour format");
         let texels = len.max(1).div_ceil(TEXEL_VALUES);
         let rows = texels.div_ceil(TEXEL_ROW as usize);
         let max = gpu.device.limits().max_texture_dimension_2d as usize;
         if rows > max {
             return Err(GpuError::BufferTooLarge {
                 label: format!("{label} (texels)"),
-                size: (len * precision.bytes()) as u64,
-                max: (max * TEXEL_ROW as usize * TEXEL_VALUES * precision.bytes()) as u64,
+                size: (texels * texel_bytes as usize) as u64,
+                max: (max * TEXEL_ROW as usize) as u64 * u64::from(texel_bytes),
             });
         }
         let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
@@ -57,7 +76,7 @@ impl Texels {
             mip_level_count: 1,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
-            format: Self::format(precision),
+            format,
             usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
             view_formats: &[],
         });
@@ -66,7 +85,7 @@ impl Texels {
             texture,
             view,
             texels: texels as u32,
-            precision,
+            texel_bytes,
         })
     }
 
@@ -80,7 +99,7 @@ impl Texels {
 
     /// Bytes per texel.
     fn texel_bytes(&self) -> u32 {
-        (TEXEL_VALUES * self.precision.bytes()) as u32
+        self.texel_bytes
     }
 
     /// The buffer bytes the texels are copied from: every texel whole.

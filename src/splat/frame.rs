@@ -19,7 +19,8 @@ use super::upscale::UpscaleParams;
 use crate::gpu::kernel::{Grid, Precision};
 use crate::gpu::plan::Builder;
 use crate::gpu::shaders::Shader;
-use crate::gpu::{GpuContext, GpuError};
+use crate::gpu::texels::Texels;
+use crate::gpu::{Bound, GpuContext, GpuError};
 use crate::gpu_struct;
 use crate::wgsl_shader;
 
@@ -282,10 +283,13 @@ struct Refining {
     stride: usize,
     features: wgpu::Buffer,
     codes: wgpu::Buffer,
+    /// The codes as texels, for the rank kernel.
+    codes_texels: Texels,
     fine: Vec<OrderBuffers>,
     groups: wgpu::Buffer,
     pooled: wgpu::Buffer,
     pooled_codes: wgpu::Buffer,
+    pooled_codes_texels: Texels,
     coarse: Vec<OrderBuffers>,
     residuals: wgpu::Buffer,
 }
@@ -365,15 +369,21 @@ impl SplatFrame {
                     codes: gpu.storage_buffer(
                         "splat.codes",
                         16 * n.max(1).next_multiple_of(4) as u64,
-                        none,
+                        wgpu::BufferUsages::COPY_SRC,
                     )?,
+                    codes_texels: Texels::new_u32(gpu, "splat.codes", 4 * n.next_multiple_of(4))?,
                     fine: orders("splat.order", n)?,
                     groups: gpu.storage_buffer("splat.groups", 4 * n.max(1) as u64, none)?,
                     pooled: gpu.storage_buffer("splat.pooled", 12 * pooled.max(1) as u64, none)?,
                     pooled_codes: gpu.storage_buffer(
                         "splat.pooled_codes",
                         16 * pooled.max(1).next_multiple_of(4) as u64,
-                        none,
+                        wgpu::BufferUsages::COPY_SRC,
+                    )?,
+                    pooled_codes_texels: Texels::new_u32(
+                        gpu,
+                        "splat.pooled_codes",
+                        4 * pooled.next_multiple_of(4),
                     )?,
                     coarse: orders("splat.pooled_order", pooled)?,
                     residuals: gpu.storage_buffer(
@@ -509,13 +519,19 @@ impl SplatFrame {
         p.stride = r.stride as u32;
         let grid = b.grid(n);
         b.dispatch(&CODES, &p, &[&self.unit, &r.codes], grid);
+        b.copy_to_texels(&r.codes, &r.codes_texels);
         for (curve, order) in r.fine.iter().enumerate() {
             p.curve = curve as u32;
             p.features = u32::from(curve == 0);
-            b.dispatch(
+            b.dispatch_bound(
                 &RANK,
                 &p,
-                &[&r.codes, &order.sort, &order.unsort, &r.groups],
+                &[
+                    Bound::Texels(&r.codes_texels),
+                    Bound::Buffer(&order.sort),
+                    Bound::Buffer(&order.unsort),
+                    Bound::Buffer(&r.groups),
+                ],
                 grid,
             );
         }
@@ -525,12 +541,18 @@ impl SplatFrame {
         q.points = pooled as u32;
         q.features = 0;
         b.dispatch(&CODES, &q, &[&r.pooled, &r.pooled_codes], grid);
+        b.copy_to_texels(&r.pooled_codes, &r.pooled_codes_texels);
         for (curve, order) in r.coarse.iter().enumerate() {
             q.curve = curve as u32;
-            b.dispatch(
+            b.dispatch_bound(
                 &RANK,
                 &q,
-                &[&r.pooled_codes, &order.sort, &order.unsort, &r.groups],
+                &[
+                    Bound::Texels(&r.pooled_codes_texels),
+                    Bound::Buffer(&order.sort),
+                    Bound::Buffer(&order.unsort),
+                    Bound::Buffer(&r.groups),
+                ],
                 grid,
             );
         }
