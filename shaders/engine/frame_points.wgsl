@@ -1,30 +1,49 @@
 // A frame's drawn points in world space: the PCA reconstruction mean + Σ_k c_k basis_k
-// with the root shift put back (or the clamped points when there are no components),
-// then (v - 0.5) / scale + the world root. One thread per value (3 per point).
+// (summed over k in order) with the root shift put back (or the clamped points when
+// there are no components), then (v - 0.5) / scale + the world root. One thread per
+// four values, read as texels (src/gpu/texels.rs; basis rows padded to whole texels).
 
 @group(0) @binding(0) var<uniform> p: PostParams;
-@group(0) @binding(1) var<storage, read> unit: array<f32>;
-@group(0) @binding(2) var<storage, read> mean: array<f32>;
-@group(0) @binding(3) var<storage, read> basis: array<f32>;
+@group(0) @binding(1) var unit: texture_2d<f32>;
+@group(0) @binding(2) var mean: texture_2d<f32>;
+@group(0) @binding(3) var basis: texture_2d<f32>;
 @group(0) @binding(4) var<storage, read> state: FrameState;
-@group(0) @binding(5) var<storage, read> coefficients: array<f32>;
+@group(0) @binding(5) var coefficients: texture_2d<f32>;
 @group(0) @binding(6) var<storage, read_write> points: array<f32>;
 
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+    let q = linear_index(invocation);
     let d = 3u * p.points;
-    if i >= d {
+    let quads = (d + 3u) / 4u;
+    if q >= quads {
         return;
     }
-    let axis = i % 3u;
-    var v = unit[i];
+    // Value 4q + c is on axis (q + c) % 3 (4 ≡ 1 mod 3).
+    let axes = (vec4<u32>(q) + vec4<u32>(0u, 1u, 2u, 3u)) % 3u;
+    let shift = vec4<f32>(state.shift[axes.x], state.shift[axes.y], state.shift[axes.z], state.shift[axes.w]);
+    let root = vec4<f32>(state.root[axes.x], state.root[axes.y], state.root[axes.z], state.root[axes.w]);
+    var v = texel(unit, q);
     if p.components > 0u {
-        var o = mean[i];
-        for (var k = 0u; k < p.components; k++) {
-            o += coefficients[k] * basis[k * d + i];
+        var o = texel(mean, q);
+        let whole = p.components / 4u;
+        for (var kq = 0u; kq < whole; kq++) {
+            let c = texel(coefficients, kq);
+            let k = 4u * kq;
+            o += c.x * texel(basis, k * quads + q);
+            o += c.y * texel(basis, (k + 1u) * quads + q);
+            o += c.z * texel(basis, (k + 2u) * quads + q);
+            o += c.w * texel(basis, (k + 3u) * quads + q);
         }
-        v = o + state.shift[axis];
+        for (var k = 4u * whole; k < p.components; k++) {
+            o += texel(coefficients, k / 4u)[k % 4u] * texel(basis, k * quads + q);
+        }
+        v = o + shift;
     }
-    points[i] = (v - 0.5) / p.scale + state.root[axis];
+    let out = (v - 0.5) / p.scale + root;
+    for (var c = 0u; c < 4u; c++) {
+        if 4u * q + c < d {
+            points[4u * q + c] = out[c];
+        }
+    }
 }

@@ -1,10 +1,13 @@
 // The PCA coefficients of a frame: c_k = Σ_d basis[k, d] · (unit[d] - shift[d % 3] -
-// mean[d]), one thread per component (the frame centred on its own root, DESIGN §6).
+// mean[d]), one thread per component (the frame centred on its own root, DESIGN §6),
+// summed over d in order. The frame, the mean and the basis are read as texels
+// (src/gpu/texels.rs), four values a fetch; each basis row is padded with zeros to
+// whole texels, so the padding adds exact zeros.
 
 @group(0) @binding(0) var<uniform> p: PostParams;
-@group(0) @binding(1) var<storage, read> unit: array<f32>;
-@group(0) @binding(2) var<storage, read> mean: array<f32>;
-@group(0) @binding(3) var<storage, read> basis: array<f32>;
+@group(0) @binding(1) var unit: texture_2d<f32>;
+@group(0) @binding(2) var mean: texture_2d<f32>;
+@group(0) @binding(3) var basis: texture_2d<f32>;
 @group(0) @binding(4) var<storage, read> state: FrameState;
 @group(0) @binding(5) var<storage, read_write> coefficients: array<f32>;
 
@@ -14,11 +17,23 @@ fn main(invocation: Invocation) {
     if k >= p.components {
         return;
     }
-    let d = 3u * p.points;
-    let row = k * d;
+    let quads = (3u * p.points + 3u) / 4u;
+    let row = k * quads;
+    // Value 4j + c is on axis (j + c) % 3 (4 ≡ 1 mod 3): the shifts of texel j by j % 3.
+    let s = state.shift;
+    let s0 = vec4<f32>(s[0], s[1], s[2], s[0]);
+    let s1 = vec4<f32>(s[1], s[2], s[0], s[1]);
+    let s2 = vec4<f32>(s[2], s[0], s[1], s[2]);
     var c = 0.0;
-    for (var i = 0u; i < d; i++) {
-        c += basis[row + i] * (unit[i] - state.shift[i % 3u] - mean[i]);
+    for (var j = 0u; j < quads; j++) {
+        let phase = j % 3u;
+        let shift = select(select(s0, s1, phase == 1u), s2, phase == 2u);
+        let b = texel(basis, row + j);
+        let v = texel(unit, j) - shift - texel(mean, j);
+        c += b.x * v.x;
+        c += b.y * v.y;
+        c += b.z * v.z;
+        c += b.w * v.w;
     }
     coefficients[k] = c;
 }

@@ -25,7 +25,8 @@ use glam::Vec3;
 use crate::action::Action;
 use crate::gpu::kernel::{PipelineCache, Precision};
 use crate::gpu::plan::StageProfile;
-use crate::gpu::{GpuContext, GpuError, readback};
+use crate::gpu::texels::Texels;
+use crate::gpu::{Bound, GpuContext, GpuError, readback};
 use crate::nn::ops::{Indices, Plan};
 use crate::nn::refiner::{Order, Orders};
 use crate::nn::sampler::Sampling;
@@ -99,9 +100,14 @@ struct Live {
     waist: wgpu::Buffer,
     /// 3N clamped normalised values.
     unit: wgpu::Buffer,
-    mean: wgpu::Buffer,
-    basis: wgpu::Buffer,
+    /// The same as texels (copied after each frame's clamping), the PCA mean, the
+    /// basis with rows padded to whole texels, and the coefficients: the PCA kernels
+    /// read these (src/gpu/texels.rs).
+    unit_texels: Texels,
+    mean: Texels,
+    basis: Texels,
     coefficients: wgpu::Buffer,
+    coefficient_texels: Texels,
     /// 3N world-space values: the frame's drawn points.
     points: wgpu::Buffer,
     jacobian: wgpu::Buffer,
@@ -453,32 +459,35 @@ impl Engine {
             ],
             one,
         );
+        r.steps().copy_to_texels(&live.unit, &live.unit_texels);
         if self.pca {
             let grid = r.grid(live.components);
-            r.dispatch(
+            r.steps().dispatch_bound(
                 &kernels::PCA_COEFFICIENTS,
                 &params,
                 &[
-                    &live.unit,
-                    &live.mean,
-                    &live.basis,
-                    &live.state,
-                    &live.coefficients,
+                    Bound::Texels(&live.unit_texels),
+                    Bound::Texels(&live.mean),
+                    Bound::Texels(&live.basis),
+                    Bound::Buffer(&live.state),
+                    Bound::Buffer(&live.coefficients),
                 ],
                 grid,
             );
+            r.steps()
+                .copy_to_texels(&live.coefficients, &live.coefficient_texels);
         }
-        let grid = r.grid(3 * points);
-        r.dispatch(
+        let grid = r.grid((3 * points).div_ceil(4));
+        r.steps().dispatch_bound(
             &kernels::FRAME_POINTS,
             &params,
             &[
-                &live.unit,
-                &live.mean,
-                &live.basis,
-                &live.state,
-                &live.coefficients,
-                &live.points,
+                Bound::Texels(&live.unit_texels),
+                Bound::Texels(&live.mean),
+                Bound::Texels(&live.basis),
+                Bound::Buffer(&live.state),
+                Bound::Texels(&live.coefficient_texels),
+                Bound::Buffer(&live.points),
             ],
             grid,
         );
@@ -752,13 +761,30 @@ impl Live {
             context,
             pixels: u32s("engine.pixels", &bundle.pixels)?,
             waist: u32s("engine.waist", &bundle.waist)?,
-            unit: gpu.storage_buffer("engine.unit", 4 * d as u64, wgpu::BufferUsages::COPY_SRC)?,
-            mean: f32s("engine.pca_mean", &bundle.pca_mean)?,
-            basis: f32s("engine.pca_basis", &bundle.pca_basis)?,
+            // Whole texels (16 bytes): both are copied into texels.
+            unit: gpu.storage_buffer(
+                "engine.unit",
+                (4 * d.max(1) as u64).next_multiple_of(16),
+                wgpu::BufferUsages::COPY_SRC,
+            )?,
+            unit_texels: Texels::new(gpu, "engine.unit", d, Precision::F32)?,
+            mean: Texels::upload(gpu, "engine.pca_mean", &bundle.pca_mean, Precision::F32)?,
+            basis: Texels::upload(
+                gpu,
+                "engine.pca_basis",
+                &padded_rows(&bundle.pca_basis, d),
+                Precision::F32,
+            )?,
             coefficients: gpu.storage_buffer(
                 "engine.pca_coefficients",
-                4 * components.max(1) as u64,
-                wgpu::BufferUsages::empty(),
+                (4 * components.max(1) as u64).next_multiple_of(16),
+                wgpu::BufferUsages::COPY_SRC,
+            )?,
+            coefficient_texels: Texels::new(
+                gpu,
+                "engine.pca_coefficients",
+                components,
+                Precision::F32,
             )?,
             points: gpu.storage_buffer(
                 "engine.points",
@@ -774,4 +800,18 @@ impl Live {
             components,
         })
     }
+}
+
+/// `values` in rows of `width`, each padded with zeros to a multiple of 4 (whole texels).
+fn padded_rows(values: &[f32], width: usize) -> Vec<f32> {
+    if width == 0 {
+        return Vec::new();
+    }
+    let padded = width.next_multiple_of(4);
+    let mut out = Vec::with_capacity(values.len() / width * padded);
+    for row in values.chunks(width) {
+        out.extend_from_slice(row);
+        out.resize(out.len() + padded - row.len(), 0.0);
+    }
+    out
 }
