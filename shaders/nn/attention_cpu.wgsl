@@ -2,26 +2,66 @@
 // for heads of at most 32 values with every row offset and stride a multiple of 4
 // (host-checked). q, the accumulator and each key and value row are held as up to 8
 // vec4 registers written out by name (a CPU driver keeps a dynamically indexed array in
-// memory), and the rows are read as texels (src/gpu/texels.rs: a vector gather on
+// memory; the accumulator rides in a struct of named fields), and the rows are read as texels (src/gpu/texels.rs: a vector gather on
 // lavapipe, where a storage load is a loop over lanes). Dot products sum in vec4 chunks.
 // The first `prefix_keys` keys come from `prefix`, as in attention.wgsl.
 
 @group(0) @binding(0) var<uniform> p: AttentionParams;
-@group(0) @binding(1) var q: texture_2d<f32>;
+@group(0) @binding(1) var q_in: texture_2d<f32>;
 @group(0) @binding(2) var prefix: texture_2d<f32>;
 @group(0) @binding(3) var kv: texture_2d<f32>;
 @group(0) @binding(4) var<storage, read_write> out: array<vec4<Elem>>;
 
-// Chunk `c` (4 values) of the row starting at vec4 `row` of the prefix (`cached`) or kv,
-// zero past the head.
-fn kv_chunk(cached: bool, row: u32, c: u32, chunks: u32) -> vec4<f32> {
-    if c >= chunks {
-        return vec4<f32>(0.0);
+// The running softmax of one query: the best score so far, the sum of exp(score - best)
+// and the weighted sum of the value rows (up to 8 chunks of 4).
+struct Online {
+    best: f32,
+    total: f32,
+    a0: vec4<f32>,
+    a1: vec4<f32>,
+    a2: vec4<f32>,
+    a3: vec4<f32>,
+    a4: vec4<f32>,
+    a5: vec4<f32>,
+    a6: vec4<f32>,
+    a7: vec4<f32>,
+}
+
+// One more key: its score and the first 4 chunks of its value row at texel `v` of `t`
+// (the last 4 only when `wide`).
+fn take(o: Online, score: f32, t: texture_2d<f32>, v: u32, wide: bool) -> Online {
+    var n = o;
+    let new_best = max(o.best, score);
+    let rescale = exp(o.best - new_best);
+    let weight = exp(score - new_best);
+    n.total = o.total * rescale + weight;
+    n.a0 = o.a0 * rescale + weight * texel(t, v);
+    n.a1 = o.a1 * rescale + weight * texel(t, v + 1u);
+    n.a2 = o.a2 * rescale + weight * texel(t, v + 2u);
+    n.a3 = o.a3 * rescale + weight * texel(t, v + 3u);
+    if wide {
+        n.a4 = o.a4 * rescale + weight * texel(t, v + 4u);
+        n.a5 = o.a5 * rescale + weight * texel(t, v + 5u);
+        n.a6 = o.a6 * rescale + weight * texel(t, v + 6u);
+        n.a7 = o.a7 * rescale + weight * texel(t, v + 7u);
     }
-    if cached {
-        return texel(prefix, row + c);
-    }
-    return texel(kv, row + c);
+    n.best = new_best;
+    return n;
+}
+
+// q (scaled) against the key row at texel `k` of `t`: the first 4 chunks.
+fn score4(t: texture_2d<f32>, k: u32, q0: vec4<f32>, q1: vec4<f32>, q2: vec4<f32>, q3: vec4<f32>) -> f32 {
+    var score = dot(q0, texel(t, k)) + dot(q1, texel(t, k + 1u));
+    score += dot(q2, texel(t, k + 2u)) + dot(q3, texel(t, k + 3u));
+    return score;
+}
+
+// The last 4 chunks (heads of 20 to 32 values), added in the same order.
+fn score8(t: texture_2d<f32>, k: u32, q0: vec4<f32>, q1: vec4<f32>, q2: vec4<f32>, q3: vec4<f32>, q4: vec4<f32>, q5: vec4<f32>, q6: vec4<f32>, q7: vec4<f32>) -> f32 {
+    var score = score4(t, k, q0, q1, q2, q3);
+    score += dot(q4, texel(t, k + 4u)) + dot(q5, texel(t, k + 5u));
+    score += dot(q6, texel(t, k + 6u)) + dot(q7, texel(t, k + 7u));
+    return score;
 }
 
 @compute @workgroup_size(WORKGROUP)
@@ -51,6 +91,7 @@ fn main(invocation: Invocation) {
         keys = min(keys, p.rows - first);
     }
 
+    // q in registers, zero past the head (so the padding chunks add exact zeros).
     var q0 = vec4<f32>(0.0);
     var q1 = vec4<f32>(0.0);
     var q2 = vec4<f32>(0.0);
@@ -59,63 +100,49 @@ fn main(invocation: Invocation) {
     var q5 = vec4<f32>(0.0);
     var q6 = vec4<f32>(0.0);
     var q7 = vec4<f32>(0.0);
-    if chunks > 0u { q0 = texel(q, q_row) * scale; }
-    if chunks > 1u { q1 = texel(q, q_row + 1u) * scale; }
-    if chunks > 2u { q2 = texel(q, q_row + 2u) * scale; }
-    if chunks > 3u { q3 = texel(q, q_row + 3u) * scale; }
-    if chunks > 4u { q4 = texel(q, q_row + 4u) * scale; }
-    if chunks > 5u { q5 = texel(q, q_row + 5u) * scale; }
-    if chunks > 6u { q6 = texel(q, q_row + 6u) * scale; }
-    if chunks > 7u { q7 = texel(q, q_row + 7u) * scale; }
-    var acc0 = vec4<f32>(0.0);
-    var acc1 = vec4<f32>(0.0);
-    var acc2 = vec4<f32>(0.0);
-    var acc3 = vec4<f32>(0.0);
-    var acc4 = vec4<f32>(0.0);
-    var acc5 = vec4<f32>(0.0);
-    var acc6 = vec4<f32>(0.0);
-    var acc7 = vec4<f32>(0.0);
-    var best = -3.0e38;
-    var total = 0.0;
+    if chunks > 0u { q0 = texel(q_in, q_row) * scale; }
+    if chunks > 1u { q1 = texel(q_in, q_row + 1u) * scale; }
+    if chunks > 2u { q2 = texel(q_in, q_row + 2u) * scale; }
+    if chunks > 3u { q3 = texel(q_in, q_row + 3u) * scale; }
+    if chunks > 4u { q4 = texel(q_in, q_row + 4u) * scale; }
+    if chunks > 5u { q5 = texel(q_in, q_row + 5u) * scale; }
+    if chunks > 6u { q6 = texel(q_in, q_row + 6u) * scale; }
+    if chunks > 7u { q7 = texel(q_in, q_row + 7u) * scale; }
+    var o = Online(-3.0e38, 0.0, vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+    // The cached keys (prefix) then the fresh ones (kv), each in a loop of its own, and
+    // heads of up to 16 values apart from wider ones: a CPU driver runs both sides of a
+    // branch under a lane mask, so a branch per key would fetch from both textures and
+    // all 8 chunks for every key.
     let fresh = p.keys - p.prefix_keys;
-    for (var j = 0u; j < keys; j++) {
-        let cached = j < p.prefix_keys;
-        var row = (kv_sequence * fresh + j - p.prefix_keys) * p.kv_stride + h * d;
-        if cached {
-            row = (kv_sequence * p.prefix_keys + j) * p.kv_stride + h * d;
+    let cached = min(keys, p.prefix_keys);
+    let wide = chunks > 4u;
+    if wide {
+        for (var j = 0u; j < cached; j++) {
+            let row = (kv_sequence * p.prefix_keys + j) * p.kv_stride + h * d;
+            o = take(o, score8(prefix, (row + p.k_offset) / 4u, q0, q1, q2, q3, q4, q5, q6, q7), prefix, (row + p.v_offset) / 4u, true);
         }
-        let k_row = (row + p.k_offset) / 4u;
-        let v_row = (row + p.v_offset) / 4u;
-        var score = dot(q0, kv_chunk(cached, k_row, 0u, chunks)) + dot(q1, kv_chunk(cached, k_row, 1u, chunks));
-        score += dot(q2, kv_chunk(cached, k_row, 2u, chunks)) + dot(q3, kv_chunk(cached, k_row, 3u, chunks));
-        if chunks > 4u {
-            score += dot(q4, kv_chunk(cached, k_row, 4u, chunks)) + dot(q5, kv_chunk(cached, k_row, 5u, chunks));
-            score += dot(q6, kv_chunk(cached, k_row, 6u, chunks)) + dot(q7, kv_chunk(cached, k_row, 7u, chunks));
+        for (var j = cached; j < keys; j++) {
+            let row = (kv_sequence * fresh + j - p.prefix_keys) * p.kv_stride + h * d;
+            o = take(o, score8(kv, (row + p.k_offset) / 4u, q0, q1, q2, q3, q4, q5, q6, q7), kv, (row + p.v_offset) / 4u, true);
         }
-        let new_best = max(best, score);
-        let rescale = exp(best - new_best);
-        let weight = exp(score - new_best);
-        total = total * rescale + weight;
-        acc0 = acc0 * rescale + weight * kv_chunk(cached, v_row, 0u, chunks);
-        acc1 = acc1 * rescale + weight * kv_chunk(cached, v_row, 1u, chunks);
-        acc2 = acc2 * rescale + weight * kv_chunk(cached, v_row, 2u, chunks);
-        acc3 = acc3 * rescale + weight * kv_chunk(cached, v_row, 3u, chunks);
-        if chunks > 4u {
-            acc4 = acc4 * rescale + weight * kv_chunk(cached, v_row, 4u, chunks);
-            acc5 = acc5 * rescale + weight * kv_chunk(cached, v_row, 5u, chunks);
-            acc6 = acc6 * rescale + weight * kv_chunk(cached, v_row, 6u, chunks);
-            acc7 = acc7 * rescale + weight * kv_chunk(cached, v_row, 7u, chunks);
+    } else {
+        for (var j = 0u; j < cached; j++) {
+            let row = (kv_sequence * p.prefix_keys + j) * p.kv_stride + h * d;
+            o = take(o, score4(prefix, (row + p.k_offset) / 4u, q0, q1, q2, q3), prefix, (row + p.v_offset) / 4u, false);
         }
-        best = new_best;
+        for (var j = cached; j < keys; j++) {
+            let row = (kv_sequence * fresh + j - p.prefix_keys) * p.kv_stride + h * d;
+            o = take(o, score4(kv, (row + p.k_offset) / 4u, q0, q1, q2, q3), kv, (row + p.v_offset) / 4u, false);
+        }
     }
     let o_row = ((s * p.queries + i) * p.channels + h * d) / 4u;
-    let inv = 1.0 / total;
-    if chunks > 0u { out[o_row + 0u] = vec4<Elem>(acc0 * inv); }
-    if chunks > 1u { out[o_row + 1u] = vec4<Elem>(acc1 * inv); }
-    if chunks > 2u { out[o_row + 2u] = vec4<Elem>(acc2 * inv); }
-    if chunks > 3u { out[o_row + 3u] = vec4<Elem>(acc3 * inv); }
-    if chunks > 4u { out[o_row + 4u] = vec4<Elem>(acc4 * inv); }
-    if chunks > 5u { out[o_row + 5u] = vec4<Elem>(acc5 * inv); }
-    if chunks > 6u { out[o_row + 6u] = vec4<Elem>(acc6 * inv); }
-    if chunks > 7u { out[o_row + 7u] = vec4<Elem>(acc7 * inv); }
+    let inv = 1.0 / o.total;
+    if chunks > 0u { out[o_row + 0u] = vec4<Elem>(o.a0 * inv); }
+    if chunks > 1u { out[o_row + 1u] = vec4<Elem>(o.a1 * inv); }
+    if chunks > 2u { out[o_row + 2u] = vec4<Elem>(o.a2 * inv); }
+    if chunks > 3u { out[o_row + 3u] = vec4<Elem>(o.a3 * inv); }
+    if chunks > 4u { out[o_row + 4u] = vec4<Elem>(o.a4 * inv); }
+    if chunks > 5u { out[o_row + 5u] = vec4<Elem>(o.a5 * inv); }
+    if chunks > 6u { out[o_row + 6u] = vec4<Elem>(o.a6 * inv); }
+    if chunks > 7u { out[o_row + 7u] = vec4<Elem>(o.a7 * inv); }
 }
