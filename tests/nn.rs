@@ -908,6 +908,119 @@ fn the_permute_with_its_addends_equals_the_separate_ops_bit_for_bit() {
 }
 
 #[test]
+fn the_norm_stored_as_tokens_equals_the_norm_then_the_permute_bit_for_bit() {
+    // The attention layers' group norm then permute to token rows (spatial: one frame;
+    // temporal: 3 frames with positions 1..4 of a 5-row table) in one dispatch on CPU
+    // drivers must equal group_norm then permute(_add_rows) exactly, in every variant
+    // and precision: 2 sequences × 3 frames of 4×5 images with 8 channels in 4 groups.
+    for (precision, kernels) in variants() {
+        let f = Fixture::open("down", precision);
+        let mut pipelines = PipelineCache::default();
+        let upload = |name: &str, shape: &[usize], k: f32| {
+            let n = shape.iter().product();
+            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
+        };
+        let x = upload("x", &[6, 8, 4, 5], 0.31);
+        let gamma = upload("gamma", &[8], 0.7);
+        let beta = upload("beta", &[8], 0.9);
+        let positions = upload("positions", &[5, 8], 0.43);
+        let what = format!("{precision:?} {kernels:?}");
+        let mut r = Recorder::new(&f.gpu, &mut pipelines, precision);
+        r.set_kernels(kernels);
+        let spatial = r
+            .group_norm_tokens(&x, (&gamma, &beta, 4), 1, None)
+            .unwrap();
+        let temporal = r
+            .group_norm_tokens(&x, (&gamma, &beta, 4), 3, Some((&positions, 8..32)))
+            .unwrap();
+        let normed = r.group_norm(&x, &gamma, &beta, 4, false).unwrap();
+        let spatial_ops = r.permute(&normed, [6, 1, 8, 20], [0, 3, 1, 2]).unwrap();
+        let temporal_ops = r
+            .permute_add_rows(&normed, [2, 3, 8, 20], [0, 3, 1, 2], &positions, 8..32)
+            .unwrap();
+        r.submit();
+        assert_eq!(spatial.shape, vec![6, 20, 1, 8]);
+        assert_eq!(temporal.shape, vec![2, 20, 3, 8]);
+        let read = |t: &Tensor| t.read(&f.gpu).unwrap();
+        assert_same_bits(&read(&spatial), &read(&spatial_ops), &what);
+        assert_same_bits(
+            &read(&temporal),
+            &read(&temporal_ops),
+            &format!("{what} rows"),
+        );
+        assert!(
+            worst_difference(&read(&temporal), &read(&spatial)) > 0.1,
+            "{what}: the layouts differ"
+        );
+    }
+}
+
+#[test]
+fn the_projection_into_images_equals_the_linear_layer_then_the_permute_bit_for_bit() {
+    // The attention layers' output projection put back into NCHW images with their
+    // residual (spatial: with an action-table row per sample; temporal: 3 frames per
+    // sequence) in one dispatch on CPU drivers must equal linear then add_permuted(_bias)
+    // exactly, in every variant and precision: 2 sequences × 3 frames of 4×5 images,
+    // 12 inputs and 8 channels, actions 2 and 0 of a 3-row table.
+    for (precision, kernels) in variants() {
+        let f = Fixture::open("down", precision);
+        let mut pipelines = PipelineCache::default();
+        let upload = |name: &str, shape: &[usize], k: f32| {
+            let n = shape.iter().product();
+            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
+        };
+        let a = upload("a", &[6, 8, 4, 5], 0.31);
+        let tokens = upload("tokens", &[2, 20, 3, 12], 0.53);
+        let weight = upload("weight", &[8, 12], 0.29);
+        let bias = upload("bias", &[8], 0.61);
+        let table = upload("table", &[3, 8], 0.77);
+        let what = format!("{precision:?} {kernels:?}");
+        let mut r = Recorder::new(&f.gpu, &mut pipelines, precision);
+        r.set_kernels(kernels);
+        let ids = r.indices("ids", &[2, 0]).unwrap();
+        let spatial_tokens = tokens.reshaped(&[6, 20, 12]);
+        let spatial = r
+            .linear_to_images(
+                &spatial_tokens,
+                (&weight, &bias),
+                &a,
+                1,
+                Some((&table, &ids, 3)),
+            )
+            .unwrap();
+        let temporal = r
+            .linear_to_images(&tokens, (&weight, &bias), &a, 3, None)
+            .unwrap();
+        let out = r.linear(&spatial_tokens, &weight, &bias, false).unwrap();
+        let spatial_ops = r
+            .add_permuted_bias(
+                &a,
+                &out,
+                [1, 6, 20, 8],
+                [0, 1, 3, 2],
+                Some((&table, &ids, 3)),
+            )
+            .unwrap();
+        let temporal_ops = r
+            .add_permuted(&a, &out, [2, 20, 3, 8], [0, 2, 3, 1])
+            .unwrap();
+        r.submit();
+        assert_eq!(spatial.shape, vec![6, 8, 4, 5]);
+        let read = |t: &Tensor| t.read(&f.gpu).unwrap();
+        assert_same_bits(&read(&spatial), &read(&spatial_ops), &what);
+        assert_same_bits(
+            &read(&temporal),
+            &read(&temporal_ops),
+            &format!("{what} frames"),
+        );
+        assert!(
+            worst_difference(&read(&temporal), &read(&spatial)) > 0.1,
+            "{what}: the bias and the layouts differ"
+        );
+    }
+}
+
+#[test]
 fn the_linear_layer_with_its_residual_equals_a_separate_add_bit_for_bit() {
     // The refiner's `x + proj(a)` and `x + fc2(silu(h))`: the residual in the linear
     // kernels' epilogue equals linear then add.wgsl, in every variant and precision, for

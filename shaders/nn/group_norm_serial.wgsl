@@ -5,13 +5,29 @@
 // the arithmetic). Values go 4 at a time, summed in 4 running partial sums. Planes of a
 // multiple of 4 values or rows of a multiple of 4 channels (hw = 1: a layer norm), and
 // at most SERIAL_NORM_LIMIT values per group (host-checked): lavapipe stops any
-// invocation's loops after 65,535 iterations in all.
+// invocation's loops after 65,535 iterations in all. With `p.tokens` (F > 0) the values
+// are stored as token rows [N, HW, F, C] instead, plus optional frame positions: the
+// attention layers' permute, done by the stores (see GroupNormParams).
 
 @group(0) @binding(0) var<uniform> p: GroupNormParams;
 @group(0) @binding(1) var<storage, read> x: array<vec4<Elem>>;
 @group(0) @binding(2) var<storage, read> gamma: array<Elem>;
 @group(0) @binding(3) var<storage, read> beta: array<Elem>;
-@group(0) @binding(4) var<storage, read_write> y: array<vec4<Elem>>;
+// With `p.has_rows`: frame positions added to the token rows.
+@group(0) @binding(4) var<storage, read> rows: array<Elem>;
+@group(0) @binding(5) var<storage, read_write> y: array<Elem>;
+
+fn silu(v: vec4<f32>) -> vec4<f32> {
+    return v / (1.0 + exp(-v));
+}
+
+// Four values at y[at], y[at + 1], … (NCHW and layer-norm rows).
+fn store4(at: u32, v: vec4<f32>) {
+    y[at] = Elem(v.x);
+    y[at + 1u] = Elem(v.y);
+    y[at + 2u] = Elem(v.z);
+    y[at + 3u] = Elem(v.w);
+}
 
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {
@@ -43,13 +59,43 @@ fn main(invocation: Invocation) {
             let b = vec4<f32>(f32(beta[c]), f32(beta[c + 1u]), f32(beta[c + 2u]), f32(beta[c + 3u]));
             var v = (vec4<f32>(x[base + i]) - mean) * (inv_std * g) + b;
             if p.silu != 0u {
-                v = v / (1.0 + exp(-v));
+                v = silu(v);
             }
-            y[base + i] = vec4<Elem>(v);
+            store4(4u * (base + i), v);
         }
         return;
     }
     let plane_quads = p.hw / 4u;
+    if p.tokens != 0u {
+        // Image n·F + f's pixel q is token row (n·HW + q)·F + f.
+        let image = id / p.groups;
+        let f = image % p.tokens;
+        let stride = p.tokens * p.channels; // between pixels
+        let first_row = ((image / p.tokens) * p.hw * p.tokens + f) * p.channels;
+        for (var k = 0u; k < per_group; k++) {
+            let c = first_channel + k;
+            let scale = inv_std * f32(gamma[c]);
+            let shift = f32(beta[c]);
+            let plane = base + k * plane_quads;
+            var position = 0.0;
+            if p.has_rows != 0u {
+                position = f32(rows[p.rows_offset + f * p.channels + c]);
+            }
+            for (var i = 0u; i < plane_quads; i++) {
+                let v = (vec4<f32>(x[plane + i]) - mean) * scale + shift;
+                // Rounded to Elem, then the position added and rounded again: the
+                // norm's store and the permute's add.
+                let rounded = vec4<f32>(vec4<Elem>(v));
+                let out = select(rounded, rounded + position, p.has_rows != 0u);
+                let at = first_row + 4u * i * stride + c;
+                y[at] = Elem(out.x);
+                y[at + stride] = Elem(out.y);
+                y[at + 2u * stride] = Elem(out.z);
+                y[at + 3u * stride] = Elem(out.w);
+            }
+        }
+        return;
+    }
     for (var k = 0u; k < per_group; k++) {
         let c = first_channel + k;
         let scale = inv_std * f32(gamma[c]);
@@ -58,9 +104,9 @@ fn main(invocation: Invocation) {
         for (var i = 0u; i < plane_quads; i++) {
             var v = (vec4<f32>(x[plane + i]) - mean) * scale + shift;
             if p.silu != 0u {
-                v = v / (1.0 + exp(-v));
+                v = silu(v);
             }
-            y[plane + i] = vec4<Elem>(v);
+            store4(4u * (plane + i), v);
         }
     }
 }

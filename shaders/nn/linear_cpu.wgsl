@@ -5,15 +5,21 @@
 // input axis (inputs a multiple of 4, host-checked): 8 texels per 64 multiply-adds. The
 // four weight vectors are transposed in registers, so each sum still runs over i in
 // order from the bias, as linear.wgsl's does. Rows and outputs past the end are clamped
-// for the loads and not stored.
+// for the loads and not stored. With `p.images` the results go into NCHW images (with an
+// NCHW residual and an optional action-table row): the attention layers' output
+// projection and the permute back, in one pass (see LinearParams).
 
 @group(0) @binding(0) var<uniform> p: LinearParams;
 @group(0) @binding(1) var x: texture_2d<f32>;
 @group(0) @binding(2) var weight: texture_2d<f32>;
 @group(0) @binding(3) var<storage, read> bias: array<Elem>;
-// With `p.has_residual`: added to the rounded result (rows × outputs).
+// With `p.has_residual`: added to the rounded result (rows × outputs, or NCHW images
+// with `p.images`).
 @group(0) @binding(4) var<storage, read> residual: array<Elem>;
-@group(0) @binding(5) var<storage, read_write> y: array<Elem>;
+// With `p.has_table`: an action table [A, outputs] and the samples' action ids.
+@group(0) @binding(5) var<storage, read> table: array<Elem>;
+@group(0) @binding(6) var<storage, read> ids: array<u32>;
+@group(0) @binding(7) var<storage, read_write> y: array<Elem>;
 
 // Output `at`: the sum rounded to Elem, plus its residual when there is one.
 fn finish(at: u32, v: f32) -> Elem {
@@ -47,13 +53,28 @@ fn mac(a: vec4<f32>, x: vec4<f32>, t: mat4x4<f32>) -> vec4<f32> {
     return a + x.x * t[0] + x.y * t[1] + x.z * t[2] + x.w * t[3];
 }
 
+// Outputs o0 … o0 + 3 of `row`: at row · outputs + o, or with `p.images` at pixel q of
+// channel o of image n·F + f for token row (n·HW + q)·F + f.
 fn store(row: u32, o0: u32, v: vec4<f32>) {
     if row >= p.rows {
         return;
     }
+    let frames = max(p.images, 1u);
+    let rest = row / frames;
+    let image = (rest / p.hw) * frames + row % frames;
+    let into_images = p.images != 0u;
+    let first = select(row * p.outputs, image * p.outputs * p.hw + rest % p.hw, into_images);
+    let step = select(1u, p.hw, into_images);
+    let action = ids[image / max(p.table_frames, 1u)];
     for (var c = 0u; c < 4u; c++) {
-        if o0 + c < p.outputs {
-            y[row * p.outputs + o0 + c] = finish(row * p.outputs + o0 + c, v[c]);
+        let o = o0 + c;
+        if o < p.outputs {
+            let at = first + o * step;
+            var out = finish(at, v[c]);
+            if p.has_table != 0u {
+                out = Elem(f32(out) + f32(table[action * p.outputs + o]));
+            }
+            y[at] = out;
         }
     }
 }

@@ -119,6 +119,11 @@ impl Norm {
     pub fn forward(&self, r: &mut Recorder, x: &Tensor, silu: bool) -> Result<Tensor, GpuError> {
         r.group_norm(x, &self.gamma, &self.beta, self.groups, silu)
     }
+
+    /// (gamma, beta, groups), as [`Recorder::group_norm_tokens`] takes them.
+    pub fn parts(&self) -> (&Tensor, &Tensor, usize) {
+        (&self.gamma, &self.beta, self.groups)
+    }
 }
 
 fn gcd(a: usize, b: usize) -> usize {
@@ -145,6 +150,11 @@ impl Linear {
         input_silu: bool,
     ) -> Result<Tensor, GpuError> {
         r.linear(x, &self.weight, &self.bias, input_silu)
+    }
+
+    /// (weight, bias), as [`Recorder::linear_to_images`] takes them.
+    pub fn parts(&self) -> (&Tensor, &Tensor) {
+        (&self.weight, &self.bias)
     }
 
     /// `residual + forward(x)` in one dispatch ([`Recorder::linear_plus`]).
@@ -348,16 +358,14 @@ impl SpatialAttention {
         let [n, c, h, w] = x.shape[..] else {
             panic!("NCHW expected, got {:?}", x.shape)
         };
-        let normed = self.norm.forward(r, x, false)?;
-        let tokens = to_tokens(r, &normed)?;
+        let tokens = r.group_norm_tokens(x, self.norm.parts(), 1, None)?;
         let qkv = self.qkv.forward(r, &tokens, false)?;
         let mixed = r.attention(
             &qkv,
             &qkv,
             attention_params(n, h * w, h * w, c, self.heads, true),
         )?;
-        let out = self.out.forward(r, &mixed, false)?;
-        r.add_permuted_bias(x, &out, [1, n, h * w, c], [0, 1, 3, 2], bias)
+        r.linear_to_images(&mixed, self.out.parts(), x, 1, bias)
     }
 }
 
@@ -489,15 +497,9 @@ impl TemporalAttention {
         };
         let n = nf / f;
         let hw = h * w;
-        let normed = self.norm.forward(r, x, false)?;
-        // [N, HW, F, C] with each frame's position added, in one pass.
-        let tokens = r.permute_add_rows(
-            &normed,
-            [n, f, c, hw],
-            [0, 3, 1, 2],
-            &self.position,
-            first * c..(first + f) * c,
-        )?;
+        // [N, HW, F, C] with each frame's position added.
+        let positions = (&self.position, first * c..(first + f) * c);
+        let tokens = r.group_norm_tokens(x, self.norm.parts(), f, Some(positions))?;
         let qkv = self.qkv.forward(r, &tokens, false)?;
         // The keys: the cached context rows (read in place, no concatenation), then
         // this batch's.
@@ -516,7 +518,6 @@ impl TemporalAttention {
             ..attention_params(n * hw, f, first + f, c, self.heads, true)
         };
         let mixed = r.attention_after(&qkv, prefix, &qkv, params)?; // [N·HW, F, C]
-        let out = self.out.forward(r, &mixed, false)?;
-        r.add_permuted(x, &out, [n, hw, f, c], [0, 2, 3, 1]) // [N, F, C, HW]
+        r.linear_to_images(&mixed, self.out.parts(), x, f, None) // [N·F, C, H, W]
     }
 }

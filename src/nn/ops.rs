@@ -58,8 +58,17 @@ gpu_struct! {
         pub hw: u32,
         pub eps: f32,
         pub silu: u32,
+        /// 0: the output is NCHW like the input. F > 0 (group_norm_serial.wgsl only):
+        /// token rows [N, HW, F, C] of the images taken F at a time (image n·F + f is
+        /// frame f of sequence n), as a permute after the norm would lay them out.
+        pub tokens: u32,
+        /// With `tokens`: plus `rows[rows_offset + f·C + c]` (frame positions), added
+        /// to the value rounded to Elem, as the permute's addend.
+        pub has_rows: u32,
+        pub rows_offset: u32,
         pub reserved0: u32,
         pub reserved1: u32,
+        pub reserved2: u32,
     }
 }
 
@@ -73,6 +82,17 @@ gpu_struct! {
         /// Add a residual of the output's shape to the result rounded to Elem (the sum
         /// add.wgsl would make after the layer).
         pub has_residual: u32,
+        /// 0: the output is [rows, outputs]. F > 0 (linear_cpu.wgsl only): the rows are
+        /// tokens [N, HW, F] and each result goes to its NCHW image [N·F, outputs, H, W]
+        /// (image n·F + f), as a permute after the layer would put it; the residual is
+        /// then NCHW too.
+        pub images: u32,
+        /// Pixels per image (with `images`).
+        pub hw: u32,
+        /// With `images`: plus row ids[image / table_frames] of an action table
+        /// [A, outputs], added last (as add_action_bias.wgsl).
+        pub has_table: u32,
+        pub table_frames: u32,
         pub reserved0: u32,
         pub reserved1: u32,
         pub reserved2: u32,
@@ -829,18 +849,23 @@ impl<'a> Recorder<'a> {
             hw: (h * w) as u32,
             eps: GROUP_NORM_EPS,
             silu: u32::from(silu),
+            tokens: 0,
+            has_rows: 0,
+            rows_offset: 0,
             reserved0: 0,
             reserved1: 0,
+            reserved2: 0,
         };
         let quads = (h * w).is_multiple_of(4) || (h * w == 1 && (c / groups).is_multiple_of(4));
         let serial = quads && c / groups * h * w <= SERIAL_NORM_LIMIT;
         if self.kernels == Kernels::Cpu && serial {
-            // One invocation per (sample, group), no barriers.
+            // One invocation per (sample, group), no barriers; `x` stands in for the
+            // absent rows (unread).
             let grid = self.grid(n * groups);
             self.launch(
                 &kernels::GROUP_NORM_SERIAL,
                 &params,
-                &[x, gamma, beta, &y],
+                &[x, gamma, beta, x, &y],
                 grid,
             );
             return Ok(y);
@@ -854,6 +879,71 @@ impl<'a> Recorder<'a> {
                 .max_compute_workgroups_per_dimension,
         );
         self.launch(&kernels::GROUP_NORM, &params, &[x, gamma, beta, &y], grid);
+        Ok(y)
+    }
+
+    /// The group norm of NCHW `x` [N·F, C, H, W] (no SiLU) laid out as token rows
+    /// [N, HW, F, C] (image n·F + f is frame f of sequence n), plus, with `rows`, values
+    /// `part` of `rows` ([F, C] frame positions) on every token: what
+    /// [`Recorder::permute_add_rows`] (or [`Recorder::permute`]) after
+    /// [`Recorder::group_norm`] gives, bit for bit. For CPU drivers one dispatch (the
+    /// serial norm stores the tokens); otherwise the two.
+    pub fn group_norm_tokens(
+        &mut self,
+        x: &Tensor,
+        norm: (&Tensor, &Tensor, usize),
+        frames: usize,
+        rows: Option<(&Tensor, std::ops::Range<usize>)>,
+    ) -> Result<Tensor, GpuError> {
+        let (gamma, beta, groups) = norm;
+        let [nf, c, h, w] = x.shape[..] else {
+            panic!("group norm input must be NCHW, got {:?}", x.shape)
+        };
+        assert!(nf.is_multiple_of(frames), "{nf} images in runs of {frames}");
+        let (n, hw) = (nf / frames, h * w);
+        if let Some((rows, part)) = &rows {
+            assert!(
+                part.len() == frames * c && part.end <= rows.len(),
+                "frame positions {part:?} of {:?} for {frames} frames of {c} channels",
+                rows.shape
+            );
+        }
+        let fused = self.kernels == Kernels::Cpu
+            && hw.is_multiple_of(4)
+            && c.is_multiple_of(groups)
+            && c / groups * hw <= SERIAL_NORM_LIMIT;
+        if !fused {
+            let normed = self.group_norm(x, gamma, beta, groups, false)?;
+            let (shape, perm) = ([n, frames, c, hw], [0, 3, 1, 2]);
+            return match rows {
+                Some((rows, part)) => self.permute_add_rows(&normed, shape, perm, rows, part),
+                None => self.permute(&normed, shape, perm),
+            };
+        }
+        let y = self.output("group_norm.tokens", &[n, hw, frames, c])?;
+        let part = rows.as_ref().map_or(0..0, |(_, part)| part.clone());
+        let params = GroupNormParams {
+            batch: nf as u32,
+            channels: c as u32,
+            groups: groups as u32,
+            hw: hw as u32,
+            eps: GROUP_NORM_EPS,
+            silu: 0,
+            tokens: frames as u32,
+            has_rows: u32::from(rows.is_some()),
+            rows_offset: part.start as u32,
+            reserved0: 0,
+            reserved1: 0,
+            reserved2: 0,
+        };
+        let rows = rows.map_or(x, |(rows, _)| rows);
+        let grid = self.grid(nf * groups);
+        self.launch(
+            &kernels::GROUP_NORM_SERIAL,
+            &params,
+            &[x, gamma, beta, rows, &y],
+            grid,
+        );
         Ok(y)
     }
 
@@ -898,6 +988,10 @@ impl<'a> Recorder<'a> {
             outputs: outputs as u32,
             input_silu: u32::from(input_silu),
             has_residual: u32::from(residual.is_some()),
+            images: 0,
+            hw: 1,
+            has_table: 0,
+            table_frames: 1,
             reserved0: 0,
             reserved1: 0,
             reserved2: 0,
@@ -918,11 +1012,14 @@ impl<'a> Recorder<'a> {
                 self.check(&[x, weight, bias, residual]);
                 let input = self.texels(x)?;
                 let weight = weight.constant_texels(self.gpu)?;
+                // No action table: the bias stands in for it and its ids (unread).
                 let bound = [
                     Bound::Texels(&input),
                     Bound::Texels(weight),
                     Bound::Buffer(&bias.buffer),
                     Bound::Buffer(&residual.buffer),
+                    Bound::Buffer(&bias.buffer),
+                    Bound::Buffer(&bias.buffer),
                     Bound::Buffer(&y.buffer),
                 ];
                 self.steps
@@ -944,6 +1041,82 @@ impl<'a> Recorder<'a> {
                 grid,
             );
         }
+        Ok(y)
+    }
+
+    /// `a + permute(linear(x))`, plus an action-table row per sample with `table`
+    /// (table, ids, images per sample): token rows `x` [N, HW, F, inputs] projected and
+    /// put back into the NCHW images `a` [N·F, outputs, H, W] (image n·F + f), the
+    /// attention layers' output projection and residual. Equal bit for bit to
+    /// [`Recorder::linear`] then [`Recorder::add_permuted_bias`] (shape [N, HW, F, C],
+    /// permutation [0, 2, 3, 1]), which other kernel variants record; for CPU drivers
+    /// one dispatch (the linear kernel stores into the images). `weight` is constant.
+    pub fn linear_to_images(
+        &mut self,
+        x: &Tensor,
+        layer: (&Tensor, &Tensor),
+        a: &Tensor,
+        frames: usize,
+        table: Option<(&Tensor, &Indices, usize)>,
+    ) -> Result<Tensor, GpuError> {
+        let (weight, bias) = layer;
+        let [nf, c, h, w] = a.shape[..] else {
+            panic!("NCHW residual expected, got {:?}", a.shape)
+        };
+        let inputs = *x.shape.last().expect("a tensor has a shape");
+        assert_eq!(weight.shape, [c, inputs], "linear_to_images weight");
+        assert!(nf.is_multiple_of(frames), "{nf} images in runs of {frames}");
+        let (n, hw) = (nf / frames, h * w);
+        let rows = x.len() / inputs;
+        assert_eq!(rows, n * hw * frames, "{rows} tokens for {:?}", a.shape);
+        if let Some((table, ids, per_sample)) = table {
+            assert_eq!(table.shape[1], c, "action bias table {:?}", table.shape);
+            assert_eq!(nf, ids.len * per_sample, "{} ids for {nf} images", ids.len);
+        }
+        let fused = self.kernels == Kernels::Cpu && rows >= 4 && inputs.is_multiple_of(4);
+        if !fused {
+            let out = self.linear(x, weight, bias, false)?;
+            return self.permute_plus(&out, [n, hw, frames, c], [0, 2, 3, 1], Some(a), None, table);
+        }
+        let y = self.output("linear.images", &a.shape)?;
+        self.flops += 2 * (rows * c * inputs) as u64;
+        let params = LinearParams {
+            rows: rows as u32,
+            inputs: inputs as u32,
+            outputs: c as u32,
+            input_silu: 0,
+            has_residual: 1,
+            images: frames as u32,
+            hw: hw as u32,
+            has_table: u32::from(table.is_some()),
+            table_frames: table.map_or(1, |(_, _, per_sample)| per_sample as u32),
+            reserved0: 0,
+            reserved1: 0,
+            reserved2: 0,
+        };
+        self.check(&[x, weight, bias, a]);
+        let input = self.texels(x)?;
+        let weight = weight.constant_texels(self.gpu)?;
+        let (table, ids) = match table {
+            Some((table, ids, _)) => {
+                self.check(&[table]);
+                (&table.buffer, &ids.buffer)
+            }
+            // No action table: the bias stands in for it and its ids (unread).
+            None => (&bias.buffer, &bias.buffer),
+        };
+        let bound = [
+            Bound::Texels(&input),
+            Bound::Texels(weight),
+            Bound::Buffer(&bias.buffer),
+            Bound::Buffer(&a.buffer),
+            Bound::Buffer(table),
+            Bound::Buffer(ids),
+            Bound::Buffer(&y.buffer),
+        ];
+        let grid = self.grid(rows.div_ceil(4) * c.div_ceil(4));
+        self.steps
+            .dispatch_bound(&kernels::LINEAR_CPU, &params, &bound, grid);
         Ok(y)
     }
 
