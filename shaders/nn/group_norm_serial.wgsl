@@ -7,10 +7,12 @@
 // at most SERIAL_NORM_LIMIT values per group (host-checked): lavapipe stops any
 // invocation's loops after 65,535 iterations in all. With `p.tokens` (F > 0) the values
 // are stored as token rows [N, HW, F, C] instead, plus optional frame positions: the
-// attention layers' permute, done by the stores (see GroupNormParams).
+// attention layers' permute, done by the stores (see GroupNormParams). x is read as
+// texels (src/gpu/texels.rs: a vector gather on lavapipe, where a storage load is a
+// loop over lanes).
 
 @group(0) @binding(0) var<uniform> p: GroupNormParams;
-@group(0) @binding(1) var<storage, read> x: array<vec4<Elem>>;
+@group(0) @binding(1) var x: texture_2d<f32>;
 @group(0) @binding(2) var<storage, read> gamma: array<Elem>;
 @group(0) @binding(3) var<storage, read> beta: array<Elem>;
 // With `p.has_rows`: frame positions added to the token rows.
@@ -41,12 +43,12 @@ fn main(invocation: Invocation) {
     let quads = count / 4u;
     var sum = vec4<f32>(0.0);
     for (var i = 0u; i < quads; i++) {
-        sum += vec4<f32>(x[base + i]);
+        sum += texel(x, base + i);
     }
     let mean = (sum.x + sum.y + sum.z + sum.w) / f32(count);
     var squares = vec4<f32>(0.0);
     for (var i = 0u; i < quads; i++) {
-        let d = vec4<f32>(x[base + i]) - mean;
+        let d = texel(x, base + i) - mean;
         squares += d * d;
     }
     let inv_std = inverseSqrt((squares.x + squares.y + squares.z + squares.w) / f32(count) + p.eps);
@@ -57,7 +59,7 @@ fn main(invocation: Invocation) {
             let c = first_channel + 4u * i;
             let g = vec4<f32>(f32(gamma[c]), f32(gamma[c + 1u]), f32(gamma[c + 2u]), f32(gamma[c + 3u]));
             let b = vec4<f32>(f32(beta[c]), f32(beta[c + 1u]), f32(beta[c + 2u]), f32(beta[c + 3u]));
-            var v = (vec4<f32>(x[base + i]) - mean) * (inv_std * g) + b;
+            var v = (texel(x, base + i) - mean) * (inv_std * g) + b;
             if p.silu != 0u {
                 v = silu(v);
             }
@@ -82,7 +84,7 @@ fn main(invocation: Invocation) {
                 position = f32(rows[p.rows_offset + f * p.channels + c]);
             }
             for (var i = 0u; i < plane_quads; i++) {
-                let v = (vec4<f32>(x[plane + i]) - mean) * scale + shift;
+                let v = (texel(x, plane + i) - mean) * scale + shift;
                 // Rounded to Elem, then the position added and rounded again: the
                 // norm's store and the permute's add.
                 let rounded = vec4<f32>(vec4<Elem>(v));
@@ -102,7 +104,7 @@ fn main(invocation: Invocation) {
         let shift = f32(beta[c]);
         let plane = base + k * plane_quads;
         for (var i = 0u; i < plane_quads; i++) {
-            var v = (vec4<f32>(x[plane + i]) - mean) * scale + shift;
+            var v = (texel(x, plane + i) - mean) * scale + shift;
             if p.silu != 0u {
                 v = silu(v);
             }

@@ -20,6 +20,8 @@ pub const CONV3X3_CPU: Shader = shader!("nn/conv3x3_cpu.wgsl", [Conv2dParams], e
 /// The 1×1 convolution in register tiles of 8 pixels × 8 channels, from repacked f32
 /// weights (`ops::PackedConv`).
 pub const CONV1X1: Shader = shader!("nn/conv1x1.wgsl", [Conv2dParams], elem);
+/// `CONV1X1` for CPU drivers: the input and the weights read as texels.
+pub const CONV1X1_CPU: Shader = shader!("nn/conv1x1_cpu.wgsl", [Conv2dParams], elem);
 pub const UPSAMPLE_NEAREST: Shader = shader!("nn/upsample_nearest.wgsl", [UpsampleParams], elem);
 pub const GROUP_NORM: Shader = shader!("nn/group_norm.wgsl", [GroupNormParams], elem);
 /// Group norm for CPU drivers: one invocation per (sample, group), no barriers.
@@ -43,6 +45,8 @@ pub const ATTENTION_CPU: Shader = shader!("nn/attention_cpu.wgsl", [AttentionPar
 pub const TIMESTEP_EMBEDDING: Shader =
     shader!("nn/timestep_embedding.wgsl", [EmbeddingParams], elem);
 pub const GATHER: Shader = shader!("nn/gather.wgsl", [GatherParams], elem);
+/// `GATHER` for CPU drivers: four values a texel.
+pub const GATHER_CPU: Shader = shader!("nn/gather_cpu.wgsl", [GatherParams], elem);
 pub const SEGMENT_MEAN: Shader = shader!("nn/segment_mean.wgsl", [SegmentParams], elem);
 
 /// Every shader of the model.
@@ -52,6 +56,7 @@ pub const ALL: &[Shader] = &[
     CONV3X3,
     CONV3X3_CPU,
     CONV1X1,
+    CONV1X1_CPU,
     UPSAMPLE_NEAREST,
     GROUP_NORM,
     GROUP_NORM_SERIAL,
@@ -67,5 +72,6 @@ pub const ALL: &[Shader] = &[
     ATTENTION_CPU,
     TIMESTEP_EMBEDDING,
     GATHER,
+    GATHER_CPU,
     SEGMENT_MEAN,
 ];

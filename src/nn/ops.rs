@@ -804,6 +804,20 @@ impl<'a> Recorder<'a> {
         let bias = bias.unwrap_or(x);
         self.check(&[x, bias, &y]);
         let grid = self.grid(n * c_out.div_ceil(8) * (h * w / 4).div_ceil(2));
+        if self.kernels == Kernels::Cpu {
+            // The input and the weights as texels.
+            let input = self.texels(x)?;
+            let packed = weights.packed.constant_texels(self.gpu)?;
+            let bound = [
+                Bound::Texels(&input),
+                Bound::Texels(packed),
+                Bound::Buffer(&bias.buffer),
+                Bound::Buffer(&y.buffer),
+            ];
+            self.steps
+                .dispatch_bound(&kernels::CONV1X1_CPU, &params, &bound, grid);
+            return Ok(y);
+        }
         let buffers = [&x.buffer, &weights.packed.buffer, &bias.buffer, &y.buffer];
         self.steps
             .dispatch(&kernels::CONV1X1, &params, &buffers, grid);
@@ -862,12 +876,7 @@ impl<'a> Recorder<'a> {
             // One invocation per (sample, group), no barriers; `x` stands in for the
             // absent rows (unread).
             let grid = self.grid(n * groups);
-            self.launch(
-                &kernels::GROUP_NORM_SERIAL,
-                &params,
-                &[x, gamma, beta, x, &y],
-                grid,
-            );
+            self.group_norm_serial(&params, x, [gamma, beta, x, &y], grid)?;
             return Ok(y);
         }
         // One workgroup per (sample, group).
@@ -938,13 +947,27 @@ impl<'a> Recorder<'a> {
         };
         let rows = rows.map_or(x, |(rows, _)| rows);
         let grid = self.grid(nf * groups);
-        self.launch(
-            &kernels::GROUP_NORM_SERIAL,
-            &params,
-            &[x, gamma, beta, rows, &y],
-            grid,
-        );
+        self.group_norm_serial(&params, x, [gamma, beta, rows, &y], grid)?;
         Ok(y)
+    }
+
+    /// Records `group_norm_serial.wgsl` over `x` (read as texels) and `rest`: gamma,
+    /// beta, rows and the output.
+    fn group_norm_serial(
+        &mut self,
+        params: &GroupNormParams,
+        x: &Tensor,
+        rest: [&Tensor; 4],
+        grid: Grid,
+    ) -> Result<(), GpuError> {
+        self.check(&[x]);
+        self.check(&rest);
+        let input = self.texels(x)?;
+        let mut bound = vec![Bound::Texels(&input)];
+        bound.extend(rest.map(|t| Bound::Buffer(&t.buffer)));
+        self.steps
+            .dispatch_bound(&kernels::GROUP_NORM_SERIAL, params, &bound, grid);
+        Ok(())
     }
 
     /// `y = act(x) Wᵀ + b` over the last axis of `x`, `weight` [outputs, inputs]; act is
@@ -1519,6 +1542,19 @@ impl<'a> Recorder<'a> {
             reserved0: 0,
             reserved1: 0,
         };
+        if self.kernels == Kernels::Cpu && width.is_multiple_of(4) {
+            // Four values a texel of x.
+            let input = self.texels(x)?;
+            let grid = self.grid(y.len() / 4);
+            let bound = [
+                Bound::Buffer(&index.buffer),
+                Bound::Texels(&input),
+                Bound::Buffer(&y.buffer),
+            ];
+            self.steps
+                .dispatch_bound(&kernels::GATHER_CPU, &params, &bound, grid);
+            return Ok(y);
+        }
         let grid = self.grid(y.len());
         self.dispatch(
             &kernels::GATHER,
