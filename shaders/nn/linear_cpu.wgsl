@@ -1,8 +1,8 @@
-// Fully connected layer for CPU drivers (Elem storage, f32 sums): linear_tiled.wgsl's
-// 4 rows × 4 outputs of y[b, o] = sum_i act(x[b, i]) * weight[o, i] + bias[o] per
-// invocation, with x and the weights read as texels (src/gpu/texels.rs: a vector
-// gather on lavapipe, where a storage load is a loop over lanes) along the contiguous
-// input axis (inputs a multiple of 4, host-checked): 8 texels per 64 multiply-adds. The
+// Fully connected layer for CPU drivers (Elem storage, f32 sums): 8 rows × 8 outputs of
+// y[b, o] = sum_i act(x[b, i]) * weight[o, i] + bias[o] per invocation, with x and the
+// weights read as texels (src/gpu/texels.rs: a vector gather on lavapipe, where a
+// storage load is a loop over lanes) along the contiguous input axis (inputs a multiple
+// of 4, host-checked): 16 texels per 256 multiply-adds. The
 // four weight vectors are transposed in registers, so each sum still runs over i in
 // order from the bias, as linear.wgsl's does. Rows and outputs past the end are clamped
 // for the loads and not stored. With `p.images` the results go into NCHW images (with an
@@ -82,49 +82,118 @@ fn store(row: u32, o0: u32, v: vec4<f32>) {
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {
     let i = linear_index(invocation);
-    let out_tiles = (p.outputs + 3u) / 4u;
-    let row_tiles = (p.rows + 3u) / 4u;
+    let out_tiles = (p.outputs + 7u) / 8u;
+    let row_tiles = (p.rows + 7u) / 8u;
     if i >= out_tiles * row_tiles {
         return;
     }
-    let o0 = (i % out_tiles) * 4u;
-    let r0 = (i / out_tiles) * 4u;
-    let last_o = p.outputs - 1u;
-    let last_r = p.rows - 1u;
+    let o0 = (i % out_tiles) * 8u;
+    let r0 = (i / out_tiles) * 8u;
+    let last_o = vec4<u32>(p.outputs - 1u);
+    let last_r = vec4<u32>(p.rows - 1u);
     let quads = p.inputs / 4u;
-    let wo = vec4<u32>(min(o0, last_o), min(o0 + 1u, last_o), min(o0 + 2u, last_o), min(o0 + 3u, last_o)) * quads;
-    let xr = vec4<u32>(min(r0, last_r), min(r0 + 1u, last_r), min(r0 + 2u, last_r), min(r0 + 3u, last_r)) * quads;
-    let b = vec4<f32>(
-        f32(bias[min(o0, last_o)]),
-        f32(bias[min(o0 + 1u, last_o)]),
-        f32(bias[min(o0 + 2u, last_o)]),
-        f32(bias[min(o0 + 3u, last_o)]),
-    );
+    let four = vec4<u32>(0u, 1u, 2u, 3u);
+    // Texels of the 8 outputs' weight rows and the 8 rows of x (clamped at the ends).
+    let wo = min(vec4<u32>(o0) + four, last_o) * quads;
+    let wo2 = min(vec4<u32>(o0 + 4u) + four, last_o) * quads;
+    let xr = min(vec4<u32>(r0) + four, last_r) * quads;
+    let xr2 = min(vec4<u32>(r0 + 4u) + four, last_r) * quads;
+    let ob = min(vec4<u32>(o0) + four, last_o);
+    let ob2 = min(vec4<u32>(o0 + 4u) + four, last_o);
+    let b = vec4<f32>(f32(bias[ob.x]), f32(bias[ob.y]), f32(bias[ob.z]), f32(bias[ob.w]));
+    let b2 = vec4<f32>(f32(bias[ob2.x]), f32(bias[ob2.y]), f32(bias[ob2.z]), f32(bias[ob2.w]));
+    // Row j's outputs o0 … o0 + 3 in aj, o0 + 4 … o0 + 7 in cj.
     var a0 = b;
     var a1 = b;
     var a2 = b;
     var a3 = b;
+    var a4 = b;
+    var a5 = b;
+    var a6 = b;
+    var a7 = b;
+    var c0 = b2;
+    var c1 = b2;
+    var c2 = b2;
+    var c3 = b2;
+    var c4 = b2;
+    var c5 = b2;
+    var c6 = b2;
+    var c7 = b2;
     // Two loops rather than a branch inside one: a CPU driver runs both sides of a
     // branch under a lane mask, so the SiLU's exp would cost every layer.
     if p.input_silu != 0u {
         for (var k = 0u; k < quads; k++) {
-            let t = transposed(wo + k);
-            a0 = mac(a0, silu(texel(x, xr.x + k)), t);
-            a1 = mac(a1, silu(texel(x, xr.y + k)), t);
-            a2 = mac(a2, silu(texel(x, xr.z + k)), t);
-            a3 = mac(a3, silu(texel(x, xr.w + k)), t);
+            let lo = transposed(wo + k);
+            let hi = transposed(wo2 + k);
+            let x0 = silu(texel(x, xr.x + k));
+            let x1 = silu(texel(x, xr.y + k));
+            let x2 = silu(texel(x, xr.z + k));
+            let x3 = silu(texel(x, xr.w + k));
+            let x4 = silu(texel(x, xr2.x + k));
+            let x5 = silu(texel(x, xr2.y + k));
+            let x6 = silu(texel(x, xr2.z + k));
+            let x7 = silu(texel(x, xr2.w + k));
+            a0 = mac(a0, x0, lo);
+            c0 = mac(c0, x0, hi);
+            a1 = mac(a1, x1, lo);
+            c1 = mac(c1, x1, hi);
+            a2 = mac(a2, x2, lo);
+            c2 = mac(c2, x2, hi);
+            a3 = mac(a3, x3, lo);
+            c3 = mac(c3, x3, hi);
+            a4 = mac(a4, x4, lo);
+            c4 = mac(c4, x4, hi);
+            a5 = mac(a5, x5, lo);
+            c5 = mac(c5, x5, hi);
+            a6 = mac(a6, x6, lo);
+            c6 = mac(c6, x6, hi);
+            a7 = mac(a7, x7, lo);
+            c7 = mac(c7, x7, hi);
         }
     } else {
         for (var k = 0u; k < quads; k++) {
-            let t = transposed(wo + k);
-            a0 = mac(a0, texel(x, xr.x + k), t);
-            a1 = mac(a1, texel(x, xr.y + k), t);
-            a2 = mac(a2, texel(x, xr.z + k), t);
-            a3 = mac(a3, texel(x, xr.w + k), t);
+            let lo = transposed(wo + k);
+            let hi = transposed(wo2 + k);
+            let x0 = texel(x, xr.x + k);
+            let x1 = texel(x, xr.y + k);
+            let x2 = texel(x, xr.z + k);
+            let x3 = texel(x, xr.w + k);
+            let x4 = texel(x, xr2.x + k);
+            let x5 = texel(x, xr2.y + k);
+            let x6 = texel(x, xr2.z + k);
+            let x7 = texel(x, xr2.w + k);
+            a0 = mac(a0, x0, lo);
+            c0 = mac(c0, x0, hi);
+            a1 = mac(a1, x1, lo);
+            c1 = mac(c1, x1, hi);
+            a2 = mac(a2, x2, lo);
+            c2 = mac(c2, x2, hi);
+            a3 = mac(a3, x3, lo);
+            c3 = mac(c3, x3, hi);
+            a4 = mac(a4, x4, lo);
+            c4 = mac(c4, x4, hi);
+            a5 = mac(a5, x5, lo);
+            c5 = mac(c5, x5, hi);
+            a6 = mac(a6, x6, lo);
+            c6 = mac(c6, x6, hi);
+            a7 = mac(a7, x7, lo);
+            c7 = mac(c7, x7, hi);
         }
     }
     store(r0, o0, a0);
     store(r0 + 1u, o0, a1);
     store(r0 + 2u, o0, a2);
     store(r0 + 3u, o0, a3);
+    store(r0 + 4u, o0, a4);
+    store(r0 + 5u, o0, a5);
+    store(r0 + 6u, o0, a6);
+    store(r0 + 7u, o0, a7);
+    store(r0, o0 + 4u, c0);
+    store(r0 + 1u, o0 + 4u, c1);
+    store(r0 + 2u, o0 + 4u, c2);
+    store(r0 + 3u, o0 + 4u, c3);
+    store(r0 + 4u, o0 + 4u, c4);
+    store(r0 + 5u, o0 + 4u, c5);
+    store(r0 + 6u, o0 + 4u, c6);
+    store(r0 + 7u, o0 + 4u, c7);
 }

@@ -1031,6 +1031,8 @@ impl<'a> Recorder<'a> {
         if rows >= 4 && self.kernels != Kernels::Simple {
             let grid = self.grid(rows.div_ceil(4) * outputs.div_ceil(4));
             if self.kernels == Kernels::Cpu && inputs.is_multiple_of(4) {
+                // Tiles of 8 rows × 8 outputs.
+                let grid = self.grid(rows.div_ceil(8) * outputs.div_ceil(8));
                 // x and the (constant) weights as texels.
                 self.check(&[x, weight, bias, residual]);
                 let input = self.texels(x)?;
@@ -1137,7 +1139,7 @@ impl<'a> Recorder<'a> {
             Bound::Buffer(ids),
             Bound::Buffer(&y.buffer),
         ];
-        let grid = self.grid(rows.div_ceil(4) * c.div_ceil(4));
+        let grid = self.grid(rows.div_ceil(8) * c.div_ceil(8));
         self.steps
             .dispatch_bound(&kernels::LINEAR_CPU, &params, &bound, grid);
         Ok(y)
