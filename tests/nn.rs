@@ -1021,6 +1021,62 @@ fn the_projection_into_images_equals_the_linear_layer_then_the_permute_bit_for_b
 }
 
 #[test]
+fn the_linear_layer_over_gathered_normed_rows_equals_the_separate_ops_bit_for_bit() {
+    // The refiner's layer norm, projection and serialisation gather in one dispatch on
+    // CPU drivers must equal gather, layer norm (the group norm with one group per row)
+    // and linear (plus residual) exactly, in every variant and precision: 11 rows of 12
+    // values (a partial 8-row tile) in a scrambled order, 8 outputs.
+    for (precision, kernels) in variants() {
+        let f = Fixture::open("down", precision);
+        let mut pipelines = PipelineCache::default();
+        let upload = |name: &str, shape: &[usize], k: f32| {
+            let n = shape.iter().product();
+            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
+        };
+        let x = upload("x", &[11, 12], 0.37);
+        let weight = upload("weight", &[8, 12], 0.29);
+        let bias = upload("bias", &[8], 0.61);
+        let gamma = upload("gamma", &[12], 0.7);
+        let beta = upload("beta", &[12], 0.9);
+        let residual = upload("residual", &[11, 8], 0.47);
+        let what = format!("{precision:?} {kernels:?}");
+        let mut r = Recorder::new(&f.gpu, &mut pipelines, precision);
+        r.set_kernels(kernels);
+        let order = r
+            .indices("order", &[3, 7, 0, 10, 1, 9, 2, 8, 4, 6, 5])
+            .unwrap();
+        let layer = (&weight, &bias);
+        let fused = r
+            .linear_rows(
+                &x,
+                layer,
+                Some((&gamma, &beta)),
+                Some(&order),
+                Some(&residual),
+            )
+            .unwrap();
+        let plain = r.linear_rows(&x, layer, None, None, None).unwrap();
+        let gathered = r.gather(&x, &order).unwrap();
+        let normed = r
+            .group_norm(&gathered.reshaped(&[11, 12, 1, 1]), &gamma, &beta, 1, false)
+            .unwrap()
+            .reshaped(&[11, 12]);
+        let separate = r
+            .linear_plus(&normed, &weight, &bias, false, Some(&residual))
+            .unwrap();
+        let plain_ops = r.linear(&x, &weight, &bias, false).unwrap();
+        r.submit();
+        let read = |t: &Tensor| t.read(&f.gpu).unwrap();
+        assert_same_bits(&read(&fused), &read(&separate), &what);
+        assert_same_bits(&read(&plain), &read(&plain_ops), &format!("{what} plain"));
+        assert!(
+            worst_difference(&read(&fused), &read(&plain)) > 0.1,
+            "{what}: the norm and the order changed the result"
+        );
+    }
+}
+
+#[test]
 fn the_linear_layer_with_its_residual_equals_a_separate_add_bit_for_bit() {
     // The refiner's `x + proj(a)` and `x + fc2(silu(h))`: the residual in the linear
     // kernels' epilogue equals linear then add.wgsl, in every variant and precision, for

@@ -2,7 +2,8 @@
 // y[b, o] = sum_i act(x[b, i]) * weight[o, i] + bias[o] per invocation, with x and the
 // weights read as texels (src/gpu/texels.rs: a vector gather on lavapipe, where a
 // storage load is a loop over lanes) along the contiguous input axis (inputs a multiple
-// of 4, host-checked): 16 texels per 256 multiply-adds. The
+// of 4, host-checked): 16 texels per 256 multiply-adds. Optionally the input rows come
+// through an index (a gather) and are layer-normed first (see LinearParams). The
 // four weight vectors are transposed in registers, so each sum still runs over i in
 // order from the bias, as linear.wgsl's does. Rows and outputs past the end are clamped
 // for the loads and not stored. With `p.images` the results go into NCHW images (with an
@@ -18,8 +19,12 @@
 @group(0) @binding(4) var<storage, read> residual: array<Elem>;
 // With `p.has_table`: an action table [A, outputs] and the samples' action ids.
 @group(0) @binding(5) var<storage, read> table: array<Elem>;
+// The action ids (with `p.has_table`), or the input rows (with `p.gather_rows`).
 @group(0) @binding(6) var<storage, read> ids: array<u32>;
-@group(0) @binding(7) var<storage, read_write> y: array<Elem>;
+// With `p.norm_rows`: the layer norm's gamma and beta.
+@group(0) @binding(7) var gamma: texture_2d<f32>;
+@group(0) @binding(8) var beta: texture_2d<f32>;
+@group(0) @binding(9) var<storage, read_write> y: array<Elem>;
 
 // Output `at`: the sum rounded to Elem, plus its residual when there is one.
 fn finish(at: u32, v: f32) -> Elem {
@@ -51,6 +56,28 @@ fn transposed(rows: vec4<u32>) -> mat4x4<f32> {
 // a + the four inputs x times their weights, summed input by input in order.
 fn mac(a: vec4<f32>, x: vec4<f32>, t: mat4x4<f32>) -> vec4<f32> {
     return a + x.x * t[0] + x.y * t[1] + x.z * t[2] + x.w * t[3];
+}
+
+// The layer norm's (mean, 1 / std) of the input row at texel `row`, summed as
+// group_norm_serial.wgsl sums a row (4 running partial sums, two passes).
+fn row_stats(row: u32, quads: u32) -> vec2<f32> {
+    var sum = vec4<f32>(0.0);
+    for (var i = 0u; i < quads; i++) {
+        sum += texel(x, row + i);
+    }
+    let count = f32(p.inputs);
+    let mean = (sum.x + sum.y + sum.z + sum.w) / count;
+    var squares = vec4<f32>(0.0);
+    for (var i = 0u; i < quads; i++) {
+        let d = texel(x, row + i) - mean;
+        squares += d * d;
+    }
+    return vec2<f32>(mean, inverseSqrt((squares.x + squares.y + squares.z + squares.w) / count + p.eps));
+}
+
+// Four normed inputs as the layer norm stores them (rounded to Elem).
+fn normed(v: vec4<f32>, stats: vec2<f32>, g: vec4<f32>, b: vec4<f32>) -> vec4<f32> {
+    return vec4<f32>(vec4<Elem>((v - stats.x) * (stats.y * g) + b));
 }
 
 // Outputs o0 … o0 + 3 of `row`: at row · outputs + o, or with `p.images` at pixel q of
@@ -96,8 +123,14 @@ fn main(invocation: Invocation) {
     // Texels of the 8 outputs' weight rows and the 8 rows of x (clamped at the ends).
     let wo = min(vec4<u32>(o0) + four, last_o) * quads;
     let wo2 = min(vec4<u32>(o0 + 4u) + four, last_o) * quads;
-    let xr = min(vec4<u32>(r0) + four, last_r) * quads;
-    let xr2 = min(vec4<u32>(r0 + 4u) + four, last_r) * quads;
+    var rows = min(vec4<u32>(r0) + four, last_r);
+    var rows2 = min(vec4<u32>(r0 + 4u) + four, last_r);
+    if p.gather_rows != 0u {
+        rows = vec4<u32>(ids[rows.x], ids[rows.y], ids[rows.z], ids[rows.w]);
+        rows2 = vec4<u32>(ids[rows2.x], ids[rows2.y], ids[rows2.z], ids[rows2.w]);
+    }
+    let xr = rows * quads;
+    let xr2 = rows2 * quads;
     let ob = min(vec4<u32>(o0) + four, last_o);
     let ob2 = min(vec4<u32>(o0 + 4u) + four, last_o);
     let b = vec4<f32>(f32(bias[ob.x]), f32(bias[ob.y]), f32(bias[ob.z]), f32(bias[ob.w]));
@@ -119,8 +152,8 @@ fn main(invocation: Invocation) {
     var c5 = b2;
     var c6 = b2;
     var c7 = b2;
-    // Two loops rather than a branch inside one: a CPU driver runs both sides of a
-    // branch under a lane mask, so the SiLU's exp would cost every layer.
+    // Loops of their own rather than branches inside one: a CPU driver runs both sides
+    // of a branch under a lane mask, so the SiLU's exp or the norm would cost every layer.
     if p.input_silu != 0u {
         for (var k = 0u; k < quads; k++) {
             let lo = transposed(wo + k);
@@ -133,6 +166,45 @@ fn main(invocation: Invocation) {
             let x5 = silu(texel(x, xr2.y + k));
             let x6 = silu(texel(x, xr2.z + k));
             let x7 = silu(texel(x, xr2.w + k));
+            a0 = mac(a0, x0, lo);
+            c0 = mac(c0, x0, hi);
+            a1 = mac(a1, x1, lo);
+            c1 = mac(c1, x1, hi);
+            a2 = mac(a2, x2, lo);
+            c2 = mac(c2, x2, hi);
+            a3 = mac(a3, x3, lo);
+            c3 = mac(c3, x3, hi);
+            a4 = mac(a4, x4, lo);
+            c4 = mac(c4, x4, hi);
+            a5 = mac(a5, x5, lo);
+            c5 = mac(c5, x5, hi);
+            a6 = mac(a6, x6, lo);
+            c6 = mac(c6, x6, hi);
+            a7 = mac(a7, x7, lo);
+            c7 = mac(c7, x7, hi);
+        }
+    } else if p.norm_rows != 0u {
+        let s0 = row_stats(xr.x, quads);
+        let s1 = row_stats(xr.y, quads);
+        let s2 = row_stats(xr.z, quads);
+        let s3 = row_stats(xr.w, quads);
+        let s4 = row_stats(xr2.x, quads);
+        let s5 = row_stats(xr2.y, quads);
+        let s6 = row_stats(xr2.z, quads);
+        let s7 = row_stats(xr2.w, quads);
+        for (var k = 0u; k < quads; k++) {
+            let lo = transposed(wo + k);
+            let hi = transposed(wo2 + k);
+            let g = texel(gamma, k);
+            let b = texel(beta, k);
+            let x0 = normed(texel(x, xr.x + k), s0, g, b);
+            let x1 = normed(texel(x, xr.y + k), s1, g, b);
+            let x2 = normed(texel(x, xr.z + k), s2, g, b);
+            let x3 = normed(texel(x, xr.w + k), s3, g, b);
+            let x4 = normed(texel(x, xr2.x + k), s4, g, b);
+            let x5 = normed(texel(x, xr2.y + k), s5, g, b);
+            let x6 = normed(texel(x, xr2.z + k), s6, g, b);
+            let x7 = normed(texel(x, xr2.w + k), s7, g, b);
             a0 = mac(a0, x0, lo);
             c0 = mac(c0, x0, hi);
             a1 = mac(a1, x1, lo);

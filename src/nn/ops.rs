@@ -93,9 +93,13 @@ gpu_struct! {
         /// [A, outputs], added last (as add_action_bias.wgsl).
         pub has_table: u32,
         pub table_frames: u32,
-        pub reserved0: u32,
-        pub reserved1: u32,
-        pub reserved2: u32,
+        /// linear_cpu.wgsl only: input row r is row ids[r] of x (a gather before the
+        /// layer; `rows` counts the output rows).
+        pub gather_rows: u32,
+        /// linear_cpu.wgsl only: each input row layer-normed first (gamma, beta, `eps`),
+        /// rounded to Elem as the layer norm stores it.
+        pub norm_rows: u32,
+        pub eps: f32,
     }
 }
 
@@ -1015,9 +1019,9 @@ impl<'a> Recorder<'a> {
             hw: 1,
             has_table: 0,
             table_frames: 1,
-            reserved0: 0,
-            reserved1: 0,
-            reserved2: 0,
+            gather_rows: 0,
+            norm_rows: 0,
+            eps: GROUP_NORM_EPS,
         };
         if let Some(res) = residual {
             assert_eq!(res.len(), y.len(), "linear residual {:?}", res.shape);
@@ -1037,7 +1041,8 @@ impl<'a> Recorder<'a> {
                 self.check(&[x, weight, bias, residual]);
                 let input = self.texels(x)?;
                 let weight = weight.constant_texels(self.gpu)?;
-                // No action table: the bias stands in for it and its ids (unread).
+                // No action table, row index or norm: the bias and the input stand in
+                // (unread).
                 let bound = [
                     Bound::Texels(&input),
                     Bound::Texels(weight),
@@ -1045,6 +1050,8 @@ impl<'a> Recorder<'a> {
                     Bound::Buffer(&residual.buffer),
                     Bound::Buffer(&bias.buffer),
                     Bound::Buffer(&bias.buffer),
+                    Bound::Texels(&input),
+                    Bound::Texels(&input),
                     Bound::Buffer(&y.buffer),
                 ];
                 self.steps
@@ -1115,9 +1122,9 @@ impl<'a> Recorder<'a> {
             hw: hw as u32,
             has_table: u32::from(table.is_some()),
             table_frames: table.map_or(1, |(_, _, per_sample)| per_sample as u32),
-            reserved0: 0,
-            reserved1: 0,
-            reserved2: 0,
+            gather_rows: 0,
+            norm_rows: 0,
+            eps: GROUP_NORM_EPS,
         };
         self.check(&[x, weight, bias, a]);
         let input = self.texels(x)?;
@@ -1137,9 +1144,105 @@ impl<'a> Recorder<'a> {
             Bound::Buffer(&a.buffer),
             Bound::Buffer(table),
             Bound::Buffer(ids),
+            Bound::Texels(&input),
+            Bound::Texels(&input),
             Bound::Buffer(&y.buffer),
         ];
         let grid = self.grid(rows.div_ceil(8) * c.div_ceil(8));
+        self.steps
+            .dispatch_bound(&kernels::LINEAR_CPU, &params, &bound, grid);
+        Ok(y)
+    }
+
+    /// `residual + linear(layer_norm(x[rows]))`: a linear layer over rows `rows` of x
+    /// (all rows in order without it), each layer-normed first with `norm` (gamma,
+    /// beta) when given, plus an optional residual of the output's shape: the
+    /// refiner's norm, projection and serialisation gather. Equal bit for bit to
+    /// [`Recorder::gather`], the layer norm ([`Recorder::group_norm`] with one group per
+    /// row) and [`Recorder::linear_plus`] (other variants record them); for CPU drivers
+    /// one dispatch. `weight`, gamma and beta are constant.
+    pub fn linear_rows(
+        &mut self,
+        x: &Tensor,
+        layer: (&Tensor, &Tensor),
+        norm: Option<(&Tensor, &Tensor)>,
+        rows: Option<&Indices>,
+        residual: Option<&Tensor>,
+    ) -> Result<Tensor, GpuError> {
+        let (weight, bias) = layer;
+        let [x_rows, inputs] = x.shape[..] else {
+            panic!("linear rows of {:?}", x.shape)
+        };
+        let [outputs, w_inputs] = weight.shape[..] else {
+            panic!("linear weight {:?}", weight.shape)
+        };
+        assert_eq!(inputs, w_inputs, "linear input size mismatch");
+        let out_rows = rows.map_or(x_rows, |r| r.len);
+        if let Some(res) = residual {
+            assert_eq!(
+                res.len(),
+                out_rows * outputs,
+                "linear residual {:?}",
+                res.shape
+            );
+        }
+        let fused = self.kernels == Kernels::Cpu && out_rows >= 4 && inputs.is_multiple_of(4);
+        if !fused {
+            let mut input = match rows {
+                Some(rows) => self.gather(x, rows)?,
+                None => x.clone(),
+            };
+            if let Some((gamma, beta)) = norm {
+                let square = input.reshaped(&[out_rows, inputs, 1, 1]);
+                input = self.group_norm(&square, gamma, beta, 1, false)?;
+                input = input.reshaped(&[out_rows, inputs]);
+            }
+            return self.linear_plus(&input, weight, bias, false, residual);
+        }
+        let y = self.output("linear.rows", &[out_rows, outputs])?;
+        self.flops += 2 * (out_rows * outputs * inputs) as u64;
+        let params = LinearParams {
+            rows: out_rows as u32,
+            inputs: inputs as u32,
+            outputs: outputs as u32,
+            input_silu: 0,
+            has_residual: u32::from(residual.is_some()),
+            images: 0,
+            hw: 1,
+            has_table: 0,
+            table_frames: 1,
+            gather_rows: u32::from(rows.is_some()),
+            norm_rows: u32::from(norm.is_some()),
+            eps: GROUP_NORM_EPS,
+        };
+        let residual = residual.unwrap_or(x);
+        self.check(&[x, weight, bias, residual]);
+        let input = self.texels(x)?;
+        let weight = weight.constant_texels(self.gpu)?;
+        let (gamma, beta) = match norm {
+            Some((gamma, beta)) => {
+                self.check(&[gamma, beta]);
+                (
+                    gamma.constant_texels(self.gpu)?,
+                    beta.constant_texels(self.gpu)?,
+                )
+            }
+            None => (&input, &input),
+        };
+        // Without a row index the bias stands in (unread); there is no action table.
+        let ids = rows.map_or(&bias.buffer, |r| &r.buffer);
+        let bound = [
+            Bound::Texels(&input),
+            Bound::Texels(weight),
+            Bound::Buffer(&bias.buffer),
+            Bound::Buffer(&residual.buffer),
+            Bound::Buffer(&bias.buffer),
+            Bound::Buffer(ids),
+            Bound::Texels(gamma),
+            Bound::Texels(beta),
+            Bound::Buffer(&y.buffer),
+        ];
+        let grid = self.grid(out_rows.div_ceil(8) * outputs.div_ceil(8));
         self.steps
             .dispatch_bound(&kernels::LINEAR_CPU, &params, &bound, grid);
         Ok(y)

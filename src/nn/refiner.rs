@@ -63,6 +63,11 @@ impl LayerNorm {
         })
     }
 
+    /// (gamma, beta), as [`Recorder::linear_rows`] takes them.
+    fn parts(&self) -> (&Tensor, &Tensor) {
+        (&self.gamma, &self.beta)
+    }
+
     fn forward(&self, r: &mut Recorder, x: &Tensor) -> Result<Tensor, GpuError> {
         let [rows, channels] = x.shape[..] else {
             panic!("layer norm of {:?}", x.shape)
@@ -133,15 +138,15 @@ impl Block {
         order: &Order,
         patch: usize,
     ) -> Result<Tensor, GpuError> {
-        let normed = self.norm1.forward(r, x)?;
-        let qkv = self.qkv.forward(r, &normed, false)?;
-        let sorted = r.gather(&qkv, &order.sort)?;
+        // The norms and the serialisation gathers ride in the projections' loads (the
+        // rows are normed and projected one by one, so gathering the input rows equals
+        // gathering the projected ones), the residual adds in their epilogues.
+        let norm1 = Some(self.norm1.parts());
+        let sorted = r.linear_rows(x, self.qkv.parts(), norm1, Some(&order.sort), None)?;
         let attended = patch_attention(r, &sorted, self.heads, patch)?;
-        let unsorted = r.gather(&attended, &order.unsort)?;
-        // The residual adds ride in the projections' epilogues.
-        let x = self.proj.forward_plus(r, &unsorted, false, x)?;
-        let normed = self.norm2.forward(r, &x)?;
-        let h = self.fc1.forward(r, &normed, false)?;
+        let unsort = Some(&order.unsort);
+        let x = r.linear_rows(&attended, self.proj.parts(), None, unsort, Some(x))?;
+        let h = r.linear_rows(&x, self.fc1.parts(), Some(self.norm2.parts()), None, None)?;
         self.fc2.forward_plus(r, &h, true, &x)
     }
 }
