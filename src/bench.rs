@@ -663,11 +663,12 @@ pub fn live(
     writeln!(
         out,
         "live: {} DDIM steps, CFG {}, splat level {level} ({} splats, refiner {}); frame plan: \
-         {dispatches} dispatches, {:.2} GFLOP",
+         {dispatches} dispatches, {} copies, {:.2} GFLOP",
         sampling.steps,
         sampling.cfg_scale,
         engine.splats().map_or(0, |(_, n)| n),
         if engine.refine() { "on" } else { "off" },
+        engine.plan_copies(),
         flops as f64 / 1e9
     )?;
     let keys = [
@@ -726,12 +727,17 @@ pub fn live(
     stage_lines(&mut engine, out)?;
     writeln!(
         out,
-        "one more frame, each dispatch submitted and waited for alone (ms by shader):"
+        "one more frame, each dispatch or copy submitted and waited for alone (ms by shader):"
     )?;
     let profile = engine.profile(Action::Forward)?;
     let total: f64 = profile.iter().map(|p| p.2).sum();
     for (name, count, ms) in profile {
-        writeln!(out, "  {name:<32} {count:>5} dispatches {ms:>10.1} ms")?;
+        let what = if name.starts_with("copy") {
+            "copies    "
+        } else {
+            "dispatches"
+        };
+        writeln!(out, "  {name:<32} {count:>5} {what} {ms:>10.1} ms")?;
     }
     writeln!(out, "  {:<32} {:>5}            {total:>10.1} ms", "all", "")?;
     Ok(())

@@ -398,6 +398,11 @@ impl Engine {
             .map_or((0, 0), |p| (p.plan.dispatches(), p.plan.flops()))
     }
 
+    /// The frame plan's copies (buffer to buffer and buffer to texels; no shader runs).
+    pub fn plan_copies(&self) -> usize {
+        self.plan.as_ref().map_or(0, |p| p.plan.copies())
+    }
+
     /// The buffer of the latest frame's drawn points: 3N f32, world space (N =
     /// `bundle.pixels.len()`), in the bundle's pixel order. Valid once that frame's work
     /// has run (later submissions see it).

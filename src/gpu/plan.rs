@@ -146,6 +146,15 @@ impl Plan {
             .count()
     }
 
+    /// Copies (buffer to buffer, buffer to texels) of one run.
+    pub fn copies(&self) -> usize {
+        self.parts
+            .iter()
+            .flatten()
+            .filter(|s| !matches!(s, Step::Dispatch { .. }))
+            .count()
+    }
+
     /// FLOPs of one run (as its recorder counted them).
     pub fn flops(&self) -> u64 {
         self.flops
