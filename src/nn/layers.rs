@@ -481,6 +481,23 @@ impl TemporalAttention {
         })
     }
 
+    /// The rows the next frame's steps read of this layer ([`Frames::First`]'s `keep`)
+    /// for `x` [N·F, C, H, W] in groups of `count` frames, without the attention after
+    /// them (a context pass's last temporal layer).
+    pub fn keep_rows(
+        &self,
+        r: &mut Recorder,
+        x: &Tensor,
+        count: usize,
+        keep: &mut Vec<Tensor>,
+    ) -> Result<(), GpuError> {
+        let c = x.shape[1];
+        let positions = (&self.position, 0..count * c);
+        let tokens = r.group_norm_tokens(x, self.norm.parts(), count, Some(positions))?;
+        keep.push(self.qkv.forward(r, &tokens, false)?);
+        Ok(())
+    }
+
     /// `x` [N·F, C, H, W] with F frames per group as `frames` says.
     pub fn forward(
         &self,

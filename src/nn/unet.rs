@@ -255,7 +255,8 @@ impl UNet {
     }
 
     /// Runs the clean context frames `context` [N, F-1, C, H, W] (timestep 0) under
-    /// `actions` and keeps what the target frame's steps need.
+    /// `actions` and keeps what the target frame's steps need: every temporal layer's
+    /// rows, and nothing after the last one's.
     pub fn context<'a>(
         &self,
         r: &mut Recorder,
@@ -339,6 +340,16 @@ impl UNet {
         let u0 = self.up.forward(r, &u1)?;
         let u0 = r.concat(&u0, &h0, 1)?;
         let u0 = self.up0.forward_projected(r, &u0, e5.as_ref())?;
+        if let Pass::Groups {
+            count,
+            keep: Some(keep),
+        } = &mut pass
+        {
+            // The context pass: what the target frame's steps read of the last temporal
+            // layer is its keys and values; the context frames' own outputs are unused.
+            self.temporal_up0.keep_rows(r, &u0, *count, keep)?;
+            return Ok(u0);
+        }
         let u0 = pass.temporal(r, &self.temporal_up0, &u0)?;
         let out = self.norm_out.forward(r, &u0, true)?;
         self.conv_out.forward(r, &out)
