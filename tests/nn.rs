@@ -239,6 +239,48 @@ fn a_residual_block_matches_pytorch() {
 }
 
 #[test]
+fn a_residual_block_over_a_concatenation_equals_the_block_over_the_concatenated_tensor() {
+    // The UNet's skip connections: the block over two tensors concatenated along the
+    // channels (on CPU drivers only texels copied from the two, read by the first norm
+    // and the 1×1 skip) must equal the concatenation kernel then the block, bit for bit,
+    // in every variant and precision: the fixture's 8 input channels split 3 + 5.
+    for (precision, kernels) in variants() {
+        let mut f = Fixture::open("resblock", precision);
+        let x = f.input("io.in.x");
+        let emb = f.input("io.in.emb");
+        let [n, _, h, wd] = x.shape[..] else {
+            panic!("NCHW fixture")
+        };
+        let values = x.read(&f.gpu).unwrap();
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for image in values.chunks(8 * h * wd) {
+            a.extend_from_slice(&image[..3 * h * wd]);
+            b.extend_from_slice(&image[3 * h * wd..]);
+        }
+        let a = Tensor::upload(&f.gpu, "a", &[n, 3, h, wd], &a, precision).unwrap();
+        let b = Tensor::upload(&f.gpu, "b", &[n, 5, h, wd], &b, precision).unwrap();
+        let gpu = f.gpu.clone();
+        let (mut r, w) = f.recorder();
+        r.set_kernels(kernels);
+        let block = ResBlock::load(&w, 8, 16, Some(32)).unwrap();
+        let projected = block.project(&mut r, &emb).unwrap();
+        let split = block
+            .forward_concat(&mut r, &a, &b, projected.as_ref())
+            .unwrap();
+        let whole = block
+            .forward_projected(&mut r, &x, projected.as_ref())
+            .unwrap();
+        r.submit();
+        let what = format!("{precision:?} {kernels:?}");
+        assert_same_bits(
+            &split.read(&gpu).unwrap(),
+            &whole.read(&gpu).unwrap(),
+            &what,
+        );
+    }
+}
+
+#[test]
 fn spatial_self_attention_matches_pytorch() {
     check_layer("spatial_attention", &["io.in.x"], |r, w, x| {
         let layer = SpatialAttention::load(w, 16, 2).unwrap();

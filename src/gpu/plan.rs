@@ -25,10 +25,14 @@ enum Step {
         target_offset: u64,
         size: u64,
     },
-    /// A buffer's values copied into texels (see [`Texels::record_copy`]).
+    /// Texels `first` … `first + count - 1` copied from a buffer at byte `offset` (see
+    /// [`Texels::record_copy_range`]).
     CopyToTexels {
         source: wgpu::Buffer,
         target: Texels,
+        offset: u64,
+        first: u32,
+        count: u32,
     },
 }
 
@@ -78,9 +82,15 @@ fn encode_steps<'s>(
                     *size,
                 );
             }
-            Step::CopyToTexels { source, target } => {
+            Step::CopyToTexels {
+                source,
+                target,
+                offset,
+                first,
+                count,
+            } => {
                 pass = None;
-                target.record_copy(encoder, source);
+                target.record_copy_range(encoder, source, *offset, *first, *count);
             }
         }
     }
@@ -367,9 +377,25 @@ impl<'a> Builder<'a> {
 
     /// Records a copy of `source` into `target` (see [`Texels::record_copy`]).
     pub fn copy_to_texels(&mut self, source: &wgpu::Buffer, target: &Texels) {
+        self.copy_range_to_texels(source, 0, target, 0, target.texels);
+    }
+
+    /// Records a copy of `count` texels of `source` from byte `offset` into `target`'s
+    /// texels from `first` (see [`Texels::record_copy_range`]).
+    pub fn copy_range_to_texels(
+        &mut self,
+        source: &wgpu::Buffer,
+        offset: u64,
+        target: &Texels,
+        first: u32,
+        count: u32,
+    ) {
         self.push(Step::CopyToTexels {
             source: source.clone(),
             target: target.clone(),
+            offset,
+            first,
+            count,
         });
     }
 

@@ -144,46 +144,69 @@ impl Texels {
     }
 
     /// Records a copy of `source` (at least [`Self::bytes`] long, values as stored) into
-    /// the texels: the full rows in one copy, the last partial row in another.
+    /// the texels.
     pub fn record_copy(&self, encoder: &mut wgpu::CommandEncoder, source: &wgpu::Buffer) {
-        assert!(
-            source.size() >= self.bytes(),
-            "a {}-byte buffer copied into {} texels",
-            source.size(),
-            self.texels
-        );
+        self.record_copy_range(encoder, source, 0, 0, self.texels);
+    }
+
+    /// Records a copy of `count` texels of `source` from byte `offset` (a whole number of
+    /// texels) into texels `first` … `first + count - 1`: a partial first row, the full
+    /// rows, a partial last row, each one copy.
+    pub fn record_copy_range(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        source: &wgpu::Buffer,
+        offset: u64,
+        first: u32,
+        count: u32,
+    ) {
         let texel_bytes = self.texel_bytes();
-        let width = self.texture.size().width;
-        let full_rows = self.texels / width;
-        let rest = self.texels % width;
-        let copy = |encoder: &mut wgpu::CommandEncoder, row: u32, width: u32, rows: u32| {
+        assert!(
+            first + count <= self.texels
+                && offset.is_multiple_of(u64::from(texel_bytes))
+                && source.size() >= offset + u64::from(count) * u64::from(texel_bytes),
+            "texels {first} + {count} of {} from byte {offset} of a {}-byte buffer",
+            self.texels,
+            source.size()
+        );
+        let row_bytes = TEXEL_ROW * texel_bytes;
+        // (first texel, texels) of each copy, none crossing a row end except whole rows.
+        let mut at = first;
+        let end = first + count;
+        while at < end {
+            let x = at % TEXEL_ROW;
+            let rows = if x == 0 { (end - at) / TEXEL_ROW } else { 0 };
+            let (width, height) = if rows > 0 {
+                (TEXEL_ROW.min(self.texture.size().width), rows)
+            } else {
+                ((TEXEL_ROW - x).min(end - at), 1)
+            };
             encoder.copy_buffer_to_texture(
                 wgpu::TexelCopyBufferInfo {
                     buffer: source,
                     layout: wgpu::TexelCopyBufferLayout {
-                        offset: u64::from(row) * u64::from(TEXEL_ROW * texel_bytes),
-                        bytes_per_row: Some(TEXEL_ROW * texel_bytes),
+                        offset: offset + u64::from(at - first) * u64::from(texel_bytes),
+                        bytes_per_row: Some(row_bytes),
                         rows_per_image: None,
                     },
                 },
                 wgpu::TexelCopyTextureInfo {
                     texture: &self.texture,
                     mip_level: 0,
-                    origin: wgpu::Origin3d { x: 0, y: row, z: 0 },
+                    origin: wgpu::Origin3d {
+                        x,
+                        y: at / TEXEL_ROW,
+                        z: 0,
+                    },
                     aspect: wgpu::TextureAspect::All,
                 },
                 wgpu::Extent3d {
                     width,
-                    height: rows,
+                    height,
                     depth_or_array_layers: 1,
                 },
             );
-        };
-        if full_rows > 0 {
-            copy(encoder, 0, width, full_rows);
-        }
-        if rest > 0 {
-            copy(encoder, full_rows, rest, 1);
+            at += width * height;
         }
     }
 }

@@ -224,6 +224,36 @@ impl ResBlock {
             .transpose()
     }
 
+    /// [`ResBlock::forward_projected`] of the concatenation of `a` and `b` along the
+    /// channels (the UNet's skip connections). For CPU drivers the concatenation exists
+    /// only as texels copied from the two, which the first norm and the 1×1 skip read
+    /// (no concatenation kernel); otherwise [`Recorder::concat`], then the block.
+    pub fn forward_concat(
+        &self,
+        r: &mut Recorder,
+        a: &Tensor,
+        b: &Tensor,
+        projected: Option<&Tensor>,
+    ) -> Result<Tensor, GpuError> {
+        if let Some(Conv {
+            weights: ConvWeights::Packed(skip),
+            bias: skip_bias,
+            ..
+        }) = &self.skip
+            && skip.kernel == 1
+            && let Some((texels, shape)) = r.concat_texels(a, b, self.norm1.groups)?
+        {
+            let h = r.group_norm_of_texels(&texels, shape, self.norm1.parts(), true)?;
+            let h = self.conv1.forward_plus(r, &h, projected)?;
+            let h = self.norm2.forward(r, &h, true)?;
+            let skip = r.conv1x1_of_texels(&texels, shape, skip, skip_bias)?;
+            // skip + conv2(h), the add fused into the convolution.
+            return self.conv2.forward_with(r, &h, None, Some(&skip));
+        }
+        let x = r.concat(a, b, 1)?;
+        self.forward_projected(r, &x, projected)
+    }
+
     /// [`ResBlock::forward`] with the embedding already projected ([`ResBlock::project`]).
     pub fn forward_projected(
         &self,

@@ -675,7 +675,7 @@ impl<'a> Recorder<'a> {
             };
         }
         let (y, mut params) =
-            self.packed_output(x, weights, bias.is_some(), extra.is_some(), false)?;
+            self.packed_output(nchw(x), weights, bias.is_some(), extra.is_some(), false)?;
         params.has_residual = u32::from(residual.is_some());
         let c_out = weights.c_out;
         // Bias, extra and residual bindings must exist even when absent; the input stands
@@ -706,7 +706,7 @@ impl<'a> Recorder<'a> {
             let up = self.upsample_nearest2x(x)?;
             return self.conv3x3(&up, weights, bias, None, None);
         }
-        let (y, params) = self.packed_output(x, weights, bias.is_some(), false, true)?;
+        let (y, params) = self.packed_output(nchw(x), weights, bias.is_some(), false, true)?;
         let bias = bias.unwrap_or(x);
         self.check(&[x, bias, &y]);
         let grid = self.grid(n * weights.c_out.div_ceil(8) * 2 * h * (2 * w).div_ceil(8));
@@ -750,15 +750,13 @@ impl<'a> Recorder<'a> {
     /// FLOPs counted.
     fn packed_output(
         &mut self,
-        x: &Tensor,
+        input: [usize; 4],
         weights: &PackedConv,
         has_bias: bool,
         has_extra: bool,
         upsample: bool,
     ) -> Result<(Tensor, Conv2dParams), GpuError> {
-        let [n, c_in, h, w] = x.shape[..] else {
-            panic!("a convolution's input must be NCHW, got {:?}", x.shape)
-        };
+        let [n, c_in, h, w] = input;
         let k = weights.kernel;
         let scale = if upsample { 2 } else { 1 };
         let (h_out, w_out) = (scale * h, scale * w);
@@ -802,7 +800,7 @@ impl<'a> Recorder<'a> {
         if !(h * w).is_multiple_of(4) || self.kernels == Kernels::Simple {
             return self.conv2d(x, &weights.plain, bias, 1, 0);
         }
-        let (y, params) = self.packed_output(x, weights, bias.is_some(), false, false)?;
+        let (y, params) = self.packed_output(nchw(x), weights, bias.is_some(), false, false)?;
         let c_out = weights.c_out;
         // A bias binding must exist even without a bias; the input stands in (unread).
         let bias = bias.unwrap_or(x);
@@ -811,20 +809,133 @@ impl<'a> Recorder<'a> {
         if self.kernels == Kernels::Cpu {
             // The input and the weights as texels.
             let input = self.texels(x)?;
-            let packed = weights.packed.constant_texels(self.gpu)?;
-            let bound = [
-                Bound::Texels(&input),
-                Bound::Texels(packed),
-                Bound::Buffer(&bias.buffer),
-                Bound::Buffer(&y.buffer),
-            ];
-            self.steps
-                .dispatch_bound(&kernels::CONV1X1_CPU, &params, &bound, grid);
+            self.conv1x1_cpu(&params, &input, weights, bias, &y, grid)?;
             return Ok(y);
         }
         let buffers = [&x.buffer, &weights.packed.buffer, &bias.buffer, &y.buffer];
         self.steps
             .dispatch(&kernels::CONV1X1, &params, &buffers, grid);
+        Ok(y)
+    }
+
+    /// Records `conv1x1_cpu.wgsl` over `input` into `y`.
+    fn conv1x1_cpu(
+        &mut self,
+        params: &Conv2dParams,
+        input: &Texels,
+        weights: &PackedConv,
+        bias: &Tensor,
+        y: &Tensor,
+        grid: Grid,
+    ) -> Result<(), GpuError> {
+        let packed = weights.packed.constant_texels(self.gpu)?;
+        let bound = [
+            Bound::Texels(input),
+            Bound::Texels(packed),
+            Bound::Buffer(&bias.buffer),
+            Bound::Buffer(&y.buffer),
+        ];
+        self.steps
+            .dispatch_bound(&kernels::CONV1X1_CPU, params, &bound, grid);
+        Ok(())
+    }
+
+    /// The concatenation of NCHW `a` and `b` along the channels held only as texels,
+    /// copied from the two (no kernel), for a ResBlock that reads it only through its
+    /// first group norm (`groups`) and its 1×1 skip ([`Recorder::group_norm_of_texels`],
+    /// [`Recorder::conv1x1_of_texels`]). None where those would not read texels: other
+    /// kernel variants, planes of pixels not a multiple of 4, groups too large for the
+    /// serial norm.
+    pub fn concat_texels(
+        &mut self,
+        a: &Tensor,
+        b: &Tensor,
+        groups: usize,
+    ) -> Result<Option<(Texels, [usize; 4])>, GpuError> {
+        let (&[n, ca, h, w], &[nb, cb, hb, wb]) = (&a.shape[..], &b.shape[..]) else {
+            panic!("NCHW concatenation of {:?} and {:?}", a.shape, b.shape)
+        };
+        assert_eq!(
+            (n, h, w),
+            (nb, hb, wb),
+            "concatenating {:?} and {:?}",
+            a.shape,
+            b.shape
+        );
+        let c = ca + cb;
+        let eligible = self.kernels == Kernels::Cpu
+            && (h * w).is_multiple_of(4)
+            && c.is_multiple_of(groups)
+            && c / groups * h * w <= SERIAL_NORM_LIMIT;
+        if !eligible {
+            return Ok(None);
+        }
+        self.check(&[a, b]);
+        let texels = Texels::new(self.gpu, "concat texels", n * c * h * w, self.precision())?;
+        let (a_texels, b_texels) = ((ca * h * w / 4) as u32, (cb * h * w / 4) as u32);
+        let texel_bytes = 4 * self.precision().bytes() as u64;
+        for image in 0..n as u32 {
+            let first = image * (a_texels + b_texels);
+            let a_offset = u64::from(image * a_texels) * texel_bytes;
+            let b_offset = u64::from(image * b_texels) * texel_bytes;
+            self.steps
+                .copy_range_to_texels(&a.buffer, a_offset, &texels, first, a_texels);
+            self.steps.copy_range_to_texels(
+                &b.buffer,
+                b_offset,
+                &texels,
+                first + a_texels,
+                b_texels,
+            );
+        }
+        Ok(Some((texels, [n, c, h, w])))
+    }
+
+    /// [`Recorder::group_norm`] of an NCHW tensor of `shape` held as `input` texels
+    /// ([`Recorder::concat_texels`]), on the serial kernel.
+    pub fn group_norm_of_texels(
+        &mut self,
+        input: &Texels,
+        shape: [usize; 4],
+        norm: (&Tensor, &Tensor, usize),
+        silu: bool,
+    ) -> Result<Tensor, GpuError> {
+        let (gamma, beta, groups) = norm;
+        let [n, c, h, w] = shape;
+        let y = self.output("group_norm.y", &shape)?;
+        let params = GroupNormParams {
+            batch: n as u32,
+            channels: c as u32,
+            groups: groups as u32,
+            hw: (h * w) as u32,
+            eps: GROUP_NORM_EPS,
+            silu: u32::from(silu),
+            tokens: 0,
+            has_rows: 0,
+            rows_offset: 0,
+            reserved0: 0,
+            reserved1: 0,
+            reserved2: 0,
+        };
+        let grid = self.grid(n * groups);
+        self.group_norm_serial(&params, input, [gamma, beta, gamma, &y], grid)?;
+        Ok(y)
+    }
+
+    /// [`Recorder::conv1x1`] of an NCHW tensor of `shape` held as `input` texels
+    /// ([`Recorder::concat_texels`]), on the CPU-driver kernel.
+    pub fn conv1x1_of_texels(
+        &mut self,
+        input: &Texels,
+        shape: [usize; 4],
+        weights: &PackedConv,
+        bias: &Tensor,
+    ) -> Result<Tensor, GpuError> {
+        let [n, c_in, h, w] = shape;
+        assert_eq!((c_in, weights.kernel), (weights.c_in, 1), "conv1x1 weights");
+        let (y, params) = self.packed_output(shape, weights, true, false, false)?;
+        let grid = self.grid(n * weights.c_out.div_ceil(8) * (h * w / 4).div_ceil(2));
+        self.conv1x1_cpu(&params, input, weights, bias, &y, grid)?;
         Ok(y)
     }
 
@@ -880,7 +991,8 @@ impl<'a> Recorder<'a> {
             // One invocation per (sample, group), no barriers; `x` stands in for the
             // absent rows (unread).
             let grid = self.grid(n * groups);
-            self.group_norm_serial(&params, x, [gamma, beta, x, &y], grid)?;
+            let input = self.texels(x)?;
+            self.group_norm_serial(&params, &input, [gamma, beta, x, &y], grid)?;
             return Ok(y);
         }
         // One workgroup per (sample, group).
@@ -951,23 +1063,22 @@ impl<'a> Recorder<'a> {
         };
         let rows = rows.map_or(x, |(rows, _)| rows);
         let grid = self.grid(nf * groups);
-        self.group_norm_serial(&params, x, [gamma, beta, rows, &y], grid)?;
+        let input = self.texels(x)?;
+        self.group_norm_serial(&params, &input, [gamma, beta, rows, &y], grid)?;
         Ok(y)
     }
 
-    /// Records `group_norm_serial.wgsl` over `x` (read as texels) and `rest`: gamma,
-    /// beta, rows and the output.
+    /// Records `group_norm_serial.wgsl` over `input` and `rest`: gamma, beta, rows and
+    /// the output.
     fn group_norm_serial(
         &mut self,
         params: &GroupNormParams,
-        x: &Tensor,
+        input: &Texels,
         rest: [&Tensor; 4],
         grid: Grid,
     ) -> Result<(), GpuError> {
-        self.check(&[x]);
         self.check(&rest);
-        let input = self.texels(x)?;
-        let mut bound = vec![Bound::Texels(&input)];
+        let mut bound = vec![Bound::Texels(input)];
         bound.extend(rest.map(|t| Bound::Buffer(&t.buffer)));
         self.steps
             .dispatch_bound(&kernels::GROUP_NORM_SERIAL, params, &bound, grid);
@@ -1690,4 +1801,12 @@ impl<'a> Recorder<'a> {
         self.launch(&kernels::SEGMENT_MEAN, &params, &[x, &y], grid);
         Ok(y)
     }
+}
+
+/// The shape of an NCHW tensor.
+fn nchw(x: &Tensor) -> [usize; 4] {
+    let [n, c, h, w] = x.shape[..] else {
+        panic!("an NCHW tensor expected, got {:?}", x.shape)
+    };
+    [n, c, h, w]
 }

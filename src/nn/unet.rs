@@ -334,12 +334,10 @@ impl UNet {
         let m = self.mid1.forward_projected(r, &h1, e2.as_ref())?;
         let m = self.attend(r, &self.mid_attn, &m, ids, &mut pass)?;
         let m = self.mid2.forward_projected(r, &m, e3.as_ref())?;
-        let u1 = r.concat(&m, &h1, 1)?;
-        let u1 = self.up1.forward_projected(r, &u1, e4.as_ref())?;
+        let u1 = self.up1.forward_concat(r, &m, &h1, e4.as_ref())?;
         let u1 = self.attend(r, &self.up_attn, &u1, ids, &mut pass)?;
         let u0 = self.up.forward(r, &u1)?;
-        let u0 = r.concat(&u0, &h0, 1)?;
-        let u0 = self.up0.forward_projected(r, &u0, e5.as_ref())?;
+        let u0 = self.up0.forward_concat(r, &u0, &h0, e5.as_ref())?;
         if let Pass::Groups {
             count,
             keep: Some(keep),
