@@ -21,7 +21,7 @@ use unica::gpu::{GpuContext, GpuOptions};
 use unica::nn::layers::{
     Conv, CrossAttention, Frames, ResBlock, SpatialAttention, TemporalAttention, Up,
 };
-use unica::nn::ops::Broadcast;
+use unica::nn::ops::{AttentionParams, Broadcast};
 use unica::nn::refiner::{Refiner, RefinerConfig};
 use unica::nn::sampler::{self, Sampling, Schedule};
 use unica::nn::unet::{UNet, UNetConfig};
@@ -1115,6 +1115,58 @@ fn the_linear_layer_over_gathered_normed_rows_equals_the_separate_ops_bit_for_bi
             worst_difference(&read(&fused), &read(&plain)) > 0.1,
             "{what}: the norm and the order changed the result"
         );
+    }
+}
+
+#[test]
+fn the_one_frame_temporal_attention_equals_the_projection_then_the_attention_bit_for_bit() {
+    // A temporal layer's step for one new frame (each sequence projects its own q, k and
+    // v, then attends over 3 cached rows and its own) in one dispatch on CPU drivers must
+    // equal linear then attention_after exactly, in every variant and precision: 6
+    // sequences, heads of 8 values (16 channels) and of 24 (48 channels, the wide path).
+    for (precision, kernels) in variants() {
+        let f = Fixture::open("down", precision);
+        let mut pipelines = PipelineCache::default();
+        let upload = |name: &str, shape: &[usize], k: f32| {
+            let n = shape.iter().product();
+            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
+        };
+        for c in [16, 48] {
+            let tokens = upload("tokens", &[6, 1, c], 0.37);
+            let weight = upload("weight", &[3 * c, c], 0.29);
+            let bias = upload("bias", &[3 * c], 0.61);
+            let cached = upload("cached", &[6, 3, 3 * c], 0.53);
+            let params = AttentionParams {
+                sequences: 6,
+                heads: 2,
+                queries: 1,
+                keys: 4,
+                channels: c as u32,
+                q_stride: 3 * c as u32,
+                q_offset: 0,
+                kv_stride: 3 * c as u32,
+                k_offset: c as u32,
+                v_offset: 2 * c as u32,
+                causal: 1,
+                kv_share: 1,
+                prefix_keys: 3,
+                rows: 0,
+                reserved1: 0,
+                reserved2: 0,
+            };
+            let mut r = Recorder::new(&f.gpu, &mut pipelines, precision);
+            r.set_kernels(kernels);
+            let fused = r
+                .temporal_next(&tokens, (&weight, &bias), &cached, params)
+                .unwrap();
+            let qkv = r.linear(&tokens, &weight, &bias, false).unwrap();
+            let separate = r.attention_after(&qkv, Some(&cached), &qkv, params).unwrap();
+            r.submit();
+            let what = format!("{precision:?} {kernels:?} {c} channels");
+            assert_eq!(fused.shape, separate.shape, "{what}");
+            let (x, y) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
+            assert_same_bits(&x, &y, &what);
+        }
     }
 }
 

@@ -42,6 +42,8 @@ pub const ATTENTION: Shader = shader!("nn/attention.wgsl", [AttentionParams], el
     .with_uints(&[("MAX_HEAD_SIZE", super::ops::MAX_HEAD_SIZE as u32)]);
 /// Attention for CPU drivers: heads of at most 32 values in named vec4 registers.
 pub const ATTENTION_CPU: Shader = shader!("nn/attention_cpu.wgsl", [AttentionParams], elem);
+/// A temporal layer's projection and attention for one new frame, for CPU drivers.
+pub const TEMPORAL_NEXT: Shader = shader!("nn/temporal_next.wgsl", [AttentionParams], elem);
 pub const TIMESTEP_EMBEDDING: Shader =
     shader!("nn/timestep_embedding.wgsl", [EmbeddingParams], elem);
 pub const GATHER: Shader = shader!("nn/gather.wgsl", [GatherParams], elem);
@@ -70,6 +72,7 @@ pub const ALL: &[Shader] = &[
     AXPBY,
     ATTENTION,
     ATTENTION_CPU,
+    TEMPORAL_NEXT,
     TIMESTEP_EMBEDDING,
     GATHER,
     GATHER_CPU,

@@ -547,24 +547,24 @@ impl TemporalAttention {
         // [N, HW, F, C] with each frame's position added.
         let positions = (&self.position, first * c..(first + f) * c);
         let tokens = r.group_norm_tokens(x, self.norm.parts(), f, Some(positions))?;
-        let qkv = self.qkv.forward(r, &tokens, false)?;
-        // The keys: the cached context rows (read in place, no concatenation), then
-        // this batch's.
-        let prefix = match frames {
-            Frames::First { keep, .. } => {
-                if let Some(keep) = keep {
-                    keep.push(qkv.clone());
-                }
-                None
-            }
-            Frames::Next { cached } => Some(cached),
-        };
         let params = AttentionParams {
             causal: 1,
             prefix_keys: first as u32,
             ..attention_params(n * hw, f, first + f, c, self.heads, true)
         };
-        let mixed = r.attention_after(&qkv, prefix, &qkv, params)?; // [N·HW, F, C]
+        // The keys: the cached context rows (read in place, no concatenation), then
+        // this batch's.
+        let mixed = match frames {
+            Frames::First { keep, .. } => {
+                let qkv = self.qkv.forward(r, &tokens, false)?;
+                if let Some(keep) = keep {
+                    keep.push(qkv.clone());
+                }
+                r.attention_after(&qkv, None, &qkv, params)?
+            }
+            // One new frame: its keys are read by its own queries only.
+            Frames::Next { cached } => r.temporal_next(&tokens, self.qkv.parts(), cached, params)?,
+        }; // [N·HW, F, C]
         r.linear_to_images(&mixed, self.out.parts(), x, f, None) // [N·F, C, H, W]
     }
 }

@@ -1634,6 +1634,59 @@ impl<'a> Recorder<'a> {
         self.attention_after(q, None, kv, params)
     }
 
+    /// A temporal layer's qkv projection of `tokens` [S, C] (one new frame of S
+    /// sequences) and its attention over the cached rows `cached` (`params.prefix_keys`
+    /// a sequence) and the sequence's own key: [`Recorder::linear`] then
+    /// [`Recorder::attention_after`] (`params` as that takes them, one query a
+    /// sequence), which other kernel variants record. For CPU drivers one dispatch
+    /// (`temporal_next.wgsl`: each invocation projects its own head's q, k and v),
+    /// equal bit for bit. `weight` is constant.
+    pub fn temporal_next(
+        &mut self,
+        tokens: &Tensor,
+        layer: (&Tensor, &Tensor),
+        cached: &Tensor,
+        params: AttentionParams,
+    ) -> Result<Tensor, GpuError> {
+        let (weight, bias) = layer;
+        let c = params.channels as usize;
+        let head = c / params.heads as usize;
+        let fused = self.kernels == Kernels::Cpu
+            && params.queries == 1
+            && params.kv_share == 1
+            && params.rows == 0
+            && head <= 32
+            && head.is_multiple_of(4)
+            && [params.kv_stride, params.k_offset, params.v_offset]
+                .iter()
+                .all(|v| v % 4 == 0)
+            && tokens.len() == params.sequences as usize * c
+            && weight.shape == [3 * c, c];
+        if !fused {
+            let qkv = self.linear(tokens, weight, bias, false)?;
+            return self.attention_after(&qkv, Some(cached), &qkv, params);
+        }
+        self.check(&[tokens, weight, bias, cached]);
+        let sequences = params.sequences as usize;
+        let y = self.output("temporal_next.y", &[sequences, 1, c])?;
+        // The FLOPs of the two ops it replaces.
+        self.flops += 2 * (sequences * 3 * c * c) as u64 + 4 * (y.len() as u64) * u64::from(params.keys);
+        let input = self.texels(tokens)?;
+        let prefix = self.texels(cached)?;
+        let weight = weight.constant_texels(self.gpu)?;
+        let bound = [
+            Bound::Texels(&input),
+            Bound::Texels(weight),
+            Bound::Buffer(&bias.buffer),
+            Bound::Texels(&prefix),
+            Bound::Buffer(&y.buffer),
+        ];
+        let grid = self.grid(sequences * params.heads as usize);
+        self.steps
+            .dispatch_bound(&kernels::TEMPORAL_NEXT, &params, &bound, grid);
+        Ok(y)
+    }
+
     /// [`Recorder::attention`] whose first `params.prefix_keys` keys of each sequence are
     /// the rows of `prefix` (e.g. a context cache) and the rest the rows of `kv`: the
     /// same keys in the same order as attention over their concatenation.

@@ -1,0 +1,174 @@
+// A temporal attention layer's projection and attention for one new frame, for CPU
+// drivers: each sequence (a pixel) has one query row, so its fresh key and value are
+// read by its own query only, and one invocation per (sequence, head) projects the
+// head's q, k and v from the token row itself (no qkv tensor, no second dispatch), then
+// attends over the cached rows of the earlier frames (`prefix`, rows of q | k | v as the
+// context pass kept them) and its own key. The projection sums each output as
+// linear_cpu.wgsl does (bias, then the inputs in order, four at a time) and rounds it to
+// Elem as the stored qkv would be; the attention is attention_cpu.wgsl's, key by key in
+// the same order. Heads of at most 32 values, channels a multiple of 4 (host-checked);
+// the parameters are the separate attention's (queries = 1, prefix_keys cached keys).
+// Inputs, weights and the cache are read as texels (src/gpu/texels.rs).
+
+@group(0) @binding(0) var<uniform> p: AttentionParams;
+// [sequences, channels] token rows.
+@group(0) @binding(1) var x: texture_2d<f32>;
+// The qkv projection's weight [3 · channels, channels] and bias.
+@group(0) @binding(2) var weight: texture_2d<f32>;
+@group(0) @binding(3) var<storage, read> bias: array<Elem>;
+// [sequences, prefix_keys, 3 · channels]: the cached rows.
+@group(0) @binding(4) var prefix: texture_2d<f32>;
+@group(0) @binding(5) var<storage, read_write> out: array<vec4<Elem>>;
+
+// Outputs o … o + 3 of the projection of the token row at texel `row` (`quads` texels),
+// rounded to Elem; a zero trip count gives zeros (chunks past the head).
+fn project(o: u32, row: u32, quads: u32) -> vec4<f32> {
+    if quads == 0u {
+        return vec4<f32>(0.0);
+    }
+    let last = 3u * p.channels - 1u;
+    let outputs = min(vec4<u32>(o) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
+    var acc = vec4<f32>(f32(bias[outputs.x]), f32(bias[outputs.y]), f32(bias[outputs.z]), f32(bias[outputs.w]));
+    let rows = outputs * quads;
+    for (var k = 0u; k < quads; k++) {
+        let w0 = texel(weight, rows.x + k);
+        let w1 = texel(weight, rows.y + k);
+        let w2 = texel(weight, rows.z + k);
+        let w3 = texel(weight, rows.w + k);
+        let v = texel(x, row + k);
+        acc = acc + v.x * vec4<f32>(w0.x, w1.x, w2.x, w3.x) + v.y * vec4<f32>(w0.y, w1.y, w2.y, w3.y)
+            + v.z * vec4<f32>(w0.z, w1.z, w2.z, w3.z) + v.w * vec4<f32>(w0.w, w1.w, w2.w, w3.w);
+    }
+    return vec4<f32>(vec4<Elem>(acc));
+}
+
+// The running softmax, as attention_cpu.wgsl's.
+struct Online {
+    best: f32,
+    total: f32,
+    a0: vec4<f32>,
+    a1: vec4<f32>,
+    a2: vec4<f32>,
+    a3: vec4<f32>,
+    a4: vec4<f32>,
+    a5: vec4<f32>,
+    a6: vec4<f32>,
+    a7: vec4<f32>,
+}
+
+// One more key: its score and its value's chunks.
+fn take(o: Online, score: f32, v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, v3: vec4<f32>, v4: vec4<f32>, v5: vec4<f32>, v6: vec4<f32>, v7: vec4<f32>, wide: bool) -> Online {
+    var n = o;
+    let new_best = max(o.best, score);
+    let rescale = exp(o.best - new_best);
+    let weight = exp(score - new_best);
+    n.total = o.total * rescale + weight;
+    n.a0 = o.a0 * rescale + weight * v0;
+    n.a1 = o.a1 * rescale + weight * v1;
+    n.a2 = o.a2 * rescale + weight * v2;
+    n.a3 = o.a3 * rescale + weight * v3;
+    if wide {
+        n.a4 = o.a4 * rescale + weight * v4;
+        n.a5 = o.a5 * rescale + weight * v5;
+        n.a6 = o.a6 * rescale + weight * v6;
+        n.a7 = o.a7 * rescale + weight * v7;
+    }
+    n.best = new_best;
+    return n;
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let id = linear_index(invocation);
+    if id >= p.sequences * p.heads {
+        return;
+    }
+    let h = id % p.heads;
+    let s = id / p.heads;
+    let c = p.channels;
+    let d = c / p.heads;
+    let chunks = d / 4u;
+    let quads = c / 4u;
+    let row = s * quads;
+    // Chunk j of the head's q, k and v (zero past the head).
+    let n0 = select(0u, quads, chunks > 0u);
+    let n1 = select(0u, quads, chunks > 1u);
+    let n2 = select(0u, quads, chunks > 2u);
+    let n3 = select(0u, quads, chunks > 3u);
+    let n4 = select(0u, quads, chunks > 4u);
+    let n5 = select(0u, quads, chunks > 5u);
+    let n6 = select(0u, quads, chunks > 6u);
+    let n7 = select(0u, quads, chunks > 7u);
+    let scale = inverseSqrt(f32(d));
+    let q = h * d;
+    let q0 = project(q, row, n0) * scale;
+    let q1 = project(q + 4u, row, n1) * scale;
+    let q2 = project(q + 8u, row, n2) * scale;
+    let q3 = project(q + 12u, row, n3) * scale;
+    let q4 = project(q + 16u, row, n4) * scale;
+    let q5 = project(q + 20u, row, n5) * scale;
+    let q6 = project(q + 24u, row, n6) * scale;
+    let q7 = project(q + 28u, row, n7) * scale;
+    let k = c + h * d;
+    let k0 = project(k, row, n0);
+    let k1 = project(k + 4u, row, n1);
+    let k2 = project(k + 8u, row, n2);
+    let k3 = project(k + 12u, row, n3);
+    let k4 = project(k + 16u, row, n4);
+    let k5 = project(k + 20u, row, n5);
+    let k6 = project(k + 24u, row, n6);
+    let k7 = project(k + 28u, row, n7);
+    let v = 2u * c + h * d;
+    let v0 = project(v, row, n0);
+    let v1 = project(v + 4u, row, n1);
+    let v2 = project(v + 8u, row, n2);
+    let v3 = project(v + 12u, row, n3);
+    let v4 = project(v + 16u, row, n4);
+    let v5 = project(v + 20u, row, n5);
+    let v6 = project(v + 24u, row, n6);
+    let v7 = project(v + 28u, row, n7);
+    var o = Online(-3.0e38, 0.0, vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+    // The cached keys, then the sequence's own: heads of up to 16 values apart from wider
+    // ones, each in a loop of its own (see attention_cpu.wgsl).
+    let wide = chunks > 4u;
+    let stride = p.kv_stride / 4u;
+    if wide {
+        for (var j = 0u; j < p.prefix_keys; j++) {
+            let r = (s * p.prefix_keys + j) * stride + h * d / 4u;
+            let kr = r + p.k_offset / 4u;
+            let vr = r + p.v_offset / 4u;
+            var score = dot(q0, texel(prefix, kr)) + dot(q1, texel(prefix, kr + 1u));
+            score += dot(q2, texel(prefix, kr + 2u)) + dot(q3, texel(prefix, kr + 3u));
+            score += dot(q4, texel(prefix, kr + 4u)) + dot(q5, texel(prefix, kr + 5u));
+            score += dot(q6, texel(prefix, kr + 6u)) + dot(q7, texel(prefix, kr + 7u));
+            o = take(o, score, texel(prefix, vr), texel(prefix, vr + 1u), texel(prefix, vr + 2u), texel(prefix, vr + 3u), texel(prefix, vr + 4u), texel(prefix, vr + 5u), texel(prefix, vr + 6u), texel(prefix, vr + 7u), true);
+        }
+        var score = dot(q0, k0) + dot(q1, k1);
+        score += dot(q2, k2) + dot(q3, k3);
+        score += dot(q4, k4) + dot(q5, k5);
+        score += dot(q6, k6) + dot(q7, k7);
+        o = take(o, score, v0, v1, v2, v3, v4, v5, v6, v7, true);
+    } else {
+        for (var j = 0u; j < p.prefix_keys; j++) {
+            let r = (s * p.prefix_keys + j) * stride + h * d / 4u;
+            let kr = r + p.k_offset / 4u;
+            let vr = r + p.v_offset / 4u;
+            var score = dot(q0, texel(prefix, kr)) + dot(q1, texel(prefix, kr + 1u));
+            score += dot(q2, texel(prefix, kr + 2u)) + dot(q3, texel(prefix, kr + 3u));
+            o = take(o, score, texel(prefix, vr), texel(prefix, vr + 1u), texel(prefix, vr + 2u), texel(prefix, vr + 3u), v4, v5, v6, v7, false);
+        }
+        var score = dot(q0, k0) + dot(q1, k1);
+        score += dot(q2, k2) + dot(q3, k3);
+        o = take(o, score, v0, v1, v2, v3, v4, v5, v6, v7, false);
+    }
+    let o_row = (s * c + h * d) / 4u;
+    let inv = 1.0 / o.total;
+    if chunks > 0u { out[o_row + 0u] = vec4<Elem>(o.a0 * inv); }
+    if chunks > 1u { out[o_row + 1u] = vec4<Elem>(o.a1 * inv); }
+    if chunks > 2u { out[o_row + 2u] = vec4<Elem>(o.a2 * inv); }
+    if chunks > 3u { out[o_row + 3u] = vec4<Elem>(o.a3 * inv); }
+    if chunks > 4u { out[o_row + 4u] = vec4<Elem>(o.a4 * inv); }
+    if chunks > 5u { out[o_row + 5u] = vec4<Elem>(o.a5 * inv); }
+    if chunks > 6u { out[o_row + 6u] = vec4<Elem>(o.a6 * inv); }
+    if chunks > 7u { out[o_row + 7u] = vec4<Elem>(o.a7 * inv); }
+}
