@@ -20,26 +20,66 @@
 @group(0) @binding(4) var prefix: texture_2d<f32>;
 @group(0) @binding(5) var<storage, read_write> out: array<vec4<Elem>>;
 
-// Outputs o … o + 3 of the projection of the token row at texel `row` (`quads` texels),
-// rounded to Elem; a zero trip count gives zeros (chunks past the head).
-fn project(o: u32, row: u32, quads: u32) -> vec4<f32> {
-    if quads == 0u {
-        return vec4<f32>(0.0);
-    }
+// Four outputs' weights at texel rows `rows` + k, as columns (input 4k + j of the four
+// outputs in column j), as linear_cpu.wgsl's transposed().
+fn columns(rows: vec4<u32>, k: u32) -> mat4x4<f32> {
+    let w0 = texel(weight, rows.x + k);
+    let w1 = texel(weight, rows.y + k);
+    let w2 = texel(weight, rows.z + k);
+    let w3 = texel(weight, rows.w + k);
+    return mat4x4<f32>(
+        vec4<f32>(w0.x, w1.x, w2.x, w3.x),
+        vec4<f32>(w0.y, w1.y, w2.y, w3.y),
+        vec4<f32>(w0.z, w1.z, w2.z, w3.z),
+        vec4<f32>(w0.w, w1.w, w2.w, w3.w),
+    );
+}
+
+// The bias of outputs o … o + 3.
+fn bias4(o: u32) -> vec4<f32> {
     let last = 3u * p.channels - 1u;
     let outputs = min(vec4<u32>(o) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
-    var acc = vec4<f32>(f32(bias[outputs.x]), f32(bias[outputs.y]), f32(bias[outputs.z]), f32(bias[outputs.w]));
-    let rows = outputs * quads;
-    for (var k = 0u; k < quads; k++) {
-        let w0 = texel(weight, rows.x + k);
-        let w1 = texel(weight, rows.y + k);
-        let w2 = texel(weight, rows.z + k);
-        let w3 = texel(weight, rows.w + k);
-        let v = texel(x, row + k);
-        acc = acc + v.x * vec4<f32>(w0.x, w1.x, w2.x, w3.x) + v.y * vec4<f32>(w0.y, w1.y, w2.y, w3.y)
-            + v.z * vec4<f32>(w0.z, w1.z, w2.z, w3.z) + v.w * vec4<f32>(w0.w, w1.w, w2.w, w3.w);
+    return vec4<f32>(f32(bias[outputs.x]), f32(bias[outputs.y]), f32(bias[outputs.z]), f32(bias[outputs.w]));
+}
+
+// One chunk (4 values) of the head's q, k and v.
+struct Chunk {
+    q: vec4<f32>,
+    k: vec4<f32>,
+    v: vec4<f32>,
+}
+
+// Chunk `j` of the head's q, k and v (outputs q0 + 4j …, and the same C and 2C on) from
+// the token row at texel `row` (`quads` texels), each output summed as linear_cpu.wgsl
+// sums it and rounded to Elem; a zero trip count gives zeros (chunks past the head).
+fn project(q0: u32, j: u32, row: u32, quads: u32) -> Chunk {
+    var out = Chunk(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+    if quads == 0u {
+        return out;
     }
-    return vec4<f32>(vec4<Elem>(acc));
+    let oq = q0 + 4u * j;
+    let ok = oq + p.channels;
+    let ov = ok + p.channels;
+    var aq = bias4(oq);
+    var ak = bias4(ok);
+    var av = bias4(ov);
+    let four = vec4<u32>(0u, 1u, 2u, 3u);
+    let rq = (vec4<u32>(oq) + four) * quads;
+    let rk = (vec4<u32>(ok) + four) * quads;
+    let rv = (vec4<u32>(ov) + four) * quads;
+    for (var k = 0u; k < quads; k++) {
+        let x4 = texel(x, row + k);
+        let tq = columns(rq, k);
+        let tk = columns(rk, k);
+        let tv = columns(rv, k);
+        aq = aq + x4.x * tq[0] + x4.y * tq[1] + x4.z * tq[2] + x4.w * tq[3];
+        ak = ak + x4.x * tk[0] + x4.y * tk[1] + x4.z * tk[2] + x4.w * tk[3];
+        av = av + x4.x * tv[0] + x4.y * tv[1] + x4.z * tv[2] + x4.w * tv[3];
+    }
+    out.q = vec4<f32>(vec4<Elem>(aq));
+    out.k = vec4<f32>(vec4<Elem>(ak));
+    out.v = vec4<f32>(vec4<Elem>(av));
+    return out;
 }
 
 // The running softmax, as attention_cpu.wgsl's.
@@ -101,32 +141,38 @@ fn main(invocation: Invocation) {
     let n7 = select(0u, quads, chunks > 7u);
     let scale = inverseSqrt(f32(d));
     let q = h * d;
-    let q0 = project(q, row, n0) * scale;
-    let q1 = project(q + 4u, row, n1) * scale;
-    let q2 = project(q + 8u, row, n2) * scale;
-    let q3 = project(q + 12u, row, n3) * scale;
-    let q4 = project(q + 16u, row, n4) * scale;
-    let q5 = project(q + 20u, row, n5) * scale;
-    let q6 = project(q + 24u, row, n6) * scale;
-    let q7 = project(q + 28u, row, n7) * scale;
-    let k = c + h * d;
-    let k0 = project(k, row, n0);
-    let k1 = project(k + 4u, row, n1);
-    let k2 = project(k + 8u, row, n2);
-    let k3 = project(k + 12u, row, n3);
-    let k4 = project(k + 16u, row, n4);
-    let k5 = project(k + 20u, row, n5);
-    let k6 = project(k + 24u, row, n6);
-    let k7 = project(k + 28u, row, n7);
-    let v = 2u * c + h * d;
-    let v0 = project(v, row, n0);
-    let v1 = project(v + 4u, row, n1);
-    let v2 = project(v + 8u, row, n2);
-    let v3 = project(v + 12u, row, n3);
-    let v4 = project(v + 16u, row, n4);
-    let v5 = project(v + 20u, row, n5);
-    let v6 = project(v + 24u, row, n6);
-    let v7 = project(v + 28u, row, n7);
+    let c0 = project(q, 0u, row, n0);
+    let c1 = project(q, 1u, row, n1);
+    let c2 = project(q, 2u, row, n2);
+    let c3 = project(q, 3u, row, n3);
+    let c4 = project(q, 4u, row, n4);
+    let c5 = project(q, 5u, row, n5);
+    let c6 = project(q, 6u, row, n6);
+    let c7 = project(q, 7u, row, n7);
+    let q0 = c0.q * scale;
+    let q1 = c1.q * scale;
+    let q2 = c2.q * scale;
+    let q3 = c3.q * scale;
+    let q4 = c4.q * scale;
+    let q5 = c5.q * scale;
+    let q6 = c6.q * scale;
+    let q7 = c7.q * scale;
+    let k0 = c0.k;
+    let k1 = c1.k;
+    let k2 = c2.k;
+    let k3 = c3.k;
+    let k4 = c4.k;
+    let k5 = c5.k;
+    let k6 = c6.k;
+    let k7 = c7.k;
+    let v0 = c0.v;
+    let v1 = c1.v;
+    let v2 = c2.v;
+    let v3 = c3.v;
+    let v4 = c4.v;
+    let v5 = c5.v;
+    let v6 = c6.v;
+    let v7 = c7.v;
     var o = Online(-3.0e38, 0.0, vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
     // The cached keys, then the sequence's own: heads of up to 16 values apart from wider
     // ones, each in a loop of its own (see attention_cpu.wgsl).

@@ -19,6 +19,8 @@ pub const CONV3X3: Shader = shader!("nn/conv3x3.wgsl", [Conv2dParams], elem);
 pub const CONV3X3_CPU: Shader = shader!("nn/conv3x3_cpu.wgsl", [Conv2dParams], elem);
 /// The 1×1 convolution in register tiles of 8 pixels × 8 channels, from repacked f32
 /// weights (`ops::PackedConv`).
+/// The 3×3 stride-2 convolution for CPU drivers: input and packed weights as texels.
+pub const CONV3X3_S2_CPU: Shader = shader!("nn/conv3x3_s2_cpu.wgsl", [Conv2dParams], elem);
 pub const CONV1X1: Shader = shader!("nn/conv1x1.wgsl", [Conv2dParams], elem);
 /// `CONV1X1` for CPU drivers: the input and the weights read as texels.
 pub const CONV1X1_CPU: Shader = shader!("nn/conv1x1_cpu.wgsl", [Conv2dParams], elem);
@@ -57,6 +59,7 @@ pub const ALL: &[Shader] = &[
     CONV2D_TILED,
     CONV3X3,
     CONV3X3_CPU,
+    CONV3X3_S2_CPU,
     CONV1X1,
     CONV1X1_CPU,
     UPSAMPLE_NEAREST,

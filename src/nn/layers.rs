@@ -7,9 +7,9 @@ use super::ops::{AttentionParams, Broadcast, Indices, PackedConv, Recorder};
 use super::weights::{LoadError, Weights};
 use crate::gpu::GpuError;
 
-/// A square convolution with bias and "same" padding (k / 2). 3×3 and 1×1 stride-1 ones
-/// keep their weights in both layouts and record the register-tiled `conv3x3` and
-/// `conv1x1` kernels.
+/// A square convolution with bias and "same" padding (k / 2). 3×3 (stride 1 or 2) and
+/// 1×1 stride-1 ones keep their weights in both layouts and record the register-tiled
+/// `conv3x3`, `conv3x3_s2_cpu` and `conv1x1` kernels.
 pub struct Conv {
     weights: ConvWeights,
     bias: Tensor,
@@ -29,7 +29,7 @@ impl Conv {
         kernel: usize,
         stride: usize,
     ) -> Result<Self, LoadError> {
-        let weights = if (kernel == 3 || kernel == 1) && stride == 1 {
+        let weights = if (kernel == 3 && stride <= 2) || (kernel == 1 && stride == 1) {
             ConvWeights::Packed(w.packed_conv("weight", [c_out, c_in, kernel], c_out)?)
         } else {
             ConvWeights::Plain(w.tensor("weight", &[c_out, c_in, kernel, kernel])?)
@@ -80,6 +80,9 @@ impl Conv {
         residual: Option<&Tensor>,
     ) -> Result<Tensor, GpuError> {
         let y = match &self.weights {
+            ConvWeights::Packed(weights) if self.stride == 2 => {
+                r.conv3x3_stride2(x, weights, Some(&self.bias))?
+            }
             ConvWeights::Packed(weights) if weights.kernel == 3 => {
                 return r.conv3x3(x, weights, Some(&self.bias), extra, residual);
             }
@@ -563,7 +566,9 @@ impl TemporalAttention {
                 r.attention_after(&qkv, None, &qkv, params)?
             }
             // One new frame: its keys are read by its own queries only.
-            Frames::Next { cached } => r.temporal_next(&tokens, self.qkv.parts(), cached, params)?,
+            Frames::Next { cached } => {
+                r.temporal_next(&tokens, self.qkv.parts(), cached, params)?
+            }
         }; // [N·HW, F, C]
         r.linear_to_images(&mixed, self.out.parts(), x, f, None) // [N·F, C, H, W]
     }

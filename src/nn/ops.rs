@@ -689,6 +689,58 @@ impl<'a> Recorder<'a> {
         Ok(y)
     }
 
+    /// A 3×3, stride-2, padding-1 convolution from weights packed by [`PackedConv`]: for
+    /// CPU drivers `conv3x3_s2_cpu.wgsl` (tiles of 4 pixels × 8 channels read as texels),
+    /// otherwise [`Recorder::conv2d`] with the plain weights; both sum in the same order.
+    pub fn conv3x3_stride2(
+        &mut self,
+        x: &Tensor,
+        weights: &PackedConv,
+        bias: Option<&Tensor>,
+    ) -> Result<Tensor, GpuError> {
+        let [n, c_in, h, w] = nchw(x);
+        assert_eq!((c_in, weights.kernel), (weights.c_in, 3), "conv3x3 weights");
+        if self.kernels != Kernels::Cpu {
+            return self.conv2d(x, &weights.plain, bias, 2, 1);
+        }
+        let (h_out, w_out) = ((h + 1) / 2, (w + 1) / 2);
+        let y = self.output("conv3x3_s2.y", &[n, weights.c_out, h_out, w_out])?;
+        let params = Conv2dParams {
+            batch: n as u32,
+            c_in: c_in as u32,
+            c_out: weights.c_out as u32,
+            h_in: h as u32,
+            w_in: w as u32,
+            h_out: h_out as u32,
+            w_out: w_out as u32,
+            kernel: 3,
+            stride: 2,
+            pad: 1,
+            has_bias: u32::from(bias.is_some()),
+            has_extra: 0,
+            has_residual: 0,
+            upsample: 0,
+            reserved1: 0,
+            reserved2: 0,
+        };
+        self.flops += 2 * (y.len() * c_in * 9) as u64;
+        // A bias binding must exist even without a bias; the output stands in (unread).
+        let bias = bias.unwrap_or(&y);
+        self.check(&[x, bias]);
+        let input = self.texels(x)?;
+        let packed = weights.packed.constant_texels(self.gpu)?;
+        let bound = [
+            Bound::Texels(&input),
+            Bound::Texels(packed),
+            Bound::Buffer(&bias.buffer),
+            Bound::Buffer(&y.buffer),
+        ];
+        let grid = self.grid(n * weights.c_out.div_ceil(8) * h_out * w_out.div_ceil(4));
+        self.steps
+            .dispatch_bound(&kernels::CONV3X3_S2_CPU, &params, &bound, grid);
+        Ok(y)
+    }
+
     /// Nearest ×2 upsampling then a 3×3 convolution, in one dispatch: the kernel reads
     /// each upsampled pixel from its source (the same sums as upsample_nearest then
     /// conv3x3). With [`Kernels::Simple`] and for rows under 8 pixels, the two ops.
@@ -1670,7 +1722,8 @@ impl<'a> Recorder<'a> {
         let sequences = params.sequences as usize;
         let y = self.output("temporal_next.y", &[sequences, 1, c])?;
         // The FLOPs of the two ops it replaces.
-        self.flops += 2 * (sequences * 3 * c * c) as u64 + 4 * (y.len() as u64) * u64::from(params.keys);
+        self.flops +=
+            2 * (sequences * 3 * c * c) as u64 + 4 * (y.len() as u64) * u64::from(params.keys);
         let input = self.texels(tokens)?;
         let prefix = self.texels(cached)?;
         let weight = weight.constant_texels(self.gpu)?;

@@ -1,0 +1,135 @@
+// 3×3 convolution, stride 2, zero padding 1, for CPU drivers (NCHW, Elem storage, f32
+// sums): register tiles of 4 neighbouring output pixels of a row × 8 output channels,
+// the input and the packed weights (nn::ops::PackedConv) read as texels
+// (src/gpu/texels.rs). Per (c_in, ky) the tile reads input columns 2·ox0 - 1 … 2·ox0 + 7
+// (3 texels, picked by their offset) and 6 weight texels for 96 multiply-adds. Each
+// output sums bias, then c_in, ky, kx in order; taps outside the input add an exact zero
+// (as conv3x3.wgsl). Optional bias [c_out].
+
+@group(0) @binding(0) var<uniform> p: Conv2dParams;
+@group(0) @binding(1) var x: texture_2d<f32>;
+@group(0) @binding(2) var weight: texture_2d<f32>;
+@group(0) @binding(3) var<storage, read> bias: array<Elem>;
+@group(0) @binding(4) var<storage, read_write> y: array<Elem>;
+
+// Values s … s + 3 of the eight values (a, b), for s in 0 … 3.
+fn pick(a: vec4<f32>, b: vec4<f32>, s: u32) -> vec4<f32> {
+    let s1 = vec4<f32>(a.y, a.z, a.w, b.x);
+    let s2 = vec4<f32>(a.z, a.w, b.x, b.y);
+    let s3 = vec4<f32>(a.w, b.x, b.y, b.z);
+    return select(select(select(a, s1, s == 1u), s2, s == 2u), s3, s == 3u);
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let i = linear_index(invocation);
+    let blocks = (p.c_out + 7u) / 8u;
+    let tiles = (p.w_out + 3u) / 4u;
+    if i >= p.batch * blocks * p.h_out * tiles {
+        return;
+    }
+    let ox0 = (i % tiles) * 4u;
+    let oy = (i / tiles) % p.h_out;
+    let block = (i / (tiles * p.h_out)) % blocks;
+    let n = i / (tiles * p.h_out * blocks);
+    var lo = vec4<f32>(0.0);
+    var hi = vec4<f32>(0.0);
+    if p.has_bias != 0u {
+        let last = p.c_out - 1u;
+        let co = min(vec4<u32>(8u * block) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
+        let co2 = min(co + vec4<u32>(4u), vec4<u32>(last));
+        lo = vec4<f32>(f32(bias[co.x]), f32(bias[co.y]), f32(bias[co.z]), f32(bias[co.w]));
+        hi = vec4<f32>(f32(bias[co2.x]), f32(bias[co2.y]), f32(bias[co2.z]), f32(bias[co2.w]));
+    }
+    // Input column 2·ox0 - 1 + m is inside for m < inside (and m > 0 or ox0 > 0).
+    let inside = p.w_in + 1u - 2u * ox0;
+    let m0 = vec4<bool>(ox0 > 0u, 1u < inside, 2u < inside, 3u < inside);
+    let m1 = vec4<bool>(4u < inside, 5u < inside, 6u < inside, 7u < inside);
+    let m8 = 8u < inside;
+    var a0 = lo;
+    var a1 = lo;
+    var a2 = lo;
+    var a3 = lo;
+    var b0 = hi;
+    var b1 = hi;
+    var b2 = hi;
+    var b3 = hi;
+    let quads = 2u * blocks;
+    for (var ci = 0u; ci < p.c_in; ci++) {
+        let plane = (n * p.c_in + ci) * p.h_in * p.w_in;
+        for (var ky = 0u; ky < 3u; ky++) {
+            let iy = i32(2u * oy + ky) - 1;
+            if iy < 0 || iy >= i32(p.h_in) {
+                continue;
+            }
+            // Flat index + 4 of column 2·ox0 - 1 (never negative).
+            let start4 = plane + u32(iy) * p.w_in + 2u * ox0 + 3u;
+            let t = i32(start4 >> 2u) - 1;
+            let s = start4 & 3u;
+            let q0 = texel(x, u32(max(t, 0)));
+            let q1 = texel(x, u32(t + 1));
+            let q2 = texel(x, u32(t + 2));
+            let u0 = select(vec4<f32>(0.0), pick(q0, q1, s), m0);
+            let u1 = select(vec4<f32>(0.0), pick(q1, q2, s), m1);
+            let u8 = select(0.0, pick(q2, q2, s).x, m8);
+            var w = (ci * 3u + ky) * 3u * quads + 2u * block;
+            // kx = 0: columns 0, 2, 4, 6
+            let wa0 = texel(weight, w);
+            let wb0 = texel(weight, w + 1u);
+            a0 += u0.x * wa0;
+            a1 += u0.z * wa0;
+            a2 += u1.x * wa0;
+            a3 += u1.z * wa0;
+            b0 += u0.x * wb0;
+            b1 += u0.z * wb0;
+            b2 += u1.x * wb0;
+            b3 += u1.z * wb0;
+            w += quads;
+            // kx = 1: columns 1, 3, 5, 7
+            let wa1 = texel(weight, w);
+            let wb1 = texel(weight, w + 1u);
+            a0 += u0.y * wa1;
+            a1 += u0.w * wa1;
+            a2 += u1.y * wa1;
+            a3 += u1.w * wa1;
+            b0 += u0.y * wb1;
+            b1 += u0.w * wb1;
+            b2 += u1.y * wb1;
+            b3 += u1.w * wb1;
+            w += quads;
+            // kx = 2: columns 2, 4, 6, 8
+            let wa2 = texel(weight, w);
+            let wb2 = texel(weight, w + 1u);
+            a0 += u0.z * wa2;
+            a1 += u1.x * wa2;
+            a2 += u1.z * wa2;
+            a3 += u8 * wa2;
+            b0 += u0.z * wb2;
+            b1 += u1.x * wb2;
+            b2 += u1.z * wb2;
+            b3 += u8 * wb2;
+        }
+    }
+    store(n, block, oy, ox0, a0, b0);
+    store(n, block, oy, ox0 + 1u, a1, b1);
+    store(n, block, oy, ox0 + 2u, a2, b2);
+    store(n, block, oy, ox0 + 3u, a3, b3);
+}
+
+// Output pixel `ox` of row `oy`: channels 8·block … 8·block + 7 (those below c_out).
+fn store(n: u32, block: u32, oy: u32, ox: u32, lo: vec4<f32>, hi: vec4<f32>) {
+    if ox >= p.w_out {
+        return;
+    }
+    let plane = p.h_out * p.w_out;
+    let out = (n * p.c_out + 8u * block) * plane + oy * p.w_out + ox;
+    for (var c = 0u; c < 4u; c++) {
+        let co = 8u * block + c;
+        if co < p.c_out {
+            y[out + c * plane] = Elem(lo[c]);
+        }
+        if co + 4u < p.c_out {
+            y[out + (4u + c) * plane] = Elem(hi[c]);
+        }
+    }
+}
