@@ -703,7 +703,7 @@ impl<'a> Recorder<'a> {
         if self.kernels != Kernels::Cpu {
             return self.conv2d(x, &weights.plain, bias, 2, 1);
         }
-        let (h_out, w_out) = ((h + 1) / 2, (w + 1) / 2);
+        let (h_out, w_out) = (h.div_ceil(2), w.div_ceil(2));
         let y = self.output("conv3x3_s2.y", &[n, weights.c_out, h_out, w_out])?;
         let params = Conv2dParams {
             batch: n as u32,
