@@ -1160,7 +1160,9 @@ fn the_one_frame_temporal_attention_equals_the_projection_then_the_attention_bit
                 .temporal_next(&tokens, (&weight, &bias), &cached, params)
                 .unwrap();
             let qkv = r.linear(&tokens, &weight, &bias, false).unwrap();
-            let separate = r.attention_after(&qkv, Some(&cached), &qkv, params).unwrap();
+            let separate = r
+                .attention_after(&qkv, Some(&cached), &qkv, params)
+                .unwrap();
             r.submit();
             let what = format!("{precision:?} {kernels:?} {c} channels");
             assert_eq!(fused.shape, separate.shape, "{what}");

@@ -94,7 +94,20 @@ fn every_file_in_shaders_is_registered_once() {
         registered.len(),
         "a shader is registered twice"
     );
-    assert_eq!(on_disk, unique);
+    let snippets: BTreeSet<String> = unica::snippets()
+        .iter()
+        .map(|s| s.file.to_string())
+        .collect();
+    assert!(
+        unique.is_disjoint(&snippets),
+        "a file is both a shader and a snippet"
+    );
+    let used: BTreeSet<String> = all()
+        .iter()
+        .flat_map(|s| s.snippets.iter().map(|n| n.file.to_string()))
+        .collect();
+    assert_eq!(used, snippets, "every snippet registered and used");
+    assert_eq!(on_disk, &unique | &snippets);
 }
 
 #[test]

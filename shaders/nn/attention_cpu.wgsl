@@ -12,41 +12,14 @@
 @group(0) @binding(3) var kv: texture_2d<f32>;
 @group(0) @binding(4) var<storage, read_write> out: array<vec4<Elem>>;
 
-// The running softmax of one query: the best score so far, the sum of exp(score - best)
-// and the weighted sum of the value rows (up to 8 chunks of 4).
-struct Online {
-    best: f32,
-    total: f32,
-    a0: vec4<f32>,
-    a1: vec4<f32>,
-    a2: vec4<f32>,
-    a3: vec4<f32>,
-    a4: vec4<f32>,
-    a5: vec4<f32>,
-    a6: vec4<f32>,
-    a7: vec4<f32>,
-}
-
-// One more key: its score and the first 4 chunks of its value row at texel `v` of `t`
-// (the last 4 only when `wide`).
-fn take(o: Online, score: f32, t: texture_2d<f32>, v: u32, wide: bool) -> Online {
-    var n = o;
-    let new_best = max(o.best, score);
-    let rescale = exp(o.best - new_best);
-    let weight = exp(score - new_best);
-    n.total = o.total * rescale + weight;
-    n.a0 = o.a0 * rescale + weight * texel(t, v);
-    n.a1 = o.a1 * rescale + weight * texel(t, v + 1u);
-    n.a2 = o.a2 * rescale + weight * texel(t, v + 2u);
-    n.a3 = o.a3 * rescale + weight * texel(t, v + 3u);
+// One more key (see snippets/online_softmax.wgsl) with its value row at texel `v` of
+// `t`: 4 chunks, or 8 when `wide`.
+fn take_row(o: Online, score: f32, t: texture_2d<f32>, v: u32, wide: bool) -> Online {
     if wide {
-        n.a4 = o.a4 * rescale + weight * texel(t, v + 4u);
-        n.a5 = o.a5 * rescale + weight * texel(t, v + 5u);
-        n.a6 = o.a6 * rescale + weight * texel(t, v + 6u);
-        n.a7 = o.a7 * rescale + weight * texel(t, v + 7u);
+        return take(o, score, texel(t, v), texel(t, v + 1u), texel(t, v + 2u), texel(t, v + 3u), texel(t, v + 4u), texel(t, v + 5u), texel(t, v + 6u), texel(t, v + 7u), true);
     }
-    n.best = new_best;
-    return n;
+    let zero = vec4<f32>(0.0);
+    return take(o, score, texel(t, v), texel(t, v + 1u), texel(t, v + 2u), texel(t, v + 3u), zero, zero, zero, zero, false);
 }
 
 // q (scaled) against the key row at texel `k` of `t`: the first 4 chunks.
@@ -108,7 +81,7 @@ fn main(invocation: Invocation) {
     if chunks > 5u { q5 = texel(q_in, q_row + 5u) * scale; }
     if chunks > 6u { q6 = texel(q_in, q_row + 6u) * scale; }
     if chunks > 7u { q7 = texel(q_in, q_row + 7u) * scale; }
-    var o = Online(-3.0e38, 0.0, vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+    var o = online_start();
     // The cached keys (prefix) then the fresh ones (kv), each in a loop of its own, and
     // heads of up to 16 values apart from wider ones: a CPU driver runs both sides of a
     // branch under a lane mask, so a branch per key would fetch from both textures and
@@ -119,30 +92,21 @@ fn main(invocation: Invocation) {
     if wide {
         for (var j = 0u; j < cached; j++) {
             let row = (kv_sequence * p.prefix_keys + j) * p.kv_stride + h * d;
-            o = take(o, score8(prefix, (row + p.k_offset) / 4u, q0, q1, q2, q3, q4, q5, q6, q7), prefix, (row + p.v_offset) / 4u, true);
+            o = take_row(o, score8(prefix, (row + p.k_offset) / 4u, q0, q1, q2, q3, q4, q5, q6, q7), prefix, (row + p.v_offset) / 4u, true);
         }
         for (var j = cached; j < keys; j++) {
             let row = (kv_sequence * fresh + j - p.prefix_keys) * p.kv_stride + h * d;
-            o = take(o, score8(kv, (row + p.k_offset) / 4u, q0, q1, q2, q3, q4, q5, q6, q7), kv, (row + p.v_offset) / 4u, true);
+            o = take_row(o, score8(kv, (row + p.k_offset) / 4u, q0, q1, q2, q3, q4, q5, q6, q7), kv, (row + p.v_offset) / 4u, true);
         }
     } else {
         for (var j = 0u; j < cached; j++) {
             let row = (kv_sequence * p.prefix_keys + j) * p.kv_stride + h * d;
-            o = take(o, score4(prefix, (row + p.k_offset) / 4u, q0, q1, q2, q3), prefix, (row + p.v_offset) / 4u, false);
+            o = take_row(o, score4(prefix, (row + p.k_offset) / 4u, q0, q1, q2, q3), prefix, (row + p.v_offset) / 4u, false);
         }
         for (var j = cached; j < keys; j++) {
             let row = (kv_sequence * fresh + j - p.prefix_keys) * p.kv_stride + h * d;
-            o = take(o, score4(kv, (row + p.k_offset) / 4u, q0, q1, q2, q3), kv, (row + p.v_offset) / 4u, false);
+            o = take_row(o, score4(kv, (row + p.k_offset) / 4u, q0, q1, q2, q3), kv, (row + p.v_offset) / 4u, false);
         }
     }
-    let o_row = ((s * p.queries + i) * p.channels + h * d) / 4u;
-    let inv = 1.0 / o.total;
-    if chunks > 0u { out[o_row + 0u] = vec4<Elem>(o.a0 * inv); }
-    if chunks > 1u { out[o_row + 1u] = vec4<Elem>(o.a1 * inv); }
-    if chunks > 2u { out[o_row + 2u] = vec4<Elem>(o.a2 * inv); }
-    if chunks > 3u { out[o_row + 3u] = vec4<Elem>(o.a3 * inv); }
-    if chunks > 4u { out[o_row + 4u] = vec4<Elem>(o.a4 * inv); }
-    if chunks > 5u { out[o_row + 5u] = vec4<Elem>(o.a5 * inv); }
-    if chunks > 6u { out[o_row + 6u] = vec4<Elem>(o.a6 * inv); }
-    if chunks > 7u { out[o_row + 7u] = vec4<Elem>(o.a7 * inv); }
+    store_online(o, ((s * p.queries + i) * p.channels + h * d) / 4u, chunks);
 }

@@ -33,15 +33,9 @@ fn main(invocation: Invocation) {
     let q1 = min(q0 + 1u, quads - 1u);
     let block = (i / tiles) % blocks;
     let n = i / (tiles * blocks);
-    var lo = vec4<f32>(0.0);
-    var hi = vec4<f32>(0.0);
-    if p.has_bias != 0u {
-        let last = p.c_out - 1u;
-        let co = min(vec4<u32>(8u * block) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
-        let co2 = min(co + vec4<u32>(4u), vec4<u32>(last));
-        lo = vec4<f32>(f32(bias[co.x]), f32(bias[co.y]), f32(bias[co.z]), f32(bias[co.w]));
-        hi = vec4<f32>(f32(bias[co2.x]), f32(bias[co2.y]), f32(bias[co2.z]), f32(bias[co2.w]));
-    }
+    let start = bias_lanes(block);
+    let lo = start.lo;
+    let hi = start.hi;
     // Channel k's first four pixels in ak, its next four in bk.
     var a0 = vec4<f32>(lo[0]);
     var a1 = vec4<f32>(lo[1]);

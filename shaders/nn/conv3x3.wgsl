@@ -41,15 +41,9 @@ fn main(invocation: Invocation) {
     let oy = (i / tiles) % p.h_out;
     let block = (i / (tiles * p.h_out)) % blocks;
     let n = i / (tiles * p.h_out * blocks);
-    var lo = vec4<f32>(0.0);
-    var hi = vec4<f32>(0.0);
-    if p.has_bias != 0u {
-        let last = p.c_out - 1u;
-        let co = min(vec4<u32>(8u * block) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
-        let co2 = min(co + vec4<u32>(4u), vec4<u32>(last));
-        lo = vec4<f32>(f32(bias[co.x]), f32(bias[co.y]), f32(bias[co.z]), f32(bias[co.w]));
-        hi = vec4<f32>(f32(bias[co2.x]), f32(bias[co2.y]), f32(bias[co2.z]), f32(bias[co2.w]));
-    }
+    let start = bias_lanes(block);
+    let lo = start.lo;
+    let hi = start.hi;
     // Pixel j's first four channels in aj, its second four in bj: written out, not
     // arrays, so CPU drivers keep them in registers.
     var a0 = lo;
@@ -158,35 +152,4 @@ fn main(invocation: Invocation) {
     store(n, block, oy, ox0 + 5u, a5, b5);
     store(n, block, oy, ox0 + 6u, a6, b6);
     store(n, block, oy, ox0 + 7u, a7, b7);
-}
-
-// Output element `at` (image n, channel co) after the sums: plus its addend when there
-// is one, rounded to Elem, plus its residual when there is one.
-fn finish(at: u32, n: u32, co: u32, v: f32) -> Elem {
-    var out = v;
-    if p.has_extra != 0u {
-        out += f32(extra[n * p.c_out + co]);
-    }
-    if p.has_residual != 0u {
-        return Elem(f32(residual[at]) + f32(Elem(out)));
-    }
-    return Elem(out);
-}
-
-// Output pixel `ox` of row `oy`: channels 8·block … 8·block + 7 (those below c_out).
-fn store(n: u32, block: u32, oy: u32, ox: u32, lo: vec4<f32>, hi: vec4<f32>) {
-    if ox >= p.w_out {
-        return;
-    }
-    let plane = p.h_out * p.w_out;
-    let out = (n * p.c_out + 8u * block) * plane + oy * p.w_out + ox;
-    for (var c = 0u; c < 4u; c++) {
-        let co = 8u * block + c;
-        if co < p.c_out {
-            y[out + c * plane] = finish(out + c * plane, n, co, lo[c]);
-        }
-        if co + 4u < p.c_out {
-            y[out + (4u + c) * plane] = finish(out + (4u + c) * plane, n, co + 4u, hi[c]);
-        }
-    }
 }

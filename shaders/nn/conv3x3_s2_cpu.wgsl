@@ -10,15 +10,10 @@
 @group(0) @binding(1) var x: texture_2d<f32>;
 @group(0) @binding(2) var weight: texture_2d<f32>;
 @group(0) @binding(3) var<storage, read> bias: array<Elem>;
-@group(0) @binding(4) var<storage, read_write> y: array<Elem>;
-
-// Values s … s + 3 of the eight values (a, b), for s in 0 … 3.
-fn pick(a: vec4<f32>, b: vec4<f32>, s: u32) -> vec4<f32> {
-    let s1 = vec4<f32>(a.y, a.z, a.w, b.x);
-    let s2 = vec4<f32>(a.z, a.w, b.x, b.y);
-    let s3 = vec4<f32>(a.w, b.x, b.y, b.z);
-    return select(select(select(a, s1, s == 1u), s2, s == 2u), s3, s == 3u);
-}
+// Unread (the shared epilogue's addend and residual; `p` says there are none).
+@group(0) @binding(4) var<storage, read> extra: array<Elem>;
+@group(0) @binding(5) var<storage, read> residual: array<Elem>;
+@group(0) @binding(6) var<storage, read_write> y: array<Elem>;
 
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {
@@ -32,15 +27,9 @@ fn main(invocation: Invocation) {
     let oy = (i / tiles) % p.h_out;
     let block = (i / (tiles * p.h_out)) % blocks;
     let n = i / (tiles * p.h_out * blocks);
-    var lo = vec4<f32>(0.0);
-    var hi = vec4<f32>(0.0);
-    if p.has_bias != 0u {
-        let last = p.c_out - 1u;
-        let co = min(vec4<u32>(8u * block) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
-        let co2 = min(co + vec4<u32>(4u), vec4<u32>(last));
-        lo = vec4<f32>(f32(bias[co.x]), f32(bias[co.y]), f32(bias[co.z]), f32(bias[co.w]));
-        hi = vec4<f32>(f32(bias[co2.x]), f32(bias[co2.y]), f32(bias[co2.z]), f32(bias[co2.w]));
-    }
+    let start = bias_lanes(block);
+    let lo = start.lo;
+    let hi = start.hi;
     // Input column 2·ox0 - 1 + m is inside for m < inside (and m > 0 or ox0 > 0).
     let inside = p.w_in + 1u - 2u * ox0;
     let m0 = vec4<bool>(ox0 > 0u, 1u < inside, 2u < inside, 3u < inside);
@@ -114,22 +103,4 @@ fn main(invocation: Invocation) {
     store(n, block, oy, ox0 + 1u, a1, b1);
     store(n, block, oy, ox0 + 2u, a2, b2);
     store(n, block, oy, ox0 + 3u, a3, b3);
-}
-
-// Output pixel `ox` of row `oy`: channels 8·block … 8·block + 7 (those below c_out).
-fn store(n: u32, block: u32, oy: u32, ox: u32, lo: vec4<f32>, hi: vec4<f32>) {
-    if ox >= p.w_out {
-        return;
-    }
-    let plane = p.h_out * p.w_out;
-    let out = (n * p.c_out + 8u * block) * plane + oy * p.w_out + ox;
-    for (var c = 0u; c < 4u; c++) {
-        let co = 8u * block + c;
-        if co < p.c_out {
-            y[out + c * plane] = Elem(lo[c]);
-        }
-        if co + 4u < p.c_out {
-            y[out + (4u + c) * plane] = Elem(hi[c]);
-        }
-    }
 }

@@ -82,41 +82,6 @@ fn project(q0: u32, j: u32, row: u32, quads: u32) -> Chunk {
     return out;
 }
 
-// The running softmax, as attention_cpu.wgsl's.
-struct Online {
-    best: f32,
-    total: f32,
-    a0: vec4<f32>,
-    a1: vec4<f32>,
-    a2: vec4<f32>,
-    a3: vec4<f32>,
-    a4: vec4<f32>,
-    a5: vec4<f32>,
-    a6: vec4<f32>,
-    a7: vec4<f32>,
-}
-
-// One more key: its score and its value's chunks.
-fn take(o: Online, score: f32, v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, v3: vec4<f32>, v4: vec4<f32>, v5: vec4<f32>, v6: vec4<f32>, v7: vec4<f32>, wide: bool) -> Online {
-    var n = o;
-    let new_best = max(o.best, score);
-    let rescale = exp(o.best - new_best);
-    let weight = exp(score - new_best);
-    n.total = o.total * rescale + weight;
-    n.a0 = o.a0 * rescale + weight * v0;
-    n.a1 = o.a1 * rescale + weight * v1;
-    n.a2 = o.a2 * rescale + weight * v2;
-    n.a3 = o.a3 * rescale + weight * v3;
-    if wide {
-        n.a4 = o.a4 * rescale + weight * v4;
-        n.a5 = o.a5 * rescale + weight * v5;
-        n.a6 = o.a6 * rescale + weight * v6;
-        n.a7 = o.a7 * rescale + weight * v7;
-    }
-    n.best = new_best;
-    return n;
-}
-
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {
     let id = linear_index(invocation);
@@ -173,7 +138,7 @@ fn main(invocation: Invocation) {
     let v5 = c5.v;
     let v6 = c6.v;
     let v7 = c7.v;
-    var o = Online(-3.0e38, 0.0, vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+    var o = online_start();
     // The cached keys, then the sequence's own: heads of up to 16 values apart from wider
     // ones, each in a loop of its own (see attention_cpu.wgsl).
     let wide = chunks > 4u;
@@ -207,14 +172,5 @@ fn main(invocation: Invocation) {
         score += dot(q2, k2) + dot(q3, k3);
         o = take(o, score, v0, v1, v2, v3, v4, v5, v6, v7, false);
     }
-    let o_row = (s * c + h * d) / 4u;
-    let inv = 1.0 / o.total;
-    if chunks > 0u { out[o_row + 0u] = vec4<Elem>(o.a0 * inv); }
-    if chunks > 1u { out[o_row + 1u] = vec4<Elem>(o.a1 * inv); }
-    if chunks > 2u { out[o_row + 2u] = vec4<Elem>(o.a2 * inv); }
-    if chunks > 3u { out[o_row + 3u] = vec4<Elem>(o.a3 * inv); }
-    if chunks > 4u { out[o_row + 4u] = vec4<Elem>(o.a4 * inv); }
-    if chunks > 5u { out[o_row + 5u] = vec4<Elem>(o.a5 * inv); }
-    if chunks > 6u { out[o_row + 6u] = vec4<Elem>(o.a6 * inv); }
-    if chunks > 7u { out[o_row + 7u] = vec4<Elem>(o.a7 * inv); }
+    store_online(o, (s * c + h * d) / 4u, chunks);
 }

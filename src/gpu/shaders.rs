@@ -99,6 +99,28 @@ pub struct Shader {
     pub constants: &'static [(&'static str, f32)],
     /// Rust constants declared as WGSL `const NAME: u32` before the file.
     pub uints: &'static [(&'static str, u32)],
+    /// Helper functions shared with other shaders of the stage, before the file.
+    pub snippets: &'static [Snippet],
+}
+
+/// WGSL helper functions shared by several shaders of a stage (a file of `shaders/` with
+/// no entry point), declared after the shared structs and before a shader's own file;
+/// what they read (parameters, bindings) the shader declares. See [`wgsl_snippet!`].
+#[derive(Clone, Copy, Debug)]
+pub struct Snippet {
+    pub file: &'static str,
+    pub text: &'static str,
+}
+
+/// Declares a [`Snippet`] from a file under `shaders/`.
+#[macro_export]
+macro_rules! wgsl_snippet {
+    ($file:literal) => {
+        $crate::gpu::shaders::Snippet {
+            file: $file,
+            text: include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/shaders/", $file)),
+        }
+    };
 }
 
 /// What every shader starts with (after its `enable` and `Elem` lines): the workgroup
@@ -138,6 +160,11 @@ impl Shader {
         Self { constants, ..self }
     }
 
+    /// This shader with `snippets` declared before its file.
+    pub const fn with_snippets(self, snippets: &'static [Snippet]) -> Self {
+        Self { snippets, ..self }
+    }
+
     /// This shader with integer `uints` declared in its prelude.
     pub const fn with_uints(self, uints: &'static [(&'static str, u32)]) -> Self {
         Self { uints, ..self }
@@ -172,6 +199,9 @@ impl Shader {
         }
         for s in self.structs {
             out.push_str(&(s.wgsl)());
+        }
+        for snippet in self.snippets {
+            out.push_str(snippet.text);
         }
         out.push_str(self.body);
         out
@@ -223,6 +253,7 @@ macro_rules! wgsl_shader {
             elem: $elem,
             constants: &[],
             uints: &[],
+            snippets: &[],
         }
     };
 }

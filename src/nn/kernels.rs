@@ -6,24 +6,42 @@ use super::ops::{
     EmbeddingParams, GatherParams, GroupNormParams, LinearParams, PermuteParams, SegmentParams,
     UpsampleParams,
 };
-use crate::gpu::shaders::Shader;
+use crate::gpu::shaders::{Shader, Snippet};
 use crate::wgsl_shader as shader;
+use crate::wgsl_snippet as snippet;
+
+/// `pick`: a run of values read as texels that starts anywhere in a texel.
+pub const PICK: Snippet = snippet!("nn/snippets/pick.wgsl");
+/// `bias_lanes`: a convolution tile's starting sums.
+pub const CONV_BIAS: Snippet = snippet!("nn/snippets/conv_bias.wgsl");
+/// `finish` and `store`: the 3×3 convolutions' epilogue.
+pub const CONV_STORE: Snippet = snippet!("nn/snippets/conv_store.wgsl");
+/// `Online`, `take`, `store_online`: the CPU-driver attention's running softmax.
+pub const ONLINE_SOFTMAX: Snippet = snippet!("nn/snippets/online_softmax.wgsl");
+
+/// Every snippet of the model's shaders.
+pub const SNIPPETS: &[Snippet] = &[PICK, CONV_BIAS, CONV_STORE, ONLINE_SOFTMAX];
 
 pub const CONV2D: Shader = shader!("nn/conv2d.wgsl", [Conv2dParams], elem);
 /// The convolution in register tiles of 4 output pixels × 8 channels.
 pub const CONV2D_TILED: Shader = shader!("nn/conv2d_tiled.wgsl", [Conv2dParams], elem);
 /// The 3×3 stride-1 convolution in register tiles of 8 pixels × 8 channels, from
 /// repacked f32 weights (`ops::PackedConv`).
-pub const CONV3X3: Shader = shader!("nn/conv3x3.wgsl", [Conv2dParams], elem);
+pub const CONV3X3: Shader =
+    shader!("nn/conv3x3.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV_STORE]);
 /// `CONV3X3` for CPU drivers: the input and the weights read as texels.
-pub const CONV3X3_CPU: Shader = shader!("nn/conv3x3_cpu.wgsl", [Conv2dParams], elem);
+pub const CONV3X3_CPU: Shader = shader!("nn/conv3x3_cpu.wgsl", [Conv2dParams], elem)
+    .with_snippets(&[PICK, CONV_BIAS, CONV_STORE]);
 /// The 1×1 convolution in register tiles of 8 pixels × 8 channels, from repacked f32
 /// weights (`ops::PackedConv`).
 /// The 3×3 stride-2 convolution for CPU drivers: input and packed weights as texels.
-pub const CONV3X3_S2_CPU: Shader = shader!("nn/conv3x3_s2_cpu.wgsl", [Conv2dParams], elem);
-pub const CONV1X1: Shader = shader!("nn/conv1x1.wgsl", [Conv2dParams], elem);
+pub const CONV3X3_S2_CPU: Shader = shader!("nn/conv3x3_s2_cpu.wgsl", [Conv2dParams], elem)
+    .with_snippets(&[PICK, CONV_BIAS, CONV_STORE]);
+pub const CONV1X1: Shader =
+    shader!("nn/conv1x1.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS]);
 /// `CONV1X1` for CPU drivers: the input and the weights read as texels.
-pub const CONV1X1_CPU: Shader = shader!("nn/conv1x1_cpu.wgsl", [Conv2dParams], elem);
+pub const CONV1X1_CPU: Shader =
+    shader!("nn/conv1x1_cpu.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS]);
 pub const UPSAMPLE_NEAREST: Shader = shader!("nn/upsample_nearest.wgsl", [UpsampleParams], elem);
 pub const GROUP_NORM: Shader = shader!("nn/group_norm.wgsl", [GroupNormParams], elem);
 /// Group norm for CPU drivers: one invocation per (sample, group), no barriers.
@@ -43,9 +61,11 @@ pub const AXPBY: Shader = shader!("nn/axpby.wgsl", [AxpbyParams], elem);
 pub const ATTENTION: Shader = shader!("nn/attention.wgsl", [AttentionParams], elem)
     .with_uints(&[("MAX_HEAD_SIZE", super::ops::MAX_HEAD_SIZE as u32)]);
 /// Attention for CPU drivers: heads of at most 32 values in named vec4 registers.
-pub const ATTENTION_CPU: Shader = shader!("nn/attention_cpu.wgsl", [AttentionParams], elem);
+pub const ATTENTION_CPU: Shader =
+    shader!("nn/attention_cpu.wgsl", [AttentionParams], elem).with_snippets(&[ONLINE_SOFTMAX]);
 /// A temporal layer's projection and attention for one new frame, for CPU drivers.
-pub const TEMPORAL_NEXT: Shader = shader!("nn/temporal_next.wgsl", [AttentionParams], elem);
+pub const TEMPORAL_NEXT: Shader =
+    shader!("nn/temporal_next.wgsl", [AttentionParams], elem).with_snippets(&[ONLINE_SOFTMAX]);
 pub const TIMESTEP_EMBEDDING: Shader =
     shader!("nn/timestep_embedding.wgsl", [EmbeddingParams], elem);
 pub const GATHER: Shader = shader!("nn/gather.wgsl", [GatherParams], elem);

@@ -724,15 +724,22 @@ impl<'a> Recorder<'a> {
             reserved2: 0,
         };
         self.flops += 2 * (y.len() * c_in * 9) as u64;
-        // A bias binding must exist even without a bias; the output stands in (unread).
-        let bias = bias.unwrap_or(&y);
-        self.check(&[x, bias]);
+        self.check(&[x]);
         let input = self.texels(x)?;
         let packed = weights.packed.constant_texels(self.gpu)?;
+        // Absent bias, addend and residual keep their bindings; the packed weights stand
+        // in (unread).
+        let unread = &weights.packed.buffer;
+        let bias = bias.map_or(unread, |b| {
+            self.check(&[b]);
+            &b.buffer
+        });
         let bound = [
             Bound::Texels(&input),
             Bound::Texels(packed),
-            Bound::Buffer(&bias.buffer),
+            Bound::Buffer(bias),
+            Bound::Buffer(unread),
+            Bound::Buffer(unread),
             Bound::Buffer(&y.buffer),
         ];
         let grid = self.grid(n * weights.c_out.div_ceil(8) * h_out * w_out.div_ceil(4));
