@@ -16,11 +16,13 @@ pub const PICK: Snippet = snippet!("nn/snippets/pick.wgsl");
 pub const CONV_BIAS: Snippet = snippet!("nn/snippets/conv_bias.wgsl");
 /// `finish` and `store`: the 3×3 convolutions' epilogue.
 pub const CONV_STORE: Snippet = snippet!("nn/snippets/conv_store.wgsl");
+/// The 1×1 convolution's tile (its entry point), for the buffer and the texel forms.
+pub const CONV1X1_TILE: Snippet = snippet!("nn/snippets/conv1x1_tile.wgsl");
 /// `Online`, `take`, `store_online`: the CPU-driver attention's running softmax.
 pub const ONLINE_SOFTMAX: Snippet = snippet!("nn/snippets/online_softmax.wgsl");
 
 /// Every snippet of the model's shaders.
-pub const SNIPPETS: &[Snippet] = &[PICK, CONV_BIAS, CONV_STORE, ONLINE_SOFTMAX];
+pub const SNIPPETS: &[Snippet] = &[PICK, CONV_BIAS, CONV_STORE, CONV1X1_TILE, ONLINE_SOFTMAX];
 
 pub const CONV2D: Shader = shader!("nn/conv2d.wgsl", [Conv2dParams], elem);
 /// The convolution in register tiles of 4 output pixels × 8 channels.
@@ -38,10 +40,10 @@ pub const CONV3X3_CPU: Shader = shader!("nn/conv3x3_cpu.wgsl", [Conv2dParams], e
 pub const CONV3X3_S2_CPU: Shader = shader!("nn/conv3x3_s2_cpu.wgsl", [Conv2dParams], elem)
     .with_snippets(&[PICK, CONV_BIAS, CONV_STORE]);
 pub const CONV1X1: Shader =
-    shader!("nn/conv1x1.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS]);
+    shader!("nn/conv1x1.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV1X1_TILE]);
 /// `CONV1X1` for CPU drivers: the input and the weights read as texels.
 pub const CONV1X1_CPU: Shader =
-    shader!("nn/conv1x1_cpu.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS]);
+    shader!("nn/conv1x1_cpu.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV1X1_TILE]);
 pub const UPSAMPLE_NEAREST: Shader = shader!("nn/upsample_nearest.wgsl", [UpsampleParams], elem);
 pub const GROUP_NORM: Shader = shader!("nn/group_norm.wgsl", [GroupNormParams], elem);
 /// Group norm for CPU drivers: one invocation per (sample, group), no barriers.
