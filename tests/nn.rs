@@ -90,6 +90,12 @@ impl Fixture {
         Tensor::upload(&self.gpu, name, &shape, &values, self.precision).unwrap()
     }
 
+    /// A tensor of `shape` holding [`wave`] values in the fixture's precision.
+    fn wave(&self, name: &str, shape: &[usize], k: f32) -> Tensor {
+        let n = shape.iter().product();
+        Tensor::upload(&self.gpu, name, shape, &wave(n, k), self.precision).unwrap()
+    }
+
     fn scalar(&self, name: &str) -> f32 {
         self.stored(name).0[0]
     }
@@ -805,10 +811,7 @@ fn the_convolution_with_its_residual_equals_a_separate_add_bit_for_bit() {
     for (precision, kernels) in variants() {
         let f = Fixture::open("down", precision);
         let mut pipelines = PipelineCache::default();
-        let upload = |name: &str, shape: &[usize], k: f32| {
-            let n = shape.iter().product();
-            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
-        };
+        let upload = |name: &str, shape: &[usize], k: f32| f.wave(name, shape, k);
         let x = upload("x", &[2, 5, 11, 13], 0.11);
         let skip = upload("skip", &[2, 12, 11, 13], 0.17);
         let bias = upload("bias", &[12], 0.5);
@@ -853,10 +856,7 @@ fn attention_over_a_cached_prefix_equals_attention_over_the_concatenation_bit_fo
     for (precision, kernels) in variants() {
         let f = Fixture::open("down", precision);
         let mut pipelines = PipelineCache::default();
-        let upload = |name: &str, shape: &[usize], k: f32| {
-            let n = shape.iter().product();
-            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
-        };
+        let upload = |name: &str, shape: &[usize], k: f32| f.wave(name, shape, k);
         let cached = upload("cached", &[1, sequences, cached_keys, 3 * c], 0.37);
         let fresh = upload("fresh", &[1, sequences, 1, 3 * c], 0.61);
         let params = unica::nn::ops::AttentionParams {
@@ -907,10 +907,7 @@ fn the_permute_with_its_addends_equals_the_separate_ops_bit_for_bit() {
     for (precision, kernels) in variants() {
         let f = Fixture::open("down", precision);
         let mut pipelines = PipelineCache::default();
-        let upload = |name: &str, shape: &[usize], k: f32| {
-            let n = shape.iter().product();
-            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
-        };
+        let upload = |name: &str, shape: &[usize], k: f32| f.wave(name, shape, k);
         let a = upload("a", &[6, 8, 4, 5], 0.31);
         let tokens = upload("tokens", &[6, 20, 8], 0.53);
         let table = upload("table", &[3, 8], 0.77);
@@ -958,10 +955,7 @@ fn the_norm_stored_as_tokens_equals_the_norm_then_the_permute_bit_for_bit() {
     for (precision, kernels) in variants() {
         let f = Fixture::open("down", precision);
         let mut pipelines = PipelineCache::default();
-        let upload = |name: &str, shape: &[usize], k: f32| {
-            let n = shape.iter().product();
-            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
-        };
+        let upload = |name: &str, shape: &[usize], k: f32| f.wave(name, shape, k);
         let x = upload("x", &[6, 8, 4, 5], 0.31);
         let gamma = upload("gamma", &[8], 0.7);
         let beta = upload("beta", &[8], 0.9);
@@ -1007,10 +1001,7 @@ fn the_projection_into_images_equals_the_linear_layer_then_the_permute_bit_for_b
     for (precision, kernels) in variants() {
         let f = Fixture::open("down", precision);
         let mut pipelines = PipelineCache::default();
-        let upload = |name: &str, shape: &[usize], k: f32| {
-            let n = shape.iter().product();
-            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
-        };
+        let upload = |name: &str, shape: &[usize], k: f32| f.wave(name, shape, k);
         let a = upload("a", &[6, 8, 4, 5], 0.31);
         let tokens = upload("tokens", &[2, 20, 3, 12], 0.53);
         let weight = upload("weight", &[8, 12], 0.29);
@@ -1071,10 +1062,7 @@ fn the_linear_layer_over_gathered_normed_rows_equals_the_separate_ops_bit_for_bi
     for (precision, kernels) in variants() {
         let f = Fixture::open("down", precision);
         let mut pipelines = PipelineCache::default();
-        let upload = |name: &str, shape: &[usize], k: f32| {
-            let n = shape.iter().product();
-            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
-        };
+        let upload = |name: &str, shape: &[usize], k: f32| f.wave(name, shape, k);
         let x = upload("x", &[11, 12], 0.37);
         let weight = upload("weight", &[8, 12], 0.29);
         let bias = upload("bias", &[8], 0.61);
@@ -1127,10 +1115,7 @@ fn the_one_frame_temporal_attention_equals_the_projection_then_the_attention_bit
     for (precision, kernels) in variants() {
         let f = Fixture::open("down", precision);
         let mut pipelines = PipelineCache::default();
-        let upload = |name: &str, shape: &[usize], k: f32| {
-            let n = shape.iter().product();
-            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
-        };
+        let upload = |name: &str, shape: &[usize], k: f32| f.wave(name, shape, k);
         for c in [16, 48] {
             let tokens = upload("tokens", &[6, 1, c], 0.37);
             let weight = upload("weight", &[3 * c, c], 0.29);
@@ -1180,10 +1165,7 @@ fn the_linear_layer_with_its_residual_equals_a_separate_add_bit_for_bit() {
     for (precision, kernels) in variants() {
         let f = Fixture::open("down", precision);
         let mut pipelines = PipelineCache::default();
-        let upload = |name: &str, shape: &[usize], k: f32| {
-            let n = shape.iter().product();
-            Tensor::upload(&f.gpu, name, shape, &wave(n, k), precision).unwrap()
-        };
+        let upload = |name: &str, shape: &[usize], k: f32| f.wave(name, shape, k);
         let weight = upload("w", &[12, 8], 0.29);
         let bias = upload("b", &[12], 0.5);
         for rows in [7, 1] {

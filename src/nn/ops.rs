@@ -1205,27 +1205,13 @@ impl<'a> Recorder<'a> {
         if rows >= 4 && self.kernels != Kernels::Simple {
             let grid = self.grid(rows.div_ceil(4) * outputs.div_ceil(4));
             if self.kernels == Kernels::Cpu && inputs.is_multiple_of(4) {
-                // Tiles of 8 rows × 8 outputs.
-                let grid = self.grid(rows.div_ceil(8) * outputs.div_ceil(8));
-                // x and the (constant) weights as texels.
                 self.check(&[x, weight, bias, residual]);
-                let input = self.texels(x)?;
-                let weight = weight.constant_texels(self.gpu)?;
-                // No action table, row index or norm: the bias and the input stand in
-                // (unread).
-                let bound = [
-                    Bound::Texels(&input),
-                    Bound::Texels(weight),
-                    Bound::Buffer(&bias.buffer),
-                    Bound::Buffer(&residual.buffer),
-                    Bound::Buffer(&bias.buffer),
-                    Bound::Buffer(&bias.buffer),
-                    Bound::Texels(&input),
-                    Bound::Texels(&input),
-                    Bound::Buffer(&y.buffer),
-                ];
-                self.steps
-                    .dispatch_bound(&kernels::LINEAR_CPU, &params, &bound, grid);
+                let extras = LinearExtras {
+                    residual: &residual.buffer,
+                    table: None,
+                    norm: None,
+                };
+                self.linear_cpu(&params, x, (weight, bias), extras, &y)?;
             } else {
                 self.launch(
                     &kernels::LINEAR_TILED,
@@ -1244,6 +1230,46 @@ impl<'a> Recorder<'a> {
             );
         }
         Ok(y)
+    }
+
+    /// Records `linear_cpu.wgsl` over `x` into `y`: x and the constant weight as
+    /// texels, then the bias, `extras` and the output, over tiles of 8 rows × 8 outputs
+    /// of `params`. Absent extras keep their bindings: the bias and x stand in (unread).
+    fn linear_cpu(
+        &mut self,
+        params: &LinearParams,
+        x: &Tensor,
+        layer: (&Tensor, &Tensor),
+        extras: LinearExtras,
+        y: &Tensor,
+    ) -> Result<(), GpuError> {
+        let (weight, bias) = layer;
+        let input = self.texels(x)?;
+        let weight = weight.constant_texels(self.gpu)?;
+        let (table, ids) = extras.table.unwrap_or((&bias.buffer, &bias.buffer));
+        let (gamma, beta) = match extras.norm {
+            Some((gamma, beta)) => (
+                gamma.constant_texels(self.gpu)?,
+                beta.constant_texels(self.gpu)?,
+            ),
+            None => (&input, &input),
+        };
+        let bound = [
+            Bound::Texels(&input),
+            Bound::Texels(weight),
+            Bound::Buffer(&bias.buffer),
+            Bound::Buffer(extras.residual),
+            Bound::Buffer(table),
+            Bound::Buffer(ids),
+            Bound::Texels(gamma),
+            Bound::Texels(beta),
+            Bound::Buffer(&y.buffer),
+        ];
+        let tiles = (params.rows as usize).div_ceil(8) * (params.outputs as usize).div_ceil(8);
+        let grid = self.grid(tiles);
+        self.steps
+            .dispatch_bound(&kernels::LINEAR_CPU, params, &bound, grid);
+        Ok(())
     }
 
     /// `a + permute(linear(x))`, plus an action-table row per sample with `table`
@@ -1297,30 +1323,15 @@ impl<'a> Recorder<'a> {
             eps: GROUP_NORM_EPS,
         };
         self.check(&[x, weight, bias, a]);
-        let input = self.texels(x)?;
-        let weight = weight.constant_texels(self.gpu)?;
-        let (table, ids) = match table {
-            Some((table, ids, _)) => {
-                self.check(&[table]);
-                (&table.buffer, &ids.buffer)
-            }
-            // No action table: the bias stands in for it and its ids (unread).
-            None => (&bias.buffer, &bias.buffer),
+        if let Some((table, ..)) = table {
+            self.check(&[table]);
+        }
+        let extras = LinearExtras {
+            residual: &a.buffer,
+            table: table.map(|(table, ids, _)| (&table.buffer, &ids.buffer)),
+            norm: None,
         };
-        let bound = [
-            Bound::Texels(&input),
-            Bound::Texels(weight),
-            Bound::Buffer(&bias.buffer),
-            Bound::Buffer(&a.buffer),
-            Bound::Buffer(table),
-            Bound::Buffer(ids),
-            Bound::Texels(&input),
-            Bound::Texels(&input),
-            Bound::Buffer(&y.buffer),
-        ];
-        let grid = self.grid(rows.div_ceil(8) * c.div_ceil(8));
-        self.steps
-            .dispatch_bound(&kernels::LINEAR_CPU, &params, &bound, grid);
+        self.linear_cpu(&params, x, (weight, bias), extras, &y)?;
         Ok(y)
     }
 
@@ -1387,34 +1398,16 @@ impl<'a> Recorder<'a> {
         };
         let residual = residual.unwrap_or(x);
         self.check(&[x, weight, bias, residual]);
-        let input = self.texels(x)?;
-        let weight = weight.constant_texels(self.gpu)?;
-        let (gamma, beta) = match norm {
-            Some((gamma, beta)) => {
-                self.check(&[gamma, beta]);
-                (
-                    gamma.constant_texels(self.gpu)?,
-                    beta.constant_texels(self.gpu)?,
-                )
-            }
-            None => (&input, &input),
+        if let Some((gamma, beta)) = norm {
+            self.check(&[gamma, beta]);
+        }
+        // The row index rides in the ids binding (there is no action table).
+        let extras = LinearExtras {
+            residual: &residual.buffer,
+            table: rows.map(|r| (&bias.buffer, &r.buffer)),
+            norm,
         };
-        // Without a row index the bias stands in (unread); there is no action table.
-        let ids = rows.map_or(&bias.buffer, |r| &r.buffer);
-        let bound = [
-            Bound::Texels(&input),
-            Bound::Texels(weight),
-            Bound::Buffer(&bias.buffer),
-            Bound::Buffer(&residual.buffer),
-            Bound::Buffer(&bias.buffer),
-            Bound::Buffer(ids),
-            Bound::Texels(gamma),
-            Bound::Texels(beta),
-            Bound::Buffer(&y.buffer),
-        ];
-        let grid = self.grid(out_rows.div_ceil(8) * outputs.div_ceil(8));
-        self.steps
-            .dispatch_bound(&kernels::LINEAR_CPU, &params, &bound, grid);
+        self.linear_cpu(&params, x, (weight, bias), extras, &y)?;
         Ok(y)
     }
 
@@ -1922,4 +1915,13 @@ fn nchw(x: &Tensor) -> [usize; 4] {
         panic!("an NCHW tensor expected, got {:?}", x.shape)
     };
     [n, c, h, w]
+}
+
+/// What `linear_cpu.wgsl` reads besides x, the weight and the bias: the residual buffer
+/// (read where `has_residual` or `images` says), an action table and ids (or the row
+/// index in the ids binding), and a layer norm's gamma and beta.
+struct LinearExtras<'t> {
+    residual: &'t wgpu::Buffer,
+    table: Option<(&'t wgpu::Buffer, &'t wgpu::Buffer)>,
+    norm: Option<(&'t Tensor, &'t Tensor)>,
 }
