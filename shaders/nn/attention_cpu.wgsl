@@ -2,40 +2,16 @@
 // for heads of at most 32 values with every row offset and stride a multiple of 4
 // (host-checked). q, the accumulator and each key and value row are held as up to 8
 // vec4 registers written out by name (a CPU driver keeps a dynamically indexed array in
-// memory; the accumulator rides in a struct of named fields), and the rows are read as texels (src/gpu/texels.rs: a vector gather on
-// lavapipe, where a storage load is a loop over lanes). Dot products sum in vec4 chunks.
-// The first `prefix_keys` keys come from `prefix`, as in attention.wgsl.
+// memory; the accumulator rides in a struct of named fields), and the rows are read as
+// texels (src/gpu/texels.rs: a vector gather on lavapipe, where a storage load is a loop
+// over lanes). Dot products sum in vec4 chunks (snippets/online_softmax.wgsl). The first
+// `prefix_keys` keys come from `prefix`, as in attention.wgsl.
 
 @group(0) @binding(0) var<uniform> p: AttentionParams;
 @group(0) @binding(1) var q_in: texture_2d<f32>;
 @group(0) @binding(2) var prefix: texture_2d<f32>;
 @group(0) @binding(3) var kv: texture_2d<f32>;
 @group(0) @binding(4) var<storage, read_write> out: array<vec4<Elem>>;
-
-// One more key (see snippets/online_softmax.wgsl) with its value row at texel `v` of
-// `t`: 4 chunks, or 8 when `wide`.
-fn take_row(o: Online, score: f32, t: texture_2d<f32>, v: u32, wide: bool) -> Online {
-    if wide {
-        return take(o, score, texel(t, v), texel(t, v + 1u), texel(t, v + 2u), texel(t, v + 3u), texel(t, v + 4u), texel(t, v + 5u), texel(t, v + 6u), texel(t, v + 7u), true);
-    }
-    let zero = vec4<f32>(0.0);
-    return take(o, score, texel(t, v), texel(t, v + 1u), texel(t, v + 2u), texel(t, v + 3u), zero, zero, zero, zero, false);
-}
-
-// q (scaled) against the key row at texel `k` of `t`: the first 4 chunks.
-fn score4(t: texture_2d<f32>, k: u32, q0: vec4<f32>, q1: vec4<f32>, q2: vec4<f32>, q3: vec4<f32>) -> f32 {
-    var score = dot(q0, texel(t, k)) + dot(q1, texel(t, k + 1u));
-    score += dot(q2, texel(t, k + 2u)) + dot(q3, texel(t, k + 3u));
-    return score;
-}
-
-// The last 4 chunks (heads of 20 to 32 values), added in the same order.
-fn score8(t: texture_2d<f32>, k: u32, q0: vec4<f32>, q1: vec4<f32>, q2: vec4<f32>, q3: vec4<f32>, q4: vec4<f32>, q5: vec4<f32>, q6: vec4<f32>, q7: vec4<f32>) -> f32 {
-    var score = score4(t, k, q0, q1, q2, q3);
-    score += dot(q4, texel(t, k + 4u)) + dot(q5, texel(t, k + 5u));
-    score += dot(q6, texel(t, k + 6u)) + dot(q7, texel(t, k + 7u));
-    return score;
-}
 
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {

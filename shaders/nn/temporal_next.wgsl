@@ -148,11 +148,8 @@ fn main(invocation: Invocation) {
             let r = (s * p.prefix_keys + j) * stride + h * d / 4u;
             let kr = r + p.k_offset / 4u;
             let vr = r + p.v_offset / 4u;
-            var score = dot(q0, texel(prefix, kr)) + dot(q1, texel(prefix, kr + 1u));
-            score += dot(q2, texel(prefix, kr + 2u)) + dot(q3, texel(prefix, kr + 3u));
-            score += dot(q4, texel(prefix, kr + 4u)) + dot(q5, texel(prefix, kr + 5u));
-            score += dot(q6, texel(prefix, kr + 6u)) + dot(q7, texel(prefix, kr + 7u));
-            o = take(o, score, texel(prefix, vr), texel(prefix, vr + 1u), texel(prefix, vr + 2u), texel(prefix, vr + 3u), texel(prefix, vr + 4u), texel(prefix, vr + 5u), texel(prefix, vr + 6u), texel(prefix, vr + 7u), true);
+            let score = score8(prefix, kr, q0, q1, q2, q3, q4, q5, q6, q7);
+            o = take_row(o, score, prefix, vr, true);
         }
         var score = dot(q0, k0) + dot(q1, k1);
         score += dot(q2, k2) + dot(q3, k3);
@@ -164,9 +161,7 @@ fn main(invocation: Invocation) {
             let r = (s * p.prefix_keys + j) * stride + h * d / 4u;
             let kr = r + p.k_offset / 4u;
             let vr = r + p.v_offset / 4u;
-            var score = dot(q0, texel(prefix, kr)) + dot(q1, texel(prefix, kr + 1u));
-            score += dot(q2, texel(prefix, kr + 2u)) + dot(q3, texel(prefix, kr + 3u));
-            o = take(o, score, texel(prefix, vr), texel(prefix, vr + 1u), texel(prefix, vr + 2u), texel(prefix, vr + 3u), v4, v5, v6, v7, false);
+            o = take_row(o, score4(prefix, kr, q0, q1, q2, q3), prefix, vr, false);
         }
         var score = dot(q0, k0) + dot(q1, k1);
         score += dot(q2, k2) + dot(q3, k3);

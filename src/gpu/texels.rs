@@ -98,13 +98,8 @@ impl Texels {
     }
 
     /// Bytes per texel.
-    fn texel_bytes(&self) -> u32 {
+    pub fn texel_bytes(&self) -> u32 {
         self.texel_bytes
-    }
-
-    /// The buffer bytes the texels are copied from: every texel whole.
-    pub fn bytes(&self) -> u64 {
-        u64::from(self.texels) * u64::from(self.texel_bytes())
     }
 
     /// Texels holding a copy of `values` (made now, through the queue).
@@ -116,9 +111,9 @@ impl Texels {
     ) -> Result<Self, GpuError> {
         let texels = Self::new(gpu, label, values.len(), precision)?;
         let mut bytes = precision.encode(values);
-        bytes.resize(texels.padded_bytes() as usize, 0);
-        let row_bytes = TEXEL_ROW * texels.texel_bytes();
         let size = texels.texture.size();
+        let row_bytes = size.width * texels.texel_bytes();
+        bytes.resize((row_bytes * size.height) as usize, 0);
         gpu.queue.write_texture(
             wgpu::TexelCopyTextureInfo {
                 texture: &texels.texture,
@@ -129,7 +124,7 @@ impl Texels {
             &bytes,
             wgpu::TexelCopyBufferLayout {
                 offset: 0,
-                bytes_per_row: Some(row_bytes.min(size.width * texels.texel_bytes())),
+                bytes_per_row: Some(row_bytes),
                 rows_per_image: None,
             },
             size,
@@ -137,14 +132,8 @@ impl Texels {
         Ok(texels)
     }
 
-    /// Bytes of the whole texture (full rows).
-    fn padded_bytes(&self) -> u64 {
-        let size = self.texture.size();
-        u64::from(size.width) * u64::from(size.height) * u64::from(self.texel_bytes())
-    }
-
-    /// Records a copy of `source` (at least [`Self::bytes`] long, values as stored) into
-    /// the texels.
+    /// Records a copy of `source` (whole texels' worth of values as stored) into the
+    /// texels.
     pub fn record_copy(&self, encoder: &mut wgpu::CommandEncoder, source: &wgpu::Buffer) {
         self.record_copy_range(encoder, source, 0, 0, self.texels);
     }
@@ -177,7 +166,7 @@ impl Texels {
             let x = at % TEXEL_ROW;
             let rows = if x == 0 { (end - at) / TEXEL_ROW } else { 0 };
             let (width, height) = if rows > 0 {
-                (TEXEL_ROW.min(self.texture.size().width), rows)
+                (TEXEL_ROW, rows)
             } else {
                 ((TEXEL_ROW - x).min(end - at), 1)
             };

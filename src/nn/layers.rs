@@ -247,11 +247,8 @@ impl ResBlock {
             && let Some((texels, shape)) = r.concat_texels(a, b, self.norm1.groups)?
         {
             let h = r.group_norm_of_texels(&texels, shape, self.norm1.parts(), true)?;
-            let h = self.conv1.forward_plus(r, &h, projected)?;
-            let h = self.norm2.forward(r, &h, true)?;
             let skip = r.conv1x1_of_texels(&texels, shape, skip, skip_bias)?;
-            // skip + conv2(h), the add fused into the convolution.
-            return self.conv2.forward_with(r, &h, None, Some(&skip));
+            return self.after_norm(r, &h, projected, &skip);
         }
         let x = r.concat(a, b, 1)?;
         self.forward_projected(r, &x, projected)
@@ -270,14 +267,25 @@ impl ResBlock {
             "this block's embedding"
         );
         let h = self.norm1.forward(r, x, true)?;
-        let h = self.conv1.forward_plus(r, &h, projected)?;
-        let h = self.norm2.forward(r, &h, true)?;
         let skip = match &self.skip {
             Some(conv) => conv.forward(r, x)?,
             None => x.clone(),
         };
-        // skip + conv2(h), the add fused into the convolution.
-        self.conv2.forward_with(r, &h, None, Some(&skip))
+        self.after_norm(r, &h, projected, &skip)
+    }
+
+    /// The block after its first norm `h`: the first convolution (plus the embedding),
+    /// the second norm, and `skip` + the second convolution (the add fused into it).
+    fn after_norm(
+        &self,
+        r: &mut Recorder,
+        h: &Tensor,
+        projected: Option<&Tensor>,
+        skip: &Tensor,
+    ) -> Result<Tensor, GpuError> {
+        let h = self.conv1.forward_plus(r, h, projected)?;
+        let h = self.norm2.forward(r, &h, true)?;
+        self.conv2.forward_with(r, &h, None, Some(skip))
     }
 }
 
@@ -524,11 +532,23 @@ impl TemporalAttention {
         count: usize,
         keep: &mut Vec<Tensor>,
     ) -> Result<(), GpuError> {
-        let c = x.shape[1];
-        let positions = (&self.position, 0..count * c);
-        let tokens = r.group_norm_tokens(x, self.norm.parts(), count, Some(positions))?;
+        let tokens = self.tokens(r, x, count, 0)?;
         keep.push(self.qkv.forward(r, &tokens, false)?);
         Ok(())
+    }
+
+    /// `x` [N·F, C, H, W] normed as token rows [N, HW, F, C], the positions of frames
+    /// `first` … `first + F - 1` added.
+    fn tokens(
+        &self,
+        r: &mut Recorder,
+        x: &Tensor,
+        frames: usize,
+        first: usize,
+    ) -> Result<Tensor, GpuError> {
+        let c = x.shape[1];
+        let positions = (&self.position, first * c..(first + frames) * c);
+        r.group_norm_tokens(x, self.norm.parts(), frames, Some(positions))
     }
 
     /// `x` [N·F, C, H, W] with F frames per group as `frames` says.
@@ -547,9 +567,7 @@ impl TemporalAttention {
         };
         let n = nf / f;
         let hw = h * w;
-        // [N, HW, F, C] with each frame's position added.
-        let positions = (&self.position, first * c..(first + f) * c);
-        let tokens = r.group_norm_tokens(x, self.norm.parts(), f, Some(positions))?;
+        let tokens = self.tokens(r, x, f, first)?; // [N, HW, F, C]
         let params = AttentionParams {
             causal: 1,
             prefix_keys: first as u32,

@@ -369,6 +369,35 @@ pub struct Recorder<'a> {
 /// workgroup kernel.
 pub const SERIAL_NORM_LIMIT: usize = 80_000;
 
+impl GroupNormParams {
+    /// The norm of NCHW images of `shape` into NCHW, in `groups` groups.
+    fn nchw([n, c, h, w]: [usize; 4], groups: usize, silu: bool) -> Self {
+        Self {
+            batch: n as u32,
+            channels: c as u32,
+            groups: groups as u32,
+            hw: (h * w) as u32,
+            eps: GROUP_NORM_EPS,
+            silu: u32::from(silu),
+            tokens: 0,
+            has_rows: 0,
+            rows_offset: 0,
+            reserved0: 0,
+            reserved1: 0,
+            reserved2: 0,
+        }
+    }
+
+    /// Whether `group_norm_serial.wgsl` takes this norm: whole groups, planes of a
+    /// multiple of 4 values or rows of a multiple of 4 channels (hw = 1), at most
+    /// [`SERIAL_NORM_LIMIT`] values per group.
+    fn serial(&self) -> bool {
+        let (c, groups, hw) = (self.channels, self.groups, self.hw);
+        let quads = hw.is_multiple_of(4) || (hw == 1 && (c / groups).is_multiple_of(4));
+        c.is_multiple_of(groups) && quads && (c / groups * hw) as usize <= SERIAL_NORM_LIMIT
+    }
+}
+
 /// Which variant of each kernel a [`Recorder`] records. Every variant computes the same
 /// thing and is parity-tested against PyTorch (tests/nn.rs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -852,29 +881,32 @@ impl<'a> Recorder<'a> {
         weights: &PackedConv,
         bias: Option<&Tensor>,
     ) -> Result<Tensor, GpuError> {
-        let [n, c_in, h, w] = x.shape[..] else {
-            panic!("conv1x1 input must be NCHW, got {:?}", x.shape)
-        };
+        let [_, c_in, h, w] = nchw(x);
         assert_eq!((c_in, weights.kernel), (weights.c_in, 1), "conv1x1 weights");
         if !(h * w).is_multiple_of(4) || self.kernels == Kernels::Simple {
             return self.conv2d(x, &weights.plain, bias, 1, 0);
         }
         let (y, params) = self.packed_output(nchw(x), weights, bias.is_some(), false, false)?;
-        let c_out = weights.c_out;
         // A bias binding must exist even without a bias; the input stands in (unread).
         let bias = bias.unwrap_or(x);
         self.check(&[x, bias, &y]);
-        let grid = self.grid(n * c_out.div_ceil(8) * (h * w / 4).div_ceil(2));
+        let grid = self.conv1x1_grid(&params);
         if self.kernels == Kernels::Cpu {
             // The input and the weights as texels.
             let input = self.texels(x)?;
-            self.conv1x1_cpu(&params, &input, weights, bias, &y, grid)?;
+            self.conv1x1_cpu(&params, &input, weights, bias, &y)?;
             return Ok(y);
         }
         let buffers = [&x.buffer, &weights.packed.buffer, &bias.buffer, &y.buffer];
         self.steps
             .dispatch(&kernels::CONV1X1, &params, &buffers, grid);
         Ok(y)
+    }
+
+    /// The 1×1 convolutions' grid: one invocation per 8 output channels × 8 pixels.
+    fn conv1x1_grid(&self, p: &Conv2dParams) -> Grid {
+        let quads = (p.h_in * p.w_in / 4) as usize;
+        self.grid(p.batch as usize * (p.c_out as usize).div_ceil(8) * quads.div_ceil(2))
     }
 
     /// Records `conv1x1_cpu.wgsl` over `input` into `y`.
@@ -885,8 +917,8 @@ impl<'a> Recorder<'a> {
         weights: &PackedConv,
         bias: &Tensor,
         y: &Tensor,
-        grid: Grid,
     ) -> Result<(), GpuError> {
+        let grid = self.conv1x1_grid(params);
         let packed = weights.packed.constant_texels(self.gpu)?;
         let bound = [
             Bound::Texels(input),
@@ -922,17 +954,14 @@ impl<'a> Recorder<'a> {
             b.shape
         );
         let c = ca + cb;
-        let eligible = self.kernels == Kernels::Cpu
-            && (h * w).is_multiple_of(4)
-            && c.is_multiple_of(groups)
-            && c / groups * h * w <= SERIAL_NORM_LIMIT;
-        if !eligible {
+        let norm = GroupNormParams::nchw([n, c, h, w], groups, true);
+        if !(self.kernels == Kernels::Cpu && (h * w).is_multiple_of(4) && norm.serial()) {
             return Ok(None);
         }
         self.check(&[a, b]);
         let texels = Texels::new(self.gpu, "concat texels", n * c * h * w, self.precision())?;
         let (a_texels, b_texels) = ((ca * h * w / 4) as u32, (cb * h * w / 4) as u32);
-        let texel_bytes = 4 * self.precision().bytes() as u64;
+        let texel_bytes = u64::from(texels.texel_bytes());
         for image in 0..n as u32 {
             let first = image * (a_texels + b_texels);
             let a_offset = u64::from(image * a_texels) * texel_bytes;
@@ -960,24 +989,9 @@ impl<'a> Recorder<'a> {
         silu: bool,
     ) -> Result<Tensor, GpuError> {
         let (gamma, beta, groups) = norm;
-        let [n, c, h, w] = shape;
         let y = self.output("group_norm.y", &shape)?;
-        let params = GroupNormParams {
-            batch: n as u32,
-            channels: c as u32,
-            groups: groups as u32,
-            hw: (h * w) as u32,
-            eps: GROUP_NORM_EPS,
-            silu: u32::from(silu),
-            tokens: 0,
-            has_rows: 0,
-            rows_offset: 0,
-            reserved0: 0,
-            reserved1: 0,
-            reserved2: 0,
-        };
-        let grid = self.grid(n * groups);
-        self.group_norm_serial(&params, input, [gamma, beta, gamma, &y], grid)?;
+        let params = GroupNormParams::nchw(shape, groups, silu);
+        self.group_norm_serial(&params, input, [gamma, beta, gamma, &y])?;
         Ok(y)
     }
 
@@ -990,11 +1004,13 @@ impl<'a> Recorder<'a> {
         weights: &PackedConv,
         bias: &Tensor,
     ) -> Result<Tensor, GpuError> {
-        let [n, c_in, h, w] = shape;
-        assert_eq!((c_in, weights.kernel), (weights.c_in, 1), "conv1x1 weights");
+        assert_eq!(
+            (shape[1], weights.kernel),
+            (weights.c_in, 1),
+            "conv1x1 weights"
+        );
         let (y, params) = self.packed_output(shape, weights, true, false, false)?;
-        let grid = self.grid(n * weights.c_out.div_ceil(8) * (h * w / 4).div_ceil(2));
-        self.conv1x1_cpu(&params, input, weights, bias, &y, grid)?;
+        self.conv1x1_cpu(&params, input, weights, bias, &y)?;
         Ok(y)
     }
 
@@ -1030,28 +1046,12 @@ impl<'a> Recorder<'a> {
         };
         assert!(c.is_multiple_of(groups), "{c} channels in {groups} groups");
         let y = self.output("group_norm.y", &x.shape)?;
-        let params = GroupNormParams {
-            batch: n as u32,
-            channels: c as u32,
-            groups: groups as u32,
-            hw: (h * w) as u32,
-            eps: GROUP_NORM_EPS,
-            silu: u32::from(silu),
-            tokens: 0,
-            has_rows: 0,
-            rows_offset: 0,
-            reserved0: 0,
-            reserved1: 0,
-            reserved2: 0,
-        };
-        let quads = (h * w).is_multiple_of(4) || (h * w == 1 && (c / groups).is_multiple_of(4));
-        let serial = quads && c / groups * h * w <= SERIAL_NORM_LIMIT;
-        if self.kernels == Kernels::Cpu && serial {
+        let params = GroupNormParams::nchw([n, c, h, w], groups, silu);
+        if self.kernels == Kernels::Cpu && params.serial() {
             // One invocation per (sample, group), no barriers; `x` stands in for the
             // absent rows (unread).
-            let grid = self.grid(n * groups);
             let input = self.texels(x)?;
-            self.group_norm_serial(&params, &input, [gamma, beta, x, &y], grid)?;
+            self.group_norm_serial(&params, &input, [gamma, beta, x, &y])?;
             return Ok(y);
         }
         // One workgroup per (sample, group).
@@ -1092,11 +1092,15 @@ impl<'a> Recorder<'a> {
                 rows.shape
             );
         }
-        let fused = self.kernels == Kernels::Cpu
-            && hw.is_multiple_of(4)
-            && c.is_multiple_of(groups)
-            && c / groups * hw <= SERIAL_NORM_LIMIT;
-        if !fused {
+        let part = rows.as_ref().map_or(0..0, |(_, part)| part.clone());
+        let params = GroupNormParams {
+            tokens: frames as u32,
+            has_rows: u32::from(rows.is_some()),
+            rows_offset: part.start as u32,
+            ..GroupNormParams::nchw([nf, c, h, w], groups, false)
+        };
+        // The serial kernel's layer-norm rows (hw = 1) have no token form.
+        if !(self.kernels == Kernels::Cpu && hw.is_multiple_of(4) && params.serial()) {
             let normed = self.group_norm(x, gamma, beta, groups, false)?;
             let (shape, perm) = ([n, frames, c, hw], [0, 3, 1, 2]);
             return match rows {
@@ -1105,38 +1109,22 @@ impl<'a> Recorder<'a> {
             };
         }
         let y = self.output("group_norm.tokens", &[n, hw, frames, c])?;
-        let part = rows.as_ref().map_or(0..0, |(_, part)| part.clone());
-        let params = GroupNormParams {
-            batch: nf as u32,
-            channels: c as u32,
-            groups: groups as u32,
-            hw: hw as u32,
-            eps: GROUP_NORM_EPS,
-            silu: 0,
-            tokens: frames as u32,
-            has_rows: u32::from(rows.is_some()),
-            rows_offset: part.start as u32,
-            reserved0: 0,
-            reserved1: 0,
-            reserved2: 0,
-        };
         let rows = rows.map_or(x, |(rows, _)| rows);
-        let grid = self.grid(nf * groups);
         let input = self.texels(x)?;
-        self.group_norm_serial(&params, &input, [gamma, beta, rows, &y], grid)?;
+        self.group_norm_serial(&params, &input, [gamma, beta, rows, &y])?;
         Ok(y)
     }
 
     /// Records `group_norm_serial.wgsl` over `input` and `rest`: gamma, beta, rows and
-    /// the output.
+    /// the output, one invocation per (sample, group).
     fn group_norm_serial(
         &mut self,
         params: &GroupNormParams,
         input: &Texels,
         rest: [&Tensor; 4],
-        grid: Grid,
     ) -> Result<(), GpuError> {
         self.check(&rest);
+        let grid = self.grid((params.batch * params.groups) as usize);
         let mut bound = vec![Bound::Texels(input)];
         bound.extend(rest.map(|t| Bound::Buffer(&t.buffer)));
         self.steps
@@ -1203,7 +1191,6 @@ impl<'a> Recorder<'a> {
         // Both sum in the same order; both are parity-tested (tests/nn.rs).
         let rows = x.len() / inputs;
         if rows >= 4 && self.kernels != Kernels::Simple {
-            let grid = self.grid(rows.div_ceil(4) * outputs.div_ceil(4));
             if self.kernels == Kernels::Cpu && inputs.is_multiple_of(4) {
                 self.check(&[x, weight, bias, residual]);
                 let extras = LinearExtras {
@@ -1213,6 +1200,7 @@ impl<'a> Recorder<'a> {
                 };
                 self.linear_cpu(&params, x, (weight, bias), extras, &y)?;
             } else {
+                let grid = self.grid(rows.div_ceil(4) * outputs.div_ceil(4));
                 self.launch(
                     &kernels::LINEAR_TILED,
                     &params,

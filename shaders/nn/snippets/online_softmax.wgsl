@@ -1,5 +1,5 @@
-// The running softmax of one query over its keys, key by key (the CPU-driver attention
-// kernels): the best score so far, the sum of exp(score - best) and the weighted sum of
+// The running softmax of one query over its keys, key by key, and the scores and value
+// rows read as texels (the CPU-driver attention kernels): the best score so far, the sum of exp(score - best) and the weighted sum of
 // the value rows, in up to 8 named chunks of 4 (a CPU driver keeps a dynamically
 // indexed array in memory).
 struct Online {
@@ -52,4 +52,29 @@ fn store_online(o: Online, row: u32, chunks: u32) {
     if chunks > 5u { out[row + 5u] = vec4<Elem>(o.a5 * inv); }
     if chunks > 6u { out[row + 6u] = vec4<Elem>(o.a6 * inv); }
     if chunks > 7u { out[row + 7u] = vec4<Elem>(o.a7 * inv); }
+}
+
+// One more key with its value row at texel `v` of
+// `t`: 4 chunks, or 8 when `wide`.
+fn take_row(o: Online, score: f32, t: texture_2d<f32>, v: u32, wide: bool) -> Online {
+    if wide {
+        return take(o, score, texel(t, v), texel(t, v + 1u), texel(t, v + 2u), texel(t, v + 3u), texel(t, v + 4u), texel(t, v + 5u), texel(t, v + 6u), texel(t, v + 7u), true);
+    }
+    let zero = vec4<f32>(0.0);
+    return take(o, score, texel(t, v), texel(t, v + 1u), texel(t, v + 2u), texel(t, v + 3u), zero, zero, zero, zero, false);
+}
+
+// q (scaled) against the key row at texel `k` of `t`: the first 4 chunks.
+fn score4(t: texture_2d<f32>, k: u32, q0: vec4<f32>, q1: vec4<f32>, q2: vec4<f32>, q3: vec4<f32>) -> f32 {
+    var score = dot(q0, texel(t, k)) + dot(q1, texel(t, k + 1u));
+    score += dot(q2, texel(t, k + 2u)) + dot(q3, texel(t, k + 3u));
+    return score;
+}
+
+// The last 4 chunks (heads of 20 to 32 values), added in the same order.
+fn score8(t: texture_2d<f32>, k: u32, q0: vec4<f32>, q1: vec4<f32>, q2: vec4<f32>, q3: vec4<f32>, q4: vec4<f32>, q5: vec4<f32>, q6: vec4<f32>, q7: vec4<f32>) -> f32 {
+    var score = score4(t, k, q0, q1, q2, q3);
+    score += dot(q4, texel(t, k + 4u)) + dot(q5, texel(t, k + 5u));
+    score += dot(q6, texel(t, k + 6u)) + dot(q7, texel(t, k + 7u));
+    return score;
 }
