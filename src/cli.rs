@@ -122,8 +122,9 @@ enum Command {
     /// voxel geodesic distances; with --character, one pair from a rigged file instead
     /// (for held-out evaluation)
     RigData(RigDataArgs),
-    /// Rig a static mesh (.obj, .gltf, .glb; any skin it has is ignored): skeleton, skin
-    /// weights, the template's idle/walk/run clips and spring chains, written as a .glb
+    /// Rig a static mesh (.obj, .gltf, .glb, .vrm; any skin it has is ignored): skeleton,
+    /// skin weights, the template's idle/walk/run clips, and spring chains on the mesh
+    /// written as VRM 1.0 spring bones with colliders beside a VRM humanoid bone map; a .glb
     /// plus OUT.avatar.json, ready for `unica bake`
     Rig(RigArgs),
     /// Measure the auto-rigger on held-out synthetic pairs and a rigged file with its skin
@@ -179,6 +180,9 @@ struct RigArgs {
     /// Seed of the surface sampling
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Leave out the finger joints (the hands are each one bone, the wrist)
+    #[arg(long)]
+    no_hands: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -514,7 +518,7 @@ fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
 }
 
 fn rig(args: RigArgs) -> anyhow::Result<()> {
-    use crate::autorig::pipeline::{Models, rig_file};
+    use crate::autorig::pipeline::{Models, RigOptions, rig_file};
     if args
         .out
         .extension()
@@ -534,17 +538,17 @@ fn rig(args: RigArgs) -> anyhow::Result<()> {
         anyhow::anyhow!("no rigged humanoid to take clips from; give --clips-from FILE")
     })?;
     let start = std::time::Instant::now();
-    let summary = rig_file(
-        &args.mesh,
-        &args.out,
-        &models,
-        &clips_from,
-        &args.clips,
-        args.seed,
-        &|stage| eprintln!("rig: {stage}…"),
-    )?;
+    let options = RigOptions {
+        clips_from: &clips_from,
+        clip_files: &args.clips,
+        seed: args.seed,
+        hands: !args.no_hands,
+    };
+    let summary = rig_file(&args.mesh, &args.out, &models, &options, &|stage| {
+        eprintln!("rig: {stage}…")
+    })?;
     println!(
-        "rigged {} into {} in {:.1} s: {} joints ({:?} skeleton), {:?} skin, {} spring chains, {} clips; description {}",
+        "rigged {} into {} in {:.1} s: {} joints ({:?} skeleton), {:?} skin, {} spring chains (VRM; {} predicted ones left out), {} clips; description {}",
         args.mesh.display(),
         args.out.display(),
         start.elapsed().as_secs_f64(),
@@ -552,6 +556,7 @@ fn rig(args: RigArgs) -> anyhow::Result<()> {
         summary.skeleton,
         summary.skin,
         summary.spring_chains,
+        summary.dropped_chains,
         summary.clips,
         summary.description.display()
     );

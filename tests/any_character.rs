@@ -240,6 +240,7 @@ fn write_character(path: &Path, body: &Body, clips: &[ClipOut]) {
             skin_joints: &skin_joints,
             skin_weights: &skin_weights,
             clips,
+            vrm: None,
         },
     )
     .unwrap();
@@ -381,6 +382,18 @@ fn bakes_and_validates(
     (stderr, report)
 }
 
+/// With `UNICA_KEEP_CHARACTERS=DIR`, copies the character files a test wrote into DIR
+/// (the character of the full `unica make` in docs/make.md was made this way).
+fn keep_for_make(files: &[&Path]) {
+    if let Some(dir) = std::env::var_os("UNICA_KEEP_CHARACTERS") {
+        let dir = Path::new(&dir);
+        std::fs::create_dir_all(dir).unwrap();
+        for file in files {
+            std::fs::copy(file, dir.join(file.file_name().unwrap())).unwrap();
+        }
+    }
+}
+
 fn inferred(stderr: &str) -> String {
     let lines: Vec<&str> = stderr.lines().filter(|l| l.contains("inferred:")).collect();
     assert_eq!(lines.len(), 1, "{stderr}");
@@ -450,6 +463,7 @@ fn clips_from_separate_animation_files() {
     );
 
     let libs = [idle_lib.as_path(), move_lib.as_path()];
+    keep_for_make(&[&path, &idle_lib, &move_lib]);
     renders_whole(&path, &libs, dir.path());
     let (stderr, _) = bakes_and_validates(&path, &libs, dir.path(), false);
     let line = inferred(&stderr);
@@ -624,4 +638,95 @@ fn bad_clip_files_are_named() {
         let name = clips.file_name().unwrap().to_str().unwrap();
         assert!(err.contains(name) && err.contains(expect), "{err}");
     }
+}
+
+/// A VRM 1.0 file (`.vrm`): numbered bones that only its `VRMC_vrm` map names, and a
+/// spring on its tail (`VRMC_springBone`: the tail swings toward an end node, kept out of
+/// a sphere on the hips) that the teacher uses as written.
+#[test]
+fn a_vrm_file_bakes_with_its_own_humanoid_map_and_springs() {
+    use unica::action::Action;
+    use unica::avatar::description::Description;
+    use unica::avatar::teacher::Teacher;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("numbered.vrm");
+    let body = normal_body(bone_names());
+    let clips = [
+        clip("idle", "idle"),
+        clip("walk", "walk"),
+        clip("run", "run"),
+    ];
+    write_character(&path, &body, &clips);
+    edit_glb(&path, |json| {
+        // An end node below the tail (node 15), 0.15 m further back.
+        let nodes = json["nodes"].as_array_mut().unwrap();
+        let end = nodes.len();
+        nodes.push(serde_json::json!({"name": "tail_end", "translation": [0.0, 0.0, -0.15]}));
+        nodes[15]["children"] = serde_json::json!([end]);
+        // Bones by VRM name: the file's own map is the only thing that says which they are.
+        let map = [
+            ("hips", 1),
+            ("spine", 2),
+            ("neck", 3),
+            ("head", 4),
+            ("leftUpperLeg", 5),
+            ("leftLowerLeg", 6),
+            ("leftFoot", 7),
+            ("rightUpperLeg", 8),
+            ("rightLowerLeg", 9),
+            ("rightFoot", 10),
+            ("leftUpperArm", 11),
+            ("leftHand", 12),
+            ("rightUpperArm", 13),
+            ("rightHand", 14),
+        ];
+        let bones: serde_json::Map<String, Value> = map
+            .iter()
+            .map(|(name, node)| (name.to_string(), serde_json::json!({"node": node})))
+            .collect();
+        json["extensionsUsed"] = serde_json::json!(["VRMC_vrm", "VRMC_springBone"]);
+        json["extensions"] = serde_json::json!({
+            "VRMC_vrm": {"specVersion": "1.0", "meta": {"name": "numbered", "authors": ["test"],
+                "licenseUrl": "https://vrm.dev/licenses/1.0/"},
+                "humanoid": {"humanBones": bones}},
+            "VRMC_springBone": {"specVersion": "1.0",
+                "colliders": [{"node": 1, "shape": {"sphere": {"offset": [0.0, 0.0, 0.0], "radius": 0.12}}}],
+                "colliderGroups": [{"name": "hips", "colliders": [0]}],
+                "springs": [{"name": "tail", "colliderGroups": [0], "joints": [
+                    {"node": 15, "hitRadius": 0.02, "stiffness": 0.5, "gravityPower": 1.0,
+                     "gravityDir": [0.0, -1.0, 0.0], "dragForce": 0.3},
+                    {"node": end}]}]}
+        });
+    });
+    let character = unica::avatar::load_character(&path).unwrap();
+    let vrm = character.vrm.clone().expect("the VRM extensions are read");
+    assert_eq!(vrm.bone("hips"), character.rig.find("Bone.001"));
+    assert_eq!(vrm.springs.len(), 1);
+    let description = Description::find(&character, None).unwrap();
+    assert_eq!(description.waist_bones, ["Bone.001"]);
+    assert_eq!(description.feet, ["Bone.007", "Bone.010"]);
+    let mut teacher = Teacher::new(character, description).unwrap();
+    // One chain: the tail swings (the end node is only its tail), kept out of the sphere.
+    assert_eq!(teacher.springs.chains.len(), 1);
+    assert_eq!(teacher.springs.colliders.len(), 1);
+    assert_eq!(
+        teacher.springs.chains[0].colliders.as_deref(),
+        Some(&[0][..])
+    );
+    let rest = teacher.springs.chains[0].tails()[0];
+    let mut moved: f32 = 0.0;
+    for _ in 0..30 {
+        teacher.step(Action::Forward);
+        moved = moved.max(teacher.springs.chains[0].tails()[0].distance(rest));
+    }
+    assert!(moved > 0.01, "the tail swings ({moved} m)");
+
+    renders_whole(&path, &[], dir.path());
+    let (stderr, _) = bakes_and_validates(&path, &[], dir.path(), false);
+    let line = inferred(&stderr);
+    assert!(
+        line.contains("waist=Bone.001 feet=Bone.007,Bone.010")
+            && line.contains("bones from VRMC_vrm"),
+        "{line}"
+    );
 }

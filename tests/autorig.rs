@@ -70,12 +70,18 @@ fn rig_bake_and_walk(
     models: &unica::autorig::pipeline::Models,
 ) -> unica::autorig::pipeline::Summary {
     use unica::action::Action;
-    use unica::autorig::pipeline::rig_file;
+    use unica::autorig::pipeline::{RigOptions, rig_file};
     use unica::avatar::description::Description;
     use unica::avatar::teacher::Teacher;
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("rigged.glb");
-    let summary = rig_file(input, &out, models, &witch(), &[], 0, &|_| {}).unwrap();
+    let options = RigOptions {
+        clips_from: &witch(),
+        clip_files: &[],
+        seed: 0,
+        hands: true,
+    };
+    let summary = rig_file(input, &out, models, &options, &|_| {}).unwrap();
     assert_eq!(summary.clips, 3);
     let rigged = load_character(&out).unwrap();
     let source = load_character(input).unwrap().rest_mesh();
@@ -89,9 +95,35 @@ fn rig_bake_and_walk(
         .fold(0.0, f32::max);
     // Bind matrices times their inverses are the identity up to rounding.
     assert!(worst < 1e-5, "the rest pose moved a vertex by {worst}");
+    // VRM 1.0 read back: every required humanoid bone, the springs (each joint on the
+    // mesh: inside its voxels or within 2 % of its height of a vertex) and colliders.
+    let vrm = rigged.vrm.clone().expect("the rig carries VRM extensions");
+    for bone in unica::avatar::vrm::REQUIRED_BONES {
+        assert!(vrm.bone(bone).is_some(), "humanoid bone {bone}");
+    }
+    assert_eq!(vrm.bone("hips"), rigged.rig.find("Hips"));
+    assert_eq!(vrm.springs.len(), summary.spring_chains);
+    assert_eq!(vrm.colliders.len(), 7);
+    let world = rigged
+        .rig
+        .world(&rigged.rig.rest_pose(), glam::Mat4::IDENTITY);
+    let height = rest.bounds().map(|(lo, hi)| hi.y - lo.y).unwrap();
+    for spring in &vrm.springs {
+        assert!(spring.joints.len() >= 2);
+        for joint in &spring.joints {
+            let p = world[joint.node].w_axis.truncate();
+            let nearest = rest
+                .positions
+                .iter()
+                .map(|v| v.distance(p))
+                .fold(f32::MAX, f32::min);
+            // Inside the mesh a joint may be deeper than 2 %, never farther than the
+            // body's half-width from a vertex.
+            assert!(nearest < 0.2 * height, "spring joint {p} is off the mesh");
+        }
+    }
     let description = Description::find(&rigged, None).unwrap();
     assert_eq!(description.clips.walk, "Walk");
-    assert_eq!(description.spring_chains.len(), summary.spring_chains);
     let mut teacher = Teacher::new(rigged, description).unwrap();
     assert_eq!(teacher.springs.chains.len(), summary.spring_chains);
     let rest = teacher.mesh();

@@ -25,6 +25,7 @@ impl Fixture {
             skin_joints: &self.skin_joints,
             skin_weights: &self.skin_weights,
             clips: &self.clips,
+            vrm: None,
         }
     }
 

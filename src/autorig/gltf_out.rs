@@ -1,6 +1,7 @@
 //! Writing a rigged, animated character as binary glTF (.glb): one skinned mesh with
 //! vertex colours, its joint hierarchy with inverse bind matrices, and clips of linear
-//! joint rotations plus root translation. The auto-rigger's output; the teacher's
+//! joint rotations plus root translation, and VRM 1.0's humanoid map and spring bones
+//! where given (`VRMC_vrm`, `VRMC_springBone`). The auto-rigger's output; the teacher's
 //! loader ([`crate::avatar::load_character`]) reads it back as written.
 
 use std::collections::HashSet;
@@ -10,6 +11,7 @@ use glam::{Mat4, Quat, Vec3};
 use serde_json::{Value, json};
 
 use crate::avatar::rig::Transform;
+use crate::avatar::vrm::Vrm;
 use crate::files::{WriteError, write_atomic};
 use crate::mesh::Mesh;
 
@@ -26,6 +28,9 @@ pub struct RiggedMesh<'a> {
     /// Per vertex: the four weights, non-negative and summing to 1.
     pub skin_weights: &'a [[f32; 4]],
     pub clips: &'a [ClipOut],
+    /// VRM 1.0 humanoid map and spring bones to write, by joint index (joint `j` is node
+    /// `j` of the file).
+    pub vrm: Option<&'a Vrm>,
 }
 
 pub struct JointOut {
@@ -73,6 +78,20 @@ fn validate(rigged: &RiggedMesh) -> Result<Vec<Mat4>, GlbError> {
     let joints = rigged.joints;
     if joints.is_empty() {
         return Err(GlbError::Invalid("the rig has no joints".into()));
+    }
+    if let Some(vrm) = rigged.vrm {
+        let nodes = vrm.humanoid.iter().map(|(_, n)| *n).chain(
+            vrm.springs
+                .iter()
+                .flat_map(|s| s.joints.iter().map(|j| j.node))
+                .chain(vrm.colliders.iter().map(|c| c.node)),
+        );
+        if let Some(n) = nodes.into_iter().find(|&n| n >= joints.len()) {
+            return Err(GlbError::Invalid(format!(
+                "VRM extensions name node {n} of {} joints",
+                joints.len()
+            )));
+        }
     }
     let mut names = HashSet::new();
     let mut world: Vec<Mat4> = Vec::with_capacity(joints.len());
@@ -381,7 +400,7 @@ fn document(rigged: &RiggedMesh, bind_world: &[Mat4]) -> (Value, Vec<u8>) {
         .map(|clip| animation(&mut buffer, clip))
         .collect();
 
-    let json = json!({
+    let mut json = json!({
         "asset": {"version": "2.0", "generator": "unica autorig"},
         "scene": 0,
         "scenes": [{"nodes": roots}],
@@ -419,6 +438,11 @@ fn document(rigged: &RiggedMesh, bind_world: &[Mat4]) -> (Value, Vec<u8>) {
         "bufferViews": buffer.views,
         "buffers": [{"byteLength": buffer.bytes.len()}],
     });
+    if let Some(vrm) = rigged.vrm {
+        let extensions = vrm.to_json(rigged.name);
+        json["extensionsUsed"] = json!(extensions.keys().collect::<Vec<_>>());
+        json["extensions"] = Value::Object(extensions);
+    }
     (json, buffer.bytes)
 }
 

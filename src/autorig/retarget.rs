@@ -1,13 +1,15 @@
 //! Retargeting clips through the humanoid template: each template joint of the source
 //! rig turns, in world space, by the same rotation away from its bind pose on the target,
 //! whose joints rest unrotated; the hips' travel scales with the hip height. Joints
-//! outside the template (spring chains, extra bones) follow their parents.
+//! outside the template (spring chains, extra bones) follow their parents. Source bones
+//! are found by the template's, VRM, Mixamo or Unreal names (`avatar::humanoid`).
 
 use glam::{Mat4, Quat, Vec3};
 
 use super::gltf_out::ClipOut;
 use super::skeleton::{Skeleton, template_joints};
 use crate::avatar::Character;
+use crate::avatar::humanoid;
 use crate::avatar::locomotion::FRAME_RATE;
 
 fn rotation_of(m: &Mat4) -> Quat {
@@ -30,7 +32,7 @@ pub fn retarget(source: &Character, clip: &str, target: &Skeleton) -> anyhow::Re
             template
                 .iter()
                 .any(|(t, _)| t == name)
-                .then(|| rig.find(name))
+                .then(|| humanoid::find(rig, source.vrm.as_ref(), name))
                 .flatten()
         })
         .collect();

@@ -161,6 +161,36 @@ impl Skeleton {
         }
     }
 
+    /// The joints where `keep` holds and whose ancestors all do, in order, re-indexed.
+    pub fn keep(&self, keep: impl Fn(usize) -> bool) -> Skeleton {
+        let mut index = vec![None; self.len()];
+        let mut out = Skeleton {
+            class: self.class,
+            joints: Vec::new(),
+            parents: Vec::new(),
+            names: Vec::new(),
+            spring: Vec::new(),
+        };
+        for j in 0..self.len() {
+            let parent_kept = self.parents[j].map(|p| index[p]);
+            if !keep(j) || parent_kept == Some(None) {
+                continue;
+            }
+            index[j] = Some(out.len());
+            out.joints.push(self.joints[j]);
+            out.parents.push(parent_kept.flatten());
+            out.names.push(self.names[j].clone());
+            out.spring.push(self.spring[j]);
+        }
+        out
+    }
+
+    /// The skeleton without the template's finger joints (and anything below them).
+    pub fn without_hands(&self) -> Skeleton {
+        let fingers: Vec<String> = hand_joints().into_iter().map(|(n, _)| n).collect();
+        self.keep(|j| !fingers.contains(&self.names[j]))
+    }
+
     /// Whether joints come before their children (the order every consumer relies on).
     pub fn is_ordered(&self) -> bool {
         self.parents
@@ -264,5 +294,48 @@ pub fn reorder_parents_first(skeleton: Skeleton) -> Skeleton {
             .collect(),
         names: order.iter().map(|&o| skeleton.names[o].clone()).collect(),
         spring: order.iter().map(|&o| skeleton.spring[o]).collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn without_hands_drops_the_fingers_and_what_hangs_from_them() {
+        let template = template_joints(true);
+        let mut skeleton = Skeleton {
+            class: Class::Humanoid,
+            joints: (0..template.len()).map(|j| Vec3::splat(j as f32)).collect(),
+            parents: template
+                .iter()
+                .map(|(_, p)| {
+                    p.as_ref()
+                        .map(|p| template.iter().position(|(n, _)| n == p).unwrap())
+                })
+                .collect(),
+            names: template.iter().map(|(n, _)| n.clone()).collect(),
+            spring: vec![false; template.len()],
+        };
+        // A spring chain on the head and one hanging from a finger tip.
+        for (name, parent) in [("Hair0", "Head"), ("Ribbon0", "Index4.L")] {
+            let p = skeleton.names.iter().position(|n| n == parent).unwrap();
+            skeleton.joints.push(Vec3::ZERO);
+            skeleton.parents.push(Some(p));
+            skeleton.names.push(name.into());
+            skeleton.spring.push(true);
+        }
+        let body = skeleton.without_hands();
+        assert_eq!(body.len(), BODY.len() + 1);
+        assert!(body.is_ordered());
+        for (j, (name, parent)) in BODY.iter().enumerate() {
+            assert_eq!(body.names[j], *name);
+            assert_eq!(body.parents[j], *parent);
+            assert_eq!(body.joints[j], Vec3::splat(j as f32));
+        }
+        let hair = BODY.len();
+        assert_eq!(body.names[hair], "Hair0");
+        assert_eq!(body.parents[hair], Some(5));
+        assert!(body.spring[hair]);
     }
 }

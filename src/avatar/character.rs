@@ -8,6 +8,7 @@ use glam::{Mat4, Quat, Vec2, Vec3, Vec4};
 
 use super::clip::{Channel, Clip, Interpolation, Values};
 use super::rig::{Bone, Node, Part, Rig, SkinnedMesh, Transform};
+use super::vrm::Vrm;
 use crate::mesh::Mesh;
 
 /// A loaded character: the mesh in bind space, its rig and clips.
@@ -19,6 +20,8 @@ pub struct Character {
     pub rig: Rig,
     pub skinned: SkinnedMesh,
     pub clips: Vec<Clip>,
+    /// The file's VRM 1.0 humanoid map and spring bones (`.vrm`, or glTF with them).
+    pub vrm: Option<Vrm>,
 }
 
 impl Character {
@@ -81,10 +84,10 @@ pub fn merge_clip_files(character: &mut Character, files: &[PathBuf]) -> Result<
         if !file.is_file() {
             return Err(fail(file, "no such file (given with --clips)"));
         }
-        if ext != "gltf" && ext != "glb" {
+        if !["gltf", "glb", "vrm"].contains(&ext.as_str()) {
             return Err(fail(
                 file,
-                format!("unsupported animation file type '.{ext}' (expected .gltf or .glb)"),
+                format!("unsupported animation file type '.{ext}' (expected .gltf, .glb or .vrm)"),
             ));
         }
         let clips = super::gltf_check::guarded(file, || read_clip_library(file, &character.rig))?;
@@ -170,13 +173,13 @@ pub fn load_character(path: &Path) -> Result<Character, LoadError> {
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
-    let (rig, skinned, clips) = match ext.as_str() {
-        "gltf" | "glb" => super::gltf_check::guarded(path, || load_gltf(path))?,
+    let (rig, skinned, clips, vrm) = match ext.as_str() {
+        "gltf" | "glb" | "vrm" => super::gltf_check::guarded(path, || load_gltf(path))?,
         "obj" => load_obj(path)?,
         other => {
             return Err(fail(
                 path,
-                format!("unsupported file type '.{other}' (expected .gltf, .glb or .obj)"),
+                format!("unsupported file type '.{other}' (expected .gltf, .glb, .vrm or .obj)"),
             ));
         }
     };
@@ -226,10 +229,11 @@ pub fn load_character(path: &Path) -> Result<Character, LoadError> {
         rig,
         skinned,
         clips,
+        vrm,
     })
 }
 
-type Loaded = (Rig, SkinnedMesh, Vec<Clip>);
+type Loaded = (Rig, SkinnedMesh, Vec<Clip>, Option<Vrm>);
 
 fn load_gltf(path: &Path) -> Result<Loaded, LoadError> {
     let (doc, buffers, images) = super::gltf_check::import(path)?;
@@ -314,7 +318,9 @@ fn load_gltf(path: &Path) -> Result<Loaded, LoadError> {
         .animations()
         .map(|a| read_clip(path, &a, &buffers, &index_of))
         .collect::<Result<_, _>>()?;
-    Ok((rig, skinned, clips))
+    let vrm = Vrm::read(doc.extensions(), &|i| index_of.get(i).copied().flatten())
+        .map_err(|e| fail(path, e))?;
+    Ok((rig, skinned, clips, vrm))
 }
 
 /// The rig bones of a skin's joints, in joint order.
@@ -702,5 +708,5 @@ fn load_obj(path: &Path) -> Result<Loaded, LoadError> {
         part,
         parts,
     };
-    Ok((rig, skinned, Vec::new()))
+    Ok((rig, skinned, Vec::new(), None))
 }

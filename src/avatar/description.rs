@@ -238,8 +238,9 @@ impl Description {
         Ok(description)
     }
 
-    /// Inferred defaults: the waist and feet from bone names (hips or pelvis; foot or
-    /// ankle), else from the skeleton ([`legs`]); each clip role from clip names
+    /// Inferred defaults: the waist and feet from the file's VRM humanoid map (hips,
+    /// leftFoot, rightFoot), else from bone names (hips or pelvis; foot or ankle), else
+    /// from the skeleton ([`legs`]); each clip role from clip names
     /// (containing idle/walk/run), else from the motion ([`assign_roles`] on each clip's
     /// [`stance_speed`]); no loose parts. `inferred` says what was inferred, in one line.
     pub fn infer(character: &Character) -> Result<Self, LoadError> {
@@ -262,11 +263,19 @@ impl Description {
         let (named_waist, named_feet) = (bones(&["hips", "pelvis"]), bones(&["foot", "ankle"]));
         let world = rig.world(&rig.rest_pose(), glam::Mat4::IDENTITY);
         let positions: Vec<Vec3> = world.iter().map(|m| m.w_axis.truncate()).collect();
-        let (waist, feet, skeleton_said) = if !named_waist.is_empty() && !named_feet.is_empty() {
+        let vrm_legs = character.vrm.as_ref().and_then(|v| {
+            Some((
+                v.bone("hips")?,
+                vec![v.bone("leftFoot")?, v.bone("rightFoot")?],
+            ))
+        });
+        let (waist, feet, bones_from) = if let Some((hips, feet)) = vrm_legs {
+            (hips, feet, "VRMC_vrm")
+        } else if !named_waist.is_empty() && !named_feet.is_empty() {
             (
                 named_waist[0],
                 named_feet.iter().take(2).copied().collect(),
-                false,
+                "names",
             )
         } else {
             let parents: Vec<Option<usize>> = rig.nodes.iter().map(|n| n.parent).collect();
@@ -285,7 +294,7 @@ impl Description {
                     ),
                 )
             })?;
-            (hips, feet.to_vec(), true)
+            (hips, feet.to_vec(), "the skeleton")
         };
         let feet: Vec<usize> = feet;
         let by_name = |word: &str| {
@@ -372,11 +381,7 @@ impl Description {
                 .collect::<Vec<_>>()
                 .join(","),
             shown(&walk),
-            if skeleton_said {
-                "the skeleton"
-            } else {
-                "names"
-            },
+            bones_from,
             if from_motion { "motion" } else { "names" },
         );
         Ok(Self {

@@ -34,7 +34,7 @@ pub fn import(path: &Path) -> Result<Imported, LoadError> {
     let glb = bytes.starts_with(b"glTF");
     let named_glb = path
         .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("glb"));
+        .is_some_and(|e| e.eq_ignore_ascii_case("glb") || e.eq_ignore_ascii_case("vrm"));
     if named_glb && !glb {
         return Err(fail(path, "not a GLB file (it does not start with 'glTF')"));
     }

@@ -12,6 +12,7 @@ use super::description::{ChainLayout, Description, LoosePart, SpringChain};
 use super::locomotion::{angle_difference, heading};
 use super::rig::{Bone, Node, Transform};
 use super::springs::{Chain, Collider, SpringParams, SpringSystem};
+use super::vrm::Vrm;
 
 /// Where a part's chains hang: joint points (top to tip) per chain, and how to find a
 /// vertex's place among them.
@@ -126,6 +127,7 @@ pub fn add_spring_chains(
                 drag: part.drag,
                 gravity: part.gravity,
                 hit_radius: 0.01 * height,
+                ..Default::default()
             };
             system.chains.push(Chain::new(
                 &character.rig,
@@ -145,32 +147,128 @@ pub fn add_spring_chains(
             part.segments,
         );
     }
-    for spec in &description.spring_chains {
-        system
-            .chains
-            .push(existing_chain(character, &world, spec, height)?);
-    }
-    for spec in &description.colliders {
-        let node = |name: &str| {
-            character
-                .rig
-                .find(name)
-                .ok_or_else(|| fail(&character.path, format!("collider bone '{name}' not found")))
-        };
-        let mut collider = Collider {
-            node: node(&spec.bone)?,
-            to: spec.to.as_deref().map(node).transpose()?,
-            radius: 0.0,
-        };
-        collider.radius = spec.radius.unwrap_or_else(|| {
-            measured_radius(character, &rest, &rest_mesh.positions, &collider, height)
-        });
-        system.colliders.push(collider);
+    match character.vrm.as_ref().filter(|v| !v.springs.is_empty()) {
+        Some(vrm) => {
+            if !description.spring_chains.is_empty() || !description.colliders.is_empty() {
+                log::warn!(
+                    "{}: the file's VRMC_springBone springs and colliders are used, not the description's",
+                    character.path.display()
+                );
+            }
+            vrm_springs(character, &world, vrm, &mut system)?;
+        }
+        None => {
+            for spec in &description.spring_chains {
+                system
+                    .chains
+                    .push(existing_chain(character, &world, spec, height)?);
+            }
+            for spec in &description.colliders {
+                let node = |name: &str| {
+                    character.rig.find(name).ok_or_else(|| {
+                        fail(&character.path, format!("collider bone '{name}' not found"))
+                    })
+                };
+                let mut collider = Collider::between(
+                    node(&spec.bone)?,
+                    spec.to.as_deref().map(node).transpose()?,
+                    0.0,
+                );
+                collider.radius = spec.radius.unwrap_or_else(|| {
+                    measured_radius(character, &rest, &rest_mesh.positions, &collider, height)
+                });
+                system.colliders.push(collider);
+            }
+        }
     }
     for chain in &mut system.chains {
-        chain.choose_colliders(&system.colliders, &world);
+        if chain.colliders.is_none() {
+            chain.choose_colliders(&system.colliders, &world);
+        }
     }
     Ok(system)
+}
+
+/// The file's own VRM springs and colliders: each spring's joints but the last swing (the
+/// last is only a tail), with its settings per joint, kept out of its collider groups.
+fn vrm_springs(
+    character: &Character,
+    world: &[Mat4],
+    vrm: &Vrm,
+    system: &mut SpringSystem,
+) -> Result<(), LoadError> {
+    let rig = &character.rig;
+    let base = system.colliders.len();
+    for c in &vrm.colliders {
+        let scale = world[c.node].x_axis.truncate().length();
+        system.colliders.push(Collider {
+            node: c.node,
+            offset: c.offset,
+            end: c.tail.map(|t| (c.node, t)),
+            radius: c.radius * scale,
+        });
+    }
+    for (s, spring) in vrm.springs.iter().enumerate() {
+        let field = |j: usize| format!("VRMC_springBone.springs[{s}].joints[{j}]");
+        for (j, pair) in spring.joints.windows(2).enumerate() {
+            let mut above = rig.nodes[pair[1].node].parent;
+            while above.is_some_and(|a| a != pair[0].node) {
+                above = above.and_then(|a| rig.nodes[a].parent);
+            }
+            if above.is_none() {
+                return Err(fail(
+                    &character.path,
+                    format!(
+                        "{}: node '{}' is not below the joint before it, '{}'",
+                        field(j + 1),
+                        rig.nodes[pair[1].node].name,
+                        rig.nodes[pair[0].node].name
+                    ),
+                ));
+            }
+        }
+        if rig.nodes[spring.joints[0].node].parent.is_none() {
+            return Err(fail(
+                &character.path,
+                format!("{}: a spring's root needs a parent node", field(0)),
+            ));
+        }
+        let Some((tail, swinging)) = spring.joints.split_last().filter(|(_, s)| !s.is_empty())
+        else {
+            log::warn!(
+                "{}: spring {s} ('{}') has one joint, only a tail: nothing swings",
+                character.path.display(),
+                spring.name
+            );
+            continue;
+        };
+        let nodes: Vec<usize> = swinging.iter().map(|j| j.node).collect();
+        let params: Vec<SpringParams> = swinging
+            .iter()
+            .map(|j| SpringParams {
+                stiffness: j.stiffness,
+                drag: j.drag,
+                gravity: j.gravity_power,
+                gravity_dir: j.gravity_dir.normalize_or(Vec3::NEG_Y),
+                hit_radius: j.hit_radius,
+            })
+            .collect();
+        let last = *nodes.last().expect("one joint swings");
+        let tip = world[last]
+            .inverse()
+            .transform_point3(world[tail.node].w_axis.truncate());
+        let mut chain = Chain::with_joint_params(rig, world, &nodes, tip, &params);
+        let mut colliders: Vec<usize> = spring
+            .collider_groups
+            .iter()
+            .flat_map(|&g| vrm.collider_groups[g].iter().map(|&c| base + c))
+            .collect();
+        colliders.sort_unstable();
+        colliders.dedup();
+        chain.colliders = Some(colliders);
+        system.chains.push(chain);
+    }
+    Ok(())
 }
 
 /// A spring chain over nodes already in the rig: `spec.root` down through first
@@ -209,6 +307,7 @@ fn existing_chain(
         drag: spec.drag,
         gravity: spec.gravity,
         hit_radius: 0.01 * height,
+        ..Default::default()
     };
     Ok(Chain::new(
         rig,

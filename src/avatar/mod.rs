@@ -5,11 +5,13 @@ pub mod character;
 pub mod clip;
 pub mod description;
 pub mod gltf_check;
+pub mod humanoid;
 pub mod locomotion;
 pub mod loose;
 pub mod reference;
 pub mod rig;
 pub mod springs;
 pub mod teacher;
+pub mod vrm;
 
 pub use character::{Character, LoadError, load_character, load_character_with};

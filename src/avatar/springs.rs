@@ -16,8 +16,10 @@ pub struct SpringParams {
     pub stiffness: f32,
     /// Share of the velocity lost per step, 0..1 (VRM `dragForce`).
     pub drag: f32,
-    /// Gravity displacement per second, in metres (VRM `gravityPower`, direction -Y).
+    /// Gravity displacement per second, in metres (VRM `gravityPower`).
     pub gravity: f32,
+    /// Gravity's direction (VRM `gravityDir`; down unless a file says otherwise).
+    pub gravity_dir: Vec3,
     /// Radius of each joint's tail against colliders.
     pub hit_radius: f32,
 }
@@ -28,27 +30,40 @@ impl Default for SpringParams {
             stiffness: 1.0,
             drag: 0.4,
             gravity: 0.5,
+            gravity_dir: Vec3::NEG_Y,
             hit_radius: 0.02,
         }
     }
 }
 
-/// A sphere (`to == None`) or a capsule around the segment between two rig nodes.
+/// A sphere (`end == None`) or a capsule, each end a point in a rig node's frame: a
+/// capsule between two bones (`end` on another node) or VRM's, both ends on one node.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Collider {
     pub node: usize,
-    pub to: Option<usize>,
+    pub offset: Vec3,
+    pub end: Option<(usize, Vec3)>,
     pub radius: f32,
 }
 
 impl Collider {
+    /// A sphere around a node, or a capsule to another node.
+    pub fn between(node: usize, to: Option<usize>, radius: f32) -> Self {
+        Self {
+            node,
+            offset: Vec3::ZERO,
+            end: to.map(|to| (to, Vec3::ZERO)),
+            radius,
+        }
+    }
+
     /// The collider's closest axis point to `p` for world matrices `world`.
     pub fn closest(&self, world: &[Mat4], p: Vec3) -> Vec3 {
-        let a = world[self.node].w_axis.truncate();
-        match self.to {
+        let a = world[self.node].transform_point3(self.offset);
+        match self.end {
             None => a,
-            Some(to) => {
-                let b = world[to].w_axis.truncate();
+            Some((node, offset)) => {
+                let b = world[node].transform_point3(offset);
                 let ab = b - a;
                 let t = ((p - a).dot(ab) / ab.length_squared().max(1e-12)).clamp(0.0, 1.0);
                 a + ab * t
@@ -60,6 +75,10 @@ impl Collider {
 #[derive(Clone, Debug)]
 struct Joint {
     node: usize,
+    /// Nodes from below the previous joint down to this one (only this one where each
+    /// joint is the parent of the next): refreshed in order before this joint moves.
+    path: Vec<usize>,
+    params: SpringParams,
     /// Direction from the joint to its tail in the joint's rest frame (unit).
     axis: Vec3,
     length: f32,
@@ -71,7 +90,6 @@ struct Joint {
 #[derive(Clone, Debug)]
 pub struct Chain {
     joints: Vec<Joint>,
-    params: SpringParams,
     /// Indices of the colliders this chain is kept out of (all when `None`).
     pub colliders: Option<Vec<usize>>,
 }
@@ -85,6 +103,18 @@ impl Chain {
         nodes: &[usize],
         tip: Vec3,
         params: SpringParams,
+    ) -> Self {
+        Self::with_joint_params(rig, world, nodes, tip, &vec![params; nodes.len()])
+    }
+
+    /// As [`Chain::new`] with settings per joint; each node is an ancestor of the next
+    /// (VRM allows skipped nodes between joints: they follow their parents).
+    pub fn with_joint_params(
+        rig: &Rig,
+        world: &[Mat4],
+        nodes: &[usize],
+        tip: Vec3,
+        params: &[SpringParams],
     ) -> Self {
         let joints = nodes
             .iter()
@@ -100,8 +130,20 @@ impl Chain {
                     rig.nodes[node].parent.is_some(),
                     "a spring joint needs a parent"
                 );
+                let mut path = vec![node];
+                if i > 0 {
+                    while let Some(p) = rig.nodes[*path.last().expect("node")].parent {
+                        if p == nodes[i - 1] {
+                            break;
+                        }
+                        path.push(p);
+                    }
+                    path.reverse();
+                }
                 Joint {
                     node,
+                    path,
+                    params: params[i],
                     axis: local_axis.normalize_or(Vec3::NEG_Y),
                     length: (tail - head).length(),
                     tail,
@@ -111,7 +153,6 @@ impl Chain {
             .collect();
         Self {
             joints,
-            params,
             colliders: None,
         }
     }
@@ -119,11 +160,10 @@ impl Chain {
     /// Keeps this chain out of only those colliders that none of its rest tails is inside
     /// (a collider the chain starts in, like the head under a hat, is not meant for it).
     pub fn choose_colliders(&mut self, colliders: &[Collider], world: &[Mat4]) {
-        let hit = self.params.hit_radius;
         let outside = |c: &Collider| {
-            self.joints
-                .iter()
-                .all(|j| j.tail.distance(c.closest(world, j.tail)) >= c.radius + hit)
+            self.joints.iter().all(|j| {
+                j.tail.distance(c.closest(world, j.tail)) >= c.radius + j.params.hit_radius
+            })
         };
         self.colliders = Some(
             (0..colliders.len())
@@ -146,7 +186,9 @@ impl Chain {
         for i in 0..self.joints.len() {
             let joint = &mut self.joints[i];
             local[joint.node].rotation = rig.nodes[joint.node].rest.rotation;
-            refresh(rig, local, world, joint.node);
+            for &n in &joint.path {
+                refresh(rig, local, world, n);
+            }
             let tail = world[joint.node]
                 .transform_point3(joint.axis * joint.length / world_scale(&world[joint.node]));
             joint.tail = tail;
@@ -164,13 +206,15 @@ impl Chain {
         colliders: &[Collider],
         dt: f32,
     ) {
-        let p = self.params;
         for i in 0..self.joints.len() {
             let node = self.joints[i].node;
+            let p = self.joints[i].params;
             let parent = rig.nodes[node].parent.expect("spring joints have parents");
             // The joint at its rest rotation under the (already updated) parent.
             local[node].rotation = rig.nodes[node].rest.rotation;
-            refresh(rig, local, world, node);
+            for &n in &self.joints[i].path {
+                refresh(rig, local, world, n);
+            }
             let head = world[node].w_axis.truncate();
             let joint = &mut self.joints[i];
             let rest_direction = world[node]
@@ -180,7 +224,7 @@ impl Chain {
             let mut next = joint.tail
                 + inertia
                 + rest_direction * (p.stiffness * dt)
-                + Vec3::NEG_Y * (p.gravity * dt);
+                + p.gravity_dir * (p.gravity * dt);
             next = head + (next - head).normalize_or(rest_direction) * joint.length;
             next = match &self.colliders {
                 None => keep_out(
@@ -384,6 +428,7 @@ mod tests {
             gravity: 2.0,
             drag: 0.4,
             hit_radius: 0.0,
+            ..Default::default()
         };
         let mut springs = system(&rig, Vec3::X, params, vec![]);
         simulate(&rig, &mut springs, 300, |_, _| {});
@@ -425,6 +470,7 @@ mod tests {
             gravity: 3.0,
             drag: 0.2,
             hit_radius: 0.01,
+            ..Default::default()
         };
         // A sphere in the way of the hanging chain and a capsule across its lower end.
         let mut rig = rig;
@@ -453,16 +499,8 @@ mod tests {
             },
         });
         let colliders = vec![
-            Collider {
-                node: 4,
-                to: None,
-                radius: 0.1,
-            },
-            Collider {
-                node: 5,
-                to: Some(6),
-                radius: 0.06,
-            },
+            Collider::between(4, None, 0.1),
+            Collider::between(5, Some(6), 0.06),
         ];
         let mut springs = system(&rig, Vec3::X, params, colliders.clone());
         let mut checked = 0;
