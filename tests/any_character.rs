@@ -383,7 +383,8 @@ fn bakes_and_validates(
 }
 
 /// With `UNICA_KEEP_CHARACTERS=DIR`, copies the character files a test wrote into DIR
-/// (the character of the full `unica make` in docs/make.md was made this way).
+/// (the character of the full `unica make` in docs/make.md, and the block humanoids
+/// measured in docs/autorig, were made this way).
 fn keep_for_make(files: &[&Path]) {
     if let Some(dir) = std::env::var_os("UNICA_KEEP_CHARACTERS") {
         let dir = Path::new(&dir);
@@ -497,6 +498,7 @@ fn a_big_head_over_a_low_waist_stays_in_the_unit_cube_and_in_frame() {
         clip("run", "run"),
     ];
     write_character(&path, &body, &clips);
+    keep_for_make(&[&path]);
     renders_whole(&path, &[], dir.path());
     let (_, report) = bakes_and_validates(&path, &[], dir.path(), true);
     assert!(report["renders"].as_u64().unwrap() > 50, "{report}");

@@ -2,13 +2,30 @@
 //! truth's mesh: J2J (Chamfer distance between joint sets), J2B (joints to the other
 //! skeleton's bone segments, both ways), B2B (between points sampled along the bones),
 //! skin L1 (per vertex, summed over bones) and motion L2 (vertex distance after posing
-//! with the same motion under predicted and true weights).
+//! with the same motion under predicted and true weights), and tearing: the largest edge
+//! stretch of a posed mesh against its rest pose.
 
 use glam::{Mat4, Quat, Vec3};
 
 use super::skeleton::Skeleton;
 use super::voxel::segment_distance;
 use crate::random::Rng;
+
+/// The largest edge stretch, posed length / rest length, over the edges of `indices`
+/// (triangles) whose rest length is at least `shortest`.
+pub fn edge_stretch(rest: &[Vec3], posed: &[Vec3], indices: &[u32], shortest: f32) -> f32 {
+    let mut worst: f32 = 1.0;
+    for t in indices.chunks_exact(3) {
+        for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+            let (a, b) = (a as usize, b as usize);
+            let length = rest[a].distance(rest[b]);
+            if length >= shortest {
+                worst = worst.max(posed[a].distance(posed[b]) / length);
+            }
+        }
+    }
+    worst
+}
 
 /// Mean distance from each point of `a` to its nearest in `b`.
 fn one_way(a: &[Vec3], b: &[Vec3]) -> f32 {
@@ -156,6 +173,23 @@ pub fn random_poses(skeleton: &Skeleton, count: usize, degrees: f32, seed: u64) 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn edge_stretch_of_known_deformations() {
+        let rest = [Vec3::ZERO, Vec3::X, Vec3::Y];
+        let indices = [0, 1, 2];
+        assert_eq!(edge_stretch(&rest, &rest, &indices, 1e-6), 1.0);
+        // Pulling vertex 1 to x = 3 stretches edge 0-1 three times (edge 1-2 √10/√2).
+        let posed = [Vec3::ZERO, 3.0 * Vec3::X, Vec3::Y];
+        assert!((edge_stretch(&rest, &posed, &indices, 1e-6) - 3.0).abs() < 1e-6);
+        // A rigid turn stretches nothing; edges shorter than `shortest` are not counted.
+        let turned: Vec<Vec3> = rest
+            .iter()
+            .map(|&p| Quat::from_rotation_z(1.0) * p)
+            .collect();
+        assert!((edge_stretch(&rest, &turned, &indices, 1e-6) - 1.0).abs() < 1e-5);
+        assert_eq!(edge_stretch(&rest, &posed, &indices, 2.0), 1.0);
+    }
     use crate::autorig::skeleton::Class;
 
     fn line(points: &[Vec3]) -> Skeleton {

@@ -10,6 +10,7 @@ use glam::{Quat, Vec3};
 
 use super::data::{POINTS, VOXELS, surface_samples};
 use super::gltf_out::{ClipOut, JointOut, RiggedMesh, write_glb};
+use super::metrics::edge_stretch;
 use super::model::{SkeletonModel, SkinModel, baseline_weights, top4};
 use super::retarget::{rest_offsets, retarget};
 use super::skeleton::{BODY, Class, Skeleton, UnitCube};
@@ -181,6 +182,36 @@ pub struct Summary {
     pub dropped_chains: usize,
     pub clips: usize,
     pub description: PathBuf,
+    /// Tearing: the largest edge stretch (posed / rest length) over [`STRETCH_KEYS`].
+    pub stretch: f32,
+}
+
+/// The walk that measures tearing: stand, walk, turn left while walking, run, stop.
+pub const STRETCH_KEYS: &str = "10I 40W 20A 30S 20I";
+
+/// The largest edge stretch of the rigged character at `path` (its description beside
+/// it) driven by the teacher through [`STRETCH_KEYS`]; edges shorter than 0.1 % of the
+/// height are not counted.
+pub fn walk_stretch(path: &Path) -> anyhow::Result<f32> {
+    use crate::avatar::teacher::Teacher;
+    let character = load_character(path)?;
+    let rest = character.rest_mesh();
+    let height = rest.bounds().map_or(1.0, |(lo, hi)| hi.y - lo.y);
+    let description = Description::find(&character, None)?;
+    let mut teacher = Teacher::new(character, description)?;
+    let mut worst: f32 = 1.0;
+    let script = crate::action::KeyScript::parse(STRETCH_KEYS)?;
+    for frame in 0..script.len() {
+        teacher.step(script.action_at(frame));
+        let posed = teacher.mesh();
+        worst = worst.max(edge_stretch(
+            &rest.positions,
+            &posed.positions,
+            &rest.indices,
+            1e-3 * height,
+        ));
+    }
+    Ok(worst)
 }
 
 /// How `unica rig` rigs: where the clips come from, the sampling seed, hands or not.
@@ -281,6 +312,8 @@ pub fn rig_file(
         &description_path,
         serde_json::to_string_pretty(&description)?.as_bytes(),
     )?;
+    progress("tearing (edge stretch over a walk)");
+    let stretch = walk_stretch(out)?;
     Ok(Summary {
         skeleton: skeleton_source,
         skin: skin_source,
@@ -289,6 +322,7 @@ pub fn rig_file(
         dropped_chains: chains_before - vrm.springs.len(),
         clips: clips.len(),
         description: description_path,
+        stretch,
     })
 }
 
