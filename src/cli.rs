@@ -548,7 +548,7 @@ fn rig(args: RigArgs) -> anyhow::Result<()> {
         eprintln!("rig: {stage}…")
     })?;
     println!(
-        "rigged {} into {} in {:.1} s: {} joints ({:?} skeleton), {:?} skin, {} spring chains (VRM; {} predicted ones left out), {} clips, largest edge stretch {:.2} over a walk; description {}",
+        "rigged {} into {} in {:.1} s: {} joints ({:?} skeleton), {:?} skin, {} spring chains (VRM; {} predicted ones left out), {} clips, largest edge stretch {} over a walk; description {}",
         args.mesh.display(),
         args.out.display(),
         start.elapsed().as_secs_f64(),
@@ -558,7 +558,9 @@ fn rig(args: RigArgs) -> anyhow::Result<()> {
         summary.spring_chains,
         summary.dropped_chains,
         summary.clips,
-        summary.stretch,
+        summary
+            .stretch
+            .map_or("not measured".to_string(), |s| format!("{s:.2}")),
         summary.description.display()
     );
     Ok(())

@@ -95,8 +95,7 @@ fn rig_bake_and_walk(
         .fold(0.0, f32::max);
     // Bind matrices times their inverses are the identity up to rounding.
     assert!(worst < 1e-5, "the rest pose moved a vertex by {worst}");
-    // VRM 1.0 read back: every required humanoid bone, the springs (each joint on the
-    // mesh: inside its voxels or within 2 % of its height of a vertex) and colliders.
+    // VRM 1.0 read back: every required humanoid bone, the springs and the colliders.
     let vrm = rigged.vrm.clone().expect("the rig carries VRM extensions");
     for bone in unica::avatar::vrm::REQUIRED_BONES {
         assert!(vrm.bone(bone).is_some(), "humanoid bone {bone}");
@@ -104,24 +103,33 @@ fn rig_bake_and_walk(
     assert_eq!(vrm.bone("hips"), rigged.rig.find("Hips"));
     assert_eq!(vrm.springs.len(), summary.spring_chains);
     assert_eq!(vrm.colliders.len(), 7);
+    // Every spring joint (ends included) within LOOSE_DEPTH of the height of the surface,
+    // measured on the same samples the rig uses.
     let world = rigged
         .rig
         .world(&rigged.rig.rest_pose(), glam::Mat4::IDENTITY);
     let height = rest.bounds().map(|(lo, hi)| hi.y - lo.y).unwrap();
+    let (surface, _) = unica::autorig::data::surface_samples(
+        &source,
+        unica::autorig::data::POINTS,
+        &mut unica::random::Rng::new(0),
+    );
+    let reach = unica::autorig::pipeline::LOOSE_DEPTH * height;
     for spring in &vrm.springs {
         assert!(spring.joints.len() >= 2);
         for joint in &spring.joints {
             let p = world[joint.node].w_axis.truncate();
-            let nearest = rest
-                .positions
+            let nearest = surface
                 .iter()
                 .map(|v| v.distance(p))
                 .fold(f32::MAX, f32::min);
-            // Inside the mesh a joint may be deeper than 2 %, never farther than the
-            // body's half-width from a vertex.
-            assert!(nearest < 0.2 * height, "spring joint {p} is off the mesh");
+            assert!(
+                nearest <= reach * 1.0001,
+                "spring joint {p} is {nearest} from the mesh"
+            );
         }
     }
+    assert!(summary.stretch.is_some_and(|s| s.is_finite() && s >= 1.0));
     let description = Description::find(&rigged, None).unwrap();
     assert_eq!(description.clips.walk, "Walk");
     let mut teacher = Teacher::new(rigged, description).unwrap();
@@ -182,4 +190,25 @@ fn the_shipped_models_rig_a_mesh_that_bakes_and_walks() {
     assert_eq!(summary.skeleton, SkeletonSource::Learned);
     assert_eq!(summary.skin, SkinSource::Learned);
     assert!(summary.joints >= 20);
+    // Without hands: no finger joint in the file or in its VRM humanoid map.
+    use unica::autorig::pipeline::{RigOptions, rig_file};
+    let out = dir.path().join("no_hands.glb");
+    let options = RigOptions {
+        clips_from: &witch(),
+        clip_files: &[],
+        seed: 0,
+        hands: false,
+    };
+    let no_hands = rig_file(&obj, &out, &models, &options, &|_| {}).unwrap();
+    let rigged = load_character(&out).unwrap();
+    let fingers = unica::autorig::skeleton::hand_joints();
+    assert!(
+        rigged
+            .rig
+            .nodes
+            .iter()
+            .all(|n| !fingers.iter().any(|(f, _)| *f == n.name))
+    );
+    assert_eq!(rigged.vrm.unwrap().humanoid.len(), 20);
+    assert!(no_hands.joints < summary.joints);
 }

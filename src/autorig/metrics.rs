@@ -173,6 +173,7 @@ pub fn random_poses(skeleton: &Skeleton, count: usize, degrees: f32, seed: u64) 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::autorig::skeleton::Class;
 
     #[test]
     fn edge_stretch_of_known_deformations() {
@@ -190,7 +191,6 @@ mod tests {
         assert!((edge_stretch(&rest, &turned, &indices, 1e-6) - 1.0).abs() < 1e-5);
         assert_eq!(edge_stretch(&rest, &posed, &indices, 2.0), 1.0);
     }
-    use crate::autorig::skeleton::Class;
 
     fn line(points: &[Vec3]) -> Skeleton {
         Skeleton {

@@ -182,11 +182,13 @@ pub struct Summary {
     pub dropped_chains: usize,
     pub clips: usize,
     pub description: PathBuf,
-    /// Tearing: the largest edge stretch (posed / rest length) over [`STRETCH_KEYS`].
-    pub stretch: f32,
+    /// Tearing: the largest edge stretch (posed / rest length) over [`STRETCH_KEYS`]
+    /// (`None` where the written rig could not be driven; a warning says why).
+    pub stretch: Option<f32>,
 }
 
-/// The walk that measures tearing: stand, walk, turn left while walking, run, stop.
+/// The drive that measures tearing: stand, go toward +Z, turn to +X, turn to -Z, stop
+/// (the moves speed up to a run).
 pub const STRETCH_KEYS: &str = "10I 40W 20A 30S 20I";
 
 /// The largest edge stretch of the rigged character at `path` (its description beside
@@ -196,7 +198,7 @@ pub fn walk_stretch(path: &Path) -> anyhow::Result<f32> {
     use crate::avatar::teacher::Teacher;
     let character = load_character(path)?;
     let rest = character.rest_mesh();
-    let height = rest.bounds().map_or(1.0, |(lo, hi)| hi.y - lo.y);
+    let height = height_of(&rest);
     let description = Description::find(&character, None)?;
     let mut teacher = Teacher::new(character, description)?;
     let mut worst: f32 = 1.0;
@@ -313,7 +315,9 @@ pub fn rig_file(
         serde_json::to_string_pretty(&description)?.as_bytes(),
     )?;
     progress("tearing (edge stretch over a walk)");
-    let stretch = walk_stretch(out)?;
+    let stretch = walk_stretch(out)
+        .inspect_err(|e| log::warn!("{}: tearing not measured: {e:#}", out.display()))
+        .ok();
     Ok(Summary {
         skeleton: skeleton_source,
         skin: skin_source,
@@ -363,11 +367,52 @@ pub const LOOSE_DEPTH: f32 = 0.045;
 
 /// The skeleton without spring joints that are not on a loose part (see [`LOOSE_DEPTH`]):
 /// a chain stops at its first such joint, with everything below it, and a lone root left
-/// swings nothing (VRM's last joint is only a tail) and goes too.
+/// goes too; each chain left gets an end joint ([`with_chain_ends`]).
 pub fn springs_on_loose_parts(skeleton: &Skeleton, mesh: &Mesh) -> Skeleton {
-    let height = mesh.bounds().map_or(1.0, |(lo, hi)| hi.y - lo.y);
-    let (surface, _) = surface_samples(mesh, 20_000, &mut Rng::new(0));
-    springs_near(skeleton, &surface, LOOSE_DEPTH * height)
+    let reach = LOOSE_DEPTH * height_of(mesh);
+    // As many samples as the skeleton model and `rig-eval` see.
+    let (surface, _) = surface_samples(mesh, POINTS, &mut Rng::new(0));
+    let kept = springs_near(skeleton, &surface, reach);
+    with_chain_ends(&kept, &surface, reach)
+}
+
+/// The mesh's height (its y extent; 1 for an empty mesh).
+fn height_of(mesh: &Mesh) -> f32 {
+    mesh.bounds().map_or(1.0, |(lo, hi)| hi.y - lo.y)
+}
+
+/// The skeleton with an end joint below each chain's last joint, half its bone further
+/// on (shortened until it is within `reach` of a `surface` point; none if even an eighth
+/// is not): VRM's last joint of a spring is only a tail, so without an end the last
+/// predicted joint would not swing.
+pub fn with_chain_ends(skeleton: &Skeleton, surface: &[Vec3], reach: f32) -> Skeleton {
+    let mut out = skeleton.clone();
+    let near = |p: Vec3| {
+        surface
+            .iter()
+            .any(|s| s.distance_squared(p) <= reach * reach)
+    };
+    for root in chain_roots(skeleton) {
+        let last = *chain_from(skeleton, root).last().expect("the root");
+        let Some(parent) = skeleton.parents[last] else {
+            continue;
+        };
+        let (at, step) = (
+            skeleton.joints[last],
+            skeleton.joints[last] - skeleton.joints[parent],
+        );
+        let end = [0.5, 0.25, 0.125]
+            .into_iter()
+            .map(|f| at + f * step)
+            .find(|&p| near(p));
+        if let Some(end) = end {
+            out.joints.push(end);
+            out.parents.push(Some(last));
+            out.names.push(format!("{}_end", skeleton.names[last]));
+            out.spring.push(true);
+        }
+    }
+    out
 }
 
 /// The skeleton without spring joints farther than `reach` from every `surface` point,
@@ -393,7 +438,7 @@ pub fn springs_near(skeleton: &Skeleton, surface: &[Vec3], reach: f32) -> Skelet
 /// spring per chain of at least two joints (the last is the tail) and capsule colliders
 /// on the legs, hips, spine and head with radii measured from the skin.
 pub fn vrm_for(skeleton: &Skeleton, mesh: &Mesh, weights: &[Vec<f32>]) -> Vrm {
-    let height = mesh.bounds().map_or(1.0, |(lo, hi)| hi.y - lo.y);
+    let height = height_of(mesh);
     let humanoid = (0..skeleton.len())
         .filter_map(|j| vrm_name(&skeleton.names[j]).map(|bone| (bone, j)))
         .collect();
@@ -482,5 +527,60 @@ pub fn description_for() -> Description {
         colliders: Vec::new(),
         spring_chains: Vec::new(),
         inferred: None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A body joint at the origin with three spring chains of three joints each, going
+    /// up along x = 0, x = 1 and x = 2.
+    fn three_chains() -> Skeleton {
+        let mut s = Skeleton {
+            class: Class::Other,
+            joints: vec![Vec3::ZERO],
+            parents: vec![None],
+            names: vec!["Body".into()],
+            spring: vec![false],
+        };
+        for c in 0..3 {
+            for k in 0..3 {
+                s.parents
+                    .push(Some(if k == 0 { 0 } else { s.joints.len() - 1 }));
+                s.joints.push(Vec3::new(c as f32, 1.0 + k as f32, 0.0));
+                s.names.push(format!("chain{c}_{k}"));
+                s.spring.push(true);
+            }
+        }
+        s
+    }
+
+    #[test]
+    fn chains_are_cut_where_they_leave_the_surface_and_get_ends() {
+        let skeleton = three_chains();
+        assert_eq!(chain_roots(&skeleton), vec![1, 4, 7]);
+        assert_eq!(swinging_chains(&skeleton), 3);
+        // The surface runs along chain 0 (to y = 4), past chain 1's first joint only,
+        // and nowhere near chain 2.
+        let mut surface: Vec<Vec3> = (0..=40)
+            .map(|i| Vec3::new(0.0, i as f32 * 0.1, 0.0))
+            .collect();
+        surface.push(Vec3::new(1.0, 1.0, 0.0));
+        let kept = springs_near(&skeleton, &surface, 0.2);
+        // Chain 0 whole; chain 1 cut to a lone root and dropped; chain 2 gone.
+        assert_eq!(kept.names, ["Body", "chain0_0", "chain0_1", "chain0_2"]);
+        assert_eq!(kept.parents, [None, Some(0), Some(1), Some(2)]);
+        // Its end half a bone on (y = 3.5), on the surface.
+        let ended = with_chain_ends(&kept, &surface, 0.2);
+        assert_eq!(ended.len(), 5);
+        assert_eq!(ended.names[4], "chain0_2_end");
+        assert_eq!(ended.parents[4], Some(3));
+        assert_eq!(ended.joints[4], Vec3::new(0.0, 3.5, 0.0));
+        assert!(ended.spring[4]);
+        // Where half a bone on is off the surface, the end comes closer (a quarter).
+        let short: Vec<Vec3> = surface.iter().copied().filter(|p| p.y <= 3.25).collect();
+        let ended = with_chain_ends(&kept, &short, 0.06);
+        assert_eq!(ended.joints[4], Vec3::new(0.0, 3.25, 0.0));
     }
 }

@@ -25,17 +25,18 @@ pub fn retarget(source: &Character, clip: &str, target: &Skeleton) -> anyhow::Re
     let rest_world = rig.world(&rig.rest_pose(), Mat4::IDENTITY);
     let template = template_joints(true);
     // Source node per target joint, for the template joints the source has.
-    let source_of: Vec<Option<usize>> = target
+    let templates: Vec<&str> = target
         .names
         .iter()
         .map(|name| {
-            template
-                .iter()
-                .any(|(t, _)| t == name)
-                .then(|| humanoid::find(rig, source.vrm.as_ref(), name))
-                .flatten()
+            if template.iter().any(|(t, _)| t == name) {
+                name.as_str()
+            } else {
+                ""
+            }
         })
         .collect();
+    let source_of = humanoid::find_all(rig, source.vrm.as_ref(), &templates);
     let hips = source_of[0]
         .filter(|_| target.names[0] == "Hips")
         .ok_or_else(|| anyhow::anyhow!("retargeting needs a humanoid target whose root is Hips"))?;

@@ -296,7 +296,6 @@ impl Description {
             })?;
             (hips, feet.to_vec(), "the skeleton")
         };
-        let feet: Vec<usize> = feet;
         let by_name = |word: &str| {
             character
                 .clips

@@ -120,24 +120,47 @@ fn plain(name: &str) -> String {
     name.rsplit(':').next().unwrap_or(name).to_lowercase()
 }
 
-/// The rig node of template bone `template`: the file's VRM humanoid map, the exact name,
-/// then the VRM, Mixamo and Unreal names.
+/// The rig node of each template bone in `templates`: first the file's VRM humanoid map
+/// and the exact names for all of them, then the VRM, Mixamo and Unreal names for the
+/// rest, never a node already taken (a rig's `Chest` is the template's `Chest`, not
+/// also VRM's `chest`, which is the template's `Torso`). An empty name finds nothing.
+pub fn find_all(rig: &Rig, vrm: Option<&Vrm>, templates: &[&str]) -> Vec<Option<usize>> {
+    let table = table();
+    let names: Vec<Option<&Names>> = templates
+        .iter()
+        .map(|t| table.iter().find(|n| n.template == *t))
+        .collect();
+    let mut found: Vec<Option<usize>> = templates
+        .iter()
+        .zip(&names)
+        .map(|(template, names)| {
+            let from_map = vrm.zip(names.and_then(|n| n.vrm.as_deref()));
+            from_map
+                .and_then(|(vrm, bone)| vrm.bone(bone))
+                .or_else(|| rig.find(template).filter(|_| !template.is_empty()))
+        })
+        .collect();
+    for (i, names) in names.iter().enumerate() {
+        let Some(names) = names.filter(|_| found[i].is_none()) else {
+            continue;
+        };
+        let others = [
+            names.vrm.as_deref(),
+            Some(&names.mixamo),
+            names.unreal.as_deref(),
+        ];
+        found[i] = others.iter().flatten().find_map(|alias| {
+            let alias = plain(alias);
+            (0..rig.nodes.len())
+                .find(|&n| plain(&rig.nodes[n].name) == alias && !found.contains(&Some(n)))
+        });
+    }
+    found
+}
+
+/// The rig node of template bone `template` (see [`find_all`]).
 pub fn find(rig: &Rig, vrm: Option<&Vrm>, template: &str) -> Option<usize> {
-    let names = table().into_iter().find(|n| n.template == template);
-    if let (Some(vrm), Some(bone)) = (vrm, names.as_ref().and_then(|n| n.vrm.as_deref()))
-        && let Some(node) = vrm.bone(bone)
-    {
-        return Some(node);
-    }
-    if let Some(node) = rig.find(template) {
-        return Some(node);
-    }
-    let names = names?;
-    let others = [names.vrm, Some(names.mixamo), names.unreal];
-    others.iter().flatten().find_map(|alias| {
-        let alias = plain(alias);
-        (0..rig.nodes.len()).find(|&n| plain(&rig.nodes[n].name) == alias)
-    })
+    find_all(rig, vrm, &[template])[0]
 }
 
 #[cfg(test)]
@@ -226,5 +249,11 @@ mod tests {
         // The template's own names.
         let own = rig(&["Hips", "Abdomen"]);
         assert_eq!(find(&own, None, "Abdomen"), Some(1));
+        // A rig's Chest is the template's Chest and not also Torso (VRM's chest).
+        let chest = rig(&["Hips", "Spine", "Chest"]);
+        assert_eq!(
+            find_all(&chest, None, &["Hips", "Abdomen", "Torso", "Chest"]),
+            vec![Some(0), Some(1), None, Some(2)]
+        );
     }
 }

@@ -243,6 +243,7 @@ fn vrm_springs(
             continue;
         };
         let nodes: Vec<usize> = swinging.iter().map(|j| j.node).collect();
+        // Radii are in the node's units, as the collider's are: scaled to the world.
         let params: Vec<SpringParams> = swinging
             .iter()
             .map(|j| SpringParams {
@@ -250,7 +251,7 @@ fn vrm_springs(
                 drag: j.drag,
                 gravity: j.gravity_power,
                 gravity_dir: j.gravity_dir.normalize_or(Vec3::NEG_Y),
-                hit_radius: j.hit_radius,
+                hit_radius: j.hit_radius * world[j.node].x_axis.truncate().length(),
             })
             .collect();
         let last = *nodes.last().expect("one joint swings");

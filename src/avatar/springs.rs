@@ -116,6 +116,7 @@ impl Chain {
         tip: Vec3,
         params: &[SpringParams],
     ) -> Self {
+        assert_eq!(params.len(), nodes.len(), "one setting per joint");
         let joints = nodes
             .iter()
             .enumerate()
@@ -138,6 +139,10 @@ impl Chain {
                         }
                         path.push(p);
                     }
+                    debug_assert!(
+                        rig.nodes[*path.last().expect("node")].parent == Some(nodes[i - 1]),
+                        "each joint is below the one before it"
+                    );
                     path.reverse();
                 }
                 Joint {
@@ -336,12 +341,26 @@ impl SpringSystem {
             for chain in &mut self.chains {
                 chain.step(rig, local, world, &self.colliders, dt);
             }
+            below_joints(rig, local, world);
         }
     }
 
     pub fn reset(&mut self, rig: &Rig, local: &mut [Transform], world: &mut [Mat4]) {
         for chain in &mut self.chains {
             chain.reset(rig, local, world);
+        }
+        below_joints(rig, local, world);
+    }
+}
+
+/// Recomputes every node under a parent from its parent (parents come first), so the
+/// nodes below a spring joint that are not joints themselves (a VRM spring's tail, the
+/// rest of a rig under a chain) follow the joints' new rotations. Nodes the springs did
+/// not move get the same matrices as before.
+fn below_joints(rig: &Rig, local: &[Transform], world: &mut [Mat4]) {
+    for (n, node) in rig.nodes.iter().enumerate() {
+        if let Some(p) = node.parent {
+            world[n] = world[p] * local[n].matrix();
         }
     }
 }

@@ -130,6 +130,11 @@ impl Teacher {
         Ok(teacher)
     }
 
+    /// The world matrices of the rig's nodes after the last step.
+    pub fn world(&self) -> &[Mat4] {
+        &self.world
+    }
+
     /// Advances one frame (1 / [`FRAME_RATE`] s) under `action`.
     pub fn step(&mut self, action: Action) {
         self.locomotion.step(action, 1.0 / FRAME_RATE);

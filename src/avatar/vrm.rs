@@ -3,7 +3,9 @@
 //! and written into one (`unica rig`'s output). Written from the published specification
 //! (vrm-specification, VRMC_vrm-1.0 and VRMC_springBone-1.0). Not read: `center` spaces
 //! (joints are evaluated in world space), expressions, look-at, first-person, meta beyond
-//! what a writer must give.
+//! what a writer must give. A humanoid map is taken as it is, without the bones VRM
+//! requires (a file missing some still gives the ones it has). VRM expects +Z forward
+//! and metres; `unica rig` writes the mesh's own axes and units.
 
 use glam::Vec3;
 use serde_json::{Value, json};
@@ -139,6 +141,18 @@ impl Vrm {
                     .ok_or_else(|| format!("{field} is not a number")),
             }
         };
+        // The specification's ranges: stiffness, radii and gravity power at least 0, drag
+        // in [0, 1].
+        let within = |value: &Value, field: &str, default: f32, hi: f32| -> Result<f32, String> {
+            let x = float(value, field, default)?;
+            if (0.0..=hi).contains(&x) {
+                Ok(x)
+            } else if hi.is_finite() {
+                Err(format!("{field} {x} is outside [0, {hi}]"))
+            } else {
+                Err(format!("{field} {x} is negative"))
+            }
+        };
         let vec3 = |value: &Value, field: &str, default: Vec3| -> Result<Vec3, String> {
             match value {
                 Value::Null => Ok(default),
@@ -185,7 +199,7 @@ impl Vrm {
             out.colliders.push(VrmCollider {
                 node,
                 offset: vec3(&shape["offset"], &at("offset"), Vec3::ZERO)?,
-                radius: float(&shape["radius"], &at("radius"), 0.0)?,
+                radius: within(&shape["radius"], &at("radius"), 0.0, f32::INFINITY)?,
                 tail: capsule
                     .then(|| vec3(&shape["tail"], &at("tail"), Vec3::ZERO))
                     .transpose()?,
@@ -222,19 +236,30 @@ impl Vrm {
                 let defaults = VrmJoint::new(0);
                 joints.push(VrmJoint {
                     node: node_at(&joint["node"], &at("node"))?,
-                    hit_radius: float(&joint["hitRadius"], &at("hitRadius"), defaults.hit_radius)?,
-                    stiffness: float(&joint["stiffness"], &at("stiffness"), defaults.stiffness)?,
-                    gravity_power: float(
+                    hit_radius: within(
+                        &joint["hitRadius"],
+                        &at("hitRadius"),
+                        defaults.hit_radius,
+                        f32::INFINITY,
+                    )?,
+                    stiffness: within(
+                        &joint["stiffness"],
+                        &at("stiffness"),
+                        defaults.stiffness,
+                        f32::INFINITY,
+                    )?,
+                    gravity_power: within(
                         &joint["gravityPower"],
                         &at("gravityPower"),
                         defaults.gravity_power,
+                        f32::INFINITY,
                     )?,
                     gravity_dir: vec3(
                         &joint["gravityDir"],
                         &at("gravityDir"),
                         defaults.gravity_dir,
                     )?,
-                    drag: float(&joint["dragForce"], &at("dragForce"), defaults.drag)?,
+                    drag: within(&joint["dragForce"], &at("dragForce"), defaults.drag, 1.0)?,
                 });
             }
             if joints.is_empty() {
@@ -265,8 +290,9 @@ impl Vrm {
 
     /// The root `extensions` entries (`VRMC_vrm`, and `VRMC_springBone` when there are
     /// springs) for a file whose node indices are this `Vrm`'s nodes; `name` goes into
-    /// the meta. The meta says the model was made by `unica rig` and keeps the source
-    /// mesh's licence open ("see the source").
+    /// the meta. The meta's required fields are filled; its permissions are VRM's most
+    /// restrictive, and its copyright line points to the source mesh's own licence,
+    /// which `unica rig` cannot know.
     pub fn to_json(&self, name: &str) -> serde_json::Map<String, Value> {
         let mut bones = serde_json::Map::new();
         for (bone, node) in &self.humanoid {
@@ -279,10 +305,12 @@ impl Vrm {
                 "specVersion": "1.0",
                 "meta": {
                     "name": name,
-                    "version": "unica rig",
+                    "version": env!("CARGO_PKG_VERSION"),
                     "authors": ["unica rig (auto-rigged)"],
+                    "copyrightInformation": format!(
+                        "auto-rigged by unica rig from the mesh of {name}; the mesh's own licence applies"
+                    ),
                     "licenseUrl": "https://vrm.dev/licenses/1.0/",
-                    "otherLicenseUrl": "",
                     "avatarPermission": "onlyAuthor",
                     "commercialUsage": "personalNonProfit",
                     "allowExcessivelyViolentUsage": false,
@@ -469,6 +497,14 @@ mod tests {
             (
                 r#"{"VRMC_springBone": {"colliderGroups": [{"colliders": [3]}]}}"#,
                 "3 is not a collider index",
+            ),
+            (
+                r#"{"VRMC_springBone": {"springs": [{"joints": [{"node": 0, "dragForce": 1.5}]}]}}"#,
+                "springs[0].joints[0].dragForce 1.5 is outside [0, 1]",
+            ),
+            (
+                r#"{"VRMC_springBone": {"colliders": [{"node": 0, "shape": {"sphere": {"radius": -1}}}]}}"#,
+                "colliders[0].shape.sphere.radius -1 is negative",
             ),
         ] {
             let err = read(text).unwrap_err();
