@@ -743,3 +743,47 @@ fn a_vrm_file_bakes_with_its_own_humanoid_map_and_springs() {
         "{line}"
     );
 }
+
+/// A VRM spring whose joints are not each below the one before, and a collider on a node
+/// outside the scene: one-line errors naming the file and the field, nothing written.
+#[test]
+fn bad_vrm_springs_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let body = normal_body(CONVENTIONAL);
+    let clips = [
+        clip("idle", "idle"),
+        clip("walk", "walk"),
+        clip("run", "run"),
+    ];
+    for (name, extension, expect) in [
+        (
+            "upside.vrm",
+            serde_json::json!({"VRMC_springBone": {"specVersion": "1.0",
+                "springs": [{"joints": [{"node": 15}, {"node": 1}]}]}}),
+            "VRMC_springBone.springs[0].joints[1]: node 'pelvis' is not below the joint before it, 'tail'",
+        ),
+        (
+            "nowhere.vrm",
+            serde_json::json!({"VRMC_springBone": {"specVersion": "1.0",
+                "colliders": [{"node": 99, "shape": {"sphere": {"radius": 0.1}}}]}}),
+            "VRMC_springBone.colliders[0].node: node 99 is not in the scene",
+        ),
+    ] {
+        let path = dir.path().join(name);
+        write_character(&path, &body, &clips);
+        edit_glb(&path, |json| json["extensions"] = extension);
+        let out = dir.path().join(format!("{name}.data"));
+        let run = unica(&[
+            "bake",
+            path.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--no-renders",
+            "--quick",
+        ]);
+        assert!(!run.status.success());
+        let err = common::error_line(&run);
+        assert!(err.contains(name) && err.contains(expect), "{err}");
+        assert!(!out.exists(), "nothing written");
+    }
+}
