@@ -19,6 +19,7 @@ use super::voxel::{Voxels, bone_tails, segment_distance};
 use crate::avatar::description::{ClipNames, Description};
 use crate::avatar::humanoid::vrm_name;
 use crate::avatar::rig::Transform;
+use crate::avatar::springs::median_radius;
 use crate::avatar::vrm::{Vrm, VrmCollider, VrmJoint, VrmSpring};
 use crate::avatar::{load_character, load_character_with};
 use crate::mesh::Mesh;
@@ -451,21 +452,17 @@ pub fn vrm_for(skeleton: &Skeleton, mesh: &Mesh, weights: &[Vec<f32>]) -> Vrm {
             let a = skeleton.joints[node];
             let b = to.map(|t| skeleton.joints[t]);
             // The median distance to the axis of the vertices this joint mostly moves.
-            let mut distances: Vec<f32> = (0..mesh.positions.len())
+            let distances: Vec<f32> = (0..mesh.positions.len())
                 .filter(|&v| weights[v][node] > 0.5)
                 .map(|v| {
                     let p = mesh.positions[v];
                     b.map_or(p.distance(a), |b| segment_distance(p, a, b))
                 })
                 .collect();
-            distances.sort_by(f32::total_cmp);
-            let radius = distances
-                .get(distances.len() / 2)
-                .map_or(0.05 * height, |&d| d.min(0.15 * height).max(0.02 * height));
             Some(VrmCollider {
                 node,
                 offset: Vec3::ZERO,
-                radius,
+                radius: median_radius(distances, height),
                 tail: b.map(|b| b - a),
             })
         })

@@ -11,7 +11,7 @@ use super::character::{LoadError, fail};
 use super::description::{ChainLayout, Description, LoosePart, SpringChain};
 use super::locomotion::{angle_difference, heading};
 use super::rig::{Bone, Node, Transform};
-use super::springs::{Chain, Collider, SpringParams, SpringSystem};
+use super::springs::{Chain, Collider, SpringParams, SpringSystem, median_radius};
 use super::vrm::Vrm;
 
 /// Where a part's chains hang: joint points (top to tip) per chain, and how to find a
@@ -515,19 +515,12 @@ fn measured_radius(
     let bones: Vec<usize> = (0..character.rig.bones.len())
         .filter(|&b| character.rig.bones[b].node == collider.node)
         .collect();
-    let mut distances: Vec<f32> = (0..positions.len())
+    let distances: Vec<f32> = (0..positions.len())
         .filter(|&v| {
             bones.contains(&(character.skinned.joints[v][0] as usize))
                 && character.skinned.weights[v][0] > 0.5
         })
         .map(|v| positions[v].distance(collider.closest(rest, positions[v])))
         .collect();
-    if distances.is_empty() {
-        return 0.05 * height;
-    }
-    distances.sort_by(f32::total_cmp);
-    // max/min rather than clamp: never panics, whatever the height.
-    distances[distances.len() / 2]
-        .min(0.15 * height)
-        .max(0.02 * height)
+    median_radius(distances, height)
 }

@@ -72,6 +72,19 @@ impl Collider {
     }
 }
 
+/// A collider's radius from the distances of the vertices it stands for to its axis:
+/// their median, within 2-15 % of the character's `height` (5 % with no vertices).
+pub fn median_radius(mut distances: Vec<f32>, height: f32) -> f32 {
+    if distances.is_empty() {
+        return 0.05 * height;
+    }
+    distances.sort_by(f32::total_cmp);
+    // max/min rather than clamp: never panics, whatever the height.
+    distances[distances.len() / 2]
+        .min(0.15 * height)
+        .max(0.02 * height)
+}
+
 #[derive(Clone, Debug)]
 struct Joint {
     node: usize,
