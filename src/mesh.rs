@@ -34,6 +34,11 @@ impl Mesh {
         )
     }
 
+    /// The y extent of the positions (1 for an empty mesh).
+    pub fn height(&self) -> f32 {
+        self.bounds().map_or(1.0, |(lo, hi)| hi.y - lo.y)
+    }
+
     /// Area-weighted smooth vertex normals from the triangles.
     pub fn compute_normals(&mut self) {
         let mut normals = vec![Vec3::ZERO; self.positions.len()];

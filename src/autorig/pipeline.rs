@@ -199,7 +199,7 @@ pub fn walk_stretch(path: &Path) -> anyhow::Result<f32> {
     use crate::avatar::teacher::Teacher;
     let character = load_character(path)?;
     let rest = character.rest_mesh();
-    let height = height_of(&rest);
+    let height = rest.height();
     let description = Description::find(&character, None)?;
     let mut teacher = Teacher::new(character, description)?;
     let mut worst: f32 = 1.0;
@@ -370,16 +370,18 @@ pub const LOOSE_DEPTH: f32 = 0.045;
 /// a chain stops at its first such joint, with everything below it, and a lone root left
 /// goes too; each chain left gets an end joint ([`with_chain_ends`]).
 pub fn springs_on_loose_parts(skeleton: &Skeleton, mesh: &Mesh) -> Skeleton {
-    let reach = LOOSE_DEPTH * height_of(mesh);
+    let reach = LOOSE_DEPTH * mesh.height();
     // As many samples as the skeleton model and `rig-eval` see.
     let (surface, _) = surface_samples(mesh, POINTS, &mut Rng::new(0));
     let kept = springs_near(skeleton, &surface, reach);
     with_chain_ends(&kept, &surface, reach)
 }
 
-/// The mesh's height (its y extent; 1 for an empty mesh).
-fn height_of(mesh: &Mesh) -> f32 {
-    mesh.bounds().map_or(1.0, |(lo, hi)| hi.y - lo.y)
+/// Whether some `surface` point lies within `reach` of `p`.
+fn within(surface: &[Vec3], p: Vec3, reach: f32) -> bool {
+    surface
+        .iter()
+        .any(|s| s.distance_squared(p) <= reach * reach)
 }
 
 /// The skeleton with an end joint below each chain's last joint, half its bone further
@@ -388,11 +390,7 @@ fn height_of(mesh: &Mesh) -> f32 {
 /// predicted joint would not swing.
 pub fn with_chain_ends(skeleton: &Skeleton, surface: &[Vec3], reach: f32) -> Skeleton {
     let mut out = skeleton.clone();
-    let near = |p: Vec3| {
-        surface
-            .iter()
-            .any(|s| s.distance_squared(p) <= reach * reach)
-    };
+    let near = |p: Vec3| within(surface, p, reach);
     for root in chain_roots(skeleton) {
         let last = *chain_from(skeleton, root).last().expect("the root");
         let Some(parent) = skeleton.parents[last] else {
@@ -419,11 +417,7 @@ pub fn with_chain_ends(skeleton: &Skeleton, surface: &[Vec3], reach: f32) -> Ske
 /// The skeleton without spring joints farther than `reach` from every `surface` point,
 /// chains cut there and lone roots left out.
 pub fn springs_near(skeleton: &Skeleton, surface: &[Vec3], reach: f32) -> Skeleton {
-    let near = |p: Vec3| {
-        surface
-            .iter()
-            .any(|s| s.distance_squared(p) <= reach * reach)
-    };
+    let near = |p: Vec3| within(surface, p, reach);
     let keep: Vec<bool> = (0..skeleton.len())
         .map(|j| !skeleton.spring[j] || near(skeleton.joints[j]))
         .collect();
@@ -439,7 +433,7 @@ pub fn springs_near(skeleton: &Skeleton, surface: &[Vec3], reach: f32) -> Skelet
 /// spring per chain of at least two joints (the last is the tail) and capsule colliders
 /// on the legs, hips, spine and head with radii measured from the skin.
 pub fn vrm_for(skeleton: &Skeleton, mesh: &Mesh, weights: &[Vec<f32>]) -> Vrm {
-    let height = height_of(mesh);
+    let height = mesh.height();
     let humanoid = (0..skeleton.len())
         .filter_map(|j| vrm_name(&skeleton.names[j]).map(|bone| (bone, j)))
         .collect();

@@ -37,7 +37,7 @@ pub fn add_spring_chains(
         .rig
         .world(&character.rig.rest_pose(), Mat4::IDENTITY);
     let rest_mesh = character.rest_mesh();
-    let height = rest_mesh.bounds().map_or(1.0, |(lo, hi)| hi.y - lo.y);
+    let height = rest_mesh.height();
     let forward_heading = description.forward_heading();
     let mut system = SpringSystem::default();
     let mut world = rest.clone();

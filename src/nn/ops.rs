@@ -39,6 +39,38 @@ gpu_struct! {
     }
 }
 
+impl Conv2dParams {
+    /// A convolution of `input` [N, C_in, H, W] to `c_out` channels at `out` [H', W']:
+    /// square `kernel`, `stride`, zero padding `pad`; no addend, residual or upsampling.
+    fn new(
+        input: [usize; 4],
+        c_out: usize,
+        out: [usize; 2],
+        (kernel, stride, pad): (usize, usize, usize),
+        has_bias: bool,
+    ) -> Self {
+        let [n, c_in, h, w] = input;
+        Self {
+            batch: n as u32,
+            c_in: c_in as u32,
+            c_out: c_out as u32,
+            h_in: h as u32,
+            w_in: w as u32,
+            h_out: out[0] as u32,
+            w_out: out[1] as u32,
+            kernel: kernel as u32,
+            stride: stride as u32,
+            pad: pad as u32,
+            has_bias: u32::from(has_bias),
+            has_extra: 0,
+            has_residual: 0,
+            upsample: 0,
+            reserved1: 0,
+            reserved2: 0,
+        }
+    }
+}
+
 gpu_struct! {
     /// Shapes of a nearest ×2 upsampling: `planes` = batch × channels.
     pub struct UpsampleParams {
@@ -623,24 +655,13 @@ impl<'a> Recorder<'a> {
         let h_out = (h_in + 2 * pad - k) / stride + 1;
         let w_out = (w_in + 2 * pad - k) / stride + 1;
         let y = self.output("conv2d.y", &[n, c_out, h_out, w_out])?;
-        let params = Conv2dParams {
-            batch: n as u32,
-            c_in: c_in as u32,
-            c_out: c_out as u32,
-            h_in: h_in as u32,
-            w_in: w_in as u32,
-            h_out: h_out as u32,
-            w_out: w_out as u32,
-            kernel: k as u32,
-            stride: stride as u32,
-            pad: pad as u32,
-            has_bias: u32::from(bias.is_some()),
-            has_extra: 0,
-            has_residual: 0,
-            upsample: 0,
-            reserved1: 0,
-            reserved2: 0,
-        };
+        let params = Conv2dParams::new(
+            [n, c_in, h_in, w_in],
+            c_out,
+            [h_out, w_out],
+            (k, stride, pad),
+            bias.is_some(),
+        );
         self.flops += 2 * (y.len() * c_in * k * k) as u64;
         // A bias binding must exist even without a bias; the weight stands in (unread).
         let bias = bias.unwrap_or(weight);
@@ -734,24 +755,13 @@ impl<'a> Recorder<'a> {
         }
         let (h_out, w_out) = (h.div_ceil(2), w.div_ceil(2));
         let y = self.output("conv3x3_s2.y", &[n, weights.c_out, h_out, w_out])?;
-        let params = Conv2dParams {
-            batch: n as u32,
-            c_in: c_in as u32,
-            c_out: weights.c_out as u32,
-            h_in: h as u32,
-            w_in: w as u32,
-            h_out: h_out as u32,
-            w_out: w_out as u32,
-            kernel: 3,
-            stride: 2,
-            pad: 1,
-            has_bias: u32::from(bias.is_some()),
-            has_extra: 0,
-            has_residual: 0,
-            upsample: 0,
-            reserved1: 0,
-            reserved2: 0,
-        };
+        let params = Conv2dParams::new(
+            [n, c_in, h, w],
+            weights.c_out,
+            [h_out, w_out],
+            (3, 2, 1),
+            bias.is_some(),
+        );
         self.flops += 2 * (y.len() * c_in * 9) as u64;
         self.check(&[x]);
         let input = self.texels(x)?;
@@ -850,22 +860,15 @@ impl<'a> Recorder<'a> {
         let (h_out, w_out) = (scale * h, scale * w);
         let y = self.output("packed_conv.y", &[n, weights.c_out, h_out, w_out])?;
         let params = Conv2dParams {
-            batch: n as u32,
-            c_in: c_in as u32,
-            c_out: weights.c_out as u32,
-            h_in: h as u32,
-            w_in: w as u32,
-            h_out: h_out as u32,
-            w_out: w_out as u32,
-            kernel: k as u32,
-            stride: 1,
-            pad: (k / 2) as u32,
-            has_bias: u32::from(has_bias),
             has_extra: u32::from(has_extra),
-            has_residual: 0,
             upsample: u32::from(upsample),
-            reserved1: 0,
-            reserved2: 0,
+            ..Conv2dParams::new(
+                input,
+                weights.c_out,
+                [h_out, w_out],
+                (k, 1, k / 2),
+                has_bias,
+            )
         };
         self.flops += 2 * (y.len() * c_in * k * k) as u64;
         Ok((y, params))
