@@ -1241,3 +1241,104 @@ fn the_action_table_gives_the_cross_attention_bit_for_bit() {
         assert_same_bits(&a, &b, &format!("{precision:?} {kernels:?}"));
     }
 }
+
+#[test]
+fn the_convolution_of_a_normed_input_equals_the_norm_then_the_convolution() {
+    // A ResBlock's norm-SiLU-conv: for CPU drivers the norm is folded into conv3x3's
+    // loads (its statistics computed per workgroup, the serial norm's sums in the same
+    // order), which must give what group_norm then conv3x3 give. Two shapes: 16 channels
+    // in 8 groups over 16² (the decoder's first level) with an addend and a residual, and
+    // 12 channels in 4 groups over 10 × 12 (rows not a multiple of the 8-pixel tiles).
+    type Shape = ([usize; 4], usize, usize);
+    let shapes: [Shape; 2] = [([2, 16, 16, 16], 16, 8), ([2, 12, 10, 12], 12, 4)];
+    for precision in precisions() {
+        let f = Fixture::open("down", precision);
+        let mut pipelines = PipelineCache::default();
+        for ([n, c, h, w], c_out, groups) in shapes {
+            let x = f.wave("x", &[n, c, h, w], 0.37);
+            let gamma = f.wave("gamma", &[c], 1.3);
+            let beta = f.wave("beta", &[c], 0.7);
+            let bias = f.wave("bias", &[c_out], 0.5);
+            let extra = f.wave("extra", &[n, c_out], 0.9);
+            let skip = f.wave("skip", &[n, c_out, h, w], 0.17);
+            let weights = unica::nn::ops::PackedConv::new(
+                &f.gpu,
+                "w",
+                &wave(c_out * c * 9, 0.23),
+                [c_out, c, 3],
+                precision,
+            )
+            .unwrap();
+            let norm = unica::nn::ops::InputNorm {
+                gamma: &gamma,
+                beta: &beta,
+                groups,
+                silu: true,
+            };
+            let what = format!("{precision:?} {:?}", [n, c, h, w]);
+            let mut plan = Recorder::capture(&f.gpu, &mut pipelines, precision);
+            plan.set_kernels(Kernels::Cpu);
+            assert!(plan.can_fold_norm([n, c, h, w], groups), "{what}");
+            plan.normed_conv3x3(
+                &x,
+                Some(norm),
+                &weights,
+                Some(&bias),
+                Some(&extra),
+                Some(&skip),
+            )
+            .unwrap();
+            assert_eq!(plan.finish().dispatches(), 1, "{what}: one dispatch");
+            let run = |kernels: Kernels, fused: bool, pipelines: &mut PipelineCache| {
+                let mut r = Recorder::new(&f.gpu, pipelines, precision);
+                r.set_kernels(kernels);
+                let y = if fused {
+                    r.normed_conv3x3(
+                        &x,
+                        Some(norm),
+                        &weights,
+                        Some(&bias),
+                        Some(&extra),
+                        Some(&skip),
+                    )
+                } else {
+                    let h = r.group_norm(&x, &gamma, &beta, groups, true).unwrap();
+                    r.conv3x3(&h, &weights, Some(&bias), Some(&extra), Some(&skip))
+                }
+                .unwrap();
+                r.submit();
+                y.read(&f.gpu).unwrap()
+            };
+            let fused = run(Kernels::Cpu, true, &mut pipelines);
+            let separate = run(Kernels::Cpu, false, &mut pipelines);
+            assert_same_bits(&fused, &separate, &what);
+            // And the simple kernels (the PyTorch-tested reference), within the layer
+            // tolerance.
+            let simple = run(Kernels::Simple, false, &mut pipelines);
+            let error = relative_error(&fused, &simple);
+            println!("{what}: fused against simple {error:.1e}");
+            assert!(error <= tolerances(precision).0, "{what}: {error}");
+        }
+    }
+}
+
+#[test]
+fn the_decoder_records_its_norms_inside_its_convolutions_for_cpu_drivers() {
+    // The tiny decoder (16² to 128²): the four norms of the 16² and 32² blocks go into
+    // the convolutions after them; the 64² block's and the 128² output norm stay
+    // dispatches of their own. the_vae_decoder_matches_pytorch checks the result.
+    let f = Fixture::open("vae_decoder", Precision::F32);
+    let z = f.input("io.in.z");
+    let w = Weights::new(&f.file, &f.gpu, Precision::F32);
+    let decoder = Decoder::load(&w, &VaeConfig::TINY).unwrap();
+    let mut pipelines = PipelineCache::default();
+    let mut counts = vec![];
+    for kernels in [Kernels::Cpu, Kernels::Gpu] {
+        let mut c = Recorder::capture(&f.gpu, &mut pipelines, Precision::F32);
+        c.set_kernels(kernels);
+        decoder.forward(&mut c, &z).unwrap();
+        counts.push(c.finish().dispatches());
+    }
+    // 11 convolutions and 3 norms; the GPU kernels record all 7 norms.
+    assert_eq!(counts, [14, 18]);
+}

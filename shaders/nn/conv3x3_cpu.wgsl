@@ -6,6 +6,12 @@
 // for 192 multiply-adds. The 10 input values a row of 8 outputs needs start anywhere in
 // a texel, so they are picked from four texels by their offset. Optional bias, addend
 // and residual as in conv3x3.wgsl; `upsample` reads the input upsampled ×2 (nearest).
+// Built with NORMED set (CONV3X3_NORMED_CPU, with `p.norm_groups` = G > 0), the input
+// is group-normalised as it is loaded: each
+// workgroup first computes the (mean, 1/std) of every (sample, group) as
+// group_norm_serial.wgsl does, the same sums in the same order (one barrier), then each
+// value read is normalised, SiLU'd and rounded to Elem, as that
+// kernel's stores would have been.
 
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
 @group(0) @binding(1) var x: texture_2d<f32>;
@@ -16,9 +22,47 @@
 // With `p.has_residual` set: [N, c_out, H, W] added last.
 @group(0) @binding(5) var<storage, read> residual: array<Elem>;
 @group(0) @binding(6) var<storage, read_write> y: array<Elem>;
+// With `p.norm_groups` set: the norm's per-channel affine, [c_in] each.
+@group(0) @binding(7) var<storage, read> norm_gamma: array<Elem>;
+@group(0) @binding(8) var<storage, read> norm_beta: array<Elem>;
+
+// (mean, 1/std) of (sample n, group g) at n·G + g, with `p.norm_groups` set.
+var<workgroup> norm_stats: array<vec2<f32>, NORM_STATS>;
+
+// The statistics of the k-th (sample, group) block of x (contiguous in NCHW).
+fn group_stats(k: u32) -> vec2<f32> {
+    let count = p.c_in / p.norm_groups * p.h_in * p.w_in;
+    let base = k * count / 4u;
+    let quads = count / 4u;
+    var sum = vec4<f32>(0.0);
+    for (var i = 0u; i < quads; i++) {
+        sum += texel(x, base + i);
+    }
+    let mean = (sum.x + sum.y + sum.z + sum.w) / f32(count);
+    var squares = vec4<f32>(0.0);
+    for (var i = 0u; i < quads; i++) {
+        let d = texel(x, base + i) - mean;
+        squares += d * d;
+    }
+    let inv_std = inverseSqrt((squares.x + squares.y + squares.z + squares.w) / f32(count) + p.norm_eps);
+    return vec2<f32>(mean, inv_std);
+}
+
+// Input values normalised: (v - mean) · scale + shift, SiLU, rounded to Elem (the norm's
+// SiLU is always on here: Recorder::can_fold_norm).
+fn normed(v: vec4<f32>, mean: f32, scale: f32, shift: f32) -> vec4<f32> {
+    let out = (v - mean) * scale + shift;
+    return vec4<f32>(vec4<Elem>(out / (1.0 + exp(-out))));
+}
 
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {
+    if NORMED != 0u {
+        for (var k = invocation.lane; k < p.batch * p.norm_groups; k += WORKGROUP) {
+            norm_stats[k] = group_stats(k);
+        }
+        workgroupBarrier();
+    }
     let i = linear_index(invocation);
     let blocks = (p.c_out + 7u) / 8u;
     let tiles = (p.w_out + 7u) / 8u;
@@ -58,6 +102,15 @@ fn main(invocation: Invocation) {
     let quads = 2u * blocks;
     for (var ci = 0u; ci < p.c_in; ci++) {
         let plane = (n * p.c_in + ci) * p.h_in * p.w_in;
+        var mean = 0.0;
+        var scale = 1.0;
+        var shift = 0.0;
+        if NORMED != 0u {
+            let stats = norm_stats[n * p.norm_groups + ci / (p.c_in / p.norm_groups)];
+            mean = stats.x;
+            scale = stats.y * f32(norm_gamma[ci]);
+            shift = f32(norm_beta[ci]);
+        }
         for (var ky = 0u; ky < 3u; ky++) {
             let iy = i32(oy + ky) - 1;
             if iy < 0 || iy >= i32(p.h_out) {
@@ -84,6 +137,12 @@ fn main(invocation: Invocation) {
                 u2 = vec4<f32>(w1.x, w1.y, 0.0, 0.0);
             } else {
                 u2 = pick(q2, texel(x, u32(t + 3)), s);
+            }
+            if NORMED != 0u {
+                // Before the padding masks: the padding is zero after the norm.
+                u0 = normed(u0, mean, scale, shift);
+                u1 = normed(u1, mean, scale, shift);
+                u2 = normed(u2, mean, scale, shift);
             }
             u0 = select(vec4<f32>(0.0), u0, m0);
             u1 = select(vec4<f32>(0.0), u1, m1);

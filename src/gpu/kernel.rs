@@ -59,14 +59,17 @@ impl Grid {
     }
 }
 
-/// Compute pipelines by (shader file, precision variant), built once on first use; every
-/// compute shader's entry point is `main`.
+/// Compute pipelines by (shader file, integer constants, precision variant), built once
+/// on first use; every compute shader's entry point is `main`. (Two shaders may share a
+/// file with different constants: specialised variants of one kernel.)
 #[derive(Default)]
 pub struct PipelineCache {
-    pipelines: HashMap<(&'static str, Precision), wgpu::ComputePipeline>,
+    pipelines: HashMap<PipelineKey, wgpu::ComputePipeline>,
     /// Group-0 binding counts by naga's reflection (see [`PipelineCache::bindings`]).
-    bindings: HashMap<(&'static str, Precision), usize>,
+    bindings: HashMap<PipelineKey, usize>,
 }
+
+type PipelineKey = (&'static str, &'static [(&'static str, u32)], Precision);
 
 impl PipelineCache {
     pub fn get(
@@ -76,7 +79,7 @@ impl PipelineCache {
         precision: Precision,
     ) -> &wgpu::ComputePipeline {
         self.pipelines
-            .entry((shader.file, precision))
+            .entry((shader.file, shader.uints, precision))
             .or_insert_with(|| {
                 let module = shader.module(device, precision);
                 device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
@@ -95,7 +98,7 @@ impl PipelineCache {
     pub fn bindings(&mut self, shader: &Shader, precision: Precision) -> usize {
         *self
             .bindings
-            .entry((shader.file, precision))
+            .entry((shader.file, shader.uints, precision))
             .or_insert_with(|| match shader.bindings(precision) {
                 Ok(b) => b.len(),
                 Err(e) => panic!("{e}"),

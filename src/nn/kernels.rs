@@ -33,7 +33,13 @@ pub const CONV3X3: Shader =
     shader!("nn/conv3x3.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV_STORE]);
 /// `CONV3X3` for CPU drivers: the input and the weights read as texels.
 pub const CONV3X3_CPU: Shader = shader!("nn/conv3x3_cpu.wgsl", [Conv2dParams], elem)
-    .with_snippets(&[PICK, CONV_BIAS, CONV_STORE]);
+    .with_snippets(&[PICK, CONV_BIAS, CONV_STORE])
+    .with_uints(&[("NORM_STATS", super::ops::NORM_STATS as u32), ("NORMED", 0)]);
+/// `CONV3X3_CPU` that group-normalises its input as it loads it (`Recorder::normed_conv3x3`):
+/// the same file built with `NORMED` set, so the plain form carries none of it.
+pub const CONV3X3_NORMED_CPU: Shader = shader!("nn/conv3x3_cpu.wgsl", [Conv2dParams], elem)
+    .with_snippets(&[PICK, CONV_BIAS, CONV_STORE])
+    .with_uints(&[("NORM_STATS", super::ops::NORM_STATS as u32), ("NORMED", 1)]);
 /// The 1×1 convolution in register tiles of 8 pixels × 8 channels, from repacked f32
 /// weights (`ops::PackedConv`).
 /// The 3×3 stride-2 convolution for CPU drivers: input and packed weights as texels.
@@ -81,6 +87,7 @@ pub const ALL: &[Shader] = &[
     CONV2D_TILED,
     CONV3X3,
     CONV3X3_CPU,
+    CONV3X3_NORMED_CPU,
     CONV3X3_S2_CPU,
     CONV1X1,
     CONV1X1_CPU,

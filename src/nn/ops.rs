@@ -34,6 +34,14 @@ gpu_struct! {
         /// conv3x3: the input is read upsampled ×2 (nearest): output pixel (y, x) of the
         /// 2H × 2W image sees input pixel (y / 2, x / 2) through each tap.
         pub upsample: u32,
+        /// conv3x3 for CPU drivers: G > 0 group-normalises the input on load in G
+        /// groups (statistics per workgroup), as [`Recorder::group_norm`] would before
+        /// the convolution; see [`Recorder::normed_conv3x3`].
+        pub norm_groups: u32,
+        /// With `norm_groups`: the norm's epsilon (SiLU always follows the norm).
+        pub norm_eps: f32,
+        pub reserved3: u32,
+        pub reserved0: u32,
         pub reserved1: u32,
         pub reserved2: u32,
     }
@@ -65,6 +73,10 @@ impl Conv2dParams {
             has_extra: 0,
             has_residual: 0,
             upsample: 0,
+            norm_groups: 0,
+            norm_eps: 0.0,
+            reserved3: 0,
+            reserved0: 0,
             reserved1: 0,
             reserved2: 0,
         }
@@ -261,6 +273,20 @@ gpu_struct! {
 
 /// The epsilon of every group norm in the trainer's models.
 pub const GROUP_NORM_EPS: f32 = 1e-5;
+
+/// The most (sample, group) statistics a convolution that normalises its input holds
+/// (conv3x3_cpu.wgsl's workgroup array).
+pub const NORM_STATS: usize = 64;
+
+/// A group norm (and SiLU) of a convolution's input: [`Recorder::group_norm`]'s
+/// arguments, for [`Recorder::normed_conv3x3`].
+#[derive(Clone, Copy)]
+pub struct InputNorm<'a> {
+    pub gamma: &'a Tensor,
+    pub beta: &'a Tensor,
+    pub groups: usize,
+    pub silu: bool,
+}
 
 /// The largest attention head the attention kernel holds in registers.
 pub const MAX_HEAD_SIZE: usize = 64;
@@ -698,6 +724,24 @@ impl<'a> Recorder<'a> {
         extra: Option<&Tensor>,
         residual: Option<&Tensor>,
     ) -> Result<Tensor, GpuError> {
+        self.normed_conv3x3(x, None, weights, bias, extra, residual)
+    }
+
+    /// [`Recorder::conv3x3`] of `norm` applied to `x` ([`Recorder::group_norm`], SiLU
+    /// with `norm.silu`). For CPU drivers, with SiLU and where
+    /// [`Recorder::can_fold_norm`] allows, in one dispatch: each workgroup first computes the statistics of every (sample,
+    /// group) as group_norm_serial.wgsl does (the same sums in the same order), then
+    /// normalises the input as it loads it and rounds it to Elem as the norm's store
+    /// would. Otherwise the norm, then the convolution.
+    pub fn normed_conv3x3(
+        &mut self,
+        x: &Tensor,
+        norm: Option<InputNorm>,
+        weights: &PackedConv,
+        bias: Option<&Tensor>,
+        extra: Option<&Tensor>,
+        residual: Option<&Tensor>,
+    ) -> Result<Tensor, GpuError> {
         let [n, c_in, h, w] = x.shape[..] else {
             panic!("conv3x3 input must be NCHW, got {:?}", x.shape)
         };
@@ -713,6 +757,12 @@ impl<'a> Recorder<'a> {
                 r.shape
             );
         }
+        if let Some(norm) = norm
+            && !(norm.silu && self.can_fold_norm([n, c_in, h, w], norm.groups))
+        {
+            let normed = self.group_norm(x, norm.gamma, norm.beta, norm.groups, norm.silu)?;
+            return self.normed_conv3x3(&normed, None, weights, bias, extra, residual);
+        }
         if w < 8 || self.kernels == Kernels::Simple {
             let y = self.conv2d(x, &weights.plain, bias, 1, 1)?;
             let y = match extra {
@@ -727,6 +777,11 @@ impl<'a> Recorder<'a> {
         let (y, mut params) =
             self.packed_output(nchw(x), weights, bias.is_some(), extra.is_some(), false)?;
         params.has_residual = u32::from(residual.is_some());
+        if let Some(norm) = norm {
+            self.check(&[norm.gamma, norm.beta]);
+            params.norm_groups = norm.groups as u32;
+            params.norm_eps = GROUP_NORM_EPS;
+        }
         let c_out = weights.c_out;
         // Bias, extra and residual bindings must exist even when absent; the input stands
         // in (unread).
@@ -735,8 +790,26 @@ impl<'a> Recorder<'a> {
         let residual = residual.unwrap_or(x);
         self.check(&[x, bias, extra, residual, &y]);
         let grid = self.grid(n * c_out.div_ceil(8) * h * w.div_ceil(8));
-        self.packed_conv3x3(&params, x, weights, [bias, extra, residual, &y], grid)?;
+        let norm = norm.map(|m| [m.gamma, m.beta]);
+        self.packed_conv3x3(&params, x, weights, [bias, extra, residual, &y], norm, grid)?;
         Ok(y)
+    }
+
+    /// Whether [`Recorder::normed_conv3x3`] can fold the norm of `input` [N, C, H, W]
+    /// (in `groups` groups) into the convolution: CPU drivers, rows of 8 pixels or more,
+    /// whole groups in planes of a multiple of 4 values, at most [`NORM_STATS`] (sample,
+    /// group) pairs and [`SERIAL_NORM_LIMIT`] values per group. Whether it pays is the
+    /// caller's choice: on lavapipe the folded norm is recomputed for every tile that
+    /// reads a value (3·⌈c_out / 8⌉ times), which costs more than the dispatch it saves
+    /// (about 0.1 ms per million multiply-adds of the convolution; see
+    /// `vae::Decoder::forward`).
+    pub fn can_fold_norm(&self, [n, c, h, w]: [usize; 4], groups: usize) -> bool {
+        self.kernels == Kernels::Cpu
+            && w >= 8
+            && c.is_multiple_of(groups)
+            && (h * w).is_multiple_of(4)
+            && n * groups <= NORM_STATS
+            && c / groups * h * w <= SERIAL_NORM_LIMIT
     }
 
     /// A 3×3, stride-2, padding-1 convolution from weights packed by [`PackedConv`]: for
@@ -808,30 +881,41 @@ impl<'a> Recorder<'a> {
         let bias = bias.unwrap_or(x);
         self.check(&[x, bias, &y]);
         let grid = self.grid(n * weights.c_out.div_ceil(8) * 2 * h * (2 * w).div_ceil(8));
-        self.packed_conv3x3(&params, x, weights, [bias, x, x, &y], grid)?;
+        self.packed_conv3x3(&params, x, weights, [bias, x, x, &y], None, grid)?;
         Ok(y)
     }
 
     /// Records `conv3x3.wgsl` (or, for CPU drivers, `conv3x3_cpu.wgsl`, which reads the
     /// input and the weights as texels) over `x` and `weights`, then `rest`: bias, addend,
-    /// residual and output.
+    /// residual and output; for CPU drivers then the input norm's gamma and beta (with
+    /// `params.norm_groups`).
     fn packed_conv3x3(
         &mut self,
         params: &Conv2dParams,
         x: &Tensor,
         weights: &PackedConv,
         rest: [&Tensor; 4],
+        norm: Option<[&Tensor; 2]>,
         grid: Grid,
     ) -> Result<(), GpuError> {
+        // Without a norm its bindings exist all the same; the bias (or its stand-in)
+        // stands in, unread.
+        let norm = norm.unwrap_or([rest[0], rest[0]]);
         let rest = rest.map(|t| Bound::Buffer(&t.buffer));
         if self.kernels == Kernels::Cpu {
             let input = self.texels(x)?;
             let packed = weights.packed.constant_texels(self.gpu)?;
             let mut bound = vec![Bound::Texels(&input), Bound::Texels(packed)];
             bound.extend(rest);
-            self.steps
-                .dispatch_bound(&kernels::CONV3X3_CPU, params, &bound, grid);
+            bound.extend(norm.map(|t| Bound::Buffer(&t.buffer)));
+            let kernel = if params.norm_groups != 0 {
+                &kernels::CONV3X3_NORMED_CPU
+            } else {
+                &kernels::CONV3X3_CPU
+            };
+            self.steps.dispatch_bound(kernel, params, &bound, grid);
         } else {
+            assert_eq!(params.norm_groups, 0, "the GPU conv3x3 normalises no input");
             let mut bound = vec![
                 Bound::Buffer(&x.buffer),
                 Bound::Buffer(&weights.packed.buffer),
