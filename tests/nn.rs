@@ -1276,31 +1276,20 @@ fn the_convolution_of_a_normed_input_equals_the_norm_then_the_convolution() {
                 silu: true,
             };
             let what = format!("{precision:?} {:?}", [n, c, h, w]);
+            let fold = |r: &mut Recorder| {
+                let (bias, extra, skip) = (Some(&bias), Some(&extra), Some(&skip));
+                r.normed_conv3x3(&x, Some(norm), &weights, bias, extra, skip)
+            };
             let mut plan = Recorder::capture(&f.gpu, &mut pipelines, precision);
             plan.set_kernels(Kernels::Cpu);
             assert!(plan.can_fold_norm([n, c, h, w], groups), "{what}");
-            plan.normed_conv3x3(
-                &x,
-                Some(norm),
-                &weights,
-                Some(&bias),
-                Some(&extra),
-                Some(&skip),
-            )
-            .unwrap();
+            fold(&mut plan).unwrap();
             assert_eq!(plan.finish().dispatches(), 1, "{what}: one dispatch");
             let run = |kernels: Kernels, fused: bool, pipelines: &mut PipelineCache| {
                 let mut r = Recorder::new(&f.gpu, pipelines, precision);
                 r.set_kernels(kernels);
                 let y = if fused {
-                    r.normed_conv3x3(
-                        &x,
-                        Some(norm),
-                        &weights,
-                        Some(&bias),
-                        Some(&extra),
-                        Some(&skip),
-                    )
+                    fold(&mut r)
                 } else {
                     let h = r.group_norm(&x, &gamma, &beta, groups, true).unwrap();
                     r.conv3x3(&h, &weights, Some(&bias), Some(&extra), Some(&skip))

@@ -7,11 +7,10 @@
 // a texel, so they are picked from four texels by their offset. Optional bias, addend
 // and residual as in conv3x3.wgsl; `upsample` reads the input upsampled ×2 (nearest).
 // Built with NORMED set (CONV3X3_NORMED_CPU, with `p.norm_groups` = G > 0), the input
-// is group-normalised as it is loaded: each
-// workgroup first computes the (mean, 1/std) of every (sample, group) as
-// group_norm_serial.wgsl does, the same sums in the same order (one barrier), then each
-// value read is normalised, SiLU'd and rounded to Elem, as that
-// kernel's stores would have been.
+// is group-normalised as it is loaded: each workgroup first computes the (mean, 1/std)
+// of every (sample, group) with group_norm_serial.wgsl's `texel_stats` (one barrier),
+// then each value read is normalised, SiLU'd and rounded to Elem, as that kernel's
+// stores would have been.
 
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
 @group(0) @binding(1) var x: texture_2d<f32>;
@@ -29,25 +28,6 @@
 // (mean, 1/std) of (sample n, group g) at n·G + g, with `p.norm_groups` set.
 var<workgroup> norm_stats: array<vec2<f32>, NORM_STATS>;
 
-// The statistics of the k-th (sample, group) block of x (contiguous in NCHW).
-fn group_stats(k: u32) -> vec2<f32> {
-    let count = p.c_in / p.norm_groups * p.h_in * p.w_in;
-    let base = k * count / 4u;
-    let quads = count / 4u;
-    var sum = vec4<f32>(0.0);
-    for (var i = 0u; i < quads; i++) {
-        sum += texel(x, base + i);
-    }
-    let mean = (sum.x + sum.y + sum.z + sum.w) / f32(count);
-    var squares = vec4<f32>(0.0);
-    for (var i = 0u; i < quads; i++) {
-        let d = texel(x, base + i) - mean;
-        squares += d * d;
-    }
-    let inv_std = inverseSqrt((squares.x + squares.y + squares.z + squares.w) / f32(count) + p.norm_eps);
-    return vec2<f32>(mean, inv_std);
-}
-
 // Input values normalised: (v - mean) · scale + shift, SiLU, rounded to Elem (the norm's
 // SiLU is always on here: Recorder::can_fold_norm).
 fn normed(v: vec4<f32>, mean: f32, scale: f32, shift: f32) -> vec4<f32> {
@@ -58,8 +38,10 @@ fn normed(v: vec4<f32>, mean: f32, scale: f32, shift: f32) -> vec4<f32> {
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {
     if NORMED != 0u {
+        // Each (sample, group) block of x is contiguous in NCHW.
+        let count = p.c_in / p.norm_groups * p.h_in * p.w_in;
         for (var k = invocation.lane; k < p.batch * p.norm_groups; k += WORKGROUP) {
-            norm_stats[k] = group_stats(k);
+            norm_stats[k] = texel_stats(x, k * count / 4u, count, p.norm_eps);
         }
         workgroupBarrier();
     }

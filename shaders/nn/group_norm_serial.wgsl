@@ -41,17 +41,9 @@ fn main(invocation: Invocation) {
     let count = per_group * p.hw;
     let base = id * count / 4u; // (n, g) blocks are contiguous in NCHW
     let quads = count / 4u;
-    var sum = vec4<f32>(0.0);
-    for (var i = 0u; i < quads; i++) {
-        sum += texel(x, base + i);
-    }
-    let mean = (sum.x + sum.y + sum.z + sum.w) / f32(count);
-    var squares = vec4<f32>(0.0);
-    for (var i = 0u; i < quads; i++) {
-        let d = texel(x, base + i) - mean;
-        squares += d * d;
-    }
-    let inv_std = inverseSqrt((squares.x + squares.y + squares.z + squares.w) / f32(count) + p.eps);
+    let stats = texel_stats(x, base, count, p.eps);
+    let mean = stats.x;
+    let inv_std = stats.y;
     let first_channel = (id % p.groups) * per_group;
     if p.hw == 1u {
         // Rows of a layer norm: 4 channels at a time.

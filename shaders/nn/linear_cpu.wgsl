@@ -58,23 +58,6 @@ fn mac(a: vec4<f32>, x: vec4<f32>, t: mat4x4<f32>) -> vec4<f32> {
     return a + x.x * t[0] + x.y * t[1] + x.z * t[2] + x.w * t[3];
 }
 
-// The layer norm's (mean, 1 / std) of the input row at texel `row`, summed as
-// group_norm_serial.wgsl sums a row (4 running partial sums, two passes).
-fn row_stats(row: u32, quads: u32) -> vec2<f32> {
-    var sum = vec4<f32>(0.0);
-    for (var i = 0u; i < quads; i++) {
-        sum += texel(x, row + i);
-    }
-    let count = f32(p.inputs);
-    let mean = (sum.x + sum.y + sum.z + sum.w) / count;
-    var squares = vec4<f32>(0.0);
-    for (var i = 0u; i < quads; i++) {
-        let d = texel(x, row + i) - mean;
-        squares += d * d;
-    }
-    return vec2<f32>(mean, inverseSqrt((squares.x + squares.y + squares.z + squares.w) / count + p.eps));
-}
-
 // Four normed inputs as the layer norm stores them (rounded to Elem).
 fn normed(v: vec4<f32>, stats: vec2<f32>, g: vec4<f32>, b: vec4<f32>) -> vec4<f32> {
     return vec4<f32>(vec4<Elem>((v - stats.x) * (stats.y * g) + b));
@@ -184,14 +167,14 @@ fn main(invocation: Invocation) {
             c7 = mac(c7, x7, hi);
         }
     } else if p.norm_rows != 0u {
-        let s0 = row_stats(xr.x, quads);
-        let s1 = row_stats(xr.y, quads);
-        let s2 = row_stats(xr.z, quads);
-        let s3 = row_stats(xr.w, quads);
-        let s4 = row_stats(xr2.x, quads);
-        let s5 = row_stats(xr2.y, quads);
-        let s6 = row_stats(xr2.z, quads);
-        let s7 = row_stats(xr2.w, quads);
+        let s0 = texel_stats(x, xr.x, p.inputs, p.eps);
+        let s1 = texel_stats(x, xr.y, p.inputs, p.eps);
+        let s2 = texel_stats(x, xr.z, p.inputs, p.eps);
+        let s3 = texel_stats(x, xr.w, p.inputs, p.eps);
+        let s4 = texel_stats(x, xr2.x, p.inputs, p.eps);
+        let s5 = texel_stats(x, xr2.y, p.inputs, p.eps);
+        let s6 = texel_stats(x, xr2.z, p.inputs, p.eps);
+        let s7 = texel_stats(x, xr2.w, p.inputs, p.eps);
         for (var k = 0u; k < quads; k++) {
             let lo = transposed(wo + k);
             let hi = transposed(wo2 + k);

@@ -21,8 +21,18 @@ pub const CONV1X1_TILE: Snippet = snippet!("nn/snippets/conv1x1_tile.wgsl");
 /// `Online`, `take`, `store_online`: the CPU-driver attention's running softmax.
 pub const ONLINE_SOFTMAX: Snippet = snippet!("nn/snippets/online_softmax.wgsl");
 
+/// `texel_stats`: every CPU-driver norm's (mean, 1 / std), one summation order.
+pub const TEXEL_STATS: Snippet = snippet!("nn/snippets/texel_stats.wgsl");
+
 /// Every snippet of the model's shaders.
-pub const SNIPPETS: &[Snippet] = &[PICK, CONV_BIAS, CONV_STORE, CONV1X1_TILE, ONLINE_SOFTMAX];
+pub const SNIPPETS: &[Snippet] = &[
+    PICK,
+    CONV_BIAS,
+    CONV_STORE,
+    CONV1X1_TILE,
+    ONLINE_SOFTMAX,
+    TEXEL_STATS,
+];
 
 pub const CONV2D: Shader = shader!("nn/conv2d.wgsl", [Conv2dParams], elem);
 /// The convolution in register tiles of 4 output pixels × 8 channels.
@@ -33,12 +43,12 @@ pub const CONV3X3: Shader =
     shader!("nn/conv3x3.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV_STORE]);
 /// `CONV3X3` for CPU drivers: the input and the weights read as texels.
 pub const CONV3X3_CPU: Shader = shader!("nn/conv3x3_cpu.wgsl", [Conv2dParams], elem)
-    .with_snippets(&[PICK, CONV_BIAS, CONV_STORE])
+    .with_snippets(&[PICK, CONV_BIAS, CONV_STORE, TEXEL_STATS])
     .with_uints(&[("NORM_STATS", super::ops::NORM_STATS as u32), ("NORMED", 0)]);
 /// `CONV3X3_CPU` that group-normalises its input as it loads it (`Recorder::normed_conv3x3`):
 /// the same file built with `NORMED` set, so the plain form carries none of it.
 pub const CONV3X3_NORMED_CPU: Shader = shader!("nn/conv3x3_cpu.wgsl", [Conv2dParams], elem)
-    .with_snippets(&[PICK, CONV_BIAS, CONV_STORE])
+    .with_snippets(&[PICK, CONV_BIAS, CONV_STORE, TEXEL_STATS])
     .with_uints(&[("NORM_STATS", super::ops::NORM_STATS as u32), ("NORMED", 1)]);
 /// The 1×1 convolution in register tiles of 8 pixels × 8 channels, from repacked f32
 /// weights (`ops::PackedConv`).
@@ -53,12 +63,14 @@ pub const CONV1X1_CPU: Shader =
 pub const UPSAMPLE_NEAREST: Shader = shader!("nn/upsample_nearest.wgsl", [UpsampleParams], elem);
 pub const GROUP_NORM: Shader = shader!("nn/group_norm.wgsl", [GroupNormParams], elem);
 /// Group norm for CPU drivers: one invocation per (sample, group), no barriers.
-pub const GROUP_NORM_SERIAL: Shader = shader!("nn/group_norm_serial.wgsl", [GroupNormParams], elem);
+pub const GROUP_NORM_SERIAL: Shader =
+    shader!("nn/group_norm_serial.wgsl", [GroupNormParams], elem).with_snippets(&[TEXEL_STATS]);
 pub const LINEAR: Shader = shader!("nn/linear.wgsl", [LinearParams], elem);
 /// The linear layer in 4 × 4 register tiles (for 4 rows or more).
 pub const LINEAR_TILED: Shader = shader!("nn/linear_tiled.wgsl", [LinearParams], elem);
 /// The tiled linear layer for CPU drivers: vec4 loads along the inputs.
-pub const LINEAR_CPU: Shader = shader!("nn/linear_cpu.wgsl", [LinearParams], elem);
+pub const LINEAR_CPU: Shader =
+    shader!("nn/linear_cpu.wgsl", [LinearParams], elem).with_snippets(&[TEXEL_STATS]);
 pub const ADD: Shader = shader!("nn/add.wgsl", [AddParams], elem);
 /// The cross-attention to one action token, as a per-action bias.
 pub const ADD_ACTION_BIAS: Shader = shader!("nn/add_action_bias.wgsl", [ActionBiasParams], elem);
