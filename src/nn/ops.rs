@@ -729,10 +729,10 @@ impl<'a> Recorder<'a> {
 
     /// [`Recorder::conv3x3`] of `norm` applied to `x` ([`Recorder::group_norm`], SiLU
     /// with `norm.silu`). For CPU drivers, with SiLU and where
-    /// [`Recorder::can_fold_norm`] allows, in one dispatch: each workgroup first computes the statistics of every (sample,
-    /// group) as group_norm_serial.wgsl does (the same sums in the same order), then
-    /// normalises the input as it loads it and rounds it to Elem as the norm's store
-    /// would. Otherwise the norm, then the convolution.
+    /// [`Recorder::can_fold_norm`] allows, in one dispatch: each workgroup first
+    /// computes the statistics of every (sample, group) with the serial norm's
+    /// `texel_stats`, then normalises the input as it loads it and rounds it to Elem as
+    /// the norm's store would. Otherwise the norm, then the convolution.
     pub fn normed_conv3x3(
         &mut self,
         x: &Tensor,
@@ -797,19 +797,17 @@ impl<'a> Recorder<'a> {
 
     /// Whether [`Recorder::normed_conv3x3`] can fold the norm of `input` [N, C, H, W]
     /// (in `groups` groups) into the convolution: CPU drivers, rows of 8 pixels or more,
-    /// whole groups in planes of a multiple of 4 values, at most [`NORM_STATS`] (sample,
-    /// group) pairs and [`SERIAL_NORM_LIMIT`] values per group. Whether it pays is the
-    /// caller's choice: on lavapipe the folded norm is recomputed for every tile that
-    /// reads a value (3·⌈c_out / 8⌉ times), which costs more than the dispatch it saves
-    /// (about 0.1 ms per million multiply-adds of the convolution; see
+    /// at most [`NORM_STATS`] (sample, group) pairs, and a norm the serial kernel takes
+    /// ([`GroupNormParams::serial`]: the fold computes its statistics). Whether it pays
+    /// is the caller's choice: on lavapipe the folded norm is recomputed for every tile
+    /// that reads a value (3·⌈c_out / 8⌉ times), which costs more than the dispatch it
+    /// saves (about 0.1 ms per million multiply-adds of the convolution; see
     /// `vae::Decoder::forward`).
     pub fn can_fold_norm(&self, [n, c, h, w]: [usize; 4], groups: usize) -> bool {
         self.kernels == Kernels::Cpu
             && w >= 8
-            && c.is_multiple_of(groups)
-            && (h * w).is_multiple_of(4)
             && n * groups <= NORM_STATS
-            && c / groups * h * w <= SERIAL_NORM_LIMIT
+            && GroupNormParams::nchw([n, c, h, w], groups, true).serial()
     }
 
     /// A 3×3, stride-2, padding-1 convolution from weights packed by [`PackedConv`]: for
