@@ -409,6 +409,50 @@ fn the_vae_decoder_matches_pytorch() {
     );
 }
 
+#[test]
+fn the_pca_head_vae_decoder_matches_pytorch() {
+    // Two latents, so each sample's rows of the gather table are checked.
+    check(
+        "vae_pca_decoder",
+        &["io.in.z"],
+        "io.out.y",
+        Scope::Model,
+        |r, w, z| {
+            let y = Decoder::load(w, &VaeConfig::TINY_PCA)
+                .unwrap()
+                .forward(r, &z[0])
+                .unwrap();
+            assert_eq!(y.shape, [2, 3, 128, 128]);
+            y
+        },
+    );
+}
+
+#[test]
+fn index_tensors_out_of_order_or_out_of_range_are_refused_by_name() {
+    use unica::tensors::{Tensor as Stored, write};
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.safetensors");
+    let tensors = [
+        ("pixels", Stored::i32(&[3], &[5, 2, 9])),
+        ("far", Stored::i32(&[2], &[1, 99])),
+        ("good", Stored::i32(&[2], &[1, 15])),
+    ];
+    write(&path, &tensors).unwrap();
+    let file = TensorFile::open(&path).unwrap();
+    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
+    let w = Weights::new(&file, &gpu, Precision::F32);
+    let error = w.indices("pixels", 3, 16).unwrap_err().to_string();
+    assert!(
+        error.contains("bad.safetensors")
+            && error.contains("'pixels' is not increasing at index 1 (5 then 2)"),
+        "{error}"
+    );
+    let error = w.indices("far", 2, 16).unwrap_err().to_string();
+    assert!(error.contains("'far' holds 99, outside 0..16"), "{error}");
+    assert_eq!(w.indices("good", 2, 16).unwrap(), [1, 15]);
+}
+
 /// The action id stored in a fixture.
 fn action(f: &Fixture) -> usize {
     f.scalar("io.in.action") as usize

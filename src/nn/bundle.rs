@@ -103,6 +103,13 @@ impl Bundle {
             .as_ref()
             .map(|cfg| Refiner::load(&w.at("refiner"), cfg))
             .transpose()?;
+        let decoder = Decoder::load(&w.at("vae.decoder"), vae)?;
+        if decoder.pixels().is_some_and(|p| p != pixels) {
+            return Err(LoadError::Manifest {
+                path: file.path().display().to_string(),
+                problem: "the VAE decoder's pixels ('vae.decoder.pixels') are not the map's ('map.pixels')".into(),
+            });
+        }
         Ok(Self {
             colors,
             refiner,
@@ -111,7 +118,7 @@ impl Bundle {
             pca_mean,
             pca_basis,
             encoder: Encoder::load(&w.at("vae.encoder"), vae)?,
-            decoder: Decoder::load(&w.at("vae.decoder"), vae)?,
+            decoder,
             unet: UNet::load(&w.at("unet"), unet)?,
             schedule: Schedule::scaled_linear(
                 manifest.diffusion.steps,

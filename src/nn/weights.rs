@@ -82,6 +82,33 @@ impl<'a> Weights<'a> {
         }
     }
 
+    /// A 1-D int32 tensor of `len` strictly increasing indices, each below `bound`, on the
+    /// host (a random source gives 0..len).
+    pub fn indices(&self, name: &str, len: usize, bound: usize) -> Result<Vec<u32>, LoadError> {
+        let full = format!("{}{name}", self.prefix);
+        let file = match self.source {
+            Source::File(file) => file,
+            Source::Random => return Ok((0..len as u32).collect()),
+        };
+        let (values, _) = file.i32(&full, &[Some(len)])?;
+        let fail = |problem: String| LoadError::Manifest {
+            path: file.path().display().to_string(),
+            problem: format!("tensor '{full}' {problem}"),
+        };
+        if let Some(bad) = values.iter().find(|&&v| v < 0 || v as usize >= bound) {
+            return Err(fail(format!("holds {bad}, outside 0..{bound}")));
+        }
+        if let Some(i) = values.windows(2).position(|w| w[0] >= w[1]) {
+            return Err(fail(format!(
+                "is not increasing at index {} ({} then {})",
+                i + 1,
+                values[i],
+                values[i + 1]
+            )));
+        }
+        Ok(values.into_iter().map(|v| v as u32).collect())
+    }
+
     /// A tensor of exactly `shape` on the GPU.
     pub fn tensor(&self, name: &str, shape: &[usize]) -> Result<Tensor, LoadError> {
         let values = self.host(name, shape)?;

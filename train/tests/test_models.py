@@ -95,3 +95,37 @@ def test_vae_loss_falls_on_an_overfit_batch():
         loss.backward()
         opt.step()
     assert loss.item() < 0.5 * first, f"{first} -> {loss.item()}"
+
+
+def test_the_pca_head_decoder_gives_its_maps_back():
+    # Maps whose foreground values lie in a 3-dimensional affine subspace: a basis of 3
+    # components fits them, a head whose bias holds one map's coefficients decodes that
+    # map from any latent, the background is 0, and a zero head decodes the mean.
+    gen = torch.Generator().manual_seed(0)
+    pixels = torch.tensor([3, 40, 41, 200, 1000])
+    directions, offset = torch.randn(3, 15, generator=gen), torch.randn(15, generator=gen)
+    values = offset + torch.randn(12, 3, generator=gen) @ directions  # [12, 3P]
+    maps = torch.zeros(12, 3, 32 * 32)
+    maps[:, :, pixels] = values.view(12, 3, 5)
+    maps = maps.view(12, 3, 32, 32)
+    vae = PositionVae(VaeConfig(channels=(8, 8, 8, 8), decoder="pca", components=3, pixels=5, map_size=32))
+    vae.decoder.fit(maps, pixels)
+    z = torch.randn(2, 4, 4, 4, generator=gen)
+    with torch.no_grad():
+        torch.testing.assert_close(vae.decode(z)[0].flatten(1)[:, pixels].flatten(), values.mean(0), atol=1e-5, rtol=0)
+        vae.decoder.head.bias.copy_((values[7] - vae.decoder.mean) @ vae.decoder.basis.T)
+        out = vae.decode(z)
+    torch.testing.assert_close(out[1], maps[7], atol=1e-5, rtol=0)
+    background = torch.ones(32 * 32, dtype=torch.bool)
+    background[pixels] = False
+    assert out.flatten(2)[:, :, background].abs().max() == 0
+    assert vae.decoder_flops() == 2 * 3 * 15
+
+
+def test_an_unknown_decoder_or_a_pca_head_without_pixels_is_refused():
+    import pytest
+
+    with pytest.raises(ValueError, match="unknown VAE decoder 'mlp'"):
+        PositionVae(VaeConfig(decoder="mlp"))
+    with pytest.raises(ValueError, match="foreground pixel count"):
+        PositionVae(VaeConfig(decoder="pca"))

@@ -3,6 +3,8 @@ stage runs, resumes, and writes a bundle that loads."""
 
 import json
 
+import torch
+
 from unica_train import bundle
 from unica_train.train import main, parse_keys
 
@@ -46,6 +48,20 @@ def test_training_end_to_end_and_resume(quick_dataset_dir, tmp_path, capsys):
     assert "resumed vae at step 4" in log and "resumed unet at step 6" in log
     assert "] 1/" not in log and "] 2/" not in log, "nothing retrained"
     bundle.load(out / "bundle")
+
+
+def test_training_with_a_pca_head_decoder_writes_its_basis(quick_dataset_dir, tmp_path):
+    config = tmp_path / "pca.json"
+    cfg = dict(TINY, vae={**TINY["vae"], "decoder": "pca", "components": 6}, unet_steps=2, stage2_steps=0)
+    config.write_text(json.dumps(cfg))
+    main(["--data", str(quick_dataset_dir), "--out", str(tmp_path / "run"), "--config", str(config)])
+    vae, _, extra, manifest = bundle.load(tmp_path / "run" / "bundle")
+    assert manifest["vae"]["decoder"] == "pca" and manifest["vae"]["components"] == 6
+    assert torch.equal(vae.decoder.pixels, extra["map.pixels"])
+    basis = vae.decoder.basis
+    torch.testing.assert_close(basis @ basis.T, torch.eye(6), atol=1e-4, rtol=0)
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert metrics["vae_decoder_gflop"] > 2 * basis.numel() / 1e9
 
 
 def test_path_comparison_splits_the_script_into_legs():

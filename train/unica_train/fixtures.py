@@ -28,6 +28,8 @@ from .vae import PositionVae, VaeConfig
 
 WITCH_BUNDLE = Path(__file__).resolve().parents[2] / "assets" / "witch" / "bundle"
 TINY_VAE = VaeConfig(channels=(16, 12, 8, 8))
+# A PCA head over 300 foreground pixels of the 128² map, 24 components.
+TINY_PCA_VAE = VaeConfig(channels=(16, 12, 8, 8), decoder="pca", components=24, pixels=300, map_size=128)
 TINY_UNET = UNetConfig(channels=(16, 32), embed=32, heads=2)
 # 300 points: 18 full patches of 16 and a tail of 12; 75 pooled points: 4 patches + 11.
 TINY_REFINER = RefinerConfig(channels=[16, 32], depths=[1, 1], heads=[2, 2], decoder_depth=1, patch=16, stride=4)
@@ -90,7 +92,27 @@ def build() -> dict[str, dict[str, torch.Tensor]]:
     unit, feats = rand(300, 3).sigmoid(), rand(300, 11)
     module_file("refiner", Refiner(TINY_REFINER), {"features": feats, "unit": unit}, lambda m, features, unit: m(features, unit))
     files["base_splats"], files["witch_refiner"] = witch_splats()
-    return {name: {k: v.float().contiguous() for k, v in tensors.items()} for name, tensors in files.items()}
+    out = {name: {k: v.float().contiguous() for k, v in tensors.items()} for name, tensors in files.items()}
+    out["vae_pca_decoder"] = pca_decoder()
+    return out
+
+
+def pca_decoder() -> dict[str, torch.Tensor]:
+    """The tiny PCA-head decoder (its own generator, so the other fixtures do not move):
+    random pixels, an orthonormal random basis, a random mean and head, two latents. The
+    pixels stay int32, as in a bundle."""
+    gen = torch.Generator().manual_seed(4321)
+    decoder = PositionVae(TINY_PCA_VAE).decoder
+    pixels = torch.randperm(128 * 128, generator=gen)[:TINY_PCA_VAE.pixels].sort().values
+    q, _ = torch.linalg.qr(torch.randn(3 * TINY_PCA_VAE.pixels, TINY_PCA_VAE.components, generator=gen))
+    with torch.no_grad():
+        decoder.basis.copy_(q.T)
+        decoder.mean.copy_(torch.rand(3 * TINY_PCA_VAE.pixels, generator=gen))
+        decoder.pixels.copy_(pixels.int())
+        _randomise(decoder, gen)
+        z = torch.randn(2, 4, 16, 16, generator=gen)
+        y = decoder(z)
+    return {"io.in.z": z, "io.out.y": y, **{k: v.contiguous() for k, v in decoder.state_dict().items()}}
 
 
 def witch_frame(noise: torch.Tensor) -> dict[str, torch.Tensor]:

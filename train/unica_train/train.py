@@ -131,9 +131,14 @@ class Run:
     # -- the VAE ---------------------------------------------------------------------
     def train_vae(self, resume: bool) -> PositionVae:
         cfg = self.cfg
-        vae = PositionVae(VaeConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.vae.items()})).to(self.device)
+        vae_cfg = VaeConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.vae.items()})
+        if vae_cfg.decoder == "pca":
+            vae_cfg.pixels, vae_cfg.map_size = int(self.ds.pixels.shape[0]), int(self.ds.manifest["map_size"])
+        vae = PositionVae(vae_cfg).to(self.device)
         opt = torch.optim.AdamW(vae.parameters(), lr=cfg.vae_lr)
         step = self.restore("vae", resume, {"vae": vae, "opt": opt})
+        if step == 0 and vae_cfg.decoder == "pca":
+            self.fit_vae_basis(vae)
         model = DDP(vae) if self.ranks > 1 else vae
         start = time.time()
         while step < cfg.vae_steps:
@@ -158,6 +163,18 @@ class Run:
             if step % cfg.checkpoint_every == 0 or step == cfg.vae_steps:
                 self.save("vae", step, {"vae": vae, "opt": opt})
         return vae.eval()
+
+    @torch.no_grad()
+    def fit_vae_basis(self, vae: PositionVae):
+        """The PCA head's basis from the maps of up to 600 random training groups (2,400
+        maps; each group normalised as the VAE sees it)."""
+        t0 = time.time()
+        gen = torch.Generator().manual_seed(self.cfg.seed + 1)
+        picks = torch.randperm(len(self.train_groups), generator=gen)[:600]
+        maps = torch.cat([self.group_maps(self.train_groups[i]) for i in picks])
+        vae.decoder.fit(maps.to(self.device), self.ds.pixels.to(self.device))
+        if self.rank == 0:
+            print(f"vae: PCA-head basis of {vae.cfg.components} components from {maps.shape[0]} training maps ({time.time() - t0:.0f} s)", flush=True)
 
     # -- latents ---------------------------------------------------------------------
     @torch.no_grad()
@@ -388,7 +405,7 @@ def main(argv=None):
         "unet_parameters": parameter_count(unet),
         "vae_parameters": parameter_count(vae),
         "unet_gflop_per_step_per_frame": conv_and_linear_flops(unet, x, torch.zeros(1, 4, dtype=torch.long), torch.tensor([0])) / 4e9,
-        "vae_decoder_gflop": conv_and_linear_flops(vae.decoder, torch.zeros(1, 4, 16, 16)) / 1e9,
+        "vae_decoder_gflop": (conv_and_linear_flops(vae.decoder, torch.zeros(1, vae.cfg.latent, 16, 16)) + vae.decoder_flops()) / 1e9,
         "latent_scale": scale,
     })
     (args.out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
