@@ -833,8 +833,10 @@ fn view(args: ViewArgs, gpu: GpuOptions) -> anyhow::Result<()> {
 }
 
 /// The evaluation's key script (the paper's), and the quick one.
-const EVAL_KEYS: &str = "60W 60S 60A 20I";
-const EVAL_KEYS_QUICK: &str = "20W 20S 20A 10I";
+/// The evaluation's key script: every movement key, a 180° (W→S, A→D) and a 90° (S→A)
+/// turn, and enough idle at the end to see the root come to rest.
+const EVAL_KEYS: &str = "60W 60S 60A 60D 30I";
+const EVAL_KEYS_QUICK: &str = "20W 20S 20A 20D 20I";
 
 /// Drives the teacher on the evaluation's key script (geometry only), then runs the
 /// trainer's evaluation (`python3 -m unica_train.eval`, or $UNICA_PYTHON) on it.
@@ -854,11 +856,12 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
         );
     }
     std::fs::create_dir_all(&args.out).with_context(|| args.out.display().to_string())?;
-    let keys = KeyScript::parse(if args.quick {
+    let script = if args.quick {
         EVAL_KEYS_QUICK
     } else {
         EVAL_KEYS
-    })?;
+    };
+    let keys = KeyScript::parse(script)?;
     let clips: Vec<PathBuf> = if args.clips.is_empty() {
         manifest.clip_files.iter().map(PathBuf::from).collect()
     } else {
@@ -874,10 +877,51 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
         &teacher,
         serde_json::to_string(&serde_json::json!({ "frames": frames }))?.as_bytes(),
     )?;
+    // The free-running rollout through the shipped engine path (the WGSL model, PCA
+    // clean-up): each frame's drawn points, which the report compares with the teacher.
+    let engine_dir = args.out.join("engine");
+    let manifest = crate::nn::bundle::read_manifest(&args.bundle.join("manifest.json"))?;
+    let job = crate::headless::RenderJob {
+        avatar: crate::headless::Avatar::Bundle {
+            dir: args.bundle.clone(),
+            options: crate::engine::EngineOptions {
+                seed: args.seed,
+                sampling: Some(crate::nn::sampler::Sampling {
+                    steps: manifest.sampler.steps,
+                    cfg_scale: manifest.sampler.cfg_scale,
+                }),
+                pca: true,
+                ..Default::default()
+            },
+        },
+        keys: keys.clone(),
+        out: engine_dir.clone(),
+        size: 64,
+        views: 1,
+        points: true,
+        surface: false,
+        splat_level: Some(128),
+        refine: false,
+    };
+    let gpu = GpuContext::headless(&GpuOptions::from_env())?;
+    let bar = indicatif::ProgressBar::new(0).with_style(
+        indicatif::ProgressStyle::with_template(
+            "engine rollout {bar:40} {pos}/{len} frames, {eta} left",
+        )
+        .expect("valid template"),
+    );
+    crate::headless::render(&job, gpu, &|done, total| {
+        bar.set_length(total);
+        bar.set_position(done);
+    })?;
+    bar.finish_and_clear();
     let python = std::env::var("UNICA_PYTHON").unwrap_or_else(|_| "python3".into());
     let mut command = std::process::Command::new(&python);
     command
-        .args(["-m", "unica_train.eval", "--bundle"])
+        .args(["-m", "unica_train.eval", "--engine"])
+        .arg(&engine_dir)
+        .args(["--keys", script])
+        .arg("--bundle")
         .arg(&args.bundle)
         .arg("--data")
         .arg(&args.data)

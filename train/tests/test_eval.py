@@ -30,3 +30,22 @@ def test_unica_eval_quick_writes_a_report_with_finite_numbers(tmp_path):
     assert [s["key"] for s in seq["segments"]][:3] == ["W", "S", "A"]
     assert results["long_run"]["finite"]
     assert "| steps=1 |" in (out / "report.md").read_text()
+    # Issue #17's numbers: the free-running rollout came through the engine, the masked
+    # scores are in a plausible range, and every summary key is there.
+    masked = results["masked"]
+    assert masked["free_running_path"] == "engine"
+    assert (out / "engine" / "frame_00000.ply").is_file()
+    assert [s["key"] for s in masked["motion"]["segments"]] == ["W", "S", "A", "D"]
+    summary = json.loads((out / "summary.json").read_text())
+    for key in ("vae_mm", "chamfer_mm", "masked_psnr_db", "masked_ssim", "free_masked_psnr_db", "free_masked_ssim",
+                "speed_error_pct", "drift_slope", "fvd_pca", "dataset_fvd_pca"):
+        assert math.isfinite(summary[key]), (key, summary[key])
+    for key in ("stop_frames", "turn180_frames", "turn90_frames", "teacher_stop_frames", "teacher_turn180_frames",
+                "teacher_turn90_frames"):
+        assert key in summary, key
+    assert 5 < summary["masked_psnr_db"] < 60 and 0 < summary["masked_ssim"] <= 1
+    assert summary["image_size"] == 512
+    # The teacher's own geometry, drawn the same way, scores above the generated one.
+    tf = masked["teacher_forced"]
+    assert tf["ground_truth"]["black"]["psnr"] > tf["generated"]["black"]["psnr"], tf
+    assert "## Masked images" in (out / "report.md").read_text()

@@ -188,3 +188,56 @@ def test_drift_slope_of_noise_has_zero_in_its_interval():
     values = 0.1 + 0.01 * torch.randn(40, generator=torch.Generator().manual_seed(4), dtype=torch.float64)
     lo, hi = M.drift_slope(values, starts)["ci95"]
     assert lo < 0.0 < hi
+
+
+def test_union_box_and_masked_scores_crop_to_both_foregrounds():
+    from unica_train.metrics import masked_scores, union_box
+
+    a = torch.zeros(64, 64, 4)
+    b = torch.zeros(64, 64, 4)
+    a[10:20, 30:40] = torch.tensor([0.5, 0.5, 0.5, 1.0])
+    b[15:30, 35:45] = torch.tensor([0.5, 0.5, 0.5, 1.0])
+    assert union_box(a[..., 3], b[..., 3]) == (10, 30, 30, 45)
+    assert union_box(torch.zeros(4, 4), torch.zeros(4, 4)) is None
+    # Identical images score infinity and 1 on either background.
+    assert masked_scores(a, a, 0.0) == (float("inf"), 1.0)
+    # Known answer: in the 20 × 15 box, a grey 0.5 (linear) square where the other image
+    # is background. On black: (10·10 + 15·10 - 5·5 overlap) = 225 pixels differ by
+    # srgb(0.5) on the part where only one image is grey; the overlap matches.
+    g = 1.055 * 0.5 ** (1 / 2.4) - 0.055
+    differing = 10 * 10 + 15 * 10 - 2 * 5 * 5
+    mse = differing * g * g / (20 * 15)
+    got, _ = masked_scores(a, b, 0.0)
+    assert abs(got - (-10 * math.log10(mse))) < 1e-3
+    # On white the grey differs from white by 1 - srgb(0.5).
+    mse_white = differing * (1 - g) ** 2 / (20 * 15)
+    got_white, _ = masked_scores(a, b, 1.0)
+    assert abs(got_white - (-10 * math.log10(mse_white))) < 1e-3
+    # Unmasked, the black background around would inflate PSNR: the masked score is lower.
+    from unica_train.splats import psnr, srgb
+    assert got < psnr(srgb(a[..., :3]), srgb(b[..., :3]))
+
+
+def test_stop_frames_counts_frames_until_the_root_rests():
+    from unica_train.metrics import stop_frames
+
+    # 30 fps: moving 0.1 m a frame (3 m/s), released at frame 5, then slowing 3, 2, 1,
+    # 0.03 m/s... : the speed is below 0.05 m/s from the 4th idle step on.
+    steps = [0.1] * 5 + [0.1, 2 / 30, 1 / 30, 0.001, 0.001, 0.0]
+    z = torch.tensor([0.0] + steps).cumsum(0)
+    path = torch.stack([torch.zeros_like(z), torch.zeros_like(z), z], 1)
+    frames, distance = stop_frames(path, 5, 30.0)
+    assert frames == 3
+    assert abs(distance - sum(steps[5:])) < 1e-6
+    assert stop_frames(path[:9], 5, 30.0)[0] is None  # still moving at the end
+
+
+def test_nearest_aligned_pose_undoes_a_turn():
+    from unica_train.metrics import nearest_aligned_pose, rotate_y, yaw_align
+
+    gen = torch.Generator().manual_seed(0)
+    poses = torch.randn(5, 40, 3, generator=gen)
+    frame = rotate_y(poses[3], -0.7)  # pose 3 turned away by 0.7 rad
+    assert abs(float(yaw_align(frame, poses[3])) - 0.7) < 1e-5
+    distance, index, theta = nearest_aligned_pose(frame, poses)
+    assert index == 3 and abs(theta - 0.7) < 1e-5 and distance < 1e-5

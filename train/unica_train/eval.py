@@ -22,7 +22,15 @@ against it), run in PyTorch because a 2-core CPU runs it there ~20× faster than
 3. Long run: the script ten times (2,000 frames); (b) on sliding 200-frame windows with a
    fitted slope and its 95 % interval (drift shows as a positive slope).
 4. Ablations: DDIM steps, CFG scale, PCA on/off, refiner on/off.
-5. report.md, results.json and PNG plots in OUT."""
+5. Masked (issue #17; what `summary.json` reports): images of the renders' size (512²)
+   from the 4 cardinal views, on black and on white, scored only inside the union of
+   both images' foreground boxes: (a) teacher-forced as in 1; (b) free-running — the
+   engine's own rollout (`--engine`, written by `unica eval` through the shipped WGSL
+   path) with each sampled frame compared with the nearest rendered teacher pose of the
+   dataset (root-centred, turned to its best yaw, found by Chamfer), drawn from that
+   pose's cameras. Also from the engine's rollout: Chamfer, speeds, turns and the stop
+   after the keys are released.
+6. report.md, results.json, summary.json and PNG plots in OUT."""
 
 from __future__ import annotations
 
@@ -40,7 +48,7 @@ from .diffusion import Schedule, sample_next
 from .refiner import Frames, Refiner, RefinerConfig, apply, features
 from .train import parse_keys
 
-KEYS = "60W 60S 60A 20I"
+KEYS = "60W 60S 60A 60D 30I"
 FRAME_RATE = 30.0
 # PCA components in the windows of the FVD stand-in: the leading ones carry the motion.
 FVD_COMPONENTS = 8
@@ -190,7 +198,14 @@ def teacher_reference(av: Avatar, window_stride: int, pose_stride: int, clips: l
             poses.append((world - root)[keep])
         if count >= WINDOW:
             windows_out.append(metrics.windows(torch.cat(coeffs), WINDOW, window_stride))
-    return torch.cat(windows_out), torch.cat(poses)
+    return torch.cat(windows_out), torch.cat(poses), windows_out
+
+
+def dataset_frechet(per_clip: list[torch.Tensor]) -> float:
+    """The Fréchet stand-in of the dataset against itself: the windows of its even-numbered
+    clips against those of its odd-numbered ones (the value a perfect model would get,
+    roughly)."""
+    return metrics.frechet_distance(torch.cat(per_clip[0::2]), torch.cat(per_clip[1::2]))
 
 
 def sequence_level(av: Avatar, run: dict, teacher_path: list, keys: str, poses: torch.Tensor, reference: torch.Tensor,
@@ -226,6 +241,208 @@ def turn_points(actions: list[int]) -> list[tuple[str, int, float]]:
     return out
 
 
+# ---- 5. masked, teacher-forced and free-running ----------------------------------------
+
+
+def read_ply_points(path: Path) -> torch.Tensor:
+    """Points [N, 3] of a binary little-endian PLY of float x, y, z (`unica render --points`)."""
+    import numpy as np
+
+    data = path.read_bytes()
+    end = data.find(b"end_header\n")
+    if not data.startswith(b"ply\n") or end < 0:
+        raise ValueError(f"{path}: not a PLY file")
+    values = np.frombuffer(data[end + len(b"end_header\n"):], dtype="<f4")
+    return torch.from_numpy(values.copy()).reshape(-1, 3)
+
+
+def engine_rollout(av: Avatar, folder: Path) -> dict:
+    """The engine's free-running rollout written by `unica render --bundle --points`: the
+    world root path (the start repeated first, as the teacher's) and every frame's points."""
+    manifest = json.loads((folder / "manifest.json").read_text())
+    roots = [f["root"] for f in manifest["frames"]]
+    points = [read_ply_points(folder / f"frame_{i:05d}.ply") for i in range(len(roots))]
+    if any(p.shape[0] != av.pixels.shape[0] for p in points):
+        raise ValueError(f"{folder}: its frames do not have the bundle's {av.pixels.shape[0]} points")
+    world = torch.stack(points)
+    return {"root_path": roots[:1] + roots, "centred": world - av.ds.root(world)[:, None], "frames": len(roots)}
+
+
+def centred_rollout(av: Avatar, run: dict) -> dict:
+    """The PyTorch rollout (`Avatar.rollout`) in `engine_rollout`'s form."""
+    unit = run["unit"]
+    return {"root_path": run["root_path"], "centred": (unit - unit[:, av.waist].mean(1, keepdim=True)) / av.scale,
+            "frames": run["frames"]}
+
+
+def _rgba(s: splats.Splats, cam) -> torch.Tensor:
+    image, alpha = splats.render(s, cam, torch.zeros(3))
+    return torch.cat([image, alpha[..., None]], -1)
+
+
+class Masked:
+    """Sums of masked PSNR and SSIM on black and on white."""
+
+    def __init__(self):
+        self.sums = {"black": [0.0, 0.0], "white": [0.0, 0.0]}
+        self.count = 0
+
+    def add(self, got: torch.Tensor, want: torch.Tensor):
+        for name, level in (("black", 0.0), ("white", 1.0)):
+            p, q = metrics.masked_scores(got, want, level)
+            self.sums[name][0] += min(p, 100.0)
+            self.sums[name][1] += q
+        self.count += 1
+
+    def means(self) -> dict:
+        n = max(self.count, 1)
+        return {name: {"psnr": v[0] / n, "ssim": v[1] / n} for name, v in self.sums.items()} | {"images": self.count}
+
+
+@torch.no_grad()
+def masked_teacher_forced(av: Avatar, frames: Frames, count: int, seed: int, sheet: list) -> dict:
+    """(a): held-out rendered frames, each generated from its three ground-truth context
+    frames and the true action, drawn as refined splats; and the ground truth drawn the
+    same way (the appearance ceiling)."""
+    clips = {k[0] for k in frames.keys}
+    held_out = [c for c in HELD_OUT_CLIPS if c in clips] or [max(clips)]
+    held = [k for k in frames.keys if k[0] in held_out and k[1] >= 3]
+    chosen = held[:: max(1, len(held) // count)][:count]
+    gen = torch.Generator().manual_seed(seed)
+    generated, truth = Masked(), Masked()
+    for clip, f in chosen:
+        world = av.ds.positions(clip, list(range(f - 3, f + 1)))
+        unit, root = av.ds.normalise(world, anchor=ANCHOR)
+        context = av.vae.encoder(av.ds.to_maps(unit[:3]))[0] * av.latent_scale
+        action = int(av.ds.clips[clip]["actions"][f - 1])
+        z = sample_next(av.unet, av.schedule, context[None], torch.tensor([action]), av.manifest["sampler"]["ddim_steps"],
+                        av.manifest["sampler"]["cfg_scale"], generator=gen)
+        new = recentre.decode_points(av.vae, z, av.latent_scale, av.pixels)[0]
+        drawn = av.draw((av.clean(new) - 0.5) / av.scale + root, True)
+        drawn_truth = av.draw(world[3], True)
+        for view in frames.views[(clip, f)]:
+            cam, want = frames.target(view)
+            got = _rgba(drawn, cam)
+            generated.add(got, want)
+            truth.add(_rgba(drawn_truth, cam), want)
+            if len(sheet) < 8 and len(frames.views[(clip, f)]) == 4:
+                sheet.append((splats.srgb(want[..., :3]), splats.srgb(got[..., :3])))
+    return {"frames": len(chosen), "clips": held_out, "size": frames.size, "generated": generated.means(),
+            "ground_truth": truth.means()}
+
+
+def rendered_poses(av: Avatar, frames: Frames) -> tuple[list, torch.Tensor, torch.Tensor]:
+    """The dataset frames that have renders: their keys, roots [R, 3] and root-centred
+    points [R, N, 3] (metres)."""
+    keys, roots, poses = [], [], []
+    by_clip: dict[int, list[int]] = {}
+    for clip, f in frames.keys:
+        if len(frames.views[(clip, f)]) == 4:
+            by_clip.setdefault(clip, []).append(f)
+    for clip, fs in sorted(by_clip.items()):
+        for start in range(0, len(fs), 64):
+            chunk = fs[start:start + 64]
+            world = av.ds.positions(clip, chunk)
+            root = av.ds.root(world)
+            keys += [(clip, f) for f in chunk]
+            roots.append(root)
+            poses.append(world - root[:, None])
+    return keys, torch.cat(roots), torch.cat(poses)
+
+
+@torch.no_grad()
+def masked_free_running(av: Avatar, frames: Frames, run: dict, every: int) -> dict:
+    """(b): every `every`-th frame of the engine's free-running rollout, root-centred,
+    against the nearest rendered teacher pose (turned to its best yaw), drawn into that
+    pose's place and seen from its cameras."""
+    keys, roots, poses = rendered_poses(av, frames)
+    scores = Masked()
+    chamfers = []
+    for i in range(every - 1, run["frames"], every):
+        centred = run["centred"][i]
+        distance, index, theta = metrics.nearest_aligned_pose(centred, poses)
+        chamfers.append(distance * 1000)
+        placed = metrics.rotate_y(centred, theta) + roots[index]
+        drawn = av.draw(placed, True)
+        for view in frames.views[keys[index]]:
+            cam, want = frames.target(view)
+            scores.add(_rgba(drawn, cam), want)
+    return {"every": every, "frames": len(chamfers), "rendered_poses": len(keys),
+            "nearest_chamfer_mm": sum(chamfers) / max(len(chamfers), 1), **scores.means()}
+
+
+def aligned_chamfer(av: Avatar, run: dict, poses: torch.Tensor) -> float:
+    """Mean over the engine's frames of the Chamfer distance (mm) to the nearest dataset
+    pose, both root-centred, the frame turned to each pose's best yaw."""
+    out = [metrics.nearest_aligned_pose(centred, poses)[0] * 1000 for centred in run["centred"]]
+    return sum(out) / len(out)
+
+
+def motion(path: torch.Tensor, teacher: torch.Tensor, actions: list[int], settle: int) -> dict:
+    """Speeds and headings per key, turns, and the stop after the last release, for the
+    engine's path and the teacher's."""
+    segments = []
+    for g, t in zip(metrics.segment_summary(path, actions, FRAME_RATE, settle),
+                    metrics.segment_summary(teacher, actions[: len(teacher) - 1], FRAME_RATE, settle)):
+        if g["action"] == 0:
+            continue
+        segments.append({"key": NAMES[g["action"]], "speed": g["speed"], "teacher_speed": t["speed"], "heading": g["heading"],
+                         "teacher_heading": t["heading"], "speed_error_pct": 100 * abs(g["speed"] - t["speed"]) / t["speed"]})
+    turns = []
+    for label, switch, target in turn_points(actions):
+        turns.append({"turn": label, "generated": metrics.turn_frames(path, switch, target),
+                      "teacher": metrics.turn_frames(teacher, switch, target)})
+    release = max(i for i in range(1, len(actions)) if actions[i] == 0 and actions[i - 1] != 0)
+    stop, drift = metrics.stop_frames(path, release, FRAME_RATE)
+    teacher_stop, teacher_drift = metrics.stop_frames(teacher[: path.shape[0]], release, FRAME_RATE)
+    return {"segments": segments, "turns": turns, "release_frame": release, "stop_frames": stop, "stop_distance_m": drift,
+            "teacher_stop_frames": teacher_stop, "teacher_stop_distance_m": teacher_drift}
+
+
+def _turn(turns: list, degrees: int, who: str):
+    """The first turn of `degrees` in the script, frames (None if it never completes)."""
+    for t in turns:
+        if t["turn"].endswith(f"({degrees}°)"):
+            return t[who]
+    return None
+
+
+def summary(results: dict) -> dict:
+    """summary.json: the headline numbers of issue #17, with the teacher's where one exists
+    (`teacher_<key>`) and the dataset against itself for the Fréchet stand-in."""
+    m, mo, long = results["masked"], results["masked"]["motion"], results["long_run"]
+    forced, free = m["teacher_forced"]["generated"]["black"], m["free_running"]["black"]
+    out = {
+        "vae_mm": results["vae_mm"],
+        "chamfer_mm": m["chamfer_mm"],
+        "masked_psnr_db": forced["psnr"],
+        "masked_ssim": forced["ssim"],
+        "masked_psnr_db_white": m["teacher_forced"]["generated"]["white"]["psnr"],
+        "masked_ssim_white": m["teacher_forced"]["generated"]["white"]["ssim"],
+        "free_masked_psnr_db": free["psnr"],
+        "free_masked_ssim": free["ssim"],
+        "free_masked_psnr_db_white": m["free_running"]["white"]["psnr"],
+        "free_masked_ssim_white": m["free_running"]["white"]["ssim"],
+        "stop_frames": mo["stop_frames"],
+        "teacher_stop_frames": mo["teacher_stop_frames"],
+        "stop_distance_m": mo["stop_distance_m"],
+        "teacher_stop_distance_m": mo["teacher_stop_distance_m"],
+        "speed_error_pct": max(s["speed_error_pct"] for s in mo["segments"]),
+        "turn180_frames": _turn(mo["turns"], 180, "generated"),
+        "teacher_turn180_frames": _turn(mo["turns"], 180, "teacher"),
+        "turn90_frames": _turn(mo["turns"], 90, "generated"),
+        "teacher_turn90_frames": _turn(mo["turns"], 90, "teacher"),
+        "drift_slope": long["slope_per_1000_frames"],
+        "drift_ci95": long["ci95_per_1000_frames"],
+        "fvd_pca": results["sequence"]["fvd_pca"],
+        "dataset_fvd_pca": results["sequence"]["dataset_fvd_pca"],
+        "image_size": m["teacher_forced"]["size"],
+        "free_running_path": m["free_running_path"],
+    }
+    # A stop or a turn that never completes is null.
+    return out
+
+
 # ---- 3. long run ----------------------------------------------------------------------
 
 
@@ -255,7 +472,7 @@ def evaluate(args) -> dict:
     roots = [f["root"] for f in json.loads(args.teacher.read_text())["frames"]]
     teacher = roots[:1] + roots
     defaults = {"steps": av.manifest["sampler"]["ddim_steps"], "cfg_scale": av.manifest["sampler"]["cfg_scale"], "pca": True}
-    keys = "20W 20S 20A 10I" if quick else KEYS
+    keys = args.keys or ("20W 20S 20A 20D 20I" if quick else KEYS)
     frames = sum(int(t[:-1]) for t in keys.split())
     began = time.time()
     results: dict = {"bundle": str(args.bundle), "data": str(args.data), "quick": quick, "keys": keys, "seed": args.seed,
@@ -265,13 +482,28 @@ def evaluate(args) -> dict:
     results["image"] = image_level(av, args.data, 2 if quick else 12, args.size, args.seed, sheet)
     print(f"reference windows and poses … ({time.time() - began:.0f} s)", flush=True)
     clips = list(range(0, len(av.ds.clips), 4)) if quick and len(av.ds.clips) > 8 else None
-    reference, poses = teacher_reference(av, 8 if quick else 4, 8 if quick else 2, clips)
+    reference, poses, per_clip = teacher_reference(av, 8 if quick else 4, 8 if quick else 2, clips)
     print(f"sequence … ({time.time() - began:.0f} s)", flush=True)
     run = av.rollout(keys, defaults, args.seed)
     settle = 5 if quick else 15
     results["sequence"] = sequence_level(av, run, teacher, keys, poses, reference, settle)
     results["sequence"]["path"] = run["root_path"]
     results["sequence"]["teacher_headings"] = metrics.headings(torch.tensor(teacher[: frames + 1])).tolist()
+    results["sequence"]["dataset_fvd_pca"] = dataset_frechet(per_clip)
+    results["vae_mm"] = av.manifest.get("metrics", {}).get("vae_reconstruction_mm")
+    print(f"masked images, teacher-forced … ({time.time() - began:.0f} s)", flush=True)
+    big = Frames(args.data, av.bundle_dir, args.masked_size, reconstruct=False)
+    masked_sheet: list = []
+    masked = {"teacher_forced": masked_teacher_forced(av, big, 2 if quick else 12, args.seed, masked_sheet)}
+    if args.engine is not None:
+        free, masked["free_running_path"] = engine_rollout(av, args.engine), "engine"
+    else:
+        free, masked["free_running_path"] = centred_rollout(av, run), "pytorch"
+    print(f"masked images, free-running ({masked['free_running_path']}) … ({time.time() - began:.0f} s)", flush=True)
+    masked["free_running"] = masked_free_running(av, big, free, 10)
+    masked["chamfer_mm"] = aligned_chamfer(av, free, poses)
+    masked["motion"] = motion(torch.tensor(free["root_path"]), torch.tensor(teacher), parse_keys(keys, free["frames"]), settle)
+    results["masked"] = masked
     repeats = 2 if quick else 10
     print(f"long run ({repeats} × the script) … ({time.time() - began:.0f} s)", flush=True)
     long = av.rollout(" ".join([keys] * repeats), defaults, args.seed)
@@ -293,9 +525,10 @@ def evaluate(args) -> dict:
     results["ablations"] = ablations
     results["minutes"] = (time.time() - began) / 60
     (out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
+    (out / "summary.json").write_text(json.dumps(summary(results), indent=1) + "\n")
     from .report import write_report
 
-    write_report(out, results, sheet)
+    write_report(out, results, sheet, masked_sheet)
     return results
 
 
@@ -309,6 +542,10 @@ def main(argv=None):
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--size", type=int, default=256, help="image size of the image-level metrics")
     parser.add_argument("--level", type=int, default=256, choices=[128, 256, 512], help="splat level of the image-level metrics")
+    parser.add_argument("--masked-size", type=int, default=512, help="image size of the masked metrics (the renders' size)")
+    parser.add_argument("--keys", help=f"key script (default {KEYS}; quick: 20W 20S 20A 20D 20I); the teacher's path must follow it")
+    parser.add_argument("--engine", type=Path, help="the engine's free-running rollout on the key script (`unica render --bundle B "
+                        "--keys K --points`; `unica eval` writes it); without it the PyTorch rollout stands in")
     args = parser.parse_args(argv)
     results = evaluate(args)
     print(f"wrote {args.out / 'report.md'} ({results['minutes']:.1f} min)")

@@ -201,3 +201,86 @@ def drift_slope(values: torch.Tensor, window_starts: torch.Tensor) -> dict:
     half = student_t_quantile(0.975, w - 2) * se
     b = slope.item()
     return {"slope": b, "ci95": (b - half, b + half)}
+
+
+# ---- masked image metrics (issue #17) ---------------------------------------------------
+
+
+def union_box(a_alpha: torch.Tensor, b_alpha: torch.Tensor, threshold: float = 1 / 255) -> tuple[int, int, int, int] | None:
+    """The smallest box (y0, y1, x0, x1; ends exclusive) holding both images' foreground
+    (alpha above `threshold`); None when neither has any."""
+    fg = (a_alpha > threshold) | (b_alpha > threshold)
+    rows, cols = fg.any(1).nonzero(), fg.any(0).nonzero()
+    if rows.numel() == 0:
+        return None
+    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+
+
+def masked_scores(got: torch.Tensor, want: torch.Tensor, background: float) -> tuple[float, float]:
+    """(PSNR dB, SSIM) of two premultiplied linear RGBA images [H, W, 4] composited on a
+    grey level `background` (0 black, 1 white) and sRGB-encoded, over the union of their
+    foreground boxes only, so an empty background cannot pad the score. A box thinner than
+    the SSIM window (11 px) is widened to it inside the image."""
+    from .splats import psnr, srgb, ssim
+
+    box = union_box(got[..., 3], want[..., 3])
+    if box is None:
+        return float("inf"), 1.0
+    y0, y1, x0, x1 = box
+    h, w = got.shape[:2]
+    if y1 - y0 < 11:
+        y0 = max(0, min(y0, h - 11)); y1 = y0 + 11
+    if x1 - x0 < 11:
+        x0 = max(0, min(x0, w - 11)); x1 = x0 + 11
+
+    def shown(img):
+        return srgb(img[y0:y1, x0:x1, :3] + (1 - img[y0:y1, x0:x1, 3:]) * background)
+
+    a, b = shown(got), shown(want)
+    return psnr(a, b), ssim(a, b).item()
+
+
+def stop_frames(path: torch.Tensor, release: int, frame_rate: float, below: float = 0.05) -> tuple[int | None, float]:
+    """After the keys are released at frame `release` (the first idle step is path[release]
+    -> path[release + 1]): the number of frames until the root's horizontal speed is below
+    `below` m/s for good (0: already from the first idle step; None: never), and the
+    horizontal distance travelled from the release to the end of the path (m)."""
+    v = speeds(path[release:], frame_rate)
+    moving = (v >= below).nonzero()
+    frames = 0 if moving.numel() == 0 else int(moving[-1]) + 1
+    if frames == v.shape[0]:
+        frames = None
+    d = path[-1] - path[release]
+    return frames, float(torch.stack([d[0], d[2]]).norm())
+
+
+def yaw_align(frame: torch.Tensor, pose: torch.Tensor) -> torch.Tensor:
+    """The rotation angle θ (radians, about +Y) that best maps root-centred `frame` [N, 3]
+    onto `pose` [N, 3] point for point (least squares in the XZ plane): rotate frame by
+    x' = x cos θ + z sin θ, z' = -x sin θ + z cos θ."""
+    x, z, px, pz = frame[:, 0], frame[:, 2], pose[:, 0], pose[:, 2]
+    return torch.atan2((x * pz - z * px).sum() * -1, (x * px + z * pz).sum())
+
+
+def rotate_y(points: torch.Tensor, theta: torch.Tensor | float) -> torch.Tensor:
+    """Points [..., 3] rotated by θ about +Y as `yaw_align` defines it."""
+    t = torch.as_tensor(theta, dtype=points.dtype)
+    c, s = torch.cos(t), torch.sin(t)
+    x, y, z = points.unbind(-1)
+    return torch.stack([x * c + z * s, y, -x * s + z * c], -1)
+
+
+def nearest_aligned_pose(frame: torch.Tensor, poses: torch.Tensor) -> tuple[float, int, float]:
+    """(Chamfer distance, index, yaw θ) of the nearest of root-centred `poses` [P, N, 3] to
+    root-centred `frame` [N, 3] after turning the frame by each pose's best yaw
+    (`yaw_align`): the 8 poses nearest point for point are compared by Chamfer."""
+    x, z = frame[:, 0], frame[:, 2]
+    px, pz = poses[..., 0], poses[..., 2]
+    thetas = torch.atan2((px * z - pz * x).sum(1), (px * x + pz * z).sum(1))  # yaw_align for each pose
+    c, s = torch.cos(thetas)[:, None], torch.sin(thetas)[:, None]
+    x, y, z = frame[:, 0], frame[:, 1], frame[:, 2]
+    turned = torch.stack([x * c + z * s, y.expand_as(c * x), -x * s + z * c], -1)  # [P, N, 3]
+    rough = (poses - turned).norm(dim=-1).mean(dim=-1)
+    candidates = rough.topk(min(CANDIDATES, poses.shape[0]), largest=False).indices.tolist()
+    best = min((chamfer(turned[i], poses[i]), i) for i in candidates)
+    return best[0], best[1], float(thetas[best[1]])

@@ -84,11 +84,71 @@ def _fmt(v, digits=1):
     return "—" if v is None else f"{v:.{digits}f}"
 
 
-def write_report(out: Path, results: dict, sheet: list) -> None:
+def _masked_section(results: dict, data: str) -> list[str]:
+    """The issue #17 numbers (summary.json) as a section of the report."""
+    from .eval import summary
+
+    m, sm = results["masked"], summary(results)
+    tf, fr = m["teacher_forced"], m["free_running"]
+    mo = m["motion"]
+    path = "the shipped engine path (WGSL model and PCA clean-up)" if m["free_running_path"] == "engine" else \
+        "the PyTorch reference of the live loop (no `--engine` rollout was given)"
+    lines = [
+        "## Masked images, free-running geometry, stopping (`summary.json`)",
+        "",
+        f"Images of {tf['size']}² px from the 4 cardinal views, splats at the {results['image']['level']}² level with the "
+        "refiner, scored on a black and on a white background only inside the union of both images' foreground "
+        "bounding boxes (the empty background around the figure cannot pad the score).",
+        "",
+        f"- Teacher-forced: {tf['frames']} held-out frames, each from its 3 ground-truth context frames and the true "
+        "action. The ground-truth row draws the teacher's own geometry the same way (appearance alone).",
+        f"- Free-running: the rollout of `{results['keys']}` through {path}; every {fr['every']}th frame "
+        f"({fr['frames']} frames) is compared with the nearest of the dataset's {fr['rendered_poses']} rendered "
+        "teacher poses (both root-centred, the frame turned to the pose's best yaw, found by Chamfer), drawn in that "
+        f"pose's place and seen from its cameras (mean Chamfer to it {fr['nearest_chamfer_mm']:.1f} mm).",
+        "",
+        "| images | PSNR black (dB) | SSIM black | PSNR white (dB) | SSIM white |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for name, row in (("teacher-forced, generated", tf["generated"]), ("teacher-forced, ground truth", tf["ground_truth"]),
+                      ("free-running, nearest pose", fr)):
+        lines.append(f"| {name} | {row['black']['psnr']:.2f} | {row['black']['ssim']:.4f} | {row['white']['psnr']:.2f} | "
+                     f"{row['white']['ssim']:.4f} |")
+    lines += [
+        "",
+        "![masked contact sheet](contact_sheet_masked.png)",
+        "",
+        "(teacher-forced frames, all four views: teacher render left, generated refined splats right)",
+        "",
+        f"- Chamfer of every free-running frame to the nearest dataset pose (root-centred, yaw-aligned): "
+        f"**{sm['chamfer_mm']:.1f} mm**.",
+        f"- Fréchet stand-in **{sm['fvd_pca']:.3f}**; the dataset against itself (even against odd clips): "
+        f"{sm['dataset_fvd_pca']:.3f}.",
+        f"- Stop: the keys are released at frame {mo['release_frame']}; the root is below 0.05 m/s for good after "
+        f"**{_fmt(mo['stop_frames'], 0)} frames** (teacher {_fmt(mo['teacher_stop_frames'], 0)}) and travels "
+        f"{mo['stop_distance_m']:.2f} m after the release (teacher {mo['teacher_stop_distance_m']:.2f} m).",
+        "",
+        "| key | speed (m/s) | teacher | error | heading (°) | teacher |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for s in mo["segments"]:
+        lines.append(f"| {s['key']} | {s['speed']:.2f} | {s['teacher_speed']:.2f} | {s['speed_error_pct']:.1f} % | "
+                     f"{s['heading']:.1f} | {s['teacher_heading']:.1f} |")
+    lines += ["", "| turn | frames | teacher |", "| --- | --- | --- |"]
+    for t in mo["turns"]:
+        lines.append(f"| {t['turn']} | {_fmt(t['generated'], 0)} | {_fmt(t['teacher'], 0)} |")
+    lines += ["", f"The dataset is rebuilt with `unica bake <the character> --out {data}` (the character file is in "
+              "the dataset's manifest).", ""]
+    return lines
+
+
+def write_report(out: Path, results: dict, sheet: list, masked_sheet: list | None = None) -> None:
     _turn_plot(out / "turns.png", results)
     _drift_plot(out / "drift.png", results["long_run"])
     _bars(out / "ablations.png", results)
     _sheet(out / "contact_sheet.png", sheet)
+    if masked_sheet:
+        _sheet(out / "contact_sheet_masked.png", masked_sheet)
     img, seq, long = results["image"], results["sequence"], results["long_run"]
     d = results["defaults"]
     lines = [
@@ -98,6 +158,7 @@ def write_report(out: Path, results: dict, sheet: list) -> None:
         f"{' (quick mode: a short script, fewer frames)' if results['quick'] else ''}. Sampler: {d['steps']} DDIM steps, "
         f"CFG {d['cfg_scale']}, PCA on. Written by `unica eval` in {results['minutes']:.1f} min.",
         "",
+        *(_masked_section(results, results["data"]) if "masked" in results else []),
         "## Image level",
         "",
         f"{img['frames']} frames of held-out clips {', '.join(map(str, img.get('clips', [])))} × 4 cardinal views ({img['views']} images, {img['size']}² px, black background), "
