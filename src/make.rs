@@ -39,7 +39,7 @@ const QUICK_REFINER: &str = r#"{
   "model": {"channels": [8, 16], "depths": [1, 1], "heads": [2, 2], "decoder_depth": 1,
             "patch": 16, "stride": 4, "mean_bound": 0.004},
   "steps": 10, "image_size": 32, "held_out_clips": [2], "eval_frames": 2,
-  "checkpoint_every": 5
+  "checkpoint_every": 5, "splat_level": 256, "alpha_weight": 0.5
 }
 "#;
 

@@ -259,6 +259,13 @@ class RefinerTrainConfig:
     views_per_step: int = 2
     image_size: int = 128
     ssim_weight: float = 0.2
+    # The splat level the refined splats are drawn at in training: 128 draws the map's own
+    # points; a finer level (256: what the app draws on a CPU driver) upscales the points
+    # and the residuals to it, as the app and the evaluation do (issue #17).
+    splat_level: int = 128
+    # Weight of an L1 between the drawn alpha and the render's: keeps the body opaque
+    # where the teacher is (issue #17: a see-through avatar).
+    alpha_weight: float = 0.0
     held_out_clips: list = field(default_factory=lambda: [4, 13])
     eval_frames: int = 24
     checkpoint_every: int = 100
@@ -332,14 +339,21 @@ def composite(target: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
 
 
 @torch.no_grad()
-def evaluate(model: Refiner, frames: Frames, keys: list) -> dict:
-    """PSNR and SSIM (sRGB, black background) of base and refined splats."""
+def evaluate(model: Refiner, frames: Frames, keys: list, level: splats.Level | None = None) -> dict:
+    """PSNR and SSIM (sRGB, black background) of base and refined splats, at the map's own
+    level or at `level`."""
     bound = model.cfg.mean_bound / frames.scale
     sums = {"base": [0.0, 0.0], "refined": [0.0, 0.0]}
     count = 0
     for key in keys:
         base, feats, unit = frames.inputs(key)
-        refined = apply(base, model(feats, unit), bound)
+        if level is None:
+            refined = apply(base, model(feats, unit), bound)
+        else:
+            world = (unit - 0.5) / frames.scale + frames.root[key]
+            base = level.splats(world)[0]
+            fine, up = level.splats(world, model(feats, unit))
+            refined = apply(fine, up, bound)
         for view in frames.views[key]:
             cam, target = frames.target(view)
             want = splats.srgb(target[..., :3])
@@ -382,22 +396,29 @@ def train(args) -> dict:
     elif log_path.exists():
         log_path.unlink()
     bound = model.cfg.mean_bound / frames.scale
+    level = splats.Level(frames.ds.pixels, frames.colors, cfg.splat_level) if cfg.splat_level != 128 else None
     began = time.time()
     for step in range(start, cfg.steps):
         key = train_keys[int(torch.randint(len(train_keys), (1,), generator=gen))]
         base, feats, unit = frames.inputs(key)
-        refined = apply(base, model(feats, unit), bound)
+        raw = model(feats, unit)
+        if level is None:
+            refined = apply(base, raw, bound)
+        else:
+            fine, up = level.splats((unit - 0.5) / frames.scale + frames.root[key], raw)
+            refined = apply(fine, up, bound)
         views = frames.views[key]
         chosen = torch.randperm(len(views), generator=gen)[: cfg.views_per_step]
-        loss_l1, loss_ssim = 0.0, 0.0
+        loss_l1, loss_ssim, loss_alpha = 0.0, 0.0, 0.0
         for v in chosen:
             cam, target = frames.target(views[int(v)])
             bg = torch.ones(3) if torch.rand(1, generator=gen).item() < 0.5 else torch.zeros(3)
-            image, _ = splats.render(refined, cam, bg)
+            image, alpha = splats.render(refined, cam, bg)
             got, want = splats.srgb(image), splats.srgb(composite(target, bg))
             loss_l1 = loss_l1 + (got - want).abs().mean()
             loss_ssim = loss_ssim + 1 - splats.ssim(got, want)
-        loss = ((1 - cfg.ssim_weight) * loss_l1 + cfg.ssim_weight * loss_ssim) / len(chosen)
+            loss_alpha = loss_alpha + (alpha - target[..., 3]).abs().mean()
+        loss = ((1 - cfg.ssim_weight) * loss_l1 + cfg.ssim_weight * loss_ssim + cfg.alpha_weight * loss_alpha) / len(chosen)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -411,12 +432,13 @@ def train(args) -> dict:
         if done % cfg.checkpoint_every == 0 or done == cfg.steps:
             torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "gen": gen.get_state(), "step": done}, ckpt)
     model.eval()
-    metrics = evaluate(model, frames, test_keys)
+    metrics = evaluate(model, frames, test_keys, level)
     metrics.update({
         "parameters": parameter_count(model),
         "gflop_per_frame": flops(model.cfg, len(frames.ds.pixels)) / 1e9,
         "held_out_clips": cfg.held_out_clips,
         "image_size": cfg.image_size,
+        "splat_level": cfg.splat_level,
         "minutes": (time.time() - began) / 60,
     })
     (out / "refiner_eval.json").write_text(json.dumps(metrics, indent=2) + "\n")
