@@ -11,6 +11,7 @@ pub mod model;
 pub mod pipeline;
 pub mod retarget;
 pub mod skeleton;
+pub mod smoothing;
 pub mod synth;
 pub mod tokens;
 pub mod voxel;

@@ -14,6 +14,7 @@ use super::metrics::edge_stretch;
 use super::model::{SkeletonModel, SkinModel, baseline_weights, top4};
 use super::retarget::{rest_offsets, retarget};
 use super::skeleton::{BODY, Class, Skeleton, UnitCube};
+use super::smoothing;
 use super::synth;
 use super::voxel::{Voxels, bone_tails, segment_distance};
 use crate::avatar::description::{ClipNames, Description};
@@ -152,24 +153,27 @@ pub fn skeleton_for(
 }
 
 /// Full skin weights `[vertex][joint]` of `mesh` for `skeleton` (both in the mesh's
-/// units), from the skin model or the geodesic prior alone.
+/// units), from the skin model or the geodesic prior alone, then smoothed along the
+/// surface ([`smoothing::smooth`]).
 pub fn skin_for(mesh: &Mesh, skeleton: &Skeleton, models: &Models) -> (Vec<Vec<f32>>, SkinSource) {
     let cube = UnitCube::of_points(&mesh.positions);
     let unit = cube.mesh_to_unit(mesh);
     let joints: Vec<Vec3> = skeleton.joints.iter().map(|&p| cube.to_unit(p)).collect();
     let geodesic = Voxels::new(&unit, VOXELS).geodesic(&unit.positions, &joints, &skeleton.parents);
     let flat: Vec<f32> = geodesic.concat();
-    match &models.skin {
-        Some(model) => {
-            let tails = bone_tails(&joints, &skeleton.parents);
-            let weights = model.weights(&unit.positions, &unit.normals, &joints, &tails, &flat);
-            (weights, SkinSource::Learned)
-        }
+    let tails = bone_tails(&joints, &skeleton.parents);
+    let (mut weights, source) = match &models.skin {
+        Some(model) => (
+            model.weights(&unit.positions, &unit.normals, &joints, &tails, &flat),
+            SkinSource::Learned,
+        ),
         None => (
             baseline_weights(models.beta, &flat, skeleton.len()),
             SkinSource::GeodesicPrior,
         ),
-    }
+    };
+    smoothing::smooth(&unit, &mut weights, smoothing::ROUNDS);
+    (weights, source)
 }
 
 /// What `unica rig` made.
