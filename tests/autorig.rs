@@ -187,6 +187,9 @@ fn the_shipped_models_rig_a_mesh_that_bakes_and_walks() {
     std::fs::write(&obj, text).unwrap();
     assert!(load_character(&obj).unwrap().clips.is_empty());
     let summary = rig_bake_and_walk(&obj, &models);
+    // Her hands rest against her skirt; smoothed weights keep the walk's largest edge
+    // stretch under her own artist rig's (6.69; docs/autorig).
+    assert!(summary.stretch.unwrap() < 6.69, "{:?}", summary.stretch);
     assert_eq!(summary.skeleton, SkeletonSource::Learned);
     assert_eq!(summary.skin, SkinSource::Learned);
     assert!(summary.joints >= 20);
@@ -211,4 +214,66 @@ fn the_shipped_models_rig_a_mesh_that_bakes_and_walks() {
     );
     assert_eq!(rigged.vrm.unwrap().humanoid.len(), 20);
     assert!(no_hands.joints < summary.joints);
+}
+
+/// A synthetic humanoid (seeds from 100,000 on, never trained on) whose arms stand out
+/// within 8° of the horizontal at rest: a T-pose, written as an OBJ mesh alone.
+fn t_posed_humanoid(dir: &std::path::Path) -> std::path::PathBuf {
+    use unica::autorig::synth::of_class;
+    let synthetic = (100_000u64..)
+        .map(|seed| of_class(seed, Class::Humanoid, 0.0))
+        .find(|s| {
+            let at = |name: &str| {
+                let i = s.skeleton.names.iter().position(|n| n == name).unwrap();
+                s.skeleton.joints[i]
+            };
+            let arm = at("Wrist.L") - at("UpperArm.L");
+            arm.y.abs() < arm.length() * 8f32.to_radians().sin()
+        })
+        .unwrap();
+    let path = dir.join("t_pose.obj");
+    let mut text = String::new();
+    for p in &synthetic.mesh.positions {
+        text += &format!("v {} {} {}\n", p.x, p.y, p.z);
+    }
+    for t in synthetic.mesh.indices.chunks_exact(3) {
+        text += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn a_t_posed_humanoid_rigs_without_tearing_except_at_predicted_fingers() {
+    // The bound of docs/autorig: the Witch's own artist rig over the same walk (6.69).
+    // The learned rig with its hand template is not under it yet (14.4 on 2026-11-24:
+    // the fingertips of a mitten hand the template gives finger joints, which the
+    // retargeted clips curl); without the finger joints it is.
+    use unica::autorig::pipeline::{Models, RigOptions, rig_file};
+    let dir = tempfile::tempdir().unwrap();
+    let mesh = t_posed_humanoid(dir.path());
+    let models =
+        Models::load(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/autorig"))
+            .unwrap();
+    let witch = witch();
+    for (name, models, hands, bounded) in [
+        ("learned", &models, true, false),
+        ("learned, no hands", &models, false, true),
+        ("baseline", &Models::none(), true, true),
+    ] {
+        let options = RigOptions {
+            clips_from: &witch,
+            clip_files: &[],
+            seed: 0,
+            hands,
+        };
+        let out = dir.path().join("rigged.glb");
+        let summary = rig_file(&mesh, &out, models, &options, &|_| {}).unwrap();
+        let stretch = summary.stretch.unwrap();
+        println!("T-posed humanoid, {name}: largest edge stretch {stretch:.2}");
+        assert!(stretch.is_finite() && stretch >= 1.0);
+        if bounded {
+            assert!(stretch < 6.69, "{name}: {stretch}");
+        }
+    }
 }
