@@ -120,7 +120,7 @@ def _masked_section(results: dict, data: str) -> list[str]:
         "",
         "(teacher-forced frames, all four views: teacher render left, generated refined splats right)",
         "",
-        f"- Chamfer of every free-running frame to the nearest dataset pose (root-centred, yaw-aligned): "
+        f"- Chamfer of every {m['chamfer_every']}th free-running frame to the nearest dataset pose (root-centred, yaw-aligned): "
         f"**{sm['chamfer_mm']:.1f} mm**.",
         f"- Fréchet stand-in **{sm['fvd_pca']:.3f}**; the dataset against itself (even against odd clips): "
         f"{sm['dataset_fvd_pca']:.3f}.",
