@@ -456,7 +456,7 @@ pub fn run() -> anyhow::Result<()> {
             Ok(())
         }
         Some(Command::Render(args)) => render(args, &gpu_options),
-        Some(Command::Eval(args)) => eval(args),
+        Some(Command::Eval(args)) => eval(args, &gpu_options),
         Some(Command::Export(args)) => export(args, &gpu_options),
         Some(Command::View(args)) => view(args, gpu_options),
         Some(Command::RigData(args)) => rig_data(args),
@@ -736,24 +736,34 @@ fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         splat_level: args.look.splat_level,
         refine: !args.look.no_refiner,
     };
-    let gpu = gpu_context;
-    let bar = indicatif::ProgressBar::new(0).with_style(
-        indicatif::ProgressStyle::with_template(
-            "rendering {bar:40} {pos}/{len} frames, {eta} left",
-        )
-        .expect("valid template"),
-    );
-    let frames = crate::headless::render(&job, gpu, &|done, total| {
-        bar.set_length(total);
-        bar.set_position(done);
-    })?;
-    bar.finish_and_clear();
+    let frames = render_with_bar(&job, gpu_context, "rendering")?;
     println!(
         "rendered {frames} frames x {} views into {}",
         job.views,
         job.out.display()
     );
     Ok(())
+}
+
+/// Runs a headless render job under a progress bar (`what` … frames, time left); the
+/// number of frames.
+fn render_with_bar(
+    job: &crate::headless::RenderJob,
+    gpu: GpuContext,
+    what: &str,
+) -> anyhow::Result<usize> {
+    let bar = indicatif::ProgressBar::new(0).with_style(
+        indicatif::ProgressStyle::with_template(&format!(
+            "{what} {{bar:40}} {{pos}}/{{len}} frames, {{eta}} left"
+        ))
+        .expect("valid template"),
+    );
+    let frames = crate::headless::render(job, gpu, &|done, total| {
+        bar.set_length(total);
+        bar.set_position(done);
+    })?;
+    bar.finish_and_clear();
+    Ok(frames)
 }
 
 fn parse_fps(text: &str) -> Result<f64, String> {
@@ -840,7 +850,7 @@ const EVAL_KEYS_QUICK: &str = "20W 20S 20A 20D 20I";
 
 /// Drives the teacher on the evaluation's key script (geometry only), then runs the
 /// trainer's evaluation (`python3 -m unica_train.eval`, or $UNICA_PYTHON) on it.
-fn eval(args: EvalArgs) -> anyhow::Result<()> {
+fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     let manifest_path = args.data.join("manifest.json");
     let manifest: crate::dataset::Manifest = serde_json::from_slice(
         &std::fs::read(&manifest_path).with_context(|| manifest_path.display().to_string())?,
@@ -903,18 +913,7 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
         splat_level: Some(128),
         refine: false,
     };
-    let gpu = GpuContext::headless(&GpuOptions::from_env())?;
-    let bar = indicatif::ProgressBar::new(0).with_style(
-        indicatif::ProgressStyle::with_template(
-            "engine rollout {bar:40} {pos}/{len} frames, {eta} left",
-        )
-        .expect("valid template"),
-    );
-    crate::headless::render(&job, gpu, &|done, total| {
-        bar.set_length(total);
-        bar.set_position(done);
-    })?;
-    bar.finish_and_clear();
+    render_with_bar(&job, GpuContext::headless(gpu)?, "engine rollout")?;
     let python = std::env::var("UNICA_PYTHON").unwrap_or_else(|_| "python3".into());
     let mut command = std::process::Command::new(&python);
     command

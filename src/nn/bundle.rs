@@ -192,13 +192,10 @@ fn indices(file: &TensorFile, name: &str, bound: usize) -> Result<Vec<u32>, Load
             problem: format!("'{name}' is empty"),
         });
     }
-    match values.iter().find(|&&v| v < 0 || v as usize >= bound) {
-        Some(bad) => Err(LoadError::Manifest {
-            path: file.path().display().to_string(),
-            problem: format!("'{name}' holds {bad}, outside 0..{bound}"),
-        }),
-        None => Ok(values.into_iter().map(|v| v as u32).collect()),
-    }
+    super::weights::below(values, bound).map_err(|problem| LoadError::Manifest {
+        path: file.path().display().to_string(),
+        problem: format!("'{name}' {problem}"),
+    })
 }
 
 /// Reads and checks a manifest: format and version first (so a future version gets that

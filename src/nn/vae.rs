@@ -59,21 +59,15 @@ impl VaeConfig {
     /// The parity fixtures' tiny VAE (`TINY_VAE` in train/unica_train/fixtures.py).
     pub const TINY: Self = Self {
         channels: [16, 12, 8, 8],
-        latent: 4,
-        decoder: DecoderKind::Conv,
-        components: 200,
-        pixels: 0,
-        map_size: 128,
+        ..Self::DEFAULT
     };
 
     /// The parity fixtures' tiny PCA-head VAE (`TINY_PCA_VAE` in fixtures.py).
     pub const TINY_PCA: Self = Self {
-        channels: [16, 12, 8, 8],
-        latent: 4,
         decoder: DecoderKind::Pca,
         components: 24,
         pixels: 300,
-        map_size: 128,
+        ..Self::TINY
     };
 }
 
@@ -185,22 +179,14 @@ impl PcaDecoder {
         }
         let mut mean = w.host("mean", &[values])?;
         mean.resize(padded, 0.0);
+        // Background elements read the first zero row past the values.
         let plane = size * size;
-        let mut slot = vec![values as u32; plane];
+        let mut table = vec![values as u32; 3 * plane];
         for (i, &pixel) in pixels.iter().enumerate() {
-            slot[pixel as usize] = i as u32;
+            for c in 0..3 {
+                table[c * plane + pixel as usize] = (c * p + i) as u32;
+            }
         }
-        let table = (0..3)
-            .flat_map(|c| {
-                slot.iter().map(move |&s| {
-                    if s as usize == values {
-                        s
-                    } else {
-                        (c * p) as u32 + s
-                    }
-                })
-            })
-            .collect();
         let (gpu, precision) = (w.gpu(), w.precision());
         Ok(Self {
             head: Linear::load(&w.at("head"), cfg.latent * side * side, k)?,

@@ -95,9 +95,6 @@ impl<'a> Weights<'a> {
             path: file.path().display().to_string(),
             problem: format!("tensor '{full}' {problem}"),
         };
-        if let Some(bad) = values.iter().find(|&&v| v < 0 || v as usize >= bound) {
-            return Err(fail(format!("holds {bad}, outside 0..{bound}")));
-        }
         if let Some(i) = values.windows(2).position(|w| w[0] >= w[1]) {
             return Err(fail(format!(
                 "is not increasing at index {} ({} then {})",
@@ -106,7 +103,7 @@ impl<'a> Weights<'a> {
                 values[i + 1]
             )));
         }
-        Ok(values.into_iter().map(|v| v as u32).collect())
+        below(values, bound).map_err(fail)
     }
 
     /// A tensor of exactly `shape` on the GPU.
@@ -183,4 +180,13 @@ fn random_values(name: &str, count: usize) -> Vec<f32> {
             ((state >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * 0.2
         })
         .collect()
+}
+
+/// Index values as u32, each checked to lie in 0..`bound`; otherwise what is wrong
+/// ("holds V, outside 0..B"), for the caller to name the tensor.
+pub(super) fn below(values: Vec<i32>, bound: usize) -> Result<Vec<u32>, String> {
+    match values.iter().find(|&&v| v < 0 || v as usize >= bound) {
+        Some(bad) => Err(format!("holds {bad}, outside 0..{bound}")),
+        None => Ok(values.into_iter().map(|v| v as u32).collect()),
+    }
 }

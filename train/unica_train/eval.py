@@ -45,7 +45,7 @@ from . import bundle as bundle_io
 from . import metrics, pca, recentre, splats
 from .dataset import ANCHOR, BakedDataset
 from .diffusion import Schedule, sample_next
-from .refiner import Frames, Refiner, RefinerConfig, apply, features
+from .refiner import Frames, Refiner, RefinerConfig, features, refined
 from .train import parse_keys
 
 KEYS = "60W 60S 60A 60D 30I"
@@ -105,15 +105,12 @@ class Avatar:
         """Splats of world points [N, 3] at the evaluation level, refined or not."""
         root = world[self.waist].mean(0)
         unit = (world - root) * self.scale + 0.5
-        residuals = None
-        if refine and self.refiner is not None:
-            base, normals = splats.base_splats(world, self.colors, self.nbrs)
-            median = splats.median_spacing(world, self.nbrs)
-            residuals = self.refiner(features(unit, base, normals, median), unit)
-        fine, up = self.level.splats(world, residuals)
-        if up is None:
-            return fine
-        return apply(fine, up, self.refiner.cfg.mean_bound / self.scale)
+        if not refine or self.refiner is None:
+            return self.level.splats(world)[0]
+        base, normals = splats.base_splats(world, self.colors, self.nbrs)
+        median = splats.median_spacing(world, self.nbrs)
+        residuals = self.refiner(features(unit, base, normals, median), unit)
+        return refined(None, residuals, self.refiner.cfg.mean_bound / self.scale, self.level, world)
 
     @torch.no_grad()
     def rollout(self, keys, setting: dict, seed: int, frames: int | None = None) -> dict:
@@ -136,28 +133,41 @@ class Avatar:
 # ---- 1. image level -------------------------------------------------------------------
 
 
+def held_out_frames(frames: Frames, count: int) -> tuple[list[int], list[tuple[int, int]]]:
+    """The held-out clips among the rendered ones (the last clip if none is), and `count`
+    of their rendered frames, evenly spread, each with three frames before it."""
+    clips = {k[0] for k in frames.keys}
+    held_out = [c for c in HELD_OUT_CLIPS if c in clips] or [max(clips)]
+    held = [k for k in frames.keys if k[0] in held_out and k[1] >= 3]
+    return held_out, held[:: max(1, len(held) // count)][:count]
+
+
+@torch.no_grad()
+def teacher_forced(av: Avatar, clip: int, f: int, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """(generated, truth) world points [N, 3] of frame `f` of `clip`: the generated frame
+    from its three ground-truth context frames and the true action (bundle's sampler,
+    PCA-cleaned), and the frame itself."""
+    world = av.ds.positions(clip, list(range(f - 3, f + 1)))  # 3 context frames + the truth
+    unit, root = av.ds.normalise(world, anchor=ANCHOR)
+    context = av.vae.encoder(av.ds.to_maps(unit[:3]))[0] * av.latent_scale
+    action = int(av.ds.clips[clip]["actions"][f - 1])
+    z = sample_next(av.unet, av.schedule, context[None], torch.tensor([action]), av.manifest["sampler"]["ddim_steps"],
+                    av.manifest["sampler"]["cfg_scale"], generator=gen)
+    new = recentre.decode_points(av.vae, z, av.latent_scale, av.pixels)[0]
+    return (av.clean(new) - 0.5) / av.scale + root, world[3]
+
+
 @torch.no_grad()
 def image_level(av: Avatar, data: Path, count: int, size: int, seed: int, sheet: list) -> dict:
     """PSNR/SSIM over the 4 cardinal views of `count` held-out rendered frames: generated
     geometry and ground-truth geometry, each as base and refined splats."""
     frames = Frames(data, av.bundle_dir, size, reconstruct=False)
-    clips = {k[0] for k in frames.keys}
-    held_out = [c for c in HELD_OUT_CLIPS if c in clips] or [max(clips)]
-    held = [k for k in frames.keys if k[0] in held_out and k[1] >= 3]
-    chosen = held[:: max(1, len(held) // count)][:count]
+    held_out, chosen = held_out_frames(frames, count)
     gen = torch.Generator().manual_seed(seed)
     sums: dict[str, list[float]] = {}
     views = 0
     for clip, f in chosen:
-        world = av.ds.positions(clip, list(range(f - 3, f + 1)))  # 3 context frames + the truth
-        unit, root = av.ds.normalise(world, anchor=ANCHOR)
-        context = av.vae.encoder(av.ds.to_maps(unit[:3]))[0] * av.latent_scale
-        action = int(av.ds.clips[clip]["actions"][f - 1])
-        z = sample_next(av.unet, av.schedule, context[None], torch.tensor([action]), av.manifest["sampler"]["ddim_steps"],
-                        av.manifest["sampler"]["cfg_scale"], generator=gen)
-        new = recentre.decode_points(av.vae, z, av.latent_scale, av.pixels)[0]
-        generated = (av.clean(new) - 0.5) / av.scale + root
-        truth = world[3]
+        generated, truth = teacher_forced(av, clip, f, gen)
         drawn = {
             "generated, base": av.draw(generated, False),
             "generated, refined": av.draw(generated, True),
@@ -216,7 +226,14 @@ def sequence_level(av: Avatar, run: dict, teacher_path: list, keys: str, poses: 
     fd = metrics.frechet_distance(metrics.windows(av.coefficients(unit), WINDOW), reference)
     actions = parse_keys(keys, run["frames"])
     path = torch.tensor(run["root_path"])
-    teacher = torch.tensor(teacher_path[: len(path)])
+    segments, turns = against_teacher(path, torch.tensor(teacher_path[: len(path)]), actions, settle)
+    return {"chamfer_mm": sum(chamfers) / len(chamfers), "chamfer_mm_per_frame": chamfers, "fvd_pca": fd,
+            "segments": segments, "turns": turns, "ms_per_frame": run["ms_per_frame"]}
+
+
+def against_teacher(path: torch.Tensor, teacher: torch.Tensor, actions: list[int], settle: int) -> tuple[list, dict]:
+    """Per key segment the speed and heading of `path` and of the teacher's, and per key
+    change the frames each takes to turn."""
     segments = []
     for gen_seg, teach_seg in zip(metrics.segment_summary(path, actions, FRAME_RATE, settle),
                                   metrics.segment_summary(teacher, actions[: len(teacher) - 1], FRAME_RATE, settle)):
@@ -226,8 +243,7 @@ def sequence_level(av: Avatar, run: dict, teacher_path: list, keys: str, poses: 
     for label, switch, target in turn_points(actions):
         turns[label] = {"generated": metrics.turn_frames(path, switch, target),
                         "teacher": metrics.turn_frames(teacher, switch, target)}
-    return {"chamfer_mm": sum(chamfers) / len(chamfers), "chamfer_mm_per_frame": chamfers, "fvd_pca": fd,
-            "segments": segments, "turns": turns, "ms_per_frame": run["ms_per_frame"]}
+    return segments, turns
 
 
 def turn_points(actions: list[int]) -> list[tuple[str, int, float]]:
@@ -304,22 +320,13 @@ def masked_teacher_forced(av: Avatar, frames: Frames, count: int, seed: int, she
     """(a): held-out rendered frames, each generated from its three ground-truth context
     frames and the true action, drawn as refined splats; and the ground truth drawn the
     same way (the appearance ceiling)."""
-    clips = {k[0] for k in frames.keys}
-    held_out = [c for c in HELD_OUT_CLIPS if c in clips] or [max(clips)]
-    held = [k for k in frames.keys if k[0] in held_out and k[1] >= 3]
-    chosen = held[:: max(1, len(held) // count)][:count]
+    held_out, chosen = held_out_frames(frames, count)
     gen = torch.Generator().manual_seed(seed)
     generated, truth = Masked(), Masked()
     for clip, f in chosen:
-        world = av.ds.positions(clip, list(range(f - 3, f + 1)))
-        unit, root = av.ds.normalise(world, anchor=ANCHOR)
-        context = av.vae.encoder(av.ds.to_maps(unit[:3]))[0] * av.latent_scale
-        action = int(av.ds.clips[clip]["actions"][f - 1])
-        z = sample_next(av.unet, av.schedule, context[None], torch.tensor([action]), av.manifest["sampler"]["ddim_steps"],
-                        av.manifest["sampler"]["cfg_scale"], generator=gen)
-        new = recentre.decode_points(av.vae, z, av.latent_scale, av.pixels)[0]
-        drawn = av.draw((av.clean(new) - 0.5) / av.scale + root, True)
-        drawn_truth = av.draw(world[3], True)
+        points, truth_points = teacher_forced(av, clip, f, gen)
+        drawn = av.draw(points, True)
+        drawn_truth = av.draw(truth_points, True)
         for view in frames.views[(clip, f)]:
             cam, want = frames.target(view)
             got = _rgba(drawn, cam)
@@ -382,17 +389,10 @@ def aligned_chamfer(av: Avatar, run: dict, poses: torch.Tensor, every: int) -> f
 def motion(path: torch.Tensor, teacher: torch.Tensor, actions: list[int], settle: int) -> dict:
     """Speeds and headings per key, turns, and the stop after the last release, for the
     engine's path and the teacher's."""
-    segments = []
-    for g, t in zip(metrics.segment_summary(path, actions, FRAME_RATE, settle),
-                    metrics.segment_summary(teacher, actions[: len(teacher) - 1], FRAME_RATE, settle)):
-        if g["action"] == 0:
-            continue
-        segments.append({"key": NAMES[g["action"]], "speed": g["speed"], "teacher_speed": t["speed"], "heading": g["heading"],
-                         "teacher_heading": t["heading"], "speed_error_pct": 100 * abs(g["speed"] - t["speed"]) / t["speed"]})
-    turns = []
-    for label, switch, target in turn_points(actions):
-        turns.append({"turn": label, "generated": metrics.turn_frames(path, switch, target),
-                      "teacher": metrics.turn_frames(teacher, switch, target)})
+    all_segments, by_label = against_teacher(path, teacher, actions, settle)
+    segments = [dict(s, speed_error_pct=100 * abs(s["speed"] - s["teacher_speed"]) / s["teacher_speed"])
+                for s in all_segments if s["key"] != NAMES[0]]
+    turns = [{"turn": label, **t} for label, t in by_label.items()]
     release = max(i for i in range(1, len(actions)) if actions[i] == 0 and actions[i - 1] != 0)
     stop, drift = metrics.stop_frames(path, release, FRAME_RATE)
     teacher_stop, teacher_drift = metrics.stop_frames(teacher[: path.shape[0]], release, FRAME_RATE)

@@ -310,10 +310,14 @@ class Frames:
                 for k, u, r in zip(chunk, cleaned, root):
                     self.unit[k], self.root[k] = u, r
 
+    def world(self, key) -> torch.Tensor:
+        """The frame's reconstructed points in world space [N, 3]."""
+        return (self.unit[key] - 0.5) / self.scale + self.root[key]
+
     def inputs(self, key):
         """(base splats in world space, features, unit positions)."""
         unit = self.unit[key]
-        world = (unit - 0.5) / self.scale + self.root[key]
+        world = self.world(key)
         base, normals = splats.base_splats(world, self.colors, self.nbrs)
         median = splats.median_spacing(world, self.nbrs)
         return base, features(unit, base, normals, median), unit
@@ -334,6 +338,17 @@ class Frames:
         return cam, torch.cat([splats.linear(rgba[..., :3]) * rgba[..., 3:], rgba[..., 3:]], -1)
 
 
+def refined(base: splats.Splats | None, raw: torch.Tensor, bound: float, level: splats.Level | None = None,
+            world: torch.Tensor | None = None) -> splats.Splats:
+    """The refined splats: residuals `raw` applied to `base` (the map's own level), or,
+    with `level`, the points `world` and the residuals upscaled to that level first (as
+    the app draws them)."""
+    if level is None:
+        return apply(base, raw, bound)
+    fine, up = level.splats(world, raw)
+    return apply(fine, up, bound)
+
+
 def composite(target: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
     return target[..., :3] + (1 - target[..., 3:]) * background
 
@@ -347,17 +362,13 @@ def evaluate(model: Refiner, frames: Frames, keys: list, level: splats.Level | N
     count = 0
     for key in keys:
         base, feats, unit = frames.inputs(key)
-        if level is None:
-            refined = apply(base, model(feats, unit), bound)
-        else:
-            world = (unit - 0.5) / frames.scale + frames.root[key]
-            base = level.splats(world)[0]
-            fine, up = level.splats(world, model(feats, unit))
-            refined = apply(fine, up, bound)
+        drawn = refined(base, model(feats, unit), bound, level, frames.world(key))
+        if level is not None:
+            base = level.splats(frames.world(key))[0]
         for view in frames.views[key]:
             cam, target = frames.target(view)
             want = splats.srgb(target[..., :3])
-            for name, s in (("base", base), ("refined", refined)):
+            for name, s in (("base", base), ("refined", drawn)):
                 image, _ = splats.render(s, cam, torch.zeros(3))
                 got = splats.srgb(image)
                 sums[name][0] += splats.psnr(got, want)
@@ -401,19 +412,14 @@ def train(args) -> dict:
     for step in range(start, cfg.steps):
         key = train_keys[int(torch.randint(len(train_keys), (1,), generator=gen))]
         base, feats, unit = frames.inputs(key)
-        raw = model(feats, unit)
-        if level is None:
-            refined = apply(base, raw, bound)
-        else:
-            fine, up = level.splats((unit - 0.5) / frames.scale + frames.root[key], raw)
-            refined = apply(fine, up, bound)
+        drawn = refined(base, model(feats, unit), bound, level, frames.world(key))
         views = frames.views[key]
         chosen = torch.randperm(len(views), generator=gen)[: cfg.views_per_step]
         loss_l1, loss_ssim, loss_alpha = 0.0, 0.0, 0.0
         for v in chosen:
             cam, target = frames.target(views[int(v)])
             bg = torch.ones(3) if torch.rand(1, generator=gen).item() < 0.5 else torch.zeros(3)
-            image, alpha = splats.render(refined, cam, bg)
+            image, alpha = splats.render(drawn, cam, bg)
             got, want = splats.srgb(image), splats.srgb(composite(target, bg))
             loss_l1 = loss_l1 + (got - want).abs().mean()
             loss_ssim = loss_ssim + 1 - splats.ssim(got, want)
