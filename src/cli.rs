@@ -180,7 +180,9 @@ struct RigArgs {
     /// Seed of the surface sampling
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Leave out the finger joints (the hands are each one bone, the wrist)
+    /// Leave out the finger joints (the hands are each one bone, the wrist). Without it
+    /// they are kept unless they tear the mesh over a walk (a mitten hand): the rig is
+    /// then made both ways and the one without them is written
     #[arg(long)]
     no_hands: bool,
 }
@@ -563,6 +565,11 @@ fn rig(args: RigArgs) -> anyhow::Result<()> {
             .map_or("not measured".to_string(), |s| format!("{s:.2}")),
         summary.description.display()
     );
+    if let crate::autorig::pipeline::Hands::DroppedTearing(stretch) = summary.hands {
+        println!(
+            "finger joints left out: with them the walk stretched an edge {stretch:.2} times (the mesh's fingers are not separate)"
+        );
+    }
     Ok(())
 }
 

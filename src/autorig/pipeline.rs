@@ -17,6 +17,7 @@ use super::skeleton::{BODY, Class, Skeleton, UnitCube};
 use super::smoothing;
 use super::synth;
 use super::voxel::{Voxels, bone_tails, segment_distance};
+use crate::avatar::character::Character;
 use crate::avatar::description::{ClipNames, Description};
 use crate::avatar::humanoid::vrm_name;
 use crate::avatar::rig::Transform;
@@ -190,6 +191,8 @@ pub struct Summary {
     /// Tearing: the largest edge stretch (posed / rest length) over [`STRETCH_KEYS`]
     /// (`None` where the written rig could not be driven; a warning says why).
     pub stretch: Option<f32>,
+    /// What became of the template's finger joints.
+    pub hands: Hands,
 }
 
 /// The drive that measures tearing: stand, go toward +Z, turn to +X, turn to -Z, stop
@@ -228,8 +231,28 @@ pub struct RigOptions<'a> {
     /// Animation libraries merged into `clips_from`'s clips by joint name.
     pub clip_files: &'a [PathBuf],
     pub seed: u64,
-    /// Keep the template's finger joints (when the skeleton has them).
+    /// Offer the template's finger joints (when the skeleton has them); they are kept
+    /// only where they do not tear the mesh (see [`HAND_TEARING`]).
     pub hands: bool,
+}
+
+/// The finger joints are dropped when the rig with them stretches an edge over the walk
+/// more than this many times as far as the rig without them: a mitten hand, or fingers
+/// the mesh does not separate, tear into spikes when the retargeted clips curl joints
+/// placed in them (the T-posed synthetic humanoid of tests/autorig: 14.4 with the finger
+/// joints, 2.1 without; the Witch, whose fingers are modelled, keeps them).
+pub const HAND_TEARING: f32 = 1.5;
+
+/// What became of the template's finger joints.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Hands {
+    /// Kept: the skeleton has them and they do not tear the mesh.
+    Kept,
+    /// Not asked for (`--no-hands`), or the skeleton has none.
+    None,
+    /// Dropped because the rig with them stretched the mesh this far over the walk
+    /// (the rig without them is in the summary's `stretch`).
+    DroppedTearing(f32),
 }
 
 /// Rigs the mesh of `input` (any skin it has is ignored) into `out` (.glb) plus the
@@ -237,7 +260,8 @@ pub struct RigOptions<'a> {
 /// clips of its animation libraries, merged by joint name): its clips named Idle/Walk/Run,
 /// else those its description (found or inferred) names. The .glb carries VRM 1.0's
 /// humanoid map and the spring chains with their colliders (`VRMC_vrm`,
-/// `VRMC_springBone`).
+/// `VRMC_springBone`). Finger joints are kept only where they do not tear the mesh
+/// ([`HAND_TEARING`]): the rig is then made and measured both ways.
 pub fn rig_file(
     input: &Path,
     out: &Path,
@@ -251,37 +275,115 @@ pub fn rig_file(
         anyhow::bail!("{}: the mesh has no triangles to rig", input.display());
     }
     progress("skeleton");
-    let (mut skeleton, skeleton_source) =
-        skeleton_for(&mesh, models.skeleton.as_ref(), options.seed)?;
+    let (skeleton, skeleton_source) = skeleton_for(&mesh, models.skeleton.as_ref(), options.seed)?;
     if skeleton.class != Class::Humanoid {
         anyhow::bail!(
             "{}: the predicted skeleton is not humanoid; only humanoids get the template's clips",
             input.display()
         );
     }
-    if !options.hands {
-        skeleton = skeleton.without_hands();
+    let source = load_character_with(options.clips_from, options.clip_files)?;
+    let body = skeleton.without_hands();
+    let has_fingers = body.len() < skeleton.len();
+    let rig = |skeleton: &Skeleton, path: &Path| {
+        write_rig(
+            &character.name,
+            &mesh,
+            skeleton,
+            &source,
+            models,
+            path,
+            progress,
+        )
+    };
+    if !(options.hands && has_fingers) {
+        let written = rig(&body, out)?;
+        return Ok(written.summary(skeleton_source, Hands::None));
     }
-    let chains_before = chain_roots(&skeleton).len();
-    skeleton = springs_on_loose_parts(&skeleton, &mesh);
+    let with = rig(&skeleton, out)?;
+    let Some(stretch_with) = with.stretch else {
+        return Ok(with.summary(skeleton_source, Hands::Kept));
+    };
+    progress("the same rig without finger joints");
+    let spare = out.with_extension("no-hands.glb");
+    let without = rig(&body, &spare)?;
+    // Both descriptions are the same; the one beside `out` stays.
+    let _ = std::fs::remove_file(&without.description);
+    let tears = without
+        .stretch
+        .is_some_and(|stretch| stretch_with > HAND_TEARING * stretch);
+    if tears {
+        std::fs::rename(&spare, out)
+            .map_err(|e| anyhow::anyhow!("{}: cannot replace it: {e}", out.display()))?;
+        let summary = Written {
+            description: with.description,
+            ..without
+        };
+        Ok(summary.summary(skeleton_source, Hands::DroppedTearing(stretch_with)))
+    } else {
+        let _ = std::fs::remove_file(&spare);
+        Ok(with.summary(skeleton_source, Hands::Kept))
+    }
+}
+
+/// One skeleton's rig as written: what the summary reports of it.
+struct Written {
+    skin: SkinSource,
+    joints: usize,
+    spring_chains: usize,
+    dropped_chains: usize,
+    clips: usize,
+    description: PathBuf,
+    stretch: Option<f32>,
+}
+
+impl Written {
+    fn summary(self, skeleton: SkeletonSource, hands: Hands) -> Summary {
+        Summary {
+            skeleton,
+            skin: self.skin,
+            joints: self.joints,
+            spring_chains: self.spring_chains,
+            dropped_chains: self.dropped_chains,
+            clips: self.clips,
+            description: self.description,
+            stretch: self.stretch,
+            hands,
+        }
+    }
+}
+
+/// Skins `mesh` to `skeleton` (spring chains kept only on loose parts), retargets the
+/// clips of `source`, writes the .glb at `out` with the description beside it, and
+/// measures the walk's tearing.
+fn write_rig(
+    name: &str,
+    mesh: &Mesh,
+    skeleton: &Skeleton,
+    source: &Character,
+    models: &Models,
+    out: &Path,
+    progress: &dyn Fn(&str),
+) -> anyhow::Result<Written> {
+    let chains_before = chain_roots(skeleton).len();
+    let skeleton = springs_on_loose_parts(skeleton, mesh);
     progress("skin weights");
-    let (weights, skin_source) = skin_for(&mesh, &skeleton, models);
+    let (weights, skin_source) = skin_for(mesh, &skeleton, models);
     let (skin_joints, skin_weights): (Vec<[u16; 4]>, Vec<[f32; 4]>) =
         weights.iter().map(|w| top4(w)).unzip();
     progress("clips");
-    let source = load_character_with(options.clips_from, options.clip_files)?;
     let named = CLIPS.iter().all(|name| source.clip(name).is_ok());
     let roles: [String; 3] = if named {
         CLIPS.map(String::from)
     } else {
-        let described = crate::avatar::description::Description::find(&source, None)?.clips;
+        let described = crate::avatar::description::Description::find(source, None)?.clips;
         [described.idle, described.walk, described.run]
     };
     let clips: Vec<ClipOut> = CLIPS
         .iter()
         .zip(&roles)
         .map(|(name, role)| {
-            let mut clip = retarget(&source, role, &skeleton)?;
+            let mut clip = retarget(source, role, &skeleton)?;
             clip.name = name.to_string();
             Ok(clip)
         })
@@ -299,13 +401,13 @@ pub fn rig_file(
             },
         })
         .collect();
-    let vrm = vrm_for(&skeleton, &mesh, &weights);
+    let vrm = vrm_for(&skeleton, mesh, &weights);
     progress("writing");
     write_glb(
         out,
         &RiggedMesh {
-            name: &character.name,
-            mesh: &mesh,
+            name,
+            mesh,
             joints: &joints,
             skin_joints: &skin_joints,
             skin_weights: &skin_weights,
@@ -323,8 +425,7 @@ pub fn rig_file(
     let stretch = walk_stretch(out)
         .inspect_err(|e| log::warn!("{}: tearing not measured: {e:#}", out.display()))
         .ok();
-    Ok(Summary {
-        skeleton: skeleton_source,
+    Ok(Written {
         skin: skin_source,
         joints: skeleton.len(),
         spring_chains: vrm.springs.len(),

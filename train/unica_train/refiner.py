@@ -404,8 +404,11 @@ def train(args) -> dict:
         gen.set_state(state["gen"])
         start = state["step"]
         print(f"resumed at step {start}")
-    elif log_path.exists():
-        log_path.unlink()
+    else:
+        if log_path.exists():
+            log_path.unlink()
+        if args.init is not None:
+            init_from_bundle(model, args.init)
     bound = model.cfg.mean_bound / frames.scale
     level = splats.Level(frames.ds.pixels, frames.colors, cfg.splat_level) if cfg.splat_level != 128 else None
     began = time.time()
@@ -454,6 +457,17 @@ def train(args) -> dict:
     return metrics
 
 
+def init_from_bundle(model: Refiner, directory: Path) -> None:
+    """Starts `model` from the refiner in another bundle (fine-tuning it for a new VAE or
+    splat level); the bundle's refiner config must be the model's."""
+    manifest = json.loads((Path(directory) / "manifest.json").read_text())
+    if manifest.get("refiner") != model.cfg.to_dict():
+        raise bundle_io.BundleError(f"{directory}: its refiner config {manifest.get('refiner')} is not this run's {model.cfg.to_dict()}")
+    tensors = load_file(str(Path(directory) / "weights.safetensors"))
+    model.load_state_dict({k.removeprefix("refiner."): v for k, v in tensors.items() if k.startswith("refiner.")})
+    print(f"started from the refiner in {directory}", flush=True)
+
+
 def add_to_bundle(directory: Path, model: Refiner) -> None:
     """Writes `refiner.*` and the manifest's `refiner` config into a bundle (the geometry
     models are untouched)."""
@@ -476,6 +490,7 @@ def main(argv=None):
     parser.add_argument("--config", type=Path, help="JSON with RefinerTrainConfig fields")
     parser.add_argument("--steps", type=int)
     parser.add_argument("--resume", action="store_true")
+    parser.add_argument("--init", type=Path, help="start from the refiner in this bundle (same refiner config)")
     parser.add_argument("--write-bundle", action="store_true", help="add the trained refiner to --bundle")
     metrics = train(parser.parse_args(argv))
     print(json.dumps(metrics, indent=2))
