@@ -682,6 +682,21 @@ fn bake(args: BakeArgs) -> anyhow::Result<()> {
         manifest.foreground_pixels,
         manifest.coverage["surface_seen"].as_f64().unwrap_or(0.0) * 100.0
     );
+    // What the map gives the face and hands, against an even spread over the surface.
+    if let Some(regions) = manifest.coverage["regions"].as_array() {
+        let parts: Vec<String> = regions
+            .iter()
+            .map(|r| {
+                format!(
+                    "{} {} (an even share by area would be {:.0})",
+                    r["name"].as_str().unwrap_or("?"),
+                    r["pixels"],
+                    r["fair_pixels"].as_f64().unwrap_or(0.0)
+                )
+            })
+            .collect();
+        println!("map pixels: {}", parts.join(", "));
+    }
     Ok(())
 }
 

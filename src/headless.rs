@@ -22,7 +22,7 @@ use crate::gpu::GpuContext;
 use crate::mesh::Mesh;
 use crate::render::OrbitCamera;
 use crate::render::offscreen::Offscreen;
-use crate::render::scene::DrawOptions;
+use crate::render::scene::{DrawOptions, character_light};
 
 /// Who is rendered.
 pub enum Avatar {
@@ -184,7 +184,18 @@ pub fn render(
                 Some((buffer, count)) => {
                     offscreen.render_splats(buffer, *count, &camera, &DrawOptions::default())?
                 }
-                None => offscreen.render(&step.mesh, &camera, &DrawOptions::default())?,
+                None => {
+                    // The teacher in the light its renders were baked with.
+                    let light = match &driver {
+                        Driver::Teacher(teacher) => Some(character_light(teacher.locomotion.yaw)),
+                        Driver::Neural(..) => None,
+                    };
+                    let options = DrawOptions {
+                        light,
+                        ..DrawOptions::default()
+                    };
+                    offscreen.render(&step.mesh, &camera, &options)?
+                }
             };
             render_ms += clock.elapsed().as_secs_f64() * 1e3;
             let clock = Instant::now();

@@ -66,6 +66,21 @@ fn the_witch_map_covers_most_of_the_surface() {
         "surface seen {}",
         report.surface_seen
     );
+    // Face and hands (issue #17), measured 2026-11-24: face 81 pixels against an even
+    // share by area of 107, hands 112 against 156. Each region is found (its bones are
+    // the humanoid's) and gets pixels, at least half its even share.
+    for region in &report.regions {
+        assert!(
+            region.pixels > 0 && region.pixels as f32 > 0.5 * region.fair_pixels,
+            "{region:?}"
+        );
+        assert!(
+            region.area_share > 0.005 && region.area_share < 0.2,
+            "{region:?}"
+        );
+    }
+    let names: Vec<&str> = report.regions.iter().map(|r| r.name.as_str()).collect();
+    assert_eq!(names, ["face", "hands"]);
     assert!(!reference.waist.is_empty());
     // The root from the waist pixels (the belt's surface) is near the waist bones' mean.
     let mesh = teacher.character.rest_mesh();

@@ -641,6 +641,7 @@ impl eframe::App for UnicaApp {
                     generation: scene,
                     splats,
                     labels: &labels,
+                    light: self.shown.light(),
                 };
                 let timings = self.viewport.show(ui, &self.gpu, &state.renderer, scene);
                 if !timings.is_empty() {

@@ -292,6 +292,16 @@ impl Shown {
             .collect()
     }
 
+    /// The light the meshes are drawn in: the teacher's renders' light, turned with it
+    /// (so beside the neural avatar it is lit as the refiner's training images were);
+    /// `None` (a light beside the camera) for a static mesh.
+    pub fn light(&self) -> Option<glam::Vec3> {
+        let teacher = self.teacher.as_ref()?;
+        Some(crate::render::scene::character_light(
+            teacher.locomotion.yaw,
+        ))
+    }
+
     /// Changes whenever what [`Shown::gpu_meshes`] draws does (meshes shown, the
     /// teacher's pose, the neural surface's frame): the viewport redraws only then.
     pub fn scene_generation(&self) -> (u64, u64, usize) {

@@ -9,7 +9,7 @@ use crate::gpu::GpuContext;
 use std::time::Instant;
 
 use crate::gpu::timing::StageTiming;
-use crate::render::scene::COLOR_FORMAT;
+use crate::render::scene::{COLOR_FORMAT, DrawOptions};
 use crate::render::{GpuMesh, OrbitCamera, RenderTarget, SceneRenderer};
 use crate::splat::composite::Compositor;
 use crate::splat::project::SplatCamera;
@@ -63,6 +63,8 @@ pub struct Scene<'a> {
     pub generation: (u64, u64, usize),
     pub splats: Option<Splats<'a>>,
     pub labels: &'a [(glam::Vec3, &'a str)],
+    /// Direction toward the light; `None`: a key light beside the camera.
+    pub light: Option<glam::Vec3>,
 }
 
 struct Cached {
@@ -110,6 +112,7 @@ impl Viewport {
             generation: scene,
             splats,
             labels,
+            light,
         } = scene;
         let size = ui.available_size();
         let ppp = ui.ctx().pixels_per_point();
@@ -164,8 +167,19 @@ impl Viewport {
             });
         let mut timings = Vec::new();
         let clock = Instant::now();
-        self.renderer
-            .draw(gpu, &mut encoder, target, &self.camera, meshes, None);
+        let options = DrawOptions {
+            light,
+            ..DrawOptions::default()
+        };
+        self.renderer.draw_with(
+            gpu,
+            &mut encoder,
+            target,
+            &self.camera,
+            meshes,
+            &options,
+            None,
+        );
         timings.push(recorded("viewport", clock));
         if let Some((buffer, count, generation)) = splats {
             let clock = Instant::now();

@@ -27,6 +27,25 @@ pub struct CoverageReport {
     pub surface_seen: f32,
     /// Per mesh/material part: (name, area share seen, the part's share of all area).
     pub parts: Vec<(String, f32, f32)>,
+    /// The regions a viewer looks at most (issue #17): what the map gives them.
+    pub regions: Vec<RegionCoverage>,
+}
+
+/// What the position map gives one region of the body.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct RegionCoverage {
+    /// `face`: the head bone's triangles facing forward (normal within 60° of +Z);
+    /// `hands`: the triangles of the wrists and everything below them (fingers).
+    pub name: String,
+    /// Foreground pixels of the map showing the region.
+    pub pixels: usize,
+    /// The region's share of the whole surface area.
+    pub area_share: f32,
+    /// Share of the region's area seen by at least one view.
+    pub seen: f32,
+    /// Pixels the region would get if the map's pixels were spread over the surface by
+    /// area (`foreground_pixels × area_share`): below 1 × this, the layout starves it.
+    pub fair_pixels: f32,
 }
 
 impl Reference {
@@ -95,7 +114,34 @@ impl Reference {
             view_pixels[SurfaceTable::view_of(pixel)].1 += 1;
         }
         let n = crate::posmap::MAP_SIZE * crate::posmap::MAP_SIZE;
+        let regions = body_regions(teacher, &mesh)
+            .into_iter()
+            .map(|(name, inside)| {
+                let area: f32 = (0..areas.len())
+                    .filter(|&t| inside[t])
+                    .map(|t| areas[t])
+                    .sum();
+                let visible: f32 = (0..areas.len())
+                    .filter(|&t| inside[t])
+                    .map(|t| areas[t] * seen[t])
+                    .sum();
+                let pixels = self
+                    .table
+                    .triangles
+                    .iter()
+                    .filter(|&&t| inside[t as usize])
+                    .count();
+                RegionCoverage {
+                    name: name.to_string(),
+                    pixels,
+                    area_share: area / total,
+                    seen: visible / area.max(1e-12),
+                    fair_pixels: self.table.len() as f32 * area / total,
+                }
+            })
+            .collect();
         CoverageReport {
+            regions,
             foreground_pixels: self.table.len(),
             foreground_share: self.table.len() as f32 / n as f32,
             view_pixels,
@@ -108,4 +154,44 @@ impl Reference {
     pub fn gather(&self, positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
         self.table.gather(positions, indices)
     }
+}
+
+/// Per triangle of the rest mesh: in the face, in the hands (see [`RegionCoverage`]); a
+/// rig without a head or wrist bone (found by the humanoid names) has an empty region.
+fn body_regions(teacher: &Teacher, mesh: &crate::mesh::Mesh) -> Vec<(&'static str, Vec<bool>)> {
+    use crate::avatar::humanoid::find_all;
+    let character = &teacher.character;
+    let rig = &character.rig;
+    let found = find_all(rig, character.vrm.as_ref(), &["Head", "Wrist.L", "Wrist.R"]);
+    // A node is in the hands when a wrist is it or one of its ancestors.
+    let under = |node: usize, tops: &[usize]| {
+        let mut n = Some(node);
+        while let Some(k) = n {
+            if tops.contains(&k) {
+                return true;
+            }
+            n = rig.nodes[k].parent;
+        }
+        false
+    };
+    let wrists: Vec<usize> = found[1..].iter().flatten().copied().collect();
+    let node_of = |v: u32| rig.bones[character.skinned.dominant_bone(v as usize)].node;
+    let triangles: Vec<[u32; 3]> = mesh
+        .indices
+        .chunks_exact(3)
+        .map(|t| [t[0], t[1], t[2]])
+        .collect();
+    let face = triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+            let facing = (b - a).cross(c - a).normalize_or_zero().z > 0.5;
+            facing && found[0].is_some_and(|head| t.iter().all(|&v| node_of(v) == head))
+        })
+        .collect();
+    let hands = triangles
+        .iter()
+        .map(|t| !wrists.is_empty() && t.iter().all(|&v| under(node_of(v), &wrists)))
+        .collect();
+    vec![("face", face), ("hands", hands)]
 }

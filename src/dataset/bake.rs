@@ -44,7 +44,7 @@ pub const RENDER_SIZE: u32 = 512;
 pub const RENDER_EVERY: usize = 5;
 const REST_CAMERAS: usize = 50;
 /// Direction toward the light in the character's frame (it faces +Z).
-const LIGHT: Vec3 = Vec3::new(0.35, 0.8, 0.5);
+const LIGHT: Vec3 = crate::render::scene::CHARACTER_LIGHT;
 
 /// One clip of the plan: (first action, second action, frames of each).
 type Planned = (Action, Action, usize, usize);
@@ -272,7 +272,7 @@ impl GroundTruth {
         teacher: &Teacher,
     ) -> anyhow::Result<()> {
         let facing = teacher.locomotion.yaw;
-        let light = glam::Quat::from_rotation_y(facing) * LIGHT;
+        let light = crate::render::scene::character_light(facing);
         let (lo, hi) = mesh.bounds().expect("a character has vertices");
         for (view, name) in ["front", "right", "back", "left"].iter().enumerate() {
             // Yaw 0 looks from +Z: a camera at the character's facing sees its front.

@@ -304,6 +304,17 @@ impl Default for DrawOptions {
     }
 }
 
+/// Direction toward the light in a character's own frame (it faces +Z): the light the
+/// dataset's renders are lit by, which the refiner learns the neural avatar's colours
+/// from. The teacher is drawn with it wherever the neural avatar may stand beside it,
+/// so the two match in colour (issue #17).
+pub const CHARACTER_LIGHT: Vec3 = Vec3::new(0.35, 0.8, 0.5);
+
+/// [`CHARACTER_LIGHT`] for a character turned `yaw` radians about +Y.
+pub fn character_light(yaw: f32) -> Vec3 {
+    glam::Quat::from_rotation_y(yaw) * CHARACTER_LIGHT
+}
+
 fn light_direction(camera: &OrbitCamera) -> Vec3 {
     let toward_eye = (camera.eye() - camera.target).normalize_or(Vec3::Z);
     let side = toward_eye.cross(Vec3::Y).normalize_or(Vec3::X);
@@ -384,4 +395,20 @@ fn grid_lines() -> Mesh {
         line(Vec3::new(-half, 0.0, t), Vec3::new(half, 0.0, t), z_color);
     }
     mesh
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_character_light_turns_with_the_character() {
+        assert!(character_light(0.0).abs_diff_eq(CHARACTER_LIGHT, 1e-6));
+        // A quarter turn to the left (+Y up) takes the character's +Z to +X.
+        let turned = character_light(std::f32::consts::FRAC_PI_2);
+        assert!(
+            turned.abs_diff_eq(Vec3::new(0.5, 0.8, -0.35), 1e-6),
+            "{turned}"
+        );
+    }
 }
