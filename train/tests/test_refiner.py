@@ -76,3 +76,27 @@ def test_flops_count_the_linear_layers_and_attention():
     block = 2 * n * 8 * 8 * 8 + 4 * n * 4 * 8
     want = 2 * n * 11 * 8 + block + 2 * 5 * 8 * 16 + 2 * 5 * 16 * 8 + 2 * n * 8 * 14
     assert R.flops(cfg, n) == want
+
+
+def test_a_refiner_starts_from_another_bundles_refiner_with_the_same_config(tmp_path):
+    import json
+
+    import pytest
+    from safetensors.torch import save_file
+
+    from unica_train import bundle as B
+
+    save_file({"pca.mean": torch.zeros(3)}, str(tmp_path / "weights.safetensors"))
+    (tmp_path / "manifest.json").write_text(json.dumps({"avatar": "test"}))
+    cfg = R.RefinerConfig(patch=16)
+    trained = R.Refiner(cfg)
+    with torch.no_grad():
+        for p in trained.parameters():
+            p.add_(torch.randn_like(p))
+    R.add_to_bundle(tmp_path, trained)
+    started = R.Refiner(cfg)
+    R.init_from_bundle(started, tmp_path)
+    for (name, a), (_, b) in zip(trained.state_dict().items(), started.state_dict().items()):
+        assert torch.equal(a, b), name
+    with pytest.raises(B.BundleError, match="refiner config"):
+        R.init_from_bundle(R.Refiner(R.RefinerConfig(patch=32)), tmp_path)
