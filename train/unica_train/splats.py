@@ -236,6 +236,8 @@ def render(splats: Splats, cam: Camera, background: torch.Tensor) -> tuple[torch
         cover = (x0[None] <= tx[:, None]) & (tx[:, None] < x1[None]) & (y0[None] <= ty[:, None]) & (ty[:, None] < y1[None])
         counts = cover.sum(1)
         busy = torch.nonzero(counts).squeeze(1)
+        # Tiles in order of their splat count, so each chunk pads to a count near its own.
+        busy = busy[torch.argsort(counts[busy], stable=True)]
         k = int(counts.max()) if len(busy) else 0
     image = background.expand(cam.height, cam.width, 3).clone()
     alpha_image = torch.zeros(cam.height, cam.width)
