@@ -241,3 +241,22 @@ def test_nearest_aligned_pose_undoes_a_turn():
     assert abs(float(yaw_align(frame, poses[3])) - 0.7) < 1e-5
     distance, index, theta = nearest_aligned_pose(frame, poses)
     assert index == 3 and abs(theta - 0.7) < 1e-5 and distance < 1e-5
+
+
+def test_the_cfg_probe_measures_segments_and_prefers_the_right_heading():
+    from unica_train.cfg_probe import score, segments
+
+    # 2 frames toward +Z at 1 m a frame, then 2 toward +X at 0.5, then standing.
+    path = torch.tensor([[0.0, 1, 0], [0, 1, 1], [0, 1, 2], [0.5, 1, 2], [1, 1, 2], [1, 1, 2]])
+    got = segments(path, "2W 2A 1I")
+    assert [s["key"] for s in got] == ["2W", "2A", "1I"]
+    assert abs(got[0]["heading_deg"]) < 1e-6 and abs(got[0]["distance_m"] - 2) < 1e-6
+    assert abs(got[1]["heading_deg"] - 90) < 1e-6 and abs(got[1]["distance_m"] - 1) < 1e-6
+    assert got[2]["distance_m"] == 0
+    same = score(got, got)
+    assert same == (0.0, True)
+    wrong = [dict(s) for s in got]
+    wrong[1]["heading_deg"] = 0.0  # went on forward under A
+    wrong[0]["distance_m"] = 1.5
+    error, heads = score(wrong, got)
+    assert abs(error - 0.5) < 1e-6 and not heads

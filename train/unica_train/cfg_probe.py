@@ -1,0 +1,90 @@
+"""Chooses the sampler's CFG scale by measurement (issue #17): rolls the bundle out on a
+key script at each scale (the PyTorch reference of the live loop, 10 DDIM steps, PCA
+clean-up) and compares each key segment's heading and distance with the teacher's on
+the same keys; the scale with the smallest summed distance error, among those whose
+every moving segment heads within 30° of the teacher's, is the best.
+
+    python -m unica_train.cfg_probe --bundle B --data DATA --teacher RENDER/manifest.json \\
+        [--keys "30W 30S 30A 20I"] [--scales 1,2,3,4,5,6] [--write]
+
+`--teacher` is `unica render --teacher CHARACTER --keys K --size 16 --views 1`'s
+manifest; `--write` sets the bundle's `sampler.cfg_scale` to the best scale."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import torch
+
+HEADING_LIMIT = 30.0
+
+
+def segments(path: torch.Tensor, keys: str) -> list[dict]:
+    """Per key segment of `keys` ("30W 20I"): heading (degrees, 0 = +Z, 90 = +X) and
+    horizontal distance of the root's displacement; `path` [frames + 1, 3] starts with
+    the root before the first frame."""
+    out, start = [], 0
+    for token in keys.split():
+        n = int(token[:-1])
+        d = path[start + n] - path[start]
+        out.append({"key": token, "heading_deg": math.degrees(math.atan2(float(d[0]), float(d[2]))),
+                    "distance_m": float(torch.hypot(d[0], d[2]))})
+        start += n
+    return out
+
+
+def score(model: list[dict], teacher: list[dict]) -> tuple[float, bool]:
+    """(summed distance error in m over the moving segments, every moving heading within
+    HEADING_LIMIT of the teacher's)."""
+    error, heads = 0.0, True
+    for m, t in zip(model, teacher):
+        if m["key"].endswith("I"):
+            continue
+        error += abs(m["distance_m"] - t["distance_m"])
+        turn = (m["heading_deg"] - t["heading_deg"] + 180) % 360 - 180
+        heads &= abs(turn) <= HEADING_LIMIT
+    return error, heads
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--bundle", required=True, type=Path)
+    parser.add_argument("--data", required=True, type=Path, help="a dataset baked from the bundle's character")
+    parser.add_argument("--teacher", required=True, type=Path, help="manifest.json of `unica render --teacher` on --keys")
+    parser.add_argument("--keys", default="30W 30S 30A 20I")
+    parser.add_argument("--scales", default="1,2,3,4,5,6")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--write", action="store_true", help="set the bundle's sampler.cfg_scale to the best scale")
+    args = parser.parse_args(argv)
+    from .eval import Avatar
+
+    frames = json.loads(args.teacher.read_text())["frames"]
+    teacher = segments(torch.tensor([frames[0]["root"]] + [f["root"] for f in frames]), args.keys)
+    print("teacher  " + " | ".join(f"{s['key']} {s['heading_deg']:6.1f}° {s['distance_m']:.2f} m" for s in teacher))
+    av = Avatar(args.bundle, args.data, 128)
+    steps = av.manifest["sampler"]["ddim_steps"]
+    results = []
+    for scale in [float(s) for s in args.scales.split(",")]:
+        run = av.rollout(args.keys, {"steps": steps, "cfg_scale": scale, "pca": True}, args.seed)
+        model = segments(torch.tensor(run["root_path"]), args.keys)
+        error, heads = score(model, teacher)
+        results.append({"cfg_scale": scale, "segments": model, "distance_error_m": error, "headings_ok": heads})
+        print(f"cfg {scale:3.1f}  " + " | ".join(f"{s['key']} {s['heading_deg']:6.1f}° {s['distance_m']:.2f} m" for s in model)
+              + f"  distance error {error:.2f} m, headings {'ok' if heads else 'off'}", flush=True)
+    ok = [r for r in results if r["headings_ok"]] or results
+    best = min(ok, key=lambda r: r["distance_error_m"])
+    print(f"best: cfg {best['cfg_scale']}")
+    if args.write:
+        path = args.bundle / "manifest.json"
+        manifest = json.loads(path.read_text())
+        manifest["sampler"]["cfg_scale"] = best["cfg_scale"]
+        manifest["sampler"]["cfg_probe"] = {"keys": args.keys, "teacher": teacher, "results": results}
+        path.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+        print(f"set {path}'s sampler.cfg_scale to {best['cfg_scale']}")
+
+
+if __name__ == "__main__":
+    main()
