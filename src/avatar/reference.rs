@@ -90,16 +90,19 @@ impl Reference {
             })
             .collect();
         let total: f32 = areas.iter().sum();
+        // (area, area seen) of the triangles `inside` picks.
+        let area_seen = |inside: &dyn Fn(usize) -> bool| {
+            (0..areas.len())
+                .filter(|&t| inside(t))
+                .fold((0.0f32, 0.0f32), |(a, v), t| {
+                    (a + areas[t], v + areas[t] * seen[t])
+                })
+        };
         let skinned = &character.skinned;
         let parts = (0..skinned.parts.len())
             .map(|p| {
-                let (mut area, mut visible) = (0.0, 0.0);
-                for (t, tri) in mesh.indices.chunks_exact(3).enumerate() {
-                    if skinned.part[tri[0] as usize] as usize == p {
-                        area += areas[t];
-                        visible += areas[t] * seen[t];
-                    }
-                }
+                let (area, visible) =
+                    area_seen(&|t| skinned.part[mesh.indices[3 * t] as usize] as usize == p);
                 let part = &skinned.parts[p];
                 (
                     format!("{}/{}", part.mesh, part.material),
@@ -117,14 +120,7 @@ impl Reference {
         let regions = body_regions(teacher, &mesh)
             .into_iter()
             .map(|(name, inside)| {
-                let area: f32 = (0..areas.len())
-                    .filter(|&t| inside[t])
-                    .map(|t| areas[t])
-                    .sum();
-                let visible: f32 = (0..areas.len())
-                    .filter(|&t| inside[t])
-                    .map(|t| areas[t] * seen[t])
-                    .sum();
+                let (area, visible) = area_seen(&|t| inside[t]);
                 let pixels = self
                     .table
                     .triangles

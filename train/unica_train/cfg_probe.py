@@ -14,39 +14,41 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from pathlib import Path
 
-import torch
+from . import compare
 
 HEADING_LIMIT = 30.0
 
 
-def segments(path: torch.Tensor, keys: str) -> list[dict]:
-    """Per key segment of `keys` ("30W 20I"): heading (degrees, 0 = +Z, 90 = +X) and
-    horizontal distance of the root's displacement; `path` [frames + 1, 3] starts with
-    the root before the first frame."""
-    out, start = [], 0
-    for token in keys.split():
-        n = int(token[:-1])
-        d = path[start + n] - path[start]
-        out.append({"key": token, "heading_deg": math.degrees(math.atan2(float(d[0]), float(d[2]))),
-                    "distance_m": float(torch.hypot(d[0], d[2]))})
-        start += n
-    return out
+def segments(path: list[list[float]], keys: str) -> list[dict]:
+    """Per key segment of `keys` ("30W 20I"): the key and `compare.leg` of the root's
+    displacement (heading in degrees, 0 = +Z, 90 = +X, none under 5 cm; distance);
+    `path` [frames + 1][3] starts with the root before the first frame."""
+    frames = len(path) - 1
+    return [{"key": key, **compare.leg(path, a, b)} for key, a, b in compare.segments(keys, frames)]
 
 
 def score(model: list[dict], teacher: list[dict]) -> tuple[float, bool]:
     """(summed distance error in m over the moving segments, every moving heading within
-    HEADING_LIMIT of the teacher's)."""
+    HEADING_LIMIT of the teacher's; a segment that barely moved has no heading and is
+    off)."""
     error, heads = 0.0, True
     for m, t in zip(model, teacher):
-        if m["key"].endswith("I"):
+        if m["key"] == "I":
             continue
         error += abs(m["distance_m"] - t["distance_m"])
+        if m["heading_deg"] is None or t["heading_deg"] is None:
+            heads = False
+            continue
         turn = (m["heading_deg"] - t["heading_deg"] + 180) % 360 - 180
         heads &= abs(turn) <= HEADING_LIMIT
     return error, heads
+
+
+def line(segs: list[dict]) -> str:
+    heading = lambda s: "   —  " if s["heading_deg"] is None else f"{s['heading_deg']:6.1f}°"
+    return " | ".join(f"{s['key']} {heading(s)} {s['distance_m']:.2f} m" for s in segs)
 
 
 def main(argv=None):
@@ -62,18 +64,17 @@ def main(argv=None):
     from .eval import Avatar
 
     frames = json.loads(args.teacher.read_text())["frames"]
-    teacher = segments(torch.tensor([frames[0]["root"]] + [f["root"] for f in frames]), args.keys)
-    print("teacher  " + " | ".join(f"{s['key']} {s['heading_deg']:6.1f}° {s['distance_m']:.2f} m" for s in teacher))
+    teacher = segments([frames[0]["root"]] + [f["root"] for f in frames], args.keys)
+    print("teacher  " + line(teacher))
     av = Avatar(args.bundle, args.data, 128)
     steps = av.manifest["sampler"]["ddim_steps"]
     results = []
     for scale in [float(s) for s in args.scales.split(",")]:
         run = av.rollout(args.keys, {"steps": steps, "cfg_scale": scale, "pca": True}, args.seed)
-        model = segments(torch.tensor(run["root_path"]), args.keys)
+        model = segments(run["root_path"], args.keys)
         error, heads = score(model, teacher)
         results.append({"cfg_scale": scale, "segments": model, "distance_error_m": error, "headings_ok": heads})
-        print(f"cfg {scale:3.1f}  " + " | ".join(f"{s['key']} {s['heading_deg']:6.1f}° {s['distance_m']:.2f} m" for s in model)
-              + f"  distance error {error:.2f} m, headings {'ok' if heads else 'off'}", flush=True)
+        print(f"cfg {scale:3.1f}  " + line(model) + f"  distance error {error:.2f} m, headings {'ok' if heads else 'off'}", flush=True)
     ok = [r for r in results if r["headings_ok"]] or results
     best = min(ok, key=lambda r: r["distance_error_m"])
     print(f"best: cfg {best['cfg_scale']}")

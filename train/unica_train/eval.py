@@ -45,7 +45,7 @@ from . import bundle as bundle_io
 from . import metrics, pca, recentre, splats
 from .dataset import ANCHOR, BakedDataset
 from .diffusion import Schedule, sample_next
-from .refiner import Frames, Refiner, RefinerConfig, features, refined
+from .refiner import Frames, Refiner, RefinerConfig, features, refined, state_from
 from .train import parse_keys
 
 KEYS = "60W 60S 60A 60D 30I"
@@ -84,7 +84,7 @@ class Avatar:
         if "refiner" in self.manifest:
             cfg = RefinerConfig(**self.manifest["refiner"])
             self.refiner = Refiner(cfg)
-            self.refiner.load_state_dict({k.removeprefix("refiner."): v for k, v in self.extra.items() if k.startswith("refiner.")})
+            self.refiner.load_state_dict(state_from(self.extra))
             self.refiner.eval()
         self.basis = recentre.bundle_basis(self.vae, self.extra, self.manifest)
 

@@ -20,7 +20,7 @@ from safetensors.torch import save_file
 
 from . import bundle, pca, splats
 from .diffusion import Schedule, ddim_step, guided_eps, sample_next
-from .refiner import Refiner, RefinerConfig, features
+from .refiner import Refiner, RefinerConfig, features, state_from
 from .refiner import apply as apply_residuals
 from .layers import CrossAttention, Down, ResBlock, SpatialAttention, TemporalAttention, Up, timestep_embedding
 from .unet import UNet, UNetConfig
@@ -142,7 +142,7 @@ def witch_splats() -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
                  "io.out.rotations": base.rotations, "io.out.normals": normals, "io.out.median": median[None], "io.out.features": feats}
     cfg = RefinerConfig(**manifest["refiner"])
     model = Refiner(cfg)
-    model.load_state_dict({k.removeprefix("refiner."): v for k, v in extra.items() if k.startswith("refiner.")})
+    model.load_state_dict(state_from(extra))
     with torch.no_grad():
         raw = model(feats, unit)
         refined = apply_residuals(base, raw, cfg.mean_bound)

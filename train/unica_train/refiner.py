@@ -457,14 +457,18 @@ def train(args) -> dict:
     return metrics
 
 
+def state_from(tensors: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """The refiner's state dict from a bundle's tensors (`refiner.*`, prefix removed)."""
+    return {k.removeprefix("refiner."): v for k, v in tensors.items() if k.startswith("refiner.")}
+
+
 def init_from_bundle(model: Refiner, directory: Path) -> None:
     """Starts `model` from the refiner in another bundle (fine-tuning it for a new VAE or
     splat level); the bundle's refiner config must be the model's."""
     manifest = json.loads((Path(directory) / "manifest.json").read_text())
     if manifest.get("refiner") != model.cfg.to_dict():
         raise bundle_io.BundleError(f"{directory}: its refiner config {manifest.get('refiner')} is not this run's {model.cfg.to_dict()}")
-    tensors = load_file(str(Path(directory) / "weights.safetensors"))
-    model.load_state_dict({k.removeprefix("refiner."): v for k, v in tensors.items() if k.startswith("refiner.")})
+    model.load_state_dict(state_from(load_file(str(Path(directory) / "weights.safetensors"))))
     print(f"started from the refiner in {directory}", flush=True)
 
 
