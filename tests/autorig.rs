@@ -296,3 +296,46 @@ fn a_t_posed_humanoid_rigs_without_tearing() {
         }
     }
 }
+
+#[test]
+fn plain_bodies_get_no_spring_chains_and_the_witch_keeps_her_hair() {
+    // Issue #20: spring chains only where something is loose. The skeleton model predicts
+    // chains on these plain block bodies (2 on the block humanoid, 12 on the chibi, one
+    // through the torso); `unica rig` keeps a chain only on thin geometry (THIN_PART).
+    use unica::autorig::pipeline::{Models, RigOptions, rig_file};
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let models = Models::load(&root.join("assets/autorig")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let witch = witch();
+    let options = RigOptions {
+        clips_from: &witch,
+        clip_files: &[],
+        seed: 0,
+        hands: true,
+    };
+    for name in ["block_humanoid", "chibi"] {
+        let mesh = root.join(format!("tests/fixtures/meshes/{name}.glb"));
+        let out = dir.path().join(format!("{name}.glb"));
+        let summary = rig_file(&mesh, &out, &models, &options, &|_| {}).unwrap();
+        println!(
+            "{name}: {} chains left out, stretch {:?}",
+            summary.dropped_chains, summary.stretch
+        );
+        assert_eq!(summary.spring_chains, 0, "{name}");
+        assert!(
+            summary.dropped_chains > 0,
+            "{name}: the model predicted none to drop"
+        );
+        let written = load_character(&out).unwrap();
+        assert!(written.vrm.unwrap().springs.is_empty(), "{name}");
+        assert!(
+            summary.stretch.unwrap() < 6.69,
+            "{name}: {:?}",
+            summary.stretch
+        );
+    }
+    // The Witch's long hair is thin: her hair chain stays.
+    let out = dir.path().join("witch.glb");
+    let summary = rig_file(&witch, &out, &models, &options, &|_| {}).unwrap();
+    assert!(summary.spring_chains >= 1, "{}", summary.spring_chains);
+}

@@ -22,13 +22,25 @@ pub const VERTICES: usize = 1024;
 /// Voxels along the longest side of the unit cube for the geodesic prior.
 pub const VOXELS: usize = 64;
 
-/// `count` points spread over the surface by area, with the triangles' normals.
+/// `count` points spread over the surface by area, with the triangles' normals (as the
+/// skeleton model was trained: the winding's).
 pub fn surface_samples(mesh: &Mesh, count: usize, rng: &mut Rng) -> (Vec<Vec3>, Vec<Vec3>) {
+    samples(mesh, count, rng, false)
+}
+
+/// [`surface_samples`] with each normal turned to the side of the mesh's vertex normals
+/// where it has them: outward even where a file winds some triangles the wrong way.
+pub fn outward_samples(mesh: &Mesh, count: usize, rng: &mut Rng) -> (Vec<Vec3>, Vec<Vec3>) {
+    samples(mesh, count, rng, true)
+}
+
+fn samples(mesh: &Mesh, count: usize, rng: &mut Rng, outward: bool) -> (Vec<Vec3>, Vec<Vec3>) {
     let triangles: Vec<[Vec3; 3]> = mesh
         .indices
         .chunks_exact(3)
         .map(|t| [t[0], t[1], t[2]].map(|i| mesh.positions[i as usize]))
         .collect();
+    let outward = outward && mesh.normals.len() == mesh.positions.len();
     let mut cumulative = Vec::with_capacity(triangles.len());
     let mut total = 0.0;
     for [a, b, c] in &triangles {
@@ -46,7 +58,16 @@ pub fn surface_samples(mesh: &Mesh, count: usize, rng: &mut Rng) -> (Vec<Vec3>, 
             if u + v > 1.0 {
                 (u, v) = (1.0 - u, 1.0 - v);
             }
-            let normal = (b - a).cross(c - a).normalize_or(Vec3::Y);
+            let mut normal = (b - a).cross(c - a).normalize_or(Vec3::Y);
+            if outward {
+                let corners: Vec3 = mesh.indices[3 * k..3 * k + 3]
+                    .iter()
+                    .map(|&i| mesh.normals[i as usize])
+                    .sum();
+                if normal.dot(corners) < 0.0 {
+                    normal = -normal;
+                }
+            }
             (a + u * (b - a) + v * (c - a), normal)
         })
         .unzip()

@@ -11,9 +11,7 @@ use super::data::VOXELS;
 use super::data::{Sample, dense, sample_path, skin_of_character};
 use super::metrics::{b2b, j2b, j2j, motion_l2, random_poses, skin_l1};
 use super::model::{baseline_weights, top4};
-use super::pipeline::{
-    LOOSE_DEPTH, Models, skeleton_for, springs_near, swinging_chains, template_fit,
-};
+use super::pipeline::{Models, loose_springs, skeleton_for, swinging_chains, template_fit};
 use super::skeleton::{BODY, Class, Skeleton, UnitCube, of_character};
 use super::tokens::{decode, encode, naive_length};
 use super::voxel::{Voxels, bone_tails};
@@ -103,7 +101,7 @@ pub fn evaluate(
             if truth.class == Class::Humanoid {
                 learned_humanoid.push(scores);
                 let height = truth_height(&sample.points);
-                let kept = springs_near(&predicted, &sample.points, LOOSE_DEPTH * height);
+                let kept = loose_springs(&predicted, &sample.points, &sample.normals, height);
                 // The stored skeleton has no spring flags; its tokens do.
                 let counts = [
                     swinging_chains(&decode(&sample.tokens)?) as f32,
@@ -166,7 +164,7 @@ pub fn evaluate(
             },
             "motion": format!("{POSES} random poses per character, each joint turned up to {POSE_DEGREES}°"),
             "spring_chains": {
-                "about": "humanoids' spring chains of 2+ joints per character: true, predicted, and kept on loose parts (joints within LOOSE_DEPTH of the height from the surface); plain = no true chain",
+                "about": "humanoids' spring chains of 2+ joints per character: true, predicted, and kept on loose parts (joints within LOOSE_DEPTH of the height from the surface, on a part thinner than THIN_PART); plain = no true chain",
                 "plain": chain_counts(&chains_plain),
                 "with_loose_parts": chain_counts(&chains_loose),
             },
@@ -361,7 +359,7 @@ pub fn markdown(report: &Value) -> String {
                 r["characters_with_kept"]
             );
         }
-        out += "\nKept: `unica rig` keeps a spring joint only within 4.5 % of the height of the surface (`LOOSE_DEPTH`): hair, cloth and tails are thin; a joint deeper in the body, or off it, is on no loose part. Chains on plain bodies near their skin are not told apart this way.\n";
+        out += "\nKept: `unica rig` keeps a spring joint only within 4.5 % of the height of the surface (`LOOSE_DEPTH`), and a chain only where the body under the surface around it is thin (median thickness along the inward normal at most 4 % of the height, `THIN_PART`): hair, cloth and tails are thin; a joint deeper in the body, off it, or on a thick torso, hips or head is on no loose part.\n";
     }
     if let Some(w) = report.get("witch") {
         out += &format!(

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use glam::{Quat, Vec3};
 
-use super::data::{POINTS, VOXELS, surface_samples};
+use super::data::{POINTS, VOXELS, outward_samples, surface_samples};
 use super::gltf_out::{ClipOut, JointOut, RiggedMesh, write_glb};
 use super::metrics::edge_stretch;
 use super::model::{SkeletonModel, SkinModel, baseline_weights, top4};
@@ -471,15 +471,73 @@ fn chain_from(skeleton: &Skeleton, root: usize) -> Vec<usize> {
 /// keeps 2.2 of 5.1 true chains per character, 4.5 % keeps 3.4, 6 % 4.2.
 pub const LOOSE_DEPTH: f32 = 0.045;
 
-/// The skeleton without spring joints that are not on a loose part (see [`LOOSE_DEPTH`]):
-/// a chain stops at its first such joint, with everything below it, and a lone root left
-/// goes too; each chain left gets an end joint ([`with_chain_ends`]).
+/// A spring chain is on a loose part only where the body around it is thin: the median
+/// [`thickness`] under the surface samples within [`LOOSE_DEPTH`] of its joints is at
+/// most this share of the height. Hair strands, tails and cloth are thin (the Witch's
+/// hair: 0.7 %; an open sheet counts as 0); a torso, hips or head is not (a block
+/// humanoid's hips 6.7 %, its torso 13.9 %, a chibi's body 56 %).
+pub const THIN_PART: f32 = 0.04;
+
+/// The skeleton without spring joints that are not on a loose part: a chain stops at its
+/// first joint farther than [`LOOSE_DEPTH`] from the surface, with everything below it, a
+/// chain on a thick part ([`THIN_PART`]) goes whole, and a lone root left goes too; each
+/// chain left gets an end joint ([`with_chain_ends`]).
 pub fn springs_on_loose_parts(skeleton: &Skeleton, mesh: &Mesh) -> Skeleton {
-    let reach = LOOSE_DEPTH * mesh.height();
+    let height = mesh.height();
     // As many samples as the skeleton model and `rig-eval` see.
-    let (surface, _) = surface_samples(mesh, POINTS, &mut Rng::new(0));
-    let kept = springs_near(skeleton, &surface, reach);
-    with_chain_ends(&kept, &surface, reach)
+    let (surface, normals) = outward_samples(mesh, POINTS, &mut Rng::new(0));
+    let kept = loose_springs(skeleton, &surface, &normals, height);
+    with_chain_ends(&kept, &surface, LOOSE_DEPTH * height)
+}
+
+/// The skeleton's spring chains that are on loose parts of the surface given by samples
+/// and their outward normals (see [`springs_on_loose_parts`]), without end joints.
+pub fn loose_springs(
+    skeleton: &Skeleton,
+    surface: &[Vec3],
+    normals: &[Vec3],
+    height: f32,
+) -> Skeleton {
+    let reach = LOOSE_DEPTH * height;
+    let near = springs_near(skeleton, surface, reach);
+    let mut thick = vec![false; near.len()];
+    for root in chain_roots(&near) {
+        let chain = chain_from(&near, root);
+        let mut under: Vec<f32> = (0..surface.len())
+            .filter(|&i| {
+                chain
+                    .iter()
+                    .any(|&j| surface[i].distance(near.joints[j]) <= reach)
+            })
+            .map(|i| thickness(surface, normals, i, height))
+            .collect();
+        under.sort_by(f32::total_cmp);
+        if under.is_empty() || under[under.len() / 2] > THIN_PART * height {
+            for j in chain {
+                thick[j] = true;
+            }
+        }
+    }
+    near.keep(|j| !thick[j])
+}
+
+/// How thick the body is under surface sample `i`: the distance along its inward normal
+/// to the nearest sample that faces away (the far wall), among those within 3 % of the
+/// `height` of that line (the samples' spacing); 0 when no wall is found (an open sheet,
+/// a card of hair).
+pub fn thickness(surface: &[Vec3], normals: &[Vec3], i: usize, height: f32) -> f32 {
+    let (from, inward) = (surface[i], -normals[i]);
+    let (radius, skip) = (0.03 * height, 0.002 * height);
+    let far = surface
+        .iter()
+        .zip(normals)
+        .filter_map(|(&p, &n)| {
+            let along = (p - from).dot(inward);
+            let off = (p - from - along * inward).length();
+            (along > skip && off < radius && n.dot(inward) > 0.3).then_some(along)
+        })
+        .fold(f32::INFINITY, f32::min);
+    if far.is_finite() { far } else { 0.0 }
 }
 
 /// Whether some `surface` point lies within `reach` of `p`.
@@ -678,5 +736,92 @@ mod tests {
         let short: Vec<Vec3> = surface.iter().copied().filter(|p| p.y <= 3.25).collect();
         let ended = with_chain_ends(&kept, &short, 0.06);
         assert_eq!(ended.joints[4], Vec3::new(0.0, 3.25, 0.0));
+    }
+
+    /// A box 1 tall, 0.4 wide and 0.3 deep (the body) and a plate 1 cm thick beside it
+    /// (a loose part), every other triangle wound the wrong way (the vertex normals say
+    /// which side is out).
+    fn body_and_plate() -> Mesh {
+        let mut mesh = Mesh::cuboid(
+            Vec3::new(-0.2, 0.0, -0.15),
+            Vec3::new(0.2, 1.0, 0.15),
+            Vec3::ONE,
+        );
+        mesh.append(Mesh::cuboid(
+            Vec3::new(0.3, 0.2, -0.005),
+            Vec3::new(0.5, 0.8, 0.005),
+            Vec3::ONE,
+        ));
+        for t in mesh.indices.chunks_exact_mut(6) {
+            t.swap(1, 2);
+        }
+        mesh
+    }
+
+    #[test]
+    fn thickness_is_the_distance_to_the_far_wall() {
+        let mesh = body_and_plate();
+        let (surface, normals) = outward_samples(&mesh, 8000, &mut Rng::new(1));
+        let mut checked = 0;
+        for i in 0..surface.len() {
+            let p = surface[i];
+            // Samples on the box's front face away from its edges: the back wall is 0.3 in.
+            if normals[i].z > 0.99 && p.x.abs() < 0.15 && (0.05..0.95).contains(&p.y) && p.z > 0.1 {
+                assert!(
+                    (thickness(&surface, &normals, i, 1.0) - 0.3).abs() < 1e-4,
+                    "{p}"
+                );
+                checked += 1;
+            }
+            // On the plate's faces: 1 cm.
+            if normals[i].z.abs() > 0.99
+                && (0.35..0.45).contains(&p.x)
+                && (0.25..0.75).contains(&p.y)
+            {
+                assert!(
+                    (thickness(&surface, &normals, i, 1.0) - 0.01).abs() < 1e-4,
+                    "{p}"
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked > 500, "{checked}");
+        // A lone sheet has no far wall.
+        let sheet = Mesh {
+            positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y],
+            normals: vec![Vec3::Z; 3],
+            colors: vec![Vec3::ONE; 3],
+            indices: vec![0, 1, 2],
+        };
+        let (surface, normals) = outward_samples(&sheet, 100, &mut Rng::new(1));
+        assert_eq!(thickness(&surface, &normals, 0, 1.0), 0.0);
+    }
+
+    #[test]
+    fn chains_on_a_thick_body_go_and_chains_on_a_thin_part_stay() {
+        let mut skeleton = Skeleton {
+            class: Class::Other,
+            joints: vec![Vec3::new(0.0, 0.5, 0.0)],
+            parents: vec![None],
+            names: vec!["Body".into()],
+            spring: vec![false],
+        };
+        // Chain "plate" down the plate's middle; chain "back" 4 cm under the box's back
+        // face (within LOOSE_DEPTH of the surface, but in a body 30 cm deep).
+        for (name, x, z) in [("plate", 0.4, 0.0), ("back", 0.0, -0.11)] {
+            for (k, y) in [0.7, 0.5, 0.3].into_iter().enumerate() {
+                skeleton
+                    .parents
+                    .push(Some(if k == 0 { 0 } else { skeleton.joints.len() - 1 }));
+                skeleton.joints.push(Vec3::new(x, y, z));
+                skeleton.names.push(format!("{name}{k}"));
+                skeleton.spring.push(true);
+            }
+        }
+        let kept = springs_on_loose_parts(&skeleton, &body_and_plate());
+        assert_eq!(
+            kept.names,
+            ["Body", "plate0", "plate1", "plate2", "plate2_end"]
+        );
     }
 }
