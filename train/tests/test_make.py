@@ -48,3 +48,16 @@ def test_make_quick_writes_a_bundle_that_loads_and_continues_where_it_stopped(tm
     assert "[4/4]" not in log, log
     _, _, extra, manifest = bundle.load(out / "bundle")
     assert "refiner" in manifest
+
+    # The refiner's evaluation alone (--eval-only) on the made bundle: the held-out
+    # frames' PSNR, SSIM and coverage (the drawn alpha inside the render's foreground).
+    config = tmp_path / "eval.json"
+    # As `unica make --quick` trains it (src/make.rs): 32² images, clip 2 held out.
+    config.write_text(json.dumps({"image_size": 32, "eval_frames": 2, "held_out_clips": [2]}))
+    done = subprocess.run(["python3", "-m", "unica_train.refiner", "--eval-only", "--bundle", str(out / "bundle"), "--data", str(out / "data"),
+                           "--out", str(tmp_path / "eval_only"), "--config", str(config)], cwd=ROOT, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-3000:]
+    metrics = json.loads((tmp_path / "eval_only" / "refiner_eval.json").read_text())
+    assert metrics["views"] > 0, metrics
+    for name in ("base", "refined"):
+        assert 0.0 < metrics[name]["coverage"] <= 1.0 and metrics[name]["psnr"] > 10, metrics

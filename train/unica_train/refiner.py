@@ -356,9 +356,10 @@ def composite(target: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
 @torch.no_grad()
 def evaluate(model: Refiner, frames: Frames, keys: list, level: splats.Level | None = None) -> dict:
     """PSNR and SSIM (sRGB, black background) of base and refined splats, at the map's own
-    level or at `level`."""
+    level or at `level`, and their coverage: the drawn alpha averaged over the render's
+    foreground (alpha > 0.5; 1 = opaque where the teacher is)."""
     bound = model.cfg.mean_bound / frames.scale
-    sums = {"base": [0.0, 0.0], "refined": [0.0, 0.0]}
+    sums = {"base": [0.0, 0.0, 0.0], "refined": [0.0, 0.0, 0.0]}
     count = 0
     for key in keys:
         base, feats, unit = frames.inputs(key)
@@ -368,13 +369,15 @@ def evaluate(model: Refiner, frames: Frames, keys: list, level: splats.Level | N
         for view in frames.views[key]:
             cam, target = frames.target(view)
             want = splats.srgb(target[..., :3])
+            inside = target[..., 3] > 0.5
             for name, s in (("base", base), ("refined", drawn)):
-                image, _ = splats.render(s, cam, torch.zeros(3))
+                image, alpha = splats.render(s, cam, torch.zeros(3))
                 got = splats.srgb(image)
                 sums[name][0] += splats.psnr(got, want)
                 sums[name][1] += splats.ssim(got, want).item()
+                sums[name][2] += alpha[inside].mean().item()
             count += 1
-    return {name: {"psnr": v[0] / count, "ssim": v[1] / count} for name, v in sums.items()} | {"views": count}
+    return {name: {"psnr": v[0] / count, "ssim": v[1] / count, "coverage": v[2] / count} for name, v in sums.items()} | {"views": count}
 
 
 def train(args) -> dict:
@@ -457,6 +460,25 @@ def train(args) -> dict:
     return metrics
 
 
+def evaluate_bundle(args) -> dict:
+    """`--eval-only`: the held-out metrics of the refiner already in `args.bundle`."""
+    cfg = RefinerTrainConfig(**json.loads(args.config.read_text())) if args.config else RefinerTrainConfig()
+    _, _, extra, manifest = bundle_io.load(args.bundle)
+    if "refiner" not in manifest:
+        raise bundle_io.BundleError(f"{args.bundle}: the bundle has no refiner")
+    model = Refiner(RefinerConfig(**manifest["refiner"]))
+    model.load_state_dict(state_from(extra))
+    model.eval()
+    frames = Frames(args.data, args.bundle, cfg.image_size)
+    test_keys = [k for k in frames.keys if k[0] in cfg.held_out_clips]
+    test_keys = test_keys[:: max(1, len(test_keys) // cfg.eval_frames)][: cfg.eval_frames]
+    level = splats.Level(frames.ds.pixels, frames.colors, cfg.splat_level) if cfg.splat_level != 128 else None
+    metrics = evaluate(model, frames, test_keys, level) | {"bundle": str(args.bundle), "image_size": cfg.image_size, "splat_level": cfg.splat_level}
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "refiner_eval.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    return metrics
+
+
 def state_from(tensors: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """The refiner's state dict from a bundle's tensors (`refiner.*`, prefix removed)."""
     return {k.removeprefix("refiner."): v for k, v in tensors.items() if k.startswith("refiner.")}
@@ -496,7 +518,10 @@ def main(argv=None):
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--init", type=Path, help="start from the refiner in this bundle (same refiner config)")
     parser.add_argument("--write-bundle", action="store_true", help="add the trained refiner to --bundle")
-    metrics = train(parser.parse_args(argv))
+    parser.add_argument("--eval-only", action="store_true",
+                        help="no training: evaluate --bundle's own refiner on the held-out frames at the config's image size and splat level (OUT/refiner_eval.json)")
+    args = parser.parse_args(argv)
+    metrics = evaluate_bundle(args) if args.eval_only else train(args)
     print(json.dumps(metrics, indent=2))
 
 
