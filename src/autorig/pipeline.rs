@@ -503,12 +503,9 @@ pub fn loose_springs(
     let mut thick = vec![false; near.len()];
     for root in chain_roots(&near) {
         let chain = chain_from(&near, root);
+        let joints: Vec<Vec3> = chain.iter().map(|&j| near.joints[j]).collect();
         let mut under: Vec<f32> = (0..surface.len())
-            .filter(|&i| {
-                chain
-                    .iter()
-                    .any(|&j| surface[i].distance(near.joints[j]) <= reach)
-            })
+            .filter(|&i| within(&joints, surface[i], reach))
             .map(|i| thickness(surface, normals, i, height))
             .collect();
         under.sort_by(f32::total_cmp);

@@ -45,7 +45,7 @@ from . import bundle as bundle_io
 from . import metrics, pca, recentre, splats
 from .dataset import ANCHOR, BakedDataset
 from .diffusion import Schedule, sample_next
-from .refiner import Frames, Refiner, RefinerConfig, features, refined, state_from
+from .refiner import Frames, features, from_bundle, refined
 from .train import parse_keys
 
 KEYS = "60W 60S 60A 60D 30I"
@@ -80,12 +80,7 @@ class Avatar:
         self.colors = self.extra.get("map.colors", self.ds.pixel_colors())
         self.nbrs = splats.neighbours(self.pixels, 128)
         self.level = splats.Level(self.pixels, self.colors, level)
-        self.refiner = None
-        if "refiner" in self.manifest:
-            cfg = RefinerConfig(**self.manifest["refiner"])
-            self.refiner = Refiner(cfg)
-            self.refiner.load_state_dict(state_from(self.extra))
-            self.refiner.eval()
+        self.refiner = from_bundle(self.manifest, self.extra)
         self.basis = recentre.bundle_basis(self.vae, self.extra, self.manifest)
 
     def clean(self, unit: torch.Tensor) -> torch.Tensor:

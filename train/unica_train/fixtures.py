@@ -20,7 +20,7 @@ from safetensors.torch import save_file
 
 from . import bundle, pca, splats
 from .diffusion import Schedule, ddim_step, guided_eps, sample_next
-from .refiner import Refiner, RefinerConfig, features, state_from
+from .refiner import Refiner, RefinerConfig, features, from_bundle
 from .refiner import apply as apply_residuals
 from .layers import CrossAttention, Down, ResBlock, SpatialAttention, TemporalAttention, Up, timestep_embedding
 from .unet import UNet, UNetConfig
@@ -140,12 +140,10 @@ def witch_splats() -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
     feats = features(unit, base, normals, median)
     base_file = {"io.in.unit": unit, "io.in.pixels": pixels.float(), "io.in.colors": extra["map.colors"], "io.out.scales": base.scales,
                  "io.out.rotations": base.rotations, "io.out.normals": normals, "io.out.median": median[None], "io.out.features": feats}
-    cfg = RefinerConfig(**manifest["refiner"])
-    model = Refiner(cfg)
-    model.load_state_dict(state_from(extra))
+    model = from_bundle(manifest, extra)
     with torch.no_grad():
         raw = model(feats, unit)
-        refined = apply_residuals(base, raw, cfg.mean_bound)
+        refined = apply_residuals(base, raw, model.cfg.mean_bound)
     refined_file = {"io.in.features": feats, "io.in.unit": unit, "io.out.y": raw, "io.out.means": refined.means,
                     "io.out.scales": refined.scales, "io.out.opacities": refined.opacities}
     return base_file, refined_file

@@ -380,8 +380,24 @@ def evaluate(model: Refiner, frames: Frames, keys: list, level: splats.Level | N
     return {name: {"psnr": v[0] / count, "ssim": v[1] / count, "coverage": v[2] / count} for name, v in sums.items()} | {"views": count}
 
 
+def train_config(path: Path | None) -> RefinerTrainConfig:
+    """The run's config: the JSON at `path` over the defaults."""
+    return RefinerTrainConfig(**json.loads(path.read_text())) if path else RefinerTrainConfig()
+
+
+def held_out_keys(frames: Frames, cfg: RefinerTrainConfig) -> list:
+    """The evaluation's frames: `eval_frames` spread over the held-out clips."""
+    keys = [k for k in frames.keys if k[0] in cfg.held_out_clips]
+    return keys[:: max(1, len(keys) // cfg.eval_frames)][: cfg.eval_frames]
+
+
+def drawn_level(frames: Frames, cfg: RefinerTrainConfig) -> splats.Level | None:
+    """The splat level the refined splats are drawn at (None: the map's own 128²)."""
+    return splats.Level(frames.ds.pixels, frames.colors, cfg.splat_level) if cfg.splat_level != 128 else None
+
+
 def train(args) -> dict:
-    cfg = RefinerTrainConfig(**json.loads(args.config.read_text())) if args.config else RefinerTrainConfig()
+    cfg = train_config(args.config)
     if args.steps is not None:
         cfg.steps = args.steps
     out = args.out
@@ -391,8 +407,7 @@ def train(args) -> dict:
     gen = torch.Generator().manual_seed(cfg.seed)
     frames = Frames(args.data, args.bundle, cfg.image_size)
     train_keys = [k for k in frames.keys if k[0] not in cfg.held_out_clips]
-    test_keys = [k for k in frames.keys if k[0] in cfg.held_out_clips]
-    test_keys = test_keys[:: max(1, len(test_keys) // cfg.eval_frames)][: cfg.eval_frames]
+    test_keys = held_out_keys(frames, cfg)
     model = Refiner(RefinerConfig(**cfg.model))
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.steps)
@@ -413,7 +428,7 @@ def train(args) -> dict:
         if args.init is not None:
             init_from_bundle(model, args.init)
     bound = model.cfg.mean_bound / frames.scale
-    level = splats.Level(frames.ds.pixels, frames.colors, cfg.splat_level) if cfg.splat_level != 128 else None
+    level = drawn_level(frames, cfg)
     began = time.time()
     for step in range(start, cfg.steps):
         key = train_keys[int(torch.randint(len(train_keys), (1,), generator=gen))]
@@ -462,18 +477,13 @@ def train(args) -> dict:
 
 def evaluate_bundle(args) -> dict:
     """`--eval-only`: the held-out metrics of the refiner already in `args.bundle`."""
-    cfg = RefinerTrainConfig(**json.loads(args.config.read_text())) if args.config else RefinerTrainConfig()
+    cfg = train_config(args.config)
     _, _, extra, manifest = bundle_io.load(args.bundle)
-    if "refiner" not in manifest:
+    model = from_bundle(manifest, extra)
+    if model is None:
         raise bundle_io.BundleError(f"{args.bundle}: the bundle has no refiner")
-    model = Refiner(RefinerConfig(**manifest["refiner"]))
-    model.load_state_dict(state_from(extra))
-    model.eval()
     frames = Frames(args.data, args.bundle, cfg.image_size)
-    test_keys = [k for k in frames.keys if k[0] in cfg.held_out_clips]
-    test_keys = test_keys[:: max(1, len(test_keys) // cfg.eval_frames)][: cfg.eval_frames]
-    level = splats.Level(frames.ds.pixels, frames.colors, cfg.splat_level) if cfg.splat_level != 128 else None
-    metrics = evaluate(model, frames, test_keys, level) | {"bundle": str(args.bundle), "image_size": cfg.image_size, "splat_level": cfg.splat_level}
+    metrics = evaluate(model, frames, held_out_keys(frames, cfg), drawn_level(frames, cfg)) | {"bundle": str(args.bundle), "image_size": cfg.image_size, "splat_level": cfg.splat_level}
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "refiner_eval.json").write_text(json.dumps(metrics, indent=2) + "\n")
     return metrics
@@ -482,6 +492,16 @@ def evaluate_bundle(args) -> dict:
 def state_from(tensors: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """The refiner's state dict from a bundle's tensors (`refiner.*`, prefix removed)."""
     return {k.removeprefix("refiner."): v for k, v in tensors.items() if k.startswith("refiner.")}
+
+
+def from_bundle(manifest: dict, tensors: dict[str, torch.Tensor]) -> Refiner | None:
+    """A bundle's refiner (its manifest's config, its `refiner.*` weights) ready to run;
+    None when the bundle has none."""
+    if "refiner" not in manifest:
+        return None
+    model = Refiner(RefinerConfig(**manifest["refiner"]))
+    model.load_state_dict(state_from(tensors))
+    return model.eval()
 
 
 def init_from_bundle(model: Refiner, directory: Path) -> None:
