@@ -100,3 +100,15 @@ def test_a_refiner_starts_from_another_bundles_refiner_with_the_same_config(tmp_
         assert torch.equal(a, b), name
     with pytest.raises(B.BundleError, match="refiner config"):
         R.init_from_bundle(R.Refiner(R.RefinerConfig(patch=32)), tmp_path)
+
+
+def test_held_out_frames_are_spread_over_the_held_out_clips_and_none_is_an_error():
+    from types import SimpleNamespace
+
+    import pytest
+
+    frames = SimpleNamespace(keys=[(c, f) for c in range(3) for f in range(10)], dir="data/renders")
+    cfg = R.RefinerTrainConfig(held_out_clips=[1], eval_frames=5)
+    assert R.held_out_keys(frames, cfg) == [(1, 0), (1, 2), (1, 4), (1, 6), (1, 8)]
+    with pytest.raises(ValueError, match=r"data/renders: no rendered frame of the held-out clips \[7\]"):
+        R.held_out_keys(frames, R.RefinerTrainConfig(held_out_clips=[7]))

@@ -388,6 +388,8 @@ def train_config(path: Path | None) -> RefinerTrainConfig:
 def held_out_keys(frames: Frames, cfg: RefinerTrainConfig) -> list:
     """The evaluation's frames: `eval_frames` spread over the held-out clips."""
     keys = [k for k in frames.keys if k[0] in cfg.held_out_clips]
+    if not keys:
+        raise ValueError(f"{frames.dir}: no rendered frame of the held-out clips {cfg.held_out_clips} (set held_out_clips in the config)")
     return keys[:: max(1, len(keys) // cfg.eval_frames)][: cfg.eval_frames]
 
 
