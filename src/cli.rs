@@ -440,6 +440,10 @@ struct EvalArgs {
     /// Seed of the sampler noise
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Frames of the long (drift) run [default: the key script 10 times; with --quick
+    /// twice]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(100..))]
+    long_frames: Option<u32>,
 }
 
 /// Parses the process arguments and runs the command.
@@ -953,6 +957,9 @@ fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         .args(["--seed", &args.seed.to_string()]);
     if args.quick {
         command.arg("--quick");
+    }
+    if let Some(n) = args.long_frames {
+        command.args(["--long-frames", &n.to_string()]);
     }
     let status = command.status().with_context(|| {
         format!(

@@ -6,6 +6,12 @@ import json
 import math
 import subprocess
 from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+import torch
+
+from unica_train.eval import pose_set, teacher_chamfer
 
 ROOT = Path(__file__).resolve().parents[2]
 BINARY = ROOT / "target" / "release" / "unica"
@@ -38,14 +44,43 @@ def test_unica_eval_quick_writes_a_report_with_finite_numbers(tmp_path):
     assert [s["key"] for s in masked["motion"]["segments"]] == ["W", "S", "A", "D"]
     summary = json.loads((out / "summary.json").read_text())
     for key in ("vae_mm", "chamfer_mm", "masked_psnr_db", "masked_ssim", "free_masked_psnr_db", "free_masked_ssim",
-                "speed_error_pct", "drift_slope", "fvd_pca", "dataset_fvd_pca"):
+                "speed_error_pct", "drift_slope", "fvd_pca", "dataset_fvd_pca", "teacher_chamfer_mm"):
         assert math.isfinite(summary[key]), (key, summary[key])
     for key in ("stop_frames", "turn180_frames", "turn90_frames", "teacher_stop_frames", "teacher_turn180_frames",
                 "teacher_turn90_frames"):
         assert key in summary, key
     assert 5 < summary["masked_psnr_db"] < 60 and 0 < summary["masked_ssim"] <= 1
     assert summary["image_size"] == 512
+    # The generated frames are further from the dataset's poses than the teacher's own are.
+    assert 0 < summary["teacher_chamfer_mm"] < summary["chamfer_mm"], summary
     # The teacher's own geometry, drawn the same way, scores above the generated one.
     tf = masked["teacher_forced"]
     assert tf["ground_truth"]["black"]["psnr"] > tf["generated"]["black"]["psnr"], tf
     assert "## Masked images" in (out / "report.md").read_text()
+
+
+class _Clips:
+    """A stand-in dataset: clip c, frame f is `shapes[c]` standing at x = f (its root is the
+    mean of its points)."""
+
+    def __init__(self, shapes: list[torch.Tensor], frames: int):
+        self.shapes = shapes
+        self.clips = [{"actions": torch.zeros(frames)} for _ in shapes]
+
+    def positions(self, c: int, frames: list[int]) -> torch.Tensor:
+        return torch.stack([self.shapes[c] + torch.tensor([float(f), 0.0, 0.0]) for f in frames])
+
+    def root(self, world: torch.Tensor) -> torch.Tensor:
+        return world.mean(1)
+
+
+def test_teacher_chamfer_matches_each_frame_against_the_other_clips_only():
+    # Two points 0.2 m apart in clip 0, 0.4 m apart in clip 1. Root-centred, every pose
+    # of a clip is the same, so a frame against its own clip would score 0; against the
+    # other clip each point is 0.1 m from the nearest: 100 mm, whatever the frame's place.
+    narrow = torch.tensor([[-0.1, 1.0, 0.0], [0.1, 1.0, 0.0]])
+    av = SimpleNamespace(ds=_Clips([narrow, 2 * narrow - torch.tensor([0.0, 1.0, 0.0])], frames=9))
+    poses, owner = pose_set(av, 2)
+    assert poses.shape == (10, 2, 3) and owner.tolist() == [0] * 5 + [1] * 5
+    assert torch.allclose(poses[0], narrow - narrow.mean(0))
+    assert teacher_chamfer(av, poses, owner, 2, 6, seed=0) == pytest.approx(100.0, rel=1e-5)

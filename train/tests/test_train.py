@@ -112,3 +112,30 @@ def test_two_process_data_parallel_training_stays_in_sync(quick_dataset_dir, tmp
     mp.spawn(_rank, args=(2, port, argv), nprocs=2, join=True)
     assert "parameters in sync across 2 ranks" in capfd.readouterr().out
     bundle.load(out / "bundle")
+
+
+def test_init_continues_a_bundle_keeping_its_vae_and_refiner(quick_dataset_dir, tmp_path, capsys):
+    from unica_train.fixtures import TINY_REFINER
+    from unica_train.refiner import Refiner, add_to_bundle
+
+    config = tmp_path / "tiny.json"
+    config.write_text(json.dumps(dict(TINY, unet_steps=2, stage2_steps=0)))
+    first = tmp_path / "first"
+    main(["--data", str(quick_dataset_dir), "--out", str(first), "--config", str(config)])
+    add_to_bundle(first / "bundle", Refiner(TINY_REFINER))
+    vae0, unet0, extra0, manifest0 = bundle.load(first / "bundle")
+    capsys.readouterr()
+    second = tmp_path / "second"
+    main(["--data", str(quick_dataset_dir), "--out", str(second), "--config", str(config), "--init", str(first / "bundle")])
+    log = capsys.readouterr().out
+    assert "started from the --init bundle's weights" in log and "vae [" not in log, "the VAE is not trained again"
+    vae1, unet1, extra1, manifest1 = bundle.load(second / "bundle")
+    for k, v in vae0.state_dict().items():
+        assert torch.equal(v, vae1.state_dict()[k]), k
+    assert manifest1["refiner"] == manifest0["refiner"]
+    refiner = {k: v for k, v in extra0.items() if k.startswith("refiner.")}
+    assert refiner and all(torch.equal(v, extra1[k]) for k, v in refiner.items())
+    assert manifest1["latent_scale"] == manifest0["latent_scale"]
+    # The UNet was trained on from the first bundle's: two more steps moved it a little.
+    moved = [(unet1.state_dict()[k] - v).abs().max().item() for k, v in unet0.state_dict().items() if v.is_floating_point()]
+    assert 0 < max(moved) < 0.1

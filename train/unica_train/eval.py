@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 from pathlib import Path
 
@@ -49,6 +50,7 @@ from .refiner import Frames, features, from_bundle, refined
 from .train import parse_keys
 
 KEYS = "60W 60S 60A 60D 30I"
+POSE_STRIDE = 2  # every 2nd dataset frame is a pose the generated frames are matched against
 FRAME_RATE = 30.0
 # PCA components in the windows of the FVD stand-in: the leading ones carry the motion.
 FVD_COMPONENTS = 8
@@ -187,11 +189,11 @@ def image_level(av: Avatar, data: Path, count: int, size: int, seed: int, sheet:
 # ---- 2. sequence level ----------------------------------------------------------------
 
 
-def teacher_reference(av: Avatar, window_stride: int, pose_stride: int, clips: list[int] | None = None):
+def teacher_reference(av: Avatar, window_stride: int, clips: list[int] | None = None):
     """From the dataset's clips (the teacher's motion): 16-frame windows of the leading
-    PCA coefficients (every `window_stride` frames), and every `pose_stride`-th pose
-    centred on its root, in metres [P, N, 3]. Frames are made 32 at a time."""
-    windows_out, poses = [], []
+    PCA coefficients (every `window_stride` frames), all together and per clip. Frames are
+    made 32 at a time."""
+    windows_out = []
     for c in clips if clips is not None else range(len(av.ds.clips)):
         count = av.ds.clips[c]["actions"].shape[0]
         coeffs = []
@@ -199,11 +201,42 @@ def teacher_reference(av: Avatar, window_stride: int, pose_stride: int, clips: l
             world = av.ds.positions(c, list(range(start, min(start + 32, count))))
             root = av.ds.root(world)[:, None]
             coeffs.append(av.coefficients((world - root) * av.scale + 0.5))
-            keep = [i for i in range(len(world)) if (start + i) % pose_stride == 0]
-            poses.append((world - root)[keep])
         if count >= WINDOW:
             windows_out.append(metrics.windows(torch.cat(coeffs), WINDOW, window_stride))
-    return torch.cat(windows_out), torch.cat(poses), windows_out
+    return torch.cat(windows_out), windows_out
+
+
+def pose_set(av: Avatar, stride: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Every `stride`-th frame of every clip of the dataset, centred on its root, in
+    metres [P, N, 3], and the clip of each [P]: the poses the generated frames are matched
+    against (all of them, also in quick mode: a sparse set would add its own gaps to the
+    distance)."""
+    poses, owner = [], []
+    for c in range(len(av.ds.clips)):
+        frames = list(range(0, av.ds.clips[c]["actions"].shape[0], stride))
+        for start in range(0, len(frames), 64):
+            world = av.ds.positions(c, frames[start:start + 64])
+            poses.append(world - av.ds.root(world)[:, None])
+            owner += [c] * world.shape[0]
+    return torch.cat(poses), torch.tensor(owner)
+
+
+def teacher_chamfer(av: Avatar, poses: torch.Tensor, owner: torch.Tensor, stride: int, count: int, seed: int) -> float:
+    """The teacher's own value of `chamfer_mm` (what a perfect model would score): `count`
+    dataset frames halfway between the set's poses, so never in it, each against the
+    poses of the other clips only (a new trajectory is in none of them), yaw-aligned as
+    the generated frames are. In millimetres."""
+    gen = torch.Generator().manual_seed(seed)
+    clips = [c for c in range(len(av.ds.clips)) if (owner != c).any() and av.ds.clips[c]["actions"].shape[0] > stride]
+    out = []
+    for k in range(count):
+        c = clips[k % len(clips)]
+        n = av.ds.clips[c]["actions"].shape[0]
+        f = min(int(torch.randint(max(n // stride, 1), (1,), generator=gen)) * stride + stride // 2, n - 1)
+        world = av.ds.positions(c, [f])
+        frame = (world - av.ds.root(world)[:, None])[0]
+        out.append(metrics.nearest_aligned_pose(frame, poses[owner != c])[0] * 1000)
+    return sum(out) / len(out)
 
 
 def dataset_frechet(per_clip: list[torch.Tensor]) -> float:
@@ -411,6 +444,7 @@ def summary(results: dict) -> dict:
     out = {
         "vae_mm": results["vae_mm"],
         "chamfer_mm": m["chamfer_mm"],
+        "teacher_chamfer_mm": m["teacher_chamfer_mm"],
         "masked_psnr_db": forced["psnr"],
         "masked_ssim": forced["ssim"],
         "masked_psnr_db_white": m["teacher_forced"]["generated"]["white"]["psnr"],
@@ -429,6 +463,8 @@ def summary(results: dict) -> dict:
         "turn90_frames": _turn(mo["turns"], 90, "generated"),
         "teacher_turn90_frames": _turn(mo["turns"], 90, "teacher"),
         "drift_slope": long["slope_per_1000_frames"],
+        "drift_frames": long["frames"],
+        "drift_finite": long["finite"],
         "drift_ci95": long["ci95_per_1000_frames"],
         "fvd_pca": results["sequence"]["fvd_pca"],
         "dataset_fvd_pca": results["sequence"]["dataset_fvd_pca"],
@@ -478,7 +514,8 @@ def evaluate(args) -> dict:
     results["image"] = image_level(av, args.data, 2 if quick else 12, args.size, args.seed, sheet)
     print(f"reference windows and poses … ({time.time() - began:.0f} s)", flush=True)
     clips = list(range(0, len(av.ds.clips), 4)) if quick and len(av.ds.clips) > 8 else None
-    reference, poses, per_clip = teacher_reference(av, 8 if quick else 4, 8 if quick else 2, clips)
+    reference, per_clip = teacher_reference(av, 8 if quick else 4, clips)
+    poses, owner = pose_set(av, POSE_STRIDE)
     print(f"sequence … ({time.time() - began:.0f} s)", flush=True)
     run = av.rollout(keys, defaults, args.seed)
     settle = 5 if quick else 15
@@ -499,12 +536,14 @@ def evaluate(args) -> dict:
     masked["free_running"] = masked_free_running(av, big, free, 10)
     masked["chamfer_every"] = 5 if quick else 2
     masked["chamfer_mm"] = aligned_chamfer(av, free, poses, masked["chamfer_every"])
+    masked["teacher_chamfer_mm"] = teacher_chamfer(av, poses, owner, POSE_STRIDE, 12 if quick else 24, args.seed)
+    masked["poses"] = int(poses.shape[0])
     masked["motion"] = motion(torch.tensor(free["root_path"]), torch.tensor(teacher), parse_keys(keys, free["frames"]), settle)
     results["masked"] = masked
-    repeats = 2 if quick else 10
-    print(f"long run ({repeats} × the script) … ({time.time() - began:.0f} s)", flush=True)
-    long = av.rollout(" ".join([keys] * repeats), defaults, args.seed)
-    window = 50 if quick else 200
+    long_frames = args.long_frames or frames * (2 if quick else 10)
+    print(f"long run ({long_frames} frames, the script repeated) … ({time.time() - began:.0f} s)", flush=True)
+    long = av.rollout(" ".join([keys] * math.ceil(long_frames / frames)), defaults, args.seed, frames=long_frames)
+    window = 200 if long_frames >= 800 else 50  # Fréchet windows of 200 frames where the run is long enough
     results["long_run"] = long_run(av, long, reference, window, window // 2)
     print(f"ablations … ({time.time() - began:.0f} s)", flush=True)
     ablations = []
@@ -541,6 +580,7 @@ def main(argv=None):
     parser.add_argument("--level", type=int, default=256, choices=[128, 256, 512], help="splat level of the image-level metrics")
     parser.add_argument("--masked-size", type=int, default=512, help="image size of the masked metrics (the renders' size)")
     parser.add_argument("--keys", help=f"key script (default {KEYS}; quick: 20W 20S 20A 20D 20I); the teacher's path must follow it")
+    parser.add_argument("--long-frames", type=int, help="frames of the long (drift) run (default: the script 10 times; quick: twice)")
     parser.add_argument("--engine", type=Path, help="the engine's free-running rollout on the key script (`unica render --bundle B "
                         "--keys K --points`; `unica eval` writes it); without it the PyTorch rollout stands in")
     args = parser.parse_args(argv)

@@ -121,7 +121,8 @@ def _masked_section(results: dict, data: str) -> list[str]:
         "(teacher-forced frames, all four views: teacher render left, generated refined splats right)",
         "",
         f"- Chamfer of every {m['chamfer_every']}th free-running frame to the nearest dataset pose (root-centred, yaw-aligned): "
-        f"**{sm['chamfer_mm']:.1f} mm**.",
+        f"**{sm['chamfer_mm']:.1f} mm** (the teacher's own frames, each against the other clips' poses: "
+        f"{sm['teacher_chamfer_mm']:.1f} mm; {m['poses']} poses, every {2}nd dataset frame).",
         f"- Fréchet stand-in **{sm['fvd_pca']:.3f}**; the dataset against itself (even against odd clips): "
         f"{sm['dataset_fvd_pca']:.3f}.",
         f"- Stop: the keys are released at frame {mo['release_frame']}; the root is below 0.05 m/s for good after "

@@ -1,13 +1,15 @@
 """Trains the geometry model on a baked dataset and writes the bundle:
 
-    python -m unica_train.train --data DATA --out OUT [--config CONFIG.json] [--resume]
+    python -m unica_train.train --data DATA --out OUT [--config CONFIG.json] [--resume] [--init BUNDLE]
 
 Stages: the VAE; latents of every 4-frame group; UNet stage 1 (steady locomotion) and
 stage 2 (frames just after a key change oversampled, action embeddings frozen), with
 context-noise augmentation, CFG dropout, Min-SNR weights, noise offset and EMA; PCA; then
 the evaluation numbers, the bundle, losses.csv and curves.png. Runs on CUDA (bf16
 autocast) when present, else on the CPU; checkpoints after every stage and every
-`checkpoint_every` steps so `--resume` continues where a run stopped."""
+`checkpoint_every` steps so `--resume` continues where a run stopped. `--init BUNDLE`
+continues a shipped bundle: its VAE (and its splat refiner, which was fit to that VAE) are
+kept as they are, and its UNet is trained further on the config's schedule."""
 
 from __future__ import annotations
 
@@ -91,8 +93,10 @@ def checksum(module: torch.nn.Module) -> float:
 
 
 class Run:
-    def __init__(self, data: Path, out: Path, cfg: TrainConfig, device: torch.device, rank: int = 0, world: int = 1):
+    def __init__(self, data: Path, out: Path, cfg: TrainConfig, device: torch.device, rank: int = 0, world: int = 1,
+                 init: tuple | None = None):
         self.cfg, self.out, self.device = cfg, out, device
+        self.init = init  # (vae, unet, extra, manifest) of a bundle to continue, or None
         self.rank, self.ranks = rank, world
         self.ds = BakedDataset(data)
         t0 = time.time()
@@ -134,6 +138,11 @@ class Run:
         vae_cfg = VaeConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.vae.items()})
         if vae_cfg.decoder == "pca":
             vae_cfg.pixels, vae_cfg.map_size = int(self.ds.pixels.shape[0]), int(self.ds.manifest["map_size"])
+        if self.init is not None:
+            vae = self.init[0].to(self.device)
+            if vae.cfg.to_dict() != vae_cfg.to_dict() and self.rank == 0:
+                print("vae: the config's VAE differs from the --init bundle's; the bundle's is kept", flush=True)
+            return vae.eval()
         vae = PositionVae(vae_cfg).to(self.device)
         opt = torch.optim.AdamW(vae.parameters(), lr=cfg.vae_lr)
         step = self.restore("vae", resume, {"vae": vae, "opt": opt})
@@ -203,6 +212,12 @@ class Run:
         opt = torch.optim.AdamW(unet.parameters(), lr=cfg.unet_lr)
         schedule = Schedule()
         step = self.restore("unet", resume, {"unet": unet, "ema": ema, "opt": opt})
+        if step == 0 and self.init is not None:
+            # The bundle holds the EMA weights; both copies start from them.
+            unet.load_state_dict(self.init[1].state_dict())
+            ema.load_state_dict(self.init[1].state_dict())
+            if self.rank == 0:
+                print("unet: started from the --init bundle's weights", flush=True)
         model = DDP(unet) if self.ranks > 1 else unet
         frozen_actions = None
         steady = [i for i in self.train_groups if not self.groups[i].after_switch]
@@ -359,7 +374,9 @@ def main(argv=None):
     parser.add_argument("--config", type=Path, help="JSON file overriding TrainConfig fields")
     parser.add_argument("--resume", action="store_true", help="continue from the run folder's checkpoints")
     parser.add_argument("--device", default="auto", help="auto, cpu or cuda")
+    parser.add_argument("--init", type=Path, help="a bundle to continue: its VAE and refiner are kept, its UNet trained further")
     args = parser.parse_args(argv)
+    init = bundle.load(args.init) if args.init else None
 
     cfg = TrainConfig(**(json.loads(args.config.read_text()) if args.config else {}))
     rank, world = distributed()
@@ -370,7 +387,7 @@ def main(argv=None):
     if rank == 0:
         (args.out / "config.json").write_text(json.dumps(asdict(cfg), indent=2) + "\n")
     torch.manual_seed(cfg.seed)  # the same initial weights on every rank
-    run = Run(args.data, args.out, cfg, device, rank, world)
+    run = Run(args.data, args.out, cfg, device, rank, world, init)
     started = time.time()
     vae = run.train_vae(args.resume)
     latents, scale = run.encode_groups(vae)
@@ -413,6 +430,9 @@ def main(argv=None):
     unit, _ = run.ds.normalise(run.world[0][0:4])
     context = vae.encoder(run.ds.to_maps(unit[:3]))[0] * scale
     m = run.ds.manifest
+    # An --init bundle's refiner was fit to its VAE, which is kept: it travels along.
+    carried = {k: v for k, v in init[2].items() if k.startswith("refiner.")} if init else {}
+    carried_manifest = {"refiner": init[3]["refiner"]} if init and "refiner" in init[3] else {}
     bundle.save(
         args.out / "bundle",
         vae,
@@ -424,6 +444,7 @@ def main(argv=None):
             "map.pixels": run.ds.pixels.int(),
             "map.waist": run.ds.waist.int(),
             "map.colors": run.ds.pixel_colors(),
+            **carried,
         },
         {
             "avatar": m["avatar"],
@@ -437,6 +458,7 @@ def main(argv=None):
             "sampler": {"ddim_steps": cfg.ddim_steps, "cfg_scale": cfg.cfg_scale},
             "pca": {"components": int(basis.shape[0])},
             "metrics": metrics,
+            **carried_manifest,
         },
     )
     series: dict[str, list] = {}
