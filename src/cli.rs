@@ -201,6 +201,10 @@ struct RigDataArgs {
     /// A rigged character (.gltf, .glb) to write as OUT/sample_00000.safetensors instead
     #[arg(long, value_name = "FILE")]
     character: Option<PathBuf>,
+    /// The plain generator the shipped models were trained on: no chibi or long-limbed
+    /// builds, no arms at the sides, capsule skirts and hair, no capes
+    #[arg(long)]
+    plain: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -644,7 +648,7 @@ fn rig_data(args: RigDataArgs) -> anyhow::Result<()> {
             .expect("valid template"),
     );
     let start = std::time::Instant::now();
-    data::write_synthetic(&args.out, args.count, args.seed, &|done, _| {
+    data::write_synthetic(&args.out, args.count, args.seed, !args.plain, &|done, _| {
         bar.set_position(done as u64)
     })?;
     bar.finish_and_clear();

@@ -221,7 +221,7 @@ fn the_shipped_models_rig_a_mesh_that_bakes_and_walks() {
 fn t_posed_humanoid(dir: &std::path::Path) -> std::path::PathBuf {
     use unica::autorig::synth::of_class;
     let synthetic = (100_000u64..)
-        .map(|seed| of_class(seed, Class::Humanoid, 0.0))
+        .map(|seed| of_class(seed, Class::Humanoid, 0.0, false))
         .find(|s| {
             let at = |name: &str| {
                 let i = s.skeleton.names.iter().position(|n| n == name).unwrap();

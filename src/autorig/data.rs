@@ -177,11 +177,13 @@ impl Sample {
 }
 
 /// Writes `count` synthetic pairs (seeds `seed`, `seed + 1`, …) into `out` on all cores,
-/// then the manifest; `progress(done, total)` after each.
+/// then the manifest; `variety` false gives the plain generator (`synth::character`);
+/// `progress(done, total)` after each.
 pub fn write_synthetic(
     out: &Path,
     count: usize,
     seed: u64,
+    variety: bool,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> anyhow::Result<()> {
     std::fs::create_dir_all(out)
@@ -197,7 +199,7 @@ pub fn write_synthetic(
                         let s = seed + i as u64;
                         let mut rng = Rng::new(s ^ 0x5eed);
                         let pose = rng.range(0.0, 1.0);
-                        let c = super::synth::character(s, pose);
+                        let c = super::synth::character(s, pose, variety);
                         let pair = sample(&c.skeleton, &c.mesh, &c.skin, s)
                             .map_err(|e| anyhow::anyhow!("synthetic character {s}: {e}"))?;
                         pair.write(&sample_path(out, i))?;
@@ -221,6 +223,7 @@ pub fn write_synthetic(
         "vertices": VERTICES,
         "vocab": super::tokens::VOCAB,
         "seed": seed,
+        "variety": variety,
     });
     write_atomic(
         &out.join("manifest.json"),

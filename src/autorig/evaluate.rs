@@ -11,7 +11,9 @@ use super::data::VOXELS;
 use super::data::{Sample, dense, sample_path, skin_of_character};
 use super::metrics::{b2b, j2b, j2j, motion_l2, random_poses, skin_l1};
 use super::model::{baseline_weights, top4};
-use super::pipeline::{Models, loose_springs, skeleton_for, swinging_chains, template_fit};
+use super::pipeline::{
+    Models, loose_springs, skeleton_for, skin_for, swinging_chains, template_fit,
+};
 use super::skeleton::{BODY, Class, Skeleton, UnitCube, of_character};
 use super::tokens::{decode, encode, naive_length};
 use super::voxel::{Voxels, bone_tails};
@@ -290,6 +292,22 @@ fn evaluate_rigged(path: &Path, models: &Models) -> anyhow::Result<Value> {
         out["learned_skin"] =
             json!({"l1": skin_l1(learned, &truth_skin), "motion_l2": motion(learned)});
     }
+    // The same two smoothed along her surface, as `unica rig` writes them.
+    let prior_only = Models {
+        skeleton: None,
+        skin: None,
+        beta: models.beta,
+    };
+    for (key, models) in [
+        ("geodesic_prior_smoothed", &prior_only),
+        ("learned_skin_smoothed", models),
+    ] {
+        if key == "learned_skin_smoothed" && models.skin.is_none() {
+            continue;
+        }
+        let smoothed = top4_rows(&skin_for(&mesh, &truth_world, models).0);
+        out[key] = json!({"l1": skin_l1(&smoothed, &truth_skin), "motion_l2": motion(&smoothed)});
+    }
     out["unit"] = json!({"half_extent": cube.half_extent});
     Ok(out)
 }
@@ -383,11 +401,15 @@ pub fn markdown(report: &Value) -> String {
             );
         }
         out += &format!(
-            "\n| skin (on her own skeleton) | L1 | motion L2 (her Walk clip, 10 frames) |\n| --- | --- | --- |\n| learned | {} | {} |\n| geodesic prior alone | {} | {} |\n",
+            "\n| skin (on her own skeleton) | L1 | motion L2 (her Walk clip, 10 frames) |\n| --- | --- | --- |\n| learned | {} | {} |\n| geodesic prior alone | {} | {} |\n| learned, smoothed along the surface (as `unica rig` writes it) | {} | {} |\n| geodesic prior alone, smoothed | {} | {} |\n",
             f(&w["learned_skin"]["l1"]),
             f(&w["learned_skin"]["motion_l2"]),
             f(&w["geodesic_prior"]["l1"]),
-            f(&w["geodesic_prior"]["motion_l2"])
+            f(&w["geodesic_prior"]["motion_l2"]),
+            f(&w["learned_skin_smoothed"]["l1"]),
+            f(&w["learned_skin_smoothed"]["motion_l2"]),
+            f(&w["geodesic_prior_smoothed"]["l1"]),
+            f(&w["geodesic_prior_smoothed"]["motion_l2"])
         );
     }
     out

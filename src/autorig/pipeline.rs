@@ -103,7 +103,7 @@ fn mean_humanoid() -> &'static [Vec3] {
         const SAMPLES: u64 = 24;
         let mut mean = vec![Vec3::ZERO; BODY.len()];
         for seed in 0..SAMPLES {
-            let c = synth::of_class(seed, Class::Humanoid, 0.0);
+            let c = synth::of_class(seed, Class::Humanoid, 0.0, false);
             let (lo, hi) = c.mesh.bounds().expect("a synthetic mesh");
             for (k, (name, _)) in BODY.iter().enumerate() {
                 let j = c

@@ -1,8 +1,11 @@
 //! Synthetic training characters: a random skeleton tree from a humanoid, quadruped or
-//! winged/tailed creature pattern with random proportions, posed at random, a surface
+//! winged/tailed creature pattern with random proportions (humanoids also chibi or
+//! long-limbed, arms held out or resting against the body), posed at random, a surface
 //! grown around its bones (smooth union of tapered capsules, meshed by surface nets),
-//! and ground-truth skin weights (each vertex to the bone that grew it, blended linearly
-//! with the neighbouring joints near each end, as artists paint).
+//! open sheets hung on spring chains (skirts, coat tails, capes, hair cards), and
+//! ground-truth skin weights (each vertex to the bone that grew it, blended linearly with
+//! the neighbouring joints near each end, as artists paint; a sheet's vertices blended
+//! between the chains on either side).
 
 use glam::{Quat, Vec3};
 
@@ -16,6 +19,19 @@ pub struct Synthetic {
     pub skeleton: Skeleton,
     pub mesh: Mesh,
     pub skin: Vec<Vec<(usize, f32)>>,
+    /// The first `body_vertices` vertices are the closed body; the rest are open sheets.
+    pub body_vertices: usize,
+}
+
+/// An open sheet hung on spring chains (no volume: it is not part of the grown surface):
+/// a ring or strip between neighbouring chains, or a card of `width` along one chain.
+/// Its triangles face away from joint `around` (horizontally when `vertical`).
+struct Sheet {
+    chains: Vec<Vec<usize>>,
+    closed: bool,
+    width: f32,
+    around: usize,
+    vertical: bool,
 }
 
 /// A tapered capsule the surface grows around, owned by the joint that moves it.
@@ -42,6 +58,7 @@ impl Limb {
 struct Builder {
     skeleton: Skeleton,
     limbs: Vec<Limb>,
+    sheets: Vec<Sheet>,
 }
 
 impl Builder {
@@ -55,6 +72,7 @@ impl Builder {
                 spring: Vec::new(),
             },
             limbs: Vec::new(),
+            sheets: Vec::new(),
         }
     }
 
@@ -101,6 +119,30 @@ impl Builder {
         out
     }
 
+    /// A spring chain like [`Builder::chain`] that grows no limbs: a sheet hangs on it.
+    fn bare_chain(
+        &mut self,
+        name: &str,
+        parent: usize,
+        start: Vec3,
+        step: Vec3,
+        count: usize,
+    ) -> Vec<usize> {
+        let limbs = self.limbs.len();
+        let out = self.chain(
+            name,
+            parent,
+            start,
+            step,
+            count,
+            (0.0, 0.0),
+            true,
+            Vec3::ZERO,
+        );
+        self.limbs.truncate(limbs);
+        out
+    }
+
     fn limb(&mut self, a: Vec3, b: Vec3, ra: f32, rb: f32, joint: usize) {
         self.limbs.push(Limb {
             a,
@@ -123,10 +165,54 @@ fn jitter(rng: &mut Rng, value: f32, spread: f32) -> f32 {
     value * rng.range(1.0 - spread, 1.0 + spread)
 }
 
-fn humanoid(rng: &mut Rng) -> Builder {
+/// Humanoid proportions beyond the jitter: adult-like, chibi (a head two to three times
+/// as large over short limbs) or long-limbed.
+#[derive(Clone, Copy, PartialEq, Debug)]
+enum Build {
+    Plain,
+    Chibi,
+    Long,
+}
+
+/// Where a humanoid's variety comes from: a random stream, or none (the plain generator
+/// of sessions 9-14, which the shipped models were trained on: adult build, arms held
+/// out, capsule loose parts, no capes).
+struct Style(Option<Rng>);
+
+impl Style {
+    fn chance(&mut self, p: f32) -> bool {
+        self.0.as_mut().is_some_and(|r| r.chance(p))
+    }
+
+    /// A number below `n`; `n - 1` for the plain generator.
+    fn below(&mut self, n: usize) -> usize {
+        self.0.as_mut().map_or(n - 1, |r| r.below(n))
+    }
+
+    /// A number in [lo, hi); `lo` for the plain generator.
+    fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        self.0.as_mut().map_or(lo, |r| r.range(lo, hi))
+    }
+}
+
+/// A humanoid. `rng` draws what every humanoid has (as it did before the builds, arms at
+/// the sides and sheets were added, so older seeds keep their skeletons); `style` draws
+/// the build, the arms' rest and whether loose parts are sheets.
+fn humanoid(rng: &mut Rng, style: &mut Style) -> Builder {
     let mut b = Builder::new(Class::Humanoid);
+    let build = match style.below(20) {
+        0..=2 => Build::Chibi,
+        3..=5 => Build::Long,
+        _ => Build::Plain,
+    };
+    let (head_scale, leg_scale, arm_scale) = match build {
+        Build::Plain => (1.0, 1.0, 1.0),
+        Build::Chibi => (style.range(2.0, 2.8), 0.6, 0.6),
+        Build::Long => (1.0, 1.15, 1.25),
+    };
+    let arms_at_sides = style.chance(0.35);
     let h = rng.range(1.2, 2.1);
-    let leg = jitter(rng, 0.47, 0.12) * h;
+    let leg = jitter(rng, 0.47, 0.12) * h * leg_scale;
     let hip_half = jitter(rng, 0.085, 0.3) * h;
     let thick = jitter(rng, 1.0, 0.35) * h;
     let hips_at = Vec3::new(0.0, leg + 0.04 * h, 0.0);
@@ -161,7 +247,7 @@ fn humanoid(rng: &mut Rng) -> Builder {
     }
     b.bone(spine[3], spine[4], torso_r * 1.05, 0.035 * thick);
     b.bone(spine[4], spine[5], 0.03 * thick, 0.035 * thick);
-    let head_r = jitter(rng, 0.075, 0.45) * h;
+    let head_r = jitter(rng, 0.075, 0.45) * h * head_scale;
     let head = spine[5];
     let head_at = b.skeleton.joints[head];
     b.limb(
@@ -174,15 +260,27 @@ fn humanoid(rng: &mut Rng) -> Builder {
     let chest = spine[3];
     let chest_at = b.skeleton.joints[chest];
     let droop = rng.range(0.0, 80f32.to_radians());
-    let upper = jitter(rng, 0.17, 0.15) * h;
-    let lower = jitter(rng, 0.16, 0.15) * h;
+    // Arms at the sides hang nearly straight down, their inner surface against the torso.
+    let droop = if arms_at_sides {
+        style.range(82f32.to_radians(), 88f32.to_radians())
+    } else {
+        droop
+    };
+    let upper = jitter(rng, 0.17, 0.15) * h * arm_scale;
+    let lower = jitter(rng, 0.16, 0.15) * h * arm_scale;
     let arm_r = jitter(rng, 0.03, 0.35) * thick;
     let hands = rng.chance(0.5);
     for (side, sx) in [("L", 1.0f32), ("R", -1.0f32)] {
         let shoulder_at = chest_at + Vec3::new(sx * 0.03 * h, 0.02 * h, 0.0);
         let shoulder = b.joint(&format!("Shoulder.{side}"), Some(chest), shoulder_at, false);
         let dir = Vec3::new(sx * droop.cos(), -droop.sin(), 0.0);
-        let upper_at = shoulder_at + Vec3::new(sx * jitter(rng, 0.07, 0.3) * h, 0.0, 0.0);
+        let out = jitter(rng, 0.07, 0.3) * h;
+        let out = if arms_at_sides {
+            (torso_r * 1.2 + arm_r * 1.2 - 0.03 * h).max(0.01 * h)
+        } else {
+            out
+        };
+        let upper_at = shoulder_at + Vec3::new(sx * out, 0.0, 0.0);
         let upper_arm = b.joint(&format!("UpperArm.{side}"), Some(shoulder), upper_at, false);
         let lower_at = upper_at + dir * upper;
         let lower_arm = b.joint(
@@ -259,45 +357,100 @@ fn humanoid(rng: &mut Rng) -> Builder {
         );
     }
     // Loose parts on spring chains.
+    // Hair: strands (capsules thinner than a voxel) or, mostly, cards (open ribbons).
     if rng.chance(0.5) {
         let chains = 1 + rng.below(5);
+        let cards = style.chance(0.8);
+        let width = style.range(0.03, 0.06) * h;
         for c in 0..chains {
             let angle = std::f32::consts::PI * (c as f32 + 0.5) / chains as f32;
             let start = head_at + Vec3::new(angle.cos() * head_r * 0.8, head_r, -0.6 * head_r);
             let step = Vec3::new(0.0, -1.0, -0.3).normalize() * jitter(rng, 0.07, 0.4) * h;
             let r = 0.012 * h;
-            b.chain(
-                &format!("Hair{c}_"),
-                head,
-                start,
-                step,
-                2 + rng.below(3),
-                (r, r * 0.6),
-                true,
-                Vec3::ZERO,
-            );
+            let count = 2 + rng.below(3);
+            let name = format!("Hair{c}_");
+            if cards {
+                let chain = b.bare_chain(&name, head, start, step, count);
+                b.sheets.push(Sheet {
+                    chains: vec![chain],
+                    closed: false,
+                    width,
+                    around: head,
+                    vertical: false,
+                });
+            } else {
+                b.chain(
+                    &name,
+                    head,
+                    start,
+                    step,
+                    count,
+                    (r, r * 0.6),
+                    true,
+                    Vec3::ZERO,
+                );
+            }
         }
     }
+    // A skirt: a ring of chains, as capsules or, mostly, as one sheet; some sheets are
+    // coat tails, the back half of the ring.
     if rng.chance(0.4) {
         let chains = 4 + rng.below(5);
         let flare = rng.range(0.2, 0.8);
         let length = jitter(rng, 0.15, 0.4) * h;
+        let sheet = style.chance(0.75);
+        let coat = sheet && style.chance(0.35);
+        let mut ring = Vec::new();
         for c in 0..chains {
-            let angle = std::f32::consts::TAU * c as f32 / chains as f32;
+            let angle = if coat {
+                std::f32::consts::FRAC_PI_2 + std::f32::consts::PI * c as f32 / (chains - 1) as f32
+            } else {
+                std::f32::consts::TAU * c as f32 / chains as f32
+            };
             let out = Vec3::new(angle.sin(), 0.0, angle.cos());
-            let start = hips_at + out * (hip_half + leg_r);
             let step = (Vec3::NEG_Y + out * flare).normalize() * length * 0.5;
-            b.chain(
-                &format!("Skirt{c}_"),
-                hips,
-                start,
-                step,
-                2 + rng.below(2),
-                (0.03 * h, 0.03 * h),
-                true,
-                Vec3::ZERO,
-            );
+            let count = 2 + rng.below(2);
+            let name = format!("Skirt{c}_");
+            if sheet {
+                // Around the hips, outside the legs and the torso.
+                let radius = (hip_half + leg_r).max(torso_r * 1.2) * 1.05;
+                ring.push(b.bare_chain(&name, hips, hips_at + out * radius, step, count));
+            } else {
+                let start = hips_at + out * (hip_half + leg_r);
+                let r = 0.03 * h;
+                b.chain(&name, hips, start, step, count, (r, r), true, Vec3::ZERO);
+            }
         }
+        if sheet {
+            b.sheets.push(Sheet {
+                chains: ring,
+                closed: !coat,
+                width: 0.0,
+                around: hips,
+                vertical: true,
+            });
+        }
+    }
+    // A cape: a strip of chains down the back from the chest.
+    if style.chance(0.15) {
+        let chains = 3 + style.below(3);
+        let length = style.range(0.3, 0.55) * h;
+        let count = 3 + style.below(2);
+        let half = torso_r * 1.2;
+        let mut strip = Vec::new();
+        for c in 0..chains {
+            let x = half * (2.0 * c as f32 / (chains - 1) as f32 - 1.0);
+            let start = chest_at + Vec3::new(x, 0.02 * h, -(torso_r * 1.2 + 0.01 * h));
+            let step = Vec3::new(0.0, -1.0, -0.15).normalize() * length / count as f32;
+            strip.push(b.bare_chain(&format!("Cape{c}_"), chest, start, step, count));
+        }
+        b.sheets.push(Sheet {
+            chains: strip,
+            closed: false,
+            width: 0.0,
+            around: chest,
+            vertical: true,
+        });
     }
     if rng.chance(0.25) {
         let start = head_at + Vec3::Y * 1.8 * head_r;
@@ -653,22 +806,183 @@ fn skin_of(p: Vec3, limbs: &[Limb], skeleton: &Skeleton) -> Vec<(usize, f32)> {
     weights
 }
 
+/// A point of a sheet and its weights.
+type Weighted = (Vec3, Vec<(usize, f32)>);
+
+/// Rows of vertices along a sheet's chains, and columns between two neighbouring chains.
+const SHEET_ROWS: usize = 9;
+const SHEET_SPAN: usize = 3;
+
+/// The point at fraction `t` of a chain's length (its joints, then half a bone past the
+/// last, as [`Builder::chain`] grows it) and its weights: the joint whose bone it lies on,
+/// blended over the first and last fifth of the bone as [`skin_of`] does.
+fn along_chain(skeleton: &Skeleton, chain: &[usize], t: f32) -> Weighted {
+    let mut line: Vec<Vec3> = chain.iter().map(|&j| skeleton.joints[j]).collect();
+    let n = line.len();
+    let last = line[n - 1];
+    let before = if n > 1 {
+        line[n - 2]
+    } else {
+        skeleton.parents[chain[0]].map_or(last + Vec3::Y, |p| skeleton.joints[p])
+    };
+    line.push(last + 0.5 * (last - before));
+    let lengths: Vec<f32> = line.windows(2).map(|w| w[0].distance(w[1])).collect();
+    let mut target = t.clamp(0.0, 1.0) * lengths.iter().sum::<f32>();
+    let mut k = 0;
+    while k + 1 < lengths.len() && target > lengths[k] {
+        target -= lengths[k];
+        k += 1;
+    }
+    let f = (target / lengths[k].max(1e-12)).clamp(0.0, 1.0);
+    let at = line[k].lerp(line[k + 1], f);
+    let owner = chain[k];
+    let blend = 0.2;
+    let previous = if k == 0 {
+        skeleton.parents[owner]
+    } else {
+        Some(chain[k - 1])
+    };
+    let weights = match (previous, chain.get(k + 1)) {
+        (Some(p), _) if f < blend => {
+            let w = 0.5 * (1.0 - f / blend);
+            vec![(owner, 1.0 - w), (p, w)]
+        }
+        (_, Some(&c)) if f > 1.0 - blend => {
+            let w = 0.5 * (f - (1.0 - blend)) / blend;
+            vec![(owner, 1.0 - w), (c, w)]
+        }
+        _ => vec![(owner, 1.0)],
+    };
+    (at, weights)
+}
+
+/// Sums weights by joint.
+fn mix(parts: &[(f32, &[(usize, f32)])]) -> Vec<(usize, f32)> {
+    let mut out: Vec<(usize, f32)> = Vec::new();
+    for &(scale, weights) in parts {
+        for &(j, w) in weights {
+            match out.iter_mut().find(|(k, _)| *k == j) {
+                Some(slot) => slot.1 += scale * w,
+                None => out.push((j, scale * w)),
+            }
+        }
+    }
+    out.retain(|&(_, w)| w > 0.0);
+    out
+}
+
+/// A sheet's mesh on the posed skeleton and each vertex's weights: a grid of
+/// [`SHEET_ROWS`] rows by [`SHEET_SPAN`] columns between neighbouring chains (a card: two
+/// columns, `width` apart, across its one chain), one layer of triangles facing away
+/// from the sheet's `around` joint.
+fn sheet_mesh(sheet: &Sheet, skeleton: &Skeleton) -> (Mesh, Vec<Vec<(usize, f32)>>) {
+    let chains = &sheet.chains;
+    let mut columns: Vec<Vec<Weighted>> = Vec::new();
+    let rows = |c: usize| -> Vec<Weighted> {
+        (0..SHEET_ROWS)
+            .map(|r| along_chain(skeleton, &chains[c], r as f32 / (SHEET_ROWS - 1) as f32))
+            .collect()
+    };
+    let center = skeleton.joints[sheet.around];
+    if chains.len() == 1 {
+        let line = rows(0);
+        for side in [-0.5f32, 0.5] {
+            let column = (0..SHEET_ROWS)
+                .map(|r| {
+                    let (at, w) = &line[r];
+                    let tangent = line[(r + 1).min(SHEET_ROWS - 1)].0 - line[r.saturating_sub(1)].0;
+                    let across = tangent.cross(*at - center).normalize_or(Vec3::X);
+                    (*at + across * side * sheet.width, w.clone())
+                })
+                .collect();
+            columns.push(column);
+        }
+    } else {
+        let lines: Vec<_> = (0..chains.len()).map(rows).collect();
+        let spans = if sheet.closed {
+            chains.len()
+        } else {
+            chains.len() - 1
+        };
+        for c in 0..spans {
+            let (a, b) = (&lines[c], &lines[(c + 1) % chains.len()]);
+            for q in 0..SHEET_SPAN {
+                let u = q as f32 / SHEET_SPAN as f32;
+                columns.push(
+                    (0..SHEET_ROWS)
+                        .map(|r| {
+                            let at = a[r].0.lerp(b[r].0, u);
+                            (at, mix(&[(1.0 - u, &a[r].1), (u, &b[r].1)]))
+                        })
+                        .collect(),
+                );
+            }
+        }
+        if !sheet.closed {
+            columns.push(lines[chains.len() - 1].clone());
+        }
+    }
+    let mut mesh = Mesh::default();
+    let mut skin = Vec::new();
+    for column in &columns {
+        for (at, w) in column {
+            mesh.positions.push(*at);
+            skin.push(w.clone());
+        }
+    }
+    let index = |c: usize, r: usize| (c % columns.len() * SHEET_ROWS + r) as u32;
+    let quads = if sheet.closed {
+        columns.len()
+    } else {
+        columns.len() - 1
+    };
+    for c in 0..quads {
+        for r in 0..SHEET_ROWS - 1 {
+            let quad = [
+                index(c, r),
+                index(c + 1, r),
+                index(c + 1, r + 1),
+                index(c, r + 1),
+            ];
+            for tri in [[quad[0], quad[1], quad[2]], [quad[0], quad[2], quad[3]]] {
+                let [a, b, d] = tri.map(|i| mesh.positions[i as usize]);
+                let mut away = (a + b + d) / 3.0 - center;
+                if sheet.vertical {
+                    away.y = 0.0;
+                }
+                let tri = if (b - a).cross(d - a).dot(away) < 0.0 {
+                    [tri[0], tri[2], tri[1]]
+                } else {
+                    tri
+                };
+                mesh.indices.extend(tri);
+            }
+        }
+    }
+    mesh.colors = vec![Vec3::splat(0.7); mesh.positions.len()];
+    (mesh, skin)
+}
+
 /// A random character of a random class (60 % humanoid, 20 % quadruped, 20 % other);
-/// `pose` scales the random pose (0 = rest).
-pub fn character(seed: u64, pose: f32) -> Synthetic {
+/// `pose` scales the random pose (0 = rest); `variety` false gives the plain generator
+/// (see [`Style`]).
+pub fn character(seed: u64, pose: f32, variety: bool) -> Synthetic {
     let class = match Rng::new(seed ^ 0xc1a55).below(10) {
         0..=5 => Class::Humanoid,
         6..=7 => Class::Quadruped,
         _ => Class::Other,
     };
-    of_class(seed, class, pose)
+    of_class(seed, class, pose, variety)
 }
 
-/// A random character of the given class.
-pub fn of_class(seed: u64, class: Class, pose: f32) -> Synthetic {
+/// A random character of the given class (`variety`: see [`character`]).
+pub fn of_class(seed: u64, class: Class, pose: f32, variety: bool) -> Synthetic {
     let mut rng = Rng::new(seed);
     let mut b = match class {
-        Class::Humanoid => humanoid(&mut rng),
+        Class::Humanoid => {
+            let style = variety.then(|| Rng::new(seed ^ 0x57_11e));
+            humanoid(&mut rng, &mut Style(style))
+        }
         Class::Quadruped => quadruped(&mut rng),
         Class::Other => creature(&mut rng),
     };
@@ -702,16 +1016,24 @@ pub fn of_class(seed: u64, class: Class, pose: f32) -> Synthetic {
             }
         }
     }
-    let mesh = surface_nets(lo, cell, dims, &field);
-    let skin = mesh
+    let mut mesh = surface_nets(lo, cell, dims, &field);
+    let mut skin: Vec<_> = mesh
         .positions
         .iter()
         .map(|&p| skin_of(p, &b.limbs, &b.skeleton))
         .collect();
+    let body_vertices = mesh.positions.len();
+    for sheet in &b.sheets {
+        let (part, weights) = sheet_mesh(sheet, &b.skeleton);
+        mesh.append(part);
+        skin.extend(weights);
+    }
+    mesh.compute_normals();
     Synthetic {
         skeleton: b.skeleton,
         mesh,
         skin,
+        body_vertices,
     }
 }
 
@@ -724,12 +1046,13 @@ mod tests {
     #[test]
     fn characters_are_closed_skinned_and_tokenisable() {
         for seed in 0..12 {
-            let c = character(seed, 1.0);
+            let c = character(seed, 1.0, true);
             assert!(c.skeleton.is_ordered());
             assert!(c.mesh.positions.len() > 500, "seed {seed}");
             // Closed: every edge is shared by exactly two triangles.
             let mut edges = std::collections::HashMap::new();
-            for t in c.mesh.indices.chunks_exact(3) {
+            let body = c.body_vertices as u32;
+            for t in c.mesh.indices.chunks_exact(3).filter(|t| t[0] < body) {
                 for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
                     *edges.entry((a.min(b), a.max(b))).or_insert(0) += 1;
                 }
@@ -748,6 +1071,102 @@ mod tests {
             let unit = c.skeleton.map_joints(|p| cube.to_unit(p));
             let tokens = encode(&unit).unwrap_or_else(|e| panic!("seed {seed}: {e}"));
             assert_eq!(decode(&tokens).unwrap().len(), unit.len());
+        }
+    }
+
+    #[test]
+    fn a_point_along_a_chain_and_its_weights() {
+        // Parent 0 at y = 1, chain joints 1 and 2 at y = 0 and y = -1: the line runs on
+        // to y = -1.5 (half a bone past the last joint), 2.5 long in all... 1.5 below 0.
+        let skeleton = Skeleton {
+            class: Class::Humanoid,
+            joints: vec![Vec3::Y, Vec3::ZERO, Vec3::NEG_Y],
+            parents: vec![None, Some(0), Some(1)],
+            names: vec!["Hips".into(), "Skirt0".into(), "Skirt1".into()],
+            spring: vec![false, true, true],
+        };
+        let chain = [1, 2];
+        let (at, w) = along_chain(&skeleton, &chain, 0.0);
+        assert!(at.distance(Vec3::ZERO) < 1e-6);
+        assert_eq!(w, vec![(1, 0.5), (0, 0.5)]);
+        // 0.5 of 1.5 is 0.75 down the first bone: inside its middle, all to joint 1.
+        let (at, w) = along_chain(&skeleton, &chain, 0.5);
+        assert!(at.distance(Vec3::new(0.0, -0.75, 0.0)) < 1e-6);
+        assert_eq!(w, vec![(1, 1.0)]);
+        // 0.6 of 1.5 is 0.9 down: 0.1 from its end, blended a quarter to the next joint.
+        let (at, w) = along_chain(&skeleton, &chain, 0.6);
+        assert!(at.distance(Vec3::new(0.0, -0.9, 0.0)) < 1e-6);
+        assert!(
+            (w[0].1 - 0.75).abs() < 1e-5 && w[1] == (2, w[1].1) && (w[1].1 - 0.25).abs() < 1e-5
+        );
+        let (at, w) = along_chain(&skeleton, &chain, 1.0);
+        assert!(at.distance(Vec3::new(0.0, -1.5, 0.0)) < 1e-6);
+        assert_eq!(w, vec![(2, 1.0)]);
+    }
+
+    #[test]
+    fn humanoids_come_in_builds_with_sheets_on_spring_chains() {
+        let (mut sheets, mut capes, mut cards, mut chibi, mut at_sides) = (0, 0, 0, 0, 0);
+        for seed in 0..200 {
+            let c = of_class(seed, Class::Humanoid, 0.0, true);
+            let s = &c.skeleton;
+            let at = |name: &str| s.joints[s.names.iter().position(|n| n == name).unwrap()];
+            // Chibi: a head (head joint to the top) over 30 % of the height.
+            let top = c.mesh.bounds().unwrap().1.y;
+            let bottom = c.mesh.bounds().unwrap().0.y;
+            if (top - at("Head").y) > 0.3 * (top - bottom) {
+                chibi += 1;
+            }
+            let arm = at("Wrist.L") - at("UpperArm.L");
+            if arm.y < -arm.length() * 75f32.to_radians().sin() {
+                at_sides += 1;
+            }
+            if c.mesh.positions.len() > c.body_vertices {
+                sheets += 1;
+            }
+            capes += s.names.iter().any(|n| n == "Cape0_0") as usize;
+            // Every sheet vertex is weighted to spring joints or the joint a chain hangs
+            // from, and its weights sum to one.
+            for w in &c.skin[c.body_vertices..] {
+                let sum: f32 = w.iter().map(|(_, w)| w).sum();
+                assert!((sum - 1.0).abs() < 1e-5, "seed {seed}: {w:?}");
+                for &(j, _) in w {
+                    let hangs_from = s
+                        .spring
+                        .iter()
+                        .enumerate()
+                        .any(|(k, &sp)| sp && s.parents[k] == Some(j));
+                    assert!(
+                        s.spring[j] || hangs_from,
+                        "seed {seed}: joint {}",
+                        s.names[j]
+                    );
+                    if s.names[j].starts_with("Hair") {
+                        cards += 1;
+                    }
+                }
+            }
+        }
+        // The build, the arms and the sheets are drawn at 15 %, 35 % and (skirts 40 % x
+        // 75 %, hair 50 % x 80 %, capes 15 %) of humanoids.
+        println!("chibi {chibi}, arms at the sides {at_sides}, sheets {sheets}, capes {capes}");
+        assert!((15..=50).contains(&chibi), "{chibi}");
+        assert!((45..=110).contains(&at_sides), "{at_sides}");
+        assert!((70..=170).contains(&sheets), "{sheets}");
+        assert!((15..=50).contains(&capes), "{capes}");
+        assert!(cards > 0);
+        // The plain generator: no sheets, no capes, no chibi heads, arms never below 80°.
+        for seed in 0..100 {
+            let c = of_class(seed, Class::Humanoid, 0.0, false);
+            assert_eq!(c.body_vertices, c.mesh.positions.len());
+            assert!(!c.skeleton.names.iter().any(|n| n.starts_with("Cape")));
+            let s = &c.skeleton;
+            let at = |name: &str| s.joints[s.names.iter().position(|n| n == name).unwrap()];
+            let arm = at("Wrist.L") - at("UpperArm.L");
+            assert!(
+                arm.y >= -arm.length() * 80.5f32.to_radians().sin(),
+                "seed {seed}"
+            );
         }
     }
 

@@ -260,3 +260,11 @@ def test_the_cfg_probe_measures_segments_and_prefers_the_right_heading():
     wrong[0]["distance_m"] = 1.5
     error, heads = score(wrong, got)
     assert abs(error - 0.5) < 1e-6 and not heads
+
+
+def test_report_names_the_pose_stride_in_words():
+    from unica_train.report import every
+
+    assert [every(n) for n in (1, 2, 3, 4, 11, 12, 21, 22, 23, 111)] == [
+        "every", "every 2nd", "every 3rd", "every 4th", "every 11th", "every 12th", "every 21st", "every 22nd", "every 23rd",
+        "every 111th"]

@@ -144,7 +144,7 @@ def test_baseline_beta_is_recovered(data):
 
 def args(data, out, model, steps, **extra):
     base = {"data": data.root, "out": out, "model": model, "steps": steps, "batch": 4, "lr": 3e-3, "resume": False,
-            "holdout": 2, "threads": 2, "device": "cpu", "seed": 0,
+            "holdout": 2, "threads": 2, "device": "cpu", "seed": 0, "init": None,
             "arch": json.dumps(TINY_SKELETON if model == "skeleton" else TINY_SKIN)}
     return argparse.Namespace(**{**base, **extra})
 
@@ -177,6 +177,32 @@ def test_training_overfits_and_writes_its_outputs(data, tmp_path, kind, monkeypa
     rig.train(args(data, run, kind, 60, resume=True))
     steps = [int(r["step"]) for r in losses(run / f"{kind}_losses.csv")[1]]
     assert steps == list(range(1, 61))
+
+
+def test_init_starts_from_an_exported_model(data, tmp_path, monkeypatch):
+    """--init DIR: the run's first step starts from DIR's weights (its held-out loss at
+    step 0 is the exported model's), records where it came from, and refuses a folder
+    without the model."""
+    monkeypatch.setattr(rig, "EVAL_EVERY", 1000)
+    first = tmp_path / "first"
+    rig.train(args(data, first, "skeleton", 60))
+    exported, _ = rig.load(first, "skeleton")
+    samples = rig.RigData(data.root)
+    idx = [len(samples) - 2, len(samples) - 1]
+    before = rig.heldout_loss(exported, samples, idx, "skeleton", 4, torch.device("cpu"))
+    fresh_loss = rig.heldout_loss(rig.build("skeleton", TINY_SKELETON), samples, idx, "skeleton", 4, torch.device("cpu"))
+    second = tmp_path / "second"
+    # A vanishing learning rate: the fine-tune must leave the weights as it found them
+    # (a run that ignored --init would start from fresh random weights).
+    rig.train(args(data, second, "skeleton", 2, init=first, lr=1e-12))
+    continued, config = rig.load(second, "skeleton")
+    for (name, a), (_, b) in zip(exported.state_dict().items(), continued.state_dict().items()):
+        assert torch.allclose(a, b), name
+    assert config["init"]["from"] == str(first) and config["init"]["train"]["steps"] == 60
+    after = rig.heldout_loss(continued, samples, idx, "skeleton", 4, torch.device("cpu"))
+    assert abs(after - before) < 1e-5 and abs(fresh_loss - before) > 1e-3
+    with pytest.raises(SystemExit, match="skin.safetensors"):
+        rig.train(args(data, tmp_path / "third", "skin", 2, init=first))
 
 
 def test_export_import_round_trip(tmp_path):

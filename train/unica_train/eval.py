@@ -213,12 +213,22 @@ def pose_set(av: Avatar, stride: int) -> tuple[torch.Tensor, torch.Tensor]:
     distance)."""
     poses, owner = [], []
     for c in range(len(av.ds.clips)):
-        frames = list(range(0, av.ds.clips[c]["actions"].shape[0], stride))
-        for start in range(0, len(frames), 64):
-            world = av.ds.positions(c, frames[start:start + 64])
-            poses.append(world - av.ds.root(world)[:, None])
-            owner += [c] * world.shape[0]
+        _, centred = centred_frames(av, c, list(range(0, av.ds.clips[c]["actions"].shape[0], stride)))
+        poses.append(centred)
+        owner += [c] * centred.shape[0]
     return torch.cat(poses), torch.tensor(owner)
+
+
+def centred_frames(av: Avatar, clip: int, frames: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Dataset frames of a clip (read 64 at a time): their roots [F, 3] and root-centred
+    points [F, N, 3], in metres."""
+    roots, centred = [], []
+    for start in range(0, len(frames), 64):
+        world = av.ds.positions(clip, frames[start:start + 64])
+        root = av.ds.root(world)
+        roots.append(root)
+        centred.append(world - root[:, None])
+    return torch.cat(roots), torch.cat(centred)
 
 
 def teacher_chamfer(av: Avatar, poses: torch.Tensor, owner: torch.Tensor, stride: int, count: int, seed: int) -> float:
@@ -375,13 +385,10 @@ def rendered_poses(av: Avatar, frames: Frames) -> tuple[list, torch.Tensor, torc
         if len(frames.views[(clip, f)]) == 4:
             by_clip.setdefault(clip, []).append(f)
     for clip, fs in sorted(by_clip.items()):
-        for start in range(0, len(fs), 64):
-            chunk = fs[start:start + 64]
-            world = av.ds.positions(clip, chunk)
-            root = av.ds.root(world)
-            keys += [(clip, f) for f in chunk]
-            roots.append(root)
-            poses.append(world - root[:, None])
+        root, centred = centred_frames(av, clip, fs)
+        keys += [(clip, f) for f in fs]
+        roots.append(root)
+        poses.append(centred)
     return keys, torch.cat(roots), torch.cat(poses)
 
 
@@ -538,6 +545,7 @@ def evaluate(args) -> dict:
     masked["chamfer_mm"] = aligned_chamfer(av, free, poses, masked["chamfer_every"])
     masked["teacher_chamfer_mm"] = teacher_chamfer(av, poses, owner, POSE_STRIDE, 12 if quick else 24, args.seed)
     masked["poses"] = int(poses.shape[0])
+    masked["pose_stride"] = POSE_STRIDE
     masked["motion"] = motion(torch.tensor(free["root_path"]), torch.tensor(teacher), parse_keys(keys, free["frames"]), settle)
     results["masked"] = masked
     long_frames = args.long_frames or frames * (2 if quick else 10)

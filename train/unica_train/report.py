@@ -80,6 +80,14 @@ def _sheet(path: Path, pairs: list) -> None:
     plt.imsave(path, np.clip(np.concatenate(rows, 0), 0, 1))
 
 
+def every(n: int) -> str:
+    """'every frame', 'every 2nd frame', 'every 3rd', 'every 4th' … (without the noun)."""
+    if n == 1:
+        return "every"
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"every {n}{suffix}"
+
+
 def _fmt(v, digits=1):
     return "—" if v is None else f"{v:.{digits}f}"
 
@@ -122,7 +130,7 @@ def _masked_section(results: dict, data: str) -> list[str]:
         "",
         f"- Chamfer of every {m['chamfer_every']}th free-running frame to the nearest dataset pose (root-centred, yaw-aligned): "
         f"**{sm['chamfer_mm']:.1f} mm** (the teacher's own frames, each against the other clips' poses: "
-        f"{sm['teacher_chamfer_mm']:.1f} mm; {m['poses']} poses, every {2}nd dataset frame).",
+        f"{sm['teacher_chamfer_mm']:.1f} mm; {m['poses']} poses, {every(m.get('pose_stride', 2))} dataset frame).",
         f"- Fréchet stand-in **{sm['fvd_pca']:.3f}**; the dataset against itself (even against odd clips): "
         f"{sm['dataset_fvd_pca']:.3f}.",
         f"- Stop: the keys are released at frame {mo['release_frame']}; the root is below 0.05 m/s for good after "

@@ -7,11 +7,14 @@ softmax over bones). Every attention and MLP block is pre-LN with a residual.
 Training on a rig-data directory (written by `unica rig-data`):
 
     python -m unica_train.rig --data DIR --out RUN --model skeleton|skin --steps N
-        [--batch B] [--lr LR] [--resume] [--holdout K] [--threads 2] [--device cpu] [--arch JSON]
+        [--batch B] [--lr LR] [--resume] [--init DIR] [--holdout K] [--threads 2] [--device cpu]
+        [--arch JSON]
 
 writes RUN/{model}.safetensors (f32 weights under the spec's names), {model}_config.json,
 {model}_losses.csv, {model}_checkpoint.pt (every 200 steps, for --resume) and
-{model}_eval.json (the last K samples are held out). Parity fixtures for the Rust side:
+{model}_eval.json (the last K samples are held out). `--init DIR` starts from the weights
+and architecture of DIR/{model}.safetensors and DIR/{model}_config.json (a fine-tune: new
+optimiser, new schedule, its own losses). Parity fixtures for the Rust side:
 
     python -m unica_train.rig fixtures --out tests/fixtures/autorig
 """
@@ -449,11 +452,20 @@ def train(args) -> dict:
     train_idx, held_idx = list(range(len(data) - holdout)), list(range(len(data) - holdout, len(data)))
     batch = args.batch or DEFAULTS[kind]["batch"]
     lr = args.lr or DEFAULTS[kind]["lr"]
-    model = build(kind, json.loads(args.arch)).to(device)
+    extra = {}
+    if args.init:
+        if not (Path(args.init) / f"{kind}.safetensors").exists():
+            raise SystemExit(f"error: {Path(args.init) / f'{kind}.safetensors'}: no such file (--init needs an exported {kind} model)")
+        model, config = load(Path(args.init), kind)
+        model = model.to(device)
+        extra = {"init": {"from": str(args.init), "train": config.get("train")}}
+        print(f"starting from {args.init}")
+    else:
+        model = build(kind, json.loads(args.arch)).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=0.01)
     gen = torch.Generator().manual_seed(args.seed)
     checkpoint, losses = run / f"{kind}_checkpoint.pt", run / f"{kind}_losses.csv"
-    start, extra = 0, {}
+    start = 0
     if args.resume and checkpoint.exists():
         state = torch.load(checkpoint, map_location=device, weights_only=False)
         model.load_state_dict(state["model"])
@@ -588,6 +600,7 @@ def main(argv=None):
     parser.add_argument("--batch", type=int, help="default 8")
     parser.add_argument("--lr", type=float, help="default 3e-4 (skeleton), 1e-3 (skin)")
     parser.add_argument("--resume", action="store_true")
+    parser.add_argument("--init", type=Path, help="start from the exported model in this folder (e.g. assets/autorig)")
     parser.add_argument("--holdout", type=int, default=16, help="the last K samples are held out")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--device", default="cpu")
