@@ -11,10 +11,9 @@ use super::data::VOXELS;
 use super::data::{Sample, dense, sample_path, skin_of_character};
 use super::metrics::{b2b, j2b, j2j, motion_l2, random_poses, skin_l1};
 use super::model::{baseline_weights, top4};
-use super::pipeline::{
-    Models, loose_springs, skeleton_for, skin_for, swinging_chains, template_fit,
-};
+use super::pipeline::{Models, loose_springs, skeleton_for, swinging_chains, template_fit};
 use super::skeleton::{BODY, Class, Skeleton, UnitCube, of_character};
+use super::smoothing;
 use super::tokens::{decode, encode, naive_length};
 use super::voxel::{Voxels, bone_tails};
 use crate::avatar::load_character;
@@ -54,7 +53,8 @@ fn average(values: &[f32]) -> f32 {
     values.iter().sum::<f32>() / values.len().max(1) as f32
 }
 
-/// Skin weights of a skeleton on vertices from the model (if any) and the prior alone.
+/// Skin weights `[vertex][joint]` of a skeleton on vertices from the model (if any) and
+/// the prior alone, all bones kept (scored through [`top4_rows`]).
 fn skin_pair(
     models: &Models,
     vertices: &[Vec3],
@@ -64,9 +64,9 @@ fn skin_pair(
 ) -> (Option<Vec<Vec<f32>>>, Vec<Vec<f32>>) {
     let learned = models.skin.as_ref().map(|m| {
         let tails = bone_tails(&skeleton.joints, &skeleton.parents);
-        top4_rows(&m.weights(vertices, normals, &skeleton.joints, &tails, geodesic))
+        m.weights(vertices, normals, &skeleton.joints, &tails, geodesic)
     });
-    let prior = top4_rows(&baseline_weights(models.beta, geodesic, skeleton.len()));
+    let prior = baseline_weights(models.beta, geodesic, skeleton.len());
     (learned, prior)
 }
 
@@ -137,9 +137,11 @@ pub fn evaluate(
         );
         let poses = random_poses(truth, POSES, POSE_DEGREES, index as u64);
         if let Some(learned) = &learned {
-            l1_learned.push(skin_l1(learned, &sample.skin));
-            motion_learned.push(motion_l2(&sample.vertices, learned, &sample.skin, &poses));
+            let learned = top4_rows(learned);
+            l1_learned.push(skin_l1(&learned, &sample.skin));
+            motion_learned.push(motion_l2(&sample.vertices, &learned, &sample.skin, &poses));
         }
+        let prior = top4_rows(&prior);
         l1_prior.push(skin_l1(&prior, &sample.skin));
         motion_prior.push(motion_l2(&sample.vertices, &prior, &sample.skin, &poses));
         progress(done + 1, holdout);
@@ -286,27 +288,20 @@ fn evaluate_rigged(path: &Path, models: &Models) -> anyhow::Result<Value> {
     let motion = |weights: &[Vec<f32>]| {
         motion_l2(&mesh.positions, weights, &truth_skin, &poses) / cube.half_extent
     };
-    out["geodesic_prior"] =
-        json!({"l1": skin_l1(&prior, &truth_skin), "motion_l2": motion(&prior)});
-    if let Some(learned) = &learned {
-        out["learned_skin"] =
-            json!({"l1": skin_l1(learned, &truth_skin), "motion_l2": motion(learned)});
-    }
-    // The same two smoothed along her surface, as `unica rig` writes them.
-    let prior_only = Models {
-        skeleton: None,
-        skin: None,
-        beta: models.beta,
+    let score = |weights: &[Vec<f32>]| {
+        let top = top4_rows(weights);
+        json!({"l1": skin_l1(&top, &truth_skin), "motion_l2": motion(&top)})
     };
-    for (key, models) in [
-        ("geodesic_prior_smoothed", &prior_only),
-        ("learned_skin_smoothed", models),
-    ] {
-        if key == "learned_skin_smoothed" && models.skin.is_none() {
-            continue;
-        }
-        let smoothed = top4_rows(&skin_for(&mesh, &truth_world, models).0);
-        out[key] = json!({"l1": skin_l1(&smoothed, &truth_skin), "motion_l2": motion(&smoothed)});
+    // Each also smoothed along her surface, as `unica rig` writes it (`pipeline::skin_for`).
+    let smoothed = |mut weights: Vec<Vec<f32>>| {
+        smoothing::smooth(&unit_mesh, &mut weights, smoothing::ROUNDS);
+        weights
+    };
+    out["geodesic_prior"] = score(&prior);
+    out["geodesic_prior_smoothed"] = score(&smoothed(prior));
+    if let Some(learned) = learned {
+        out["learned_skin"] = score(&learned);
+        out["learned_skin_smoothed"] = score(&smoothed(learned));
     }
     out["unit"] = json!({"half_extent": cube.half_extent});
     Ok(out)

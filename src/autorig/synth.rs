@@ -775,9 +775,9 @@ const CUBE_EDGES: [([usize; 3], [usize; 3]); 12] = [
     ([1, 1, 0], [1, 1, 1]),
 ];
 
-/// Ground-truth weights of a surface point: the limb nearest the surface owns it; within
-/// the first and last fifth of the limb the weight blends linearly (to half at the end)
-/// with the owner's parent or the joint the limb runs into.
+/// Ground-truth weights of a surface point: the limb nearest the surface owns it,
+/// [`painted`] with the owner's parent (where the limb starts at the owner) or the joint
+/// the limb runs into.
 fn skin_of(p: Vec3, limbs: &[Limb], skeleton: &Skeleton) -> Vec<(usize, f32)> {
     let (limb, t) = limbs
         .iter()
@@ -789,21 +789,32 @@ fn skin_of(p: Vec3, limbs: &[Limb], skeleton: &Skeleton) -> Vec<(usize, f32)> {
     let child = (0..skeleton.len()).find(|&c| {
         skeleton.parents[c] == Some(owner) && skeleton.joints[c].distance(limb.b) < 1e-4
     });
+    let parent = skeleton.parents[owner].filter(|_| skeleton.joints[owner].distance(limb.a) < 1e-4);
+    painted(owner, t, parent, child)
+}
+
+/// The weights of a point at `t` along a bone of `owner` (0 at its start, 1 at its end):
+/// all to `owner`, except over the first and last fifth, where it blends linearly (to
+/// half at the end) with `previous` (the joint before the bone's start) or `next` (the
+/// joint at its end), as artists paint.
+fn painted(
+    owner: usize,
+    t: f32,
+    previous: Option<usize>,
+    next: Option<usize>,
+) -> Vec<(usize, f32)> {
     let blend = 0.2;
-    let mut weights = vec![(owner, 1.0)];
-    if t < blend
-        && let Some(parent) = skeleton.parents[owner]
-        && skeleton.joints[owner].distance(limb.a) < 1e-4
-    {
-        let w = 0.5 * (1.0 - t / blend);
-        weights = vec![(owner, 1.0 - w), (parent, w)];
-    } else if t > 1.0 - blend
-        && let Some(child) = child
-    {
-        let w = 0.5 * (t - (1.0 - blend)) / blend;
-        weights = vec![(owner, 1.0 - w), (child, w)];
+    match (previous, next) {
+        (Some(p), _) if t < blend => {
+            let w = 0.5 * (1.0 - t / blend);
+            vec![(owner, 1.0 - w), (p, w)]
+        }
+        (_, Some(c)) if t > 1.0 - blend => {
+            let w = 0.5 * (t - (1.0 - blend)) / blend;
+            vec![(owner, 1.0 - w), (c, w)]
+        }
+        _ => vec![(owner, 1.0)],
     }
-    weights
 }
 
 /// A point of a sheet and its weights.
@@ -815,7 +826,7 @@ const SHEET_SPAN: usize = 3;
 
 /// The point at fraction `t` of a chain's length (its joints, then half a bone past the
 /// last, as [`Builder::chain`] grows it) and its weights: the joint whose bone it lies on,
-/// blended over the first and last fifth of the bone as [`skin_of`] does.
+/// [`painted`] as [`skin_of`] does.
 fn along_chain(skeleton: &Skeleton, chain: &[usize], t: f32) -> Weighted {
     let mut line: Vec<Vec3> = chain.iter().map(|&j| skeleton.joints[j]).collect();
     let n = line.len();
@@ -836,24 +847,12 @@ fn along_chain(skeleton: &Skeleton, chain: &[usize], t: f32) -> Weighted {
     let f = (target / lengths[k].max(1e-12)).clamp(0.0, 1.0);
     let at = line[k].lerp(line[k + 1], f);
     let owner = chain[k];
-    let blend = 0.2;
     let previous = if k == 0 {
         skeleton.parents[owner]
     } else {
         Some(chain[k - 1])
     };
-    let weights = match (previous, chain.get(k + 1)) {
-        (Some(p), _) if f < blend => {
-            let w = 0.5 * (1.0 - f / blend);
-            vec![(owner, 1.0 - w), (p, w)]
-        }
-        (_, Some(&c)) if f > 1.0 - blend => {
-            let w = 0.5 * (f - (1.0 - blend)) / blend;
-            vec![(owner, 1.0 - w), (c, w)]
-        }
-        _ => vec![(owner, 1.0)],
-    };
-    (at, weights)
+    (at, painted(owner, f, previous, chain.get(k + 1).copied()))
 }
 
 /// Sums weights by joint.
@@ -1112,9 +1111,8 @@ mod tests {
             let s = &c.skeleton;
             let at = |name: &str| s.joints[s.names.iter().position(|n| n == name).unwrap()];
             // Chibi: a head (head joint to the top) over 30 % of the height.
-            let top = c.mesh.bounds().unwrap().1.y;
-            let bottom = c.mesh.bounds().unwrap().0.y;
-            if (top - at("Head").y) > 0.3 * (top - bottom) {
+            let (lo, hi) = c.mesh.bounds().unwrap();
+            if (hi.y - at("Head").y) > 0.3 * (hi.y - lo.y) {
                 chibi += 1;
             }
             let arm = at("Wrist.L") - at("UpperArm.L");
