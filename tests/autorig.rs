@@ -232,14 +232,12 @@ fn t_posed_humanoid(dir: &std::path::Path) -> std::path::PathBuf {
         })
         .unwrap();
     let path = dir.join("t_pose.obj");
-    let mut text = String::new();
-    for p in &synthetic.mesh.positions {
-        text += &format!("v {} {} {}\n", p.x, p.y, p.z);
-    }
-    for t in synthetic.mesh.indices.chunks_exact(3) {
-        text += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
-    }
-    std::fs::write(&path, text).unwrap();
+    write_obj(
+        &synthetic.mesh.positions,
+        None,
+        &synthetic.mesh.indices,
+        &path,
+    );
     path
 }
 
@@ -297,11 +295,62 @@ fn a_t_posed_humanoid_rigs_without_tearing() {
     }
 }
 
+/// The fixture mesh `name` (tests/fixtures/meshes) as an OBJ without its tail: the only
+/// box of these block humanoids with corners within 3.1 cm of the middle plane (x = 0).
+fn without_tail(name: &str, dir: &std::path::Path) -> std::path::PathBuf {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mesh = load_character(&root.join(format!("tests/fixtures/meshes/{name}.glb")))
+        .unwrap()
+        .rest_mesh();
+    let tail = |i: &u32| mesh.positions[*i as usize].x.abs() <= 0.031;
+    let kept: Vec<&[u32]> = mesh
+        .indices
+        .chunks_exact(3)
+        .filter(|t| !t.iter().all(tail))
+        .collect();
+    // The tail is a box: 6 faces of 2 triangles.
+    assert_eq!(mesh.indices.len() / 3 - kept.len(), 12, "{name}");
+    let path = dir.join(format!("{name}_no_tail.obj"));
+    write_obj(
+        &mesh.positions,
+        Some(&mesh.normals),
+        kept.concat().as_slice(),
+        &path,
+    );
+    path
+}
+
+/// An OBJ of the triangles `indices` over `positions`, with `normals` where given (the
+/// block humanoids' windings are half the wrong way; their normals say which side is out).
+fn write_obj(
+    positions: &[glam::Vec3],
+    normals: Option<&[glam::Vec3]>,
+    indices: &[u32],
+    path: &std::path::Path,
+) {
+    let mut text = String::new();
+    for p in positions {
+        text += &format!("v {} {} {}\n", p.x, p.y, p.z);
+    }
+    for n in normals.unwrap_or_default() {
+        text += &format!("vn {} {} {}\n", n.x, n.y, n.z);
+    }
+    for t in indices.chunks_exact(3) {
+        let [a, b, c] = [t[0] + 1, t[1] + 1, t[2] + 1];
+        text += &match normals {
+            Some(_) => format!("f {a}//{a} {b}//{b} {c}//{c}\n"),
+            None => format!("f {a} {b} {c}\n"),
+        };
+    }
+    std::fs::write(path, text).unwrap();
+}
+
 #[test]
-fn plain_bodies_get_no_spring_chains_and_the_witch_keeps_her_hair() {
+fn plain_bodies_get_no_spring_chains_and_a_tail_gets_one() {
     // Issue #20: spring chains only where something is loose. The skeleton model predicts
-    // chains on these plain block bodies (2 on the block humanoid, 12 on the chibi, one
-    // through the torso); `unica rig` keeps a chain only on thin geometry (THIN_PART).
+    // chains on these block bodies (2 on the block humanoid, 12 on the chibi, one through
+    // the torso); `unica rig` keeps a chain only on thin geometry (THIN_PART), after moving
+    // each spring joint onto the nearest thin surface off the arms (SNAP).
     use unica::autorig::pipeline::{Models, RigOptions, rig_file};
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let models = Models::load(&root.join("assets/autorig")).unwrap();
@@ -313,29 +362,52 @@ fn plain_bodies_get_no_spring_chains_and_the_witch_keeps_her_hair() {
         seed: 0,
         hands: true,
     };
-    for name in ["block_humanoid", "chibi"] {
-        let mesh = root.join(format!("tests/fixtures/meshes/{name}.glb"));
+    let rig = |mesh: &std::path::Path, name: &str| {
         let out = dir.path().join(format!("{name}.glb"));
-        let summary = rig_file(&mesh, &out, &models, &options, &|_| {}).unwrap();
+        let summary = rig_file(mesh, &out, &models, &options, &|_| {}).unwrap();
         println!(
-            "{name}: {} chains left out, stretch {:?}",
-            summary.dropped_chains, summary.stretch
+            "{name}: {} chains, {} left out, stretch {:?}",
+            summary.spring_chains, summary.dropped_chains, summary.stretch
         );
-        assert_eq!(summary.spring_chains, 0, "{name}");
-        assert!(
-            summary.dropped_chains > 0,
-            "{name}: the model predicted none to drop"
-        );
-        let written = load_character(&out).unwrap();
-        assert!(written.vrm.unwrap().springs.is_empty(), "{name}");
         assert!(
             summary.stretch.unwrap() < 6.69,
             "{name}: {:?}",
             summary.stretch
         );
+        let vrm = load_character(&out).unwrap().vrm.unwrap();
+        assert_eq!(vrm.springs.len(), summary.spring_chains, "{name}");
+        (summary, vrm)
+    };
+    // Without their tails both are plain bodies: no chain.
+    for name in ["block_humanoid", "chibi"] {
+        let (summary, _) = rig(&without_tail(name, dir.path()), &format!("{name}_no_tail"));
+        assert_eq!(summary.spring_chains, 0, "{name} without its tail");
+        assert!(
+            summary.dropped_chains > 0,
+            "{name}: the model predicted none to drop"
+        );
     }
+    // The block humanoid's tail (a 6 x 6 x 12 cm box behind the hips, z from -0.11 to
+    // -0.23 m) is loose: one chain, every joint of it in or at the tail.
+    let fixture = |name: &str| root.join(format!("tests/fixtures/meshes/{name}.glb"));
+    let (summary, vrm) = rig(&fixture("block_humanoid"), "block_humanoid");
+    assert_eq!(summary.spring_chains, 1);
+    let written = load_character(&dir.path().join("block_humanoid.glb")).unwrap();
+    let world = written
+        .rig
+        .world(&written.rig.rest_pose(), glam::Mat4::IDENTITY);
+    for joint in &vrm.springs[0].joints {
+        let p = world[joint.node].w_axis.truncate();
+        assert!(
+            p.x.abs() < 0.06 && p.z < -0.09 && p.z > -0.26,
+            "a tail joint at {p}"
+        );
+    }
+    // The chibi's tail is missed (the model predicts no chain near it), but nothing else
+    // gets one.
+    let (summary, _) = rig(&fixture("chibi"), "chibi");
+    assert_eq!(summary.spring_chains, 0);
     // The Witch's long hair is thin: her hair chain stays.
-    let out = dir.path().join("witch.glb");
-    let summary = rig_file(&witch, &out, &models, &options, &|_| {}).unwrap();
+    let (summary, _) = rig(&witch, "witch");
     assert!(summary.spring_chains >= 1, "{}", summary.spring_chains);
 }

@@ -11,11 +11,14 @@ use super::data::VOXELS;
 use super::data::{Sample, dense, sample_path, skin_of_character};
 use super::metrics::{b2b, j2b, j2j, motion_l2, random_poses, skin_l1};
 use super::model::{baseline_weights, top4};
-use super::pipeline::{Models, loose_springs, skeleton_for, swinging_chains, template_fit};
+use super::pipeline::{
+    LOOSE_DEPTH, Models, chain_from, chain_roots, loose_springs, skeleton_for, swinging_chains,
+    template_fit,
+};
 use super::skeleton::{BODY, Class, Skeleton, UnitCube, of_character};
 use super::smoothing;
 use super::tokens::{decode, encode, naive_length};
-use super::voxel::{Voxels, bone_tails};
+use super::voxel::{Voxels, bone_tails, segment_distance};
 use crate::avatar::load_character;
 use crate::mesh::Mesh;
 
@@ -105,10 +108,12 @@ pub fn evaluate(
                 let height = truth_height(&sample.points);
                 let kept = loose_springs(&predicted, &sample.points, &sample.normals, height);
                 // The stored skeleton has no spring flags; its tokens do.
+                let springs = decode(&sample.tokens)?;
                 let counts = [
-                    swinging_chains(&decode(&sample.tokens)?) as f32,
+                    swinging_chains(&springs) as f32,
                     swinging_chains(&predicted) as f32,
                     swinging_chains(&kept) as f32,
+                    chains_along(&kept, &springs, LOOSE_DEPTH * height) as f32,
                 ];
                 if counts[0] == 0.0 {
                     chains_plain.push(counts);
@@ -191,7 +196,26 @@ fn truth_height(points: &[Vec3]) -> f32 {
 
 /// Mean chains per character (true, predicted, kept) and how many characters have any
 /// predicted or kept chain.
-fn chain_counts(rows: &[[f32; 3]]) -> Value {
+/// How many of `kept`'s swinging chains lie along `truth`'s spring chains: every joint
+/// within `reach` of a true spring bone (a bone ending in a spring joint).
+pub fn chains_along(kept: &Skeleton, truth: &Skeleton, reach: f32) -> usize {
+    let bones: Vec<(Vec3, Vec3)> = (0..truth.len())
+        .filter(|&j| truth.spring[j])
+        .filter_map(|j| truth.parents[j].map(|p| (truth.joints[p], truth.joints[j])))
+        .collect();
+    let along = |p: Vec3| {
+        bones
+            .iter()
+            .any(|&(a, b)| segment_distance(p, a, b) <= reach)
+    };
+    chain_roots(kept)
+        .into_iter()
+        .map(|root| chain_from(kept, root))
+        .filter(|chain| chain.len() >= 2 && chain.iter().all(|&j| along(kept.joints[j])))
+        .count()
+}
+
+fn chain_counts(rows: &[[f32; 4]]) -> Value {
     let n = rows.len().max(1) as f32;
     let mean = |k: usize| rows.iter().map(|r| r[k]).sum::<f32>() / n;
     let any = |k: usize| rows.iter().filter(|r| r[k] > 0.0).count();
@@ -200,6 +224,7 @@ fn chain_counts(rows: &[[f32; 3]]) -> Value {
         "true_per_character": mean(0),
         "predicted_per_character": mean(1),
         "kept_per_character": mean(2),
+        "kept_along_true_per_character": mean(3),
         "characters_with_predicted": any(1),
         "characters_with_kept": any(2),
     })
@@ -356,23 +381,24 @@ pub fn markdown(report: &Value) -> String {
     );
     let c = &s["spring_chains"];
     if c.is_object() {
-        out += "\n| humanoids' spring chains (2+ joints) | characters | true | predicted | kept on loose parts | characters with predicted | with kept |\n| --- | --- | --- | --- | --- | --- | --- |\n";
+        out += "\n| humanoids' spring chains (2+ joints) | characters | true | predicted | kept on loose parts | kept along a true chain | characters with predicted | with kept |\n| --- | --- | --- | --- | --- | --- | --- | --- |\n";
         for (name, key) in [
             ("plain bodies (no loose part)", "plain"),
             ("with loose parts", "with_loose_parts"),
         ] {
             let r = &c[key];
             out += &format!(
-                "| {name} | {} | {} | {} | {} | {} | {} |\n",
+                "| {name} | {} | {} | {} | {} | {} | {} | {} |\n",
                 r["characters"],
                 f(&r["true_per_character"]),
                 f(&r["predicted_per_character"]),
                 f(&r["kept_per_character"]),
+                f(&r["kept_along_true_per_character"]),
                 r["characters_with_predicted"],
                 r["characters_with_kept"]
             );
         }
-        out += "\nKept: `unica rig` keeps a spring joint only within 4.5 % of the height of the surface (`LOOSE_DEPTH`), and a chain only where the body under the surface around it is thin (median thickness along the inward normal at most 4 % of the height, `THIN_PART`): hair, cloth and tails are thin; a joint deeper in the body, off it, or on a thick torso, hips or head is on no loose part.\n";
+        out += "\nKept: `unica rig` keeps a spring joint only within 4.5 % of the height of the surface (`LOOSE_DEPTH`), and a chain only where the body under the surface around it is thin (median thickness along the inward normal at most 4 % of the height, `THIN_PART`): hair, cloth and tails are thin; a joint deeper in the body, off it, or on a thick torso, hips or head is on no loose part. Before that rule each predicted spring joint moves to the nearest thin surface sample within 12 % of the height (`SNAP`; thin: the median thickness within `LOOSE_DEPTH` around it is, too), leaving out samples nearest a neck, arm or hand bone (limbs, not loose parts). Along a true chain: every joint of the kept chain within `LOOSE_DEPTH` of a true spring bone.\n";
     }
     if let Some(w) = report.get("witch") {
         out += &format!(
