@@ -398,7 +398,7 @@ pub fn markdown(report: &Value) -> String {
                 r["characters_with_kept"]
             );
         }
-        out += "\nKept: `unica rig` keeps a spring joint only within 4.5 % of the height of the surface (`LOOSE_DEPTH`), and a chain only where the body under the surface around it is thin (median thickness along the inward normal at most 4 % of the height, `THIN_PART`): hair, cloth and tails are thin; a joint deeper in the body, off it, or on a thick torso, hips or head is on no loose part. Before that rule each predicted spring joint moves to the nearest thin surface sample within 12 % of the height (`SNAP`; thin: the median thickness within `LOOSE_DEPTH` around it is, too), leaving out samples nearest a neck, arm or hand bone (limbs, not loose parts). Along a true chain: every joint of the kept chain within `LOOSE_DEPTH` of a true spring bone.\n";
+        out += "\nKept: `unica rig` keeps a spring joint only within 4.5 % of the height of the surface (`LOOSE_DEPTH`), and a chain only where the body under the surface around it is thin (median thickness along the inward normal at most 4 % of the height, `THIN_PART`): hair, cloth and tails are thin; a joint deeper in the body, off it, or on a thick torso, hips or head is on no loose part. Before that rule each predicted spring joint moves to the nearest thin surface sample within 12 % of the height (`SNAP`; thin: the median thickness within `LOOSE_DEPTH` around it is, too), leaving out samples nearest an arm or hand bone and samples on a part wrapped round a bone (limbs, not loose parts). Along a true chain: every joint of the kept chain within `LOOSE_DEPTH` of a true spring bone.\n";
     }
     if let Some(w) = report.get("witch") {
         out += &format!(
