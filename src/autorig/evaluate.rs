@@ -435,3 +435,54 @@ pub fn markdown(report: &Value) -> String {
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A body joint at the origin with spring chains given as (x, z) columns of joints at
+    /// heights 0, -1, -2 below it.
+    fn with_chains(columns: &[(f32, f32)]) -> Skeleton {
+        let mut skeleton = Skeleton {
+            class: Class::Other,
+            joints: vec![Vec3::ZERO],
+            parents: vec![None],
+            names: vec!["Body".into()],
+            spring: vec![false],
+        };
+        for (c, &(x, z)) in columns.iter().enumerate() {
+            for k in 0..3 {
+                let parent = if k == 0 { 0 } else { skeleton.len() - 1 };
+                skeleton.joints.push(Vec3::new(x, -(k as f32), z));
+                skeleton.parents.push(Some(parent));
+                skeleton.names.push(format!("Spring{c}_{k}"));
+                skeleton.spring.push(true);
+            }
+        }
+        skeleton
+    }
+
+    #[test]
+    fn a_kept_chain_is_along_a_true_one_when_every_joint_is_near_a_true_spring_bone() {
+        let truth = with_chains(&[(1.0, 0.0), (-1.0, 0.0)]);
+        // Beside the first true chain (0.1 off), beside the second but 0.3 off, and one
+        // that starts by the first and bends away.
+        let mut kept = with_chains(&[(1.1, 0.0), (-1.0, 0.3)]);
+        kept.joints
+            .extend([Vec3::new(1.0, 0.0, 0.05), Vec3::new(1.0, -1.0, 0.05)]);
+        kept.parents.extend([Some(0), Some(7)]);
+        kept.names.extend(["Bent0".into(), "Bent1".into()]);
+        kept.spring.extend([true, true]);
+        kept.joints.push(Vec3::new(3.0, -2.0, 0.0));
+        kept.parents.push(Some(8));
+        kept.names.push("Bent2".into());
+        kept.spring.push(true);
+        assert_eq!(chains_along(&kept, &truth, 0.2), 1);
+        assert_eq!(chains_along(&kept, &truth, 0.35), 2);
+        // The true chains' own first bones start at the body joint, so a chain along
+        // the body-to-first-joint bone counts too; none along a truth without springs.
+        assert_eq!(chains_along(&truth, &truth, 0.01), 2);
+        let plain = truth.keep(|j| j == 0);
+        assert_eq!(chains_along(&kept, &plain, 10.0), 0);
+    }
+}
