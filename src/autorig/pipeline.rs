@@ -478,10 +478,11 @@ pub const LOOSE_DEPTH: f32 = 0.045;
 /// humanoid's hips 6.7 %, its torso 13.9 %, a chibi's body 56 %).
 pub const THIN_PART: f32 = 0.04;
 
-/// The skeleton without spring joints that are not on a loose part: a chain stops at its
-/// first joint farther than [`LOOSE_DEPTH`] from the surface, with everything below it, a
-/// chain on a thick part ([`THIN_PART`]) goes whole, and a lone root left goes too; each
-/// chain left gets an end joint ([`with_chain_ends`]).
+/// The skeleton without spring joints that are not on a loose part: each spring joint
+/// first moves onto the nearest thin surface within [`SNAP`] (see [`loose_springs`]);
+/// then a chain stops at its first joint farther than [`LOOSE_DEPTH`] from the surface,
+/// with everything below it, a chain on a thick part ([`THIN_PART`]) goes whole, and a
+/// lone root left goes too; each chain left gets an end joint ([`with_chain_ends`]).
 pub fn springs_on_loose_parts(skeleton: &Skeleton, mesh: &Mesh) -> Skeleton {
     let height = mesh.height();
     // As many samples as the skeleton model and `rig-eval` see.
@@ -491,7 +492,10 @@ pub fn springs_on_loose_parts(skeleton: &Skeleton, mesh: &Mesh) -> Skeleton {
 }
 
 /// The skeleton's spring chains that are on loose parts of the surface given by samples
-/// and their outward normals (see [`springs_on_loose_parts`]), without end joints.
+/// and their outward normals (see [`springs_on_loose_parts`]), without end joints. The
+/// spring joints are first snapped ([`snapped_to`]) onto thin samples: thin themselves
+/// and in the median around them, off the arms ([`on_limbs`]) and not wrapped round a
+/// bone ([`around_bones`]).
 pub fn loose_springs(
     skeleton: &Skeleton,
     surface: &[Vec3],
