@@ -558,7 +558,7 @@ fn rig(args: RigArgs) -> anyhow::Result<()> {
         eprintln!("rig: {stage}…")
     })?;
     println!(
-        "rigged {} into {} in {:.1} s: {} joints ({:?} skeleton), {:?} skin, {} spring chains (VRM; {} predicted ones left out), {} clips, largest edge stretch {} over a walk; description {}",
+        "rigged {} into {} in {:.1} s: {} joints ({:?} skeleton), {:?} skin, {} spring chains{} (VRM; {} predicted ones left out), {} clips, largest edge stretch {} over a walk; description {}",
         args.mesh.display(),
         args.out.display(),
         start.elapsed().as_secs_f64(),
@@ -566,6 +566,11 @@ fn rig(args: RigArgs) -> anyhow::Result<()> {
         summary.skeleton,
         summary.skin,
         summary.spring_chains,
+        if summary.chain_parents.is_empty() {
+            String::new()
+        } else {
+            format!(" hanging from {}", summary.chain_parents.join(", "))
+        },
         summary.dropped_chains,
         summary.clips,
         summary

@@ -392,6 +392,7 @@ fn plain_bodies_get_no_spring_chains_and_a_tail_gets_one() {
     let fixture = |name: &str| root.join(format!("tests/fixtures/meshes/{name}.glb"));
     let (summary, vrm) = rig(&fixture("block_humanoid"), "block_humanoid");
     assert_eq!(summary.spring_chains, 1);
+    assert_eq!(summary.chain_parents, ["Hips"]);
     let written = load_character(&dir.path().join("block_humanoid.glb")).unwrap();
     let world = written
         .rig
@@ -411,4 +412,6 @@ fn plain_bodies_get_no_spring_chains_and_a_tail_gets_one() {
     // the model predicts no chain near it).
     let (summary, _) = rig(&witch, "witch");
     assert!(summary.spring_chains >= 2, "{}", summary.spring_chains);
+    assert_eq!(summary.chain_parents.len(), summary.spring_chains);
+    assert!(summary.chain_parents.iter().all(|p| p == "Head"));
 }

@@ -186,6 +186,8 @@ pub struct Summary {
     pub spring_chains: usize,
     /// Predicted chains left out: not on a loose part, or a single joint (nothing swings).
     pub dropped_chains: usize,
+    /// The joint each written spring chain hangs from, in the order of the VRM springs.
+    pub chain_parents: Vec<String>,
     pub clips: usize,
     pub description: PathBuf,
     /// Tearing: the largest edge stretch (posed / rest length) over [`STRETCH_KEYS`]
@@ -332,6 +334,7 @@ struct Written {
     joints: usize,
     spring_chains: usize,
     dropped_chains: usize,
+    chain_parents: Vec<String>,
     clips: usize,
     description: PathBuf,
     stretch: Option<f32>,
@@ -345,6 +348,7 @@ impl Written {
             joints: self.joints,
             spring_chains: self.spring_chains,
             dropped_chains: self.dropped_chains,
+            chain_parents: self.chain_parents,
             clips: self.clips,
             description: self.description,
             stretch: self.stretch,
@@ -430,6 +434,11 @@ fn write_rig(
         joints: skeleton.len(),
         spring_chains: vrm.springs.len(),
         dropped_chains: chains_before - vrm.springs.len(),
+        chain_parents: chain_roots(&skeleton)
+            .into_iter()
+            .filter(|&root| chain_from(&skeleton, root).len() >= 2)
+            .filter_map(|root| skeleton.parents[root].map(|p| skeleton.names[p].clone()))
+            .collect(),
         clips: clips.len(),
         description: description_path,
         stretch,
