@@ -177,9 +177,14 @@ struct RigArgs {
     /// (its idle/walk/run: clips named Idle/Walk/Run, else as its description says)
     #[arg(long, value_name = "FILE", num_args = 1..)]
     clips: Vec<PathBuf>,
-    /// Seed of the surface sampling
+    /// Seed of the surface sampling (of the first try)
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Skeletons to predict, from surface samplings --seed, --seed + 1, …: the rig whose
+    /// walk stretches an edge least is written (the model's spring chains vary most
+    /// between samplings). 1 rigs once
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(1..=64))]
+    tries: u64,
     /// Leave out the finger joints (the hands are each one bone, the wrist). Without it
     /// they are kept unless they tear the mesh over a walk (a mitten hand): the rig is
     /// then made both ways and the one without them is written
@@ -552,6 +557,7 @@ fn rig(args: RigArgs) -> anyhow::Result<()> {
         clips_from: &clips_from,
         clip_files: &args.clips,
         seed: args.seed,
+        tries: args.tries as usize,
         hands: !args.no_hands,
     };
     let summary = rig_file(&args.mesh, &args.out, &models, &options, &|stage| {
@@ -581,6 +587,21 @@ fn rig(args: RigArgs) -> anyhow::Result<()> {
     if let crate::autorig::pipeline::Hands::DroppedTearing(stretch) = summary.hands {
         println!(
             "finger joints left out: with them the walk stretched an edge {stretch:.2} times (the mesh's fingers are not separate)"
+        );
+    }
+    if summary.tries.len() > 1 {
+        let tries: Vec<String> = summary
+            .tries
+            .iter()
+            .map(|(seed, stretch)| {
+                let stretch = stretch.map_or("not measured".to_string(), |s| format!("{s:.2}"));
+                format!("seed {seed}: {stretch}")
+            })
+            .collect();
+        println!(
+            "skeletons tried (largest edge stretch over the walk): {}; written: seed {}",
+            tries.join(", "),
+            summary.seed
         );
     }
     Ok(())
