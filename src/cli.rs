@@ -557,7 +557,7 @@ fn rig(args: RigArgs) -> anyhow::Result<()> {
         clips_from: &clips_from,
         clip_files: &args.clips,
         seed: args.seed,
-        tries: args.tries as usize,
+        tries: args.tries,
         hands: !args.no_hands,
     };
     let summary = rig_file(&args.mesh, &args.out, &models, &options, &|stage| {

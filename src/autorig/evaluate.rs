@@ -12,8 +12,7 @@ use super::data::{Sample, dense, sample_path, skin_of_character};
 use super::metrics::{b2b, j2b, j2j, motion_l2, random_poses, skin_l1};
 use super::model::{baseline_weights, top4};
 use super::pipeline::{
-    LOOSE_DEPTH, Models, chain_from, chain_roots, loose_springs, skeleton_for, swinging_chains,
-    template_fit,
+    LOOSE_DEPTH, Models, loose_springs, skeleton_for, swinging, swinging_chains, template_fit,
 };
 use super::skeleton::{BODY, Class, Skeleton, UnitCube, of_character};
 use super::smoothing;
@@ -201,17 +200,16 @@ fn truth_height(points: &[Vec3]) -> f32 {
 pub fn chains_along(kept: &Skeleton, truth: &Skeleton, reach: f32) -> usize {
     let bones: Vec<(Vec3, Vec3)> = (0..truth.len())
         .filter(|&j| truth.spring[j])
-        .filter_map(|j| truth.parents[j].map(|p| (truth.joints[p], truth.joints[j])))
+        .filter_map(|j| truth.bone(j))
         .collect();
     let along = |p: Vec3| {
         bones
             .iter()
             .any(|&(a, b)| segment_distance(p, a, b) <= reach)
     };
-    chain_roots(kept)
-        .into_iter()
-        .map(|root| chain_from(kept, root))
-        .filter(|chain| chain.len() >= 2 && chain.iter().all(|&j| along(kept.joints[j])))
+    swinging(kept)
+        .iter()
+        .filter(|chain| chain.iter().all(|&j| along(kept.joints[j])))
         .count()
 }
 

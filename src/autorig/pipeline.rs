@@ -239,7 +239,7 @@ pub struct RigOptions<'a> {
     pub seed: u64,
     /// How many skeletons to predict (from surface samplings `seed`, `seed + 1`, …); the
     /// rig that tears least over the walk is written (see [`rig_file`]).
-    pub tries: usize,
+    pub tries: u64,
     /// Offer the template's finger joints (when the skeleton has them); they are kept
     /// only where they do not tear the mesh (see [`HAND_TEARING`]).
     pub hands: bool,
@@ -294,7 +294,7 @@ pub fn rig_file(
     let source = load_character_with(options.clips_from, options.clip_files)?;
     // The template fit does not depend on the sampling: one try.
     let tries = if models.skeleton.is_some() {
-        options.tries.max(1) as u64
+        options.tries.max(1)
     } else {
         1
     };
@@ -527,10 +527,9 @@ fn write_rig(
         joints: skeleton.len(),
         spring_chains: vrm.springs.len(),
         dropped_chains: chains_before - vrm.springs.len(),
-        chain_parents: chain_roots(&skeleton)
-            .into_iter()
-            .filter(|&root| chain_from(&skeleton, root).len() >= 2)
-            .filter_map(|root| skeleton.parents[root].map(|p| skeleton.names[p].clone()))
+        chain_parents: swinging(&skeleton)
+            .iter()
+            .filter_map(|chain| skeleton.parents[chain[0]].map(|p| skeleton.names[p].clone()))
             .collect(),
         clips: clips.len(),
         description: description_path,
@@ -545,16 +544,22 @@ pub fn chain_roots(skeleton: &Skeleton) -> Vec<usize> {
         .collect()
 }
 
-/// The spring chains that swing something: at least two joints.
-pub fn swinging_chains(skeleton: &Skeleton) -> usize {
+/// The spring chains that swing something (at least two joints), each from its root.
+pub fn swinging(skeleton: &Skeleton) -> Vec<Vec<usize>> {
     chain_roots(skeleton)
         .into_iter()
-        .filter(|&root| chain_from(skeleton, root).len() >= 2)
-        .count()
+        .map(|root| chain_from(skeleton, root))
+        .filter(|chain| chain.len() >= 2)
+        .collect()
+}
+
+/// How many spring chains swing something ([`swinging`]).
+pub fn swinging_chains(skeleton: &Skeleton) -> usize {
+    swinging(skeleton).len()
 }
 
 /// A chain's joints: `root`, then its first spring child, and so on to the end.
-pub fn chain_from(skeleton: &Skeleton, root: usize) -> Vec<usize> {
+fn chain_from(skeleton: &Skeleton, root: usize) -> Vec<usize> {
     let mut chain = vec![root];
     while let Some(next) = skeleton
         .children(*chain.last().expect("the root"))
@@ -706,7 +711,7 @@ pub fn around_bones(
 ) -> Vec<bool> {
     let bones: Vec<(Vec3, Vec3)> = (0..skeleton.len())
         .filter(|&j| !skeleton.spring[j])
-        .filter_map(|j| skeleton.parents[j].map(|p| (skeleton.joints[p], skeleton.joints[j])))
+        .filter_map(|j| skeleton.bone(j))
         .collect();
     (0..surface.len())
         .map(|i| {
@@ -730,14 +735,13 @@ pub fn on_limbs(skeleton: &Skeleton, surface: &[Vec3]) -> Vec<bool> {
         ["UpperArm", "LowerArm", "Wrist"].contains(&stem)
             || FINGERS.iter().any(|(finger, _)| stem.starts_with(finger))
     };
-    let bones: Vec<(Vec3, Vec3, bool)> = (0..skeleton.len())
+    // Each bone with whether it is an arm's (named by the joint it starts from).
+    let bones: Vec<((Vec3, Vec3), bool)> = (0..skeleton.len())
         .filter(|&j| !skeleton.spring[j])
         .filter_map(|j| {
-            let p = skeleton.parents[j]?;
             Some((
-                skeleton.joints[p],
-                skeleton.joints[j],
-                limb(&skeleton.names[p]),
+                skeleton.bone(j)?,
+                limb(&skeleton.names[skeleton.parents[j]?]),
             ))
         })
         .collect();
@@ -746,10 +750,9 @@ pub fn on_limbs(skeleton: &Skeleton, surface: &[Vec3]) -> Vec<bool> {
         .map(|&s| {
             bones
                 .iter()
-                .min_by(|a, b| {
-                    segment_distance(s, a.0, a.1).total_cmp(&segment_distance(s, b.0, b.1))
-                })
-                .is_some_and(|bone| bone.2)
+                .map(|&((a, b), arm)| (segment_distance(s, a, b), arm))
+                .min_by(|x, y| x.0.total_cmp(&y.0))
+                .is_some_and(|(_, arm)| arm)
         })
         .collect()
 }
@@ -857,10 +860,8 @@ pub fn vrm_for(skeleton: &Skeleton, mesh: &Mesh, weights: &[Vec<f32>]) -> Vrm {
             })
         })
         .collect();
-    let springs = chain_roots(skeleton)
+    let springs = swinging(skeleton)
         .into_iter()
-        .map(|root| chain_from(skeleton, root))
-        .filter(|chain| chain.len() >= 2)
         .enumerate()
         .map(|(i, chain)| VrmSpring {
             name: format!("chain{i}"),

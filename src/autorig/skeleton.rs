@@ -146,11 +146,14 @@ impl Skeleton {
         (0..self.len()).filter(move |&c| self.parents[c] == Some(joint))
     }
 
+    /// The bone ending at `joint` as a segment (parent joint, joint); none for a root.
+    pub fn bone(&self, joint: usize) -> Option<(Vec3, Vec3)> {
+        self.parents[joint].map(|p| (self.joints[p], self.joints[joint]))
+    }
+
     /// The bones as segments (parent joint, joint), one per non-root joint.
     pub fn bones(&self) -> Vec<(Vec3, Vec3)> {
-        (0..self.len())
-            .filter_map(|j| self.parents[j].map(|p| (self.joints[p], self.joints[j])))
-            .collect()
+        (0..self.len()).filter_map(|j| self.bone(j)).collect()
     }
 
     /// The same skeleton with every joint mapped by `f`.
