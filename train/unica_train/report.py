@@ -128,7 +128,7 @@ def _masked_section(results: dict, data: str) -> list[str]:
         "",
         "(teacher-forced frames, all four views: teacher render left, generated refined splats right)",
         "",
-        f"- Chamfer of every {m['chamfer_every']}th free-running frame to the nearest dataset pose (root-centred, yaw-aligned): "
+        f"- Chamfer of {every(m['chamfer_every'])} free-running frame to the nearest dataset pose (root-centred, yaw-aligned): "
         f"**{sm['chamfer_mm']:.1f} mm** (the teacher's own frames, each against the other clips' poses: "
         f"{sm['teacher_chamfer_mm']:.1f} mm; {m['poses']} poses, {every(m.get('pose_stride', 2))} dataset frame).",
         f"- Fréchet stand-in **{sm['fvd_pca']:.3f}**; the dataset against itself (even against odd clips): "
