@@ -2,7 +2,7 @@
 
 import torch
 
-from unica_train.diffusion import Schedule, ddim_step, sample_next
+from unica_train.diffusion import Schedule, ddim_step, sample_next, step_scales
 from unica_train.unet import UNet, UNetConfig, conv_and_linear_flops, parameter_count
 from unica_train.vae import PositionVae, VaeConfig
 
@@ -78,6 +78,33 @@ def test_ddim_recovers_a_point_mass_exactly():
     xt = s.add_noise(x0, noise, torch.tensor([700]))
     eps = (xt - s.alpha_bar(torch.tensor(700)).sqrt() * x0) / (1 - s.alpha_bar(torch.tensor(700))).sqrt()
     torch.testing.assert_close(ddim_step(s, xt, eps, 700, -1), x0, atol=1e-5, rtol=0)
+
+
+def test_a_guidance_interval_guides_only_the_first_steps():
+    assert step_scales(4, 3.0) == [3.0, 3.0, 3.0, 3.0]
+    assert step_scales(4, 3.0, 2) == [3.0, 3.0, 1.0, 1.0]
+    assert step_scales(4, 3.0, 0) == [1.0] * 4
+    assert step_scales(4, 3.0, 9) == [3.0] * 4
+    s = Schedule()
+
+    class Keyed(torch.nn.Module):
+        # eps = 0.5 x_t + 0.2 under action 1, 0.5 x_t under the null action (5).
+        cfg = UNetConfig()
+
+        def forward(self, latents, t_frames, action):
+            eps = 0.5 * latents[:, -1] + 0.2 * (action == 1).float()[:, None, None, None]
+            return torch.stack([eps] * 4, 1)
+
+    noise = torch.randn(1, 4, 16, 16, generator=torch.Generator().manual_seed(2))
+    got = sample_next(Keyed(), s, torch.zeros(1, 3, 4, 16, 16), torch.tensor([1]), steps=4, cfg_scale=3.0, noise=noise,
+                      guided_steps=2)
+    x, times = noise.clone(), s.ddim_timesteps(4)
+    for i, t in enumerate(times):
+        eps = 0.5 * x + 0.2 * (3.0 if i < 2 else 1.0)  # null + s (cond - null)
+        x = ddim_step(s, x, eps, t, times[i + 1] if i + 1 < 4 else -1)
+    torch.testing.assert_close(got, x, atol=1e-5, rtol=0)
+    every = sample_next(Keyed(), s, torch.zeros(1, 3, 4, 16, 16), torch.tensor([1]), steps=4, cfg_scale=3.0, noise=noise)
+    assert (every - got).abs().max() > 0.01
 
 
 def test_vae_loss_falls_on_an_overfit_batch():

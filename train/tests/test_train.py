@@ -139,3 +139,53 @@ def test_init_continues_a_bundle_keeping_its_vae_and_refiner(quick_dataset_dir, 
     # The UNet was trained on from the first bundle's: two more steps moved it a little.
     moved = [(unet1.state_dict()[k] - v).abs().max().item() for k, v in unet0.state_dict().items() if v.is_floating_point()]
     assert 0 < max(moved) < 0.1
+
+
+def test_ridge_recovers_an_exact_linear_map():
+    from unica_train.refit import ridge
+
+    gen = torch.Generator().manual_seed(3)
+    x = torch.randn(200, 6, generator=gen)
+    w_true, b_true = torch.randn(4, 6, generator=gen), torch.randn(4, generator=gen)
+    w, b = ridge(x, x @ w_true.T + b_true, 0.0)
+    torch.testing.assert_close(w.float(), w_true, atol=1e-5, rtol=0)
+    torch.testing.assert_close(b.float(), b_true, atol=1e-5, rtol=0)
+    # The penalty per 1,000 rows: x = ±1 (mean 0), y = 2x + 3 gives w = 2 / (1 + p / 1000)
+    # and the bias, never penalised, 3. Zero-weight rows do not count.
+    x1 = torch.tensor([[1.0], [-1.0]] * 50)
+    w, b = ridge(x1, 2 * x1 + 3, 1000.0)
+    assert abs(float(w) - 1.0) < 1e-9 and abs(float(b) - 3.0) < 1e-9
+    noisy = torch.cat([x @ w_true.T + b_true, torch.randn(50, 4, generator=gen)])
+    weights = torch.cat([torch.ones(200), torch.zeros(50)])
+    w, _ = ridge(torch.cat([x, torch.randn(50, 6, generator=gen)]), noisy, 0.0, weights)
+    torch.testing.assert_close(w.float(), w_true, atol=1e-5, rtol=0)
+
+
+def test_refit_replaces_the_head_with_the_least_squares_one(quick_dataset_dir, tmp_path):
+    from unica_train import refit
+
+    config = tmp_path / "pca.json"
+    cfg = dict(TINY, vae={**TINY["vae"], "decoder": "pca", "components": 6}, unet_steps=2, stage2_steps=0)
+    config.write_text(json.dumps(cfg))
+    main(["--data", str(quick_dataset_dir), "--out", str(tmp_path / "run"), "--config", str(config)])
+    old = tmp_path / "run" / "bundle"
+    new = tmp_path / "refit"
+    refit.main(["--bundle", str(old), "--data", str(quick_dataset_dir), "--out", str(new), "--held-out", "2",
+                "--generated-weight", "0", "--ridge", "0", "--encoder-stride", "1", "--generated-stride", "4"])
+    report = json.loads((new / "refit.json").read_text())
+    vae_old, unet_old, _, _ = bundle.load(old)
+    vae_new, unet_new, _, manifest = bundle.load(new)
+    assert manifest["metrics"]["vae_reconstruction_mm"] == report["after"]["vae_reconstruction_mm"]
+    assert not torch.equal(vae_old.decoder.head.weight, vae_new.decoder.head.weight)
+    assert torch.equal(unet_old.state_dict()["conv_in.weight"], unet_new.state_dict()["conv_in.weight"])
+    # With no penalty and the encoder's latents alone, the new head is the least-squares
+    # one: on its training frames no head (the trainer's included) reconstructs better.
+    fit = refit.Fit(old, quick_dataset_dir, tmp_path / "scratch", [2])
+    z, c = fit.encoded(fit.run.train_groups)
+    after = fit.error_mm(vae_new.decoder.head.weight, vae_new.decoder.head.bias, z, c)
+    before = fit.error_mm(vae_old.decoder.head.weight, vae_old.decoder.head.bias, z, c)
+    assert after < before
+    import pytest
+
+    with pytest.raises(SystemExit, match="another folder"):
+        refit.main(["--bundle", str(old), "--data", str(quick_dataset_dir), "--out", str(old)])

@@ -5,10 +5,14 @@ the same keys; the scale with the smallest summed distance error, among those wh
 every moving segment heads within 30° of the teacher's, is the best.
 
     python -m unica_train.cfg_probe --bundle B --data DATA --teacher RENDER/manifest.json \\
-        [--keys "30W 30S 30A 20I"] [--scales 1,2,3,4,5,6] [--write]
+        [--keys "30W 30S 30A 20I"] [--scales 1,2,3,4,5,6] [--guided-steps all,5] [--write]
 
 `--teacher` is `unica render --teacher CHARACTER --keys K --size 16 --views 1`'s
-manifest; `--write` sets the bundle's `sampler.cfg_scale` to the best scale."""
+manifest; `--write` sets the bundle's `sampler.cfg_scale` to the best scale.
+`--guided-steps` also tries guidance intervals (guidance over the first N DDIM steps
+only, the PyTorch sampler's `guided_steps`); the engine guides every step, so a best
+interval is reported, not written. Session 17 measured that the keys are lost with it
+(assets/witch/README.md)."""
 
 from __future__ import annotations
 
@@ -51,6 +55,11 @@ def line(segs: list[dict]) -> str:
     return " | ".join(f"{s['key']} {heading(s)} {s['distance_m']:.2f} m" for s in segs)
 
 
+def label(scale: float, guided: int | None, steps: int) -> str:
+    """"cfg 4.0" (every step guided) or "cfg 4.0 for 5/10 steps"."""
+    return f"cfg {scale:3.1f}" + ("" if guided is None or guided >= steps else f" for {guided}/{steps} steps")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--bundle", required=True, type=Path)
@@ -58,6 +67,8 @@ def main(argv=None):
     parser.add_argument("--teacher", required=True, type=Path, help="manifest.json of `unica render --teacher` on --keys")
     parser.add_argument("--keys", default="30W 30S 30A 20I")
     parser.add_argument("--scales", default="1,2,3,4,5,6")
+    parser.add_argument("--guided-steps", default="all",
+                        help="comma-separated guidance intervals to try: guide only the first N DDIM steps ('all': every step)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--write", action="store_true", help="set the bundle's sampler.cfg_scale to the best scale")
     args = parser.parse_args(argv)
@@ -69,22 +80,29 @@ def main(argv=None):
     av = Avatar(args.bundle, args.data, 128)
     steps = av.manifest["sampler"]["ddim_steps"]
     results = []
-    for scale in [float(s) for s in args.scales.split(",")]:
-        run = av.rollout(args.keys, {"steps": steps, "cfg_scale": scale, "pca": True}, args.seed)
-        model = segments(run["root_path"], args.keys)
-        error, heads = score(model, teacher)
-        results.append({"cfg_scale": scale, "segments": model, "distance_error_m": error, "headings_ok": heads})
-        print(f"cfg {scale:3.1f}  " + line(model) + f"  distance error {error:.2f} m, headings {'ok' if heads else 'off'}", flush=True)
+    intervals = [None if g == "all" else int(g) for g in args.guided_steps.split(",")]
+    for guided in intervals:
+        for scale in [float(s) for s in args.scales.split(",")]:
+            run = av.rollout(args.keys, {"steps": steps, "cfg_scale": scale, "pca": True, "guided_steps": guided}, args.seed)
+            model = segments(run["root_path"], args.keys)
+            error, heads = score(model, teacher)
+            results.append({"cfg_scale": scale, "guided_steps": guided, "segments": model, "distance_error_m": error,
+                            "headings_ok": heads})
+            print(f"{label(scale, guided, steps)}  " + line(model) + f"  distance error {error:.2f} m, headings {'ok' if heads else 'off'}",
+                  flush=True)
     ok = [r for r in results if r["headings_ok"]] or results
     best = min(ok, key=lambda r: r["distance_error_m"])
-    print(f"best: cfg {best['cfg_scale']}")
+    print(f"best: {label(best['cfg_scale'], best['guided_steps'], steps)}")
+    if args.write and best["guided_steps"] is not None and best["guided_steps"] < steps:
+        raise SystemExit(f"{args.bundle}: not written: the engine guides every DDIM step, and the best here guides "
+                         f"only {best['guided_steps']} of {steps}")
     if args.write:
         path = args.bundle / "manifest.json"
         manifest = json.loads(path.read_text())
         manifest["sampler"]["cfg_scale"] = best["cfg_scale"]
         manifest["sampler"]["cfg_probe"] = {"keys": args.keys, "teacher": teacher, "results": results}
         path.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
-        print(f"set {path}'s sampler.cfg_scale to {best['cfg_scale']}")
+        print(f"set {path}'s sampler to {label(best['cfg_scale'], best['guided_steps'], steps)}")
 
 
 if __name__ == "__main__":

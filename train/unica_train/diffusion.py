@@ -1,6 +1,9 @@
 """The diffusion process (DESIGN §5): scaled-linear DDPM betas 0.00085-0.012 over 1000
 steps, epsilon prediction, Min-SNR weights, noise offset; the DDIM sampler with real
-classifier-free guidance (conditional and null action in one batch)."""
+classifier-free guidance (conditional and null action in one batch), optionally only over
+the first `guided_steps` DDIM steps (a guidance interval: the high-noise steps choose the
+motion the keys ask for, the low-noise ones only sharpen the pose, where guidance
+distorts it; issue #17)."""
 
 from __future__ import annotations
 
@@ -58,17 +61,27 @@ def guided_eps(model, latents, t_frames, action, cfg_scale: float):
     return uncond + cfg_scale * (cond - uncond)
 
 
+def step_scales(steps: int, cfg_scale: float, guided_steps: int | None = None) -> list[float]:
+    """The guidance scale of each DDIM step: `cfg_scale` for the first `guided_steps`
+    (None: all), 1 (the conditional prediction alone) after them."""
+    guided = steps if guided_steps is None else min(guided_steps, steps)
+    return [cfg_scale] * guided + [1.0] * (steps - guided)
+
+
 @torch.no_grad()
-def sample_next(model, schedule: Schedule, context, action, steps: int = 10, cfg_scale: float = 1.0, noise=None, generator=None):
-    """Generates the 4th latent frame from 3 clean context latents [B, 3, C, H, W]."""
+def sample_next(model, schedule: Schedule, context, action, steps: int = 10, cfg_scale: float = 1.0, noise=None, generator=None,
+                guided_steps: int | None = None):
+    """Generates the 4th latent frame from 3 clean context latents [B, 3, C, H, W]; guided
+    by `cfg_scale` over the first `guided_steps` steps (None: all)."""
     b, device = context.shape[0], context.device
     x = noise if noise is not None else torch.randn(context[:, :1].shape, generator=generator)[:, 0]
     x, action = x.to(device), action.to(device)
     times = schedule.ddim_timesteps(steps)
+    scales = step_scales(steps, cfg_scale, guided_steps)
     for i, t in enumerate(times):
         t_prev = times[i + 1] if i + 1 < len(times) else -1
         latents = torch.cat([context, x[:, None]], 1)
         t_frames = torch.tensor([[0, 0, 0, t]] * b, device=device)
-        eps = guided_eps(model, latents, t_frames, action, cfg_scale)
+        eps = guided_eps(model, latents, t_frames, action, scales[i])
         x = ddim_step(schedule, x, eps, t, t_prev)
     return x

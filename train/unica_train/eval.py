@@ -121,7 +121,7 @@ class Avatar:
         out = recentre.rollout(
             self.vae, self.unet, self.schedule, self.latent_scale, self.extra["context.latents"], keys,
             setting["steps"], setting["cfg_scale"], seed, self.pixels, self.waist, self.scale, "latent",
-            frames=frames, basis=self.basis, on_frame=keep)
+            frames=frames, basis=self.basis, on_frame=keep, guided_steps=setting.get("guided_steps"))
         out["unit"] = torch.stack(drawn)
         out["ms_per_frame"] = (time.time() - started) * 1e3 / max(1, len(drawn))
         return out

@@ -151,7 +151,7 @@ def keys_text(actions: list[int]) -> str:
 def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, pixels, waist, norm_scale, shift_mode,
             frames: int | None = None, basis: torch.Tensor | None = None, window: torch.Tensor | None = None,
             start_root: torch.Tensor | None = None, diagnose: bool = False, log_every: int = 0,
-            on_frame=None) -> dict:
+            on_frame=None, guided_steps: int | None = None) -> dict:
     """The live loop of train.py's `Run.rollout` from the clean context latents [3, C, h, w]
     (scaled), recentring each frame either by re-encoding the translated window
     ("reencode", the reference) or by the latent shift context − Σ δ_k J_k ("latent", no
@@ -184,7 +184,8 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
     gen = torch.Generator().manual_seed(seed)
     started = time.time()
     for i, a in enumerate(actions):
-        z = sample_next(unet, schedule, context[None], torch.tensor([a]), steps, cfg_scale, generator=gen)
+        z = sample_next(unet, schedule, context[None], torch.tensor([a]), steps, cfg_scale, generator=gen,
+                        guided_steps=guided_steps)
         new = decode_points(vae, z, scale, pixels)[0]  # [N, 3]
         shift = root(new, waist) - 0.5
         if on_frame is not None:
