@@ -189,3 +189,5 @@ def test_refit_replaces_the_head_with_the_least_squares_one(quick_dataset_dir, t
 
     with pytest.raises(SystemExit, match="another folder"):
         refit.main(["--bundle", str(old), "--data", str(quick_dataset_dir), "--out", str(old)])
+    with pytest.raises(SystemExit, match="no-such-bundle"):
+        refit.main(["--bundle", str(tmp_path / "no-such-bundle"), "--data", str(quick_dataset_dir), "--out", str(new)])

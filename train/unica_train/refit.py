@@ -129,6 +129,13 @@ class Fit:
 
 
 def main(argv=None):
+    try:
+        _main(argv)
+    except (bundle_io.BundleError, OSError, ValueError) as e:
+        raise SystemExit(f"unica_train.refit: {e}") from None
+
+
+def _main(argv):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--bundle", required=True, type=Path, help="the bundle whose decoder head is refitted")
     parser.add_argument("--data", required=True, type=Path, help="the dataset baked from the bundle's character")
