@@ -30,6 +30,7 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from . import bundle as bundle_io
+from . import pca
 from .diffusion import Schedule, sample_next
 from .report import every
 from .train import Run, TrainConfig
@@ -72,7 +73,7 @@ class Fit:
     def coefficients(self, maps: torch.Tensor) -> torch.Tensor:
         """PCA coefficients of maps [n, 3, S, S] in the head's basis."""
         dec = self.vae.decoder
-        return (maps.flatten(2)[:, :, self.pixels].flatten(1) - dec.mean) @ dec.basis.T
+        return pca.coefficients(maps.flatten(2)[:, :, self.pixels].flatten(1), dec.mean, dec.basis)
 
     @torch.no_grad()
     def encoded(self, groups: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -112,20 +113,16 @@ class Fit:
 
     @torch.no_grad()
     def reconstruction_mm(self, w: torch.Tensor, b: torch.Tensor) -> float:
-        """`train.Run.evaluate`'s VAE reconstruction of held-out frames with head (w, b)."""
+        """The trainer's VAE reconstruction of held-out frames (`Run.reconstruction_mm`)
+        with head (w, b); the bundle's own head is put back after."""
         head = self.vae.decoder.head
         saved = head.weight.clone(), head.bias.clone()
         head.weight.copy_(w.float())
         head.bias.copy_(b.float())
-        errors = []
-        for i in self.run.test_groups[::7]:
-            maps = self.run.group_maps(i)
-            recon = self.vae.decode(self.vae.encoder(maps)[0])
-            diff = (recon - maps).flatten(2)[:, :, self.run.ds.pixels]
-            errors.append(diff.norm(dim=1).mean().item() / self.run.ds.scale * 1000)
+        error = self.run.reconstruction_mm(self.vae)
         head.weight.copy_(saved[0])
         head.bias.copy_(saved[1])
-        return sum(errors) / len(errors)
+        return error
 
 
 def main(argv=None):
@@ -168,7 +165,8 @@ def _main(argv):
     share = args.generated_weight * ze.shape[0] / zg.shape[0]
     weights = torch.cat([torch.ones(ze.shape[0]), torch.full((zg.shape[0],), share)])
     w, b = ridge(torch.cat([ze, zg]), torch.cat([ce, cg]), args.ridge, weights)
-    old = fit.vae.decoder.head.weight.detach(), fit.vae.decoder.head.bias.detach()
+    # Copies: reconstruction_mm writes the head in place while it measures.
+    old = fit.vae.decoder.head.weight.detach().clone(), fit.vae.decoder.head.bias.detach().clone()
     report = {
         "bundle": str(args.bundle),
         "generated_weight": args.generated_weight,
