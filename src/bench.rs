@@ -47,10 +47,7 @@ impl Default for BenchOptions {
             tiny: true,
             default: true,
             bundle: None,
-            sampling: Sampling {
-                steps: 10,
-                cfg_scale: 2.0,
-            },
+            sampling: Sampling::new(10, 2.0),
             repeat: 3,
             precisions: vec![Precision::F32, Precision::F16],
             splats: 250_000,

@@ -487,10 +487,7 @@ pub fn run() -> anyhow::Result<()> {
 
 fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
     use crate::gpu::kernel::Precision;
-    let sampling = crate::nn::sampler::Sampling {
-        steps: args.steps,
-        cfg_scale: args.cfg_scale,
-    };
+    let sampling = crate::nn::sampler::Sampling::new(args.steps, args.cfg_scale);
     // The random-weight models use the 1000-step schedule; a bundle is checked on load.
     sampling.check(1000).map_err(anyhow::Error::msg)?;
     if args.repeat == 0 {
@@ -750,6 +747,7 @@ fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
             let sampling = crate::nn::sampler::Sampling {
                 steps: args.steps.unwrap_or(defaults.steps),
                 cfg_scale: args.cfg_scale.unwrap_or(defaults.cfg_scale),
+                ..defaults
             };
             sampling
                 .check(manifest.diffusion.steps)
@@ -839,7 +837,7 @@ fn export(args: ExportArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         seed: args.seed,
         sampling: Some(crate::nn::sampler::Sampling {
             steps: args.steps.unwrap_or(manifest.sampler.steps),
-            cfg_scale: manifest.sampler.cfg_scale,
+            ..manifest.sampler
         }),
         ..Default::default()
     };
@@ -952,10 +950,7 @@ fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
             dir: args.bundle.clone(),
             options: crate::engine::EngineOptions {
                 seed: args.seed,
-                sampling: Some(crate::nn::sampler::Sampling {
-                    steps: manifest.sampler.steps,
-                    cfg_scale: manifest.sampler.cfg_scale,
-                }),
+                sampling: Some(manifest.sampler),
                 pca: true,
                 ..Default::default()
             },

@@ -235,6 +235,8 @@ pub fn render(
             "seed": options.seed,
             "ddim_steps": engine.sampling().steps,
             "cfg_scale": engine.sampling().cfg_scale,
+            "guide_idle": engine.sampling().guide_idle,
+            "noise_scale": engine.sampling().noise_scale,
             "pca": options.pca,
             "splat_level": engine.splat_level(),
             "splats_per_frame": engine.splats().map(|(_, n)| n),

@@ -28,7 +28,7 @@ fn gpu() -> GpuContext {
 fn options(steps: usize, cfg_scale: f32, seed: u64) -> EngineOptions {
     EngineOptions {
         seed,
-        sampling: Some(Sampling { steps, cfg_scale }),
+        sampling: Some(Sampling::new(steps, cfg_scale)),
         ..EngineOptions::default()
     }
 }
@@ -114,25 +114,36 @@ fn worst(a: &[Vec3], b: &[Vec3]) -> f32 {
 
 #[test]
 fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
-    // Two frames each without and with guidance (two DDIM steps: the plan's structure is
-    // the same for any count). Tolerance: 2e-5 m (0.02 mm) on world points and 2e-5 m on
-    // the root; both sides run the same f32 kernels and differ only in summation order
-    // and fused multiply-adds of the PCA, the slide and the world placement (measured
-    // ≈ 1e-6 m).
+    // Three frames each without guidance, with guidance, and with guidance but Idle
+    // unguided and the noise scaled (two DDIM steps: the plan's structure is the same for
+    // any count). Tolerance: 2e-5 m (0.02 mm) on world points and 2e-5 m on the root;
+    // both sides run the same f32 kernels and differ only in summation order and fused
+    // multiply-adds of the PCA, the slide and the world placement (measured ≈ 1e-6 m).
     let gpu = gpu();
-    for cfg_scale in [1.0, 2.0] {
-        let sampling = Sampling {
-            steps: 2,
-            cfg_scale,
+    let unguided_idle = Sampling {
+        guide_idle: false,
+        noise_scale: 0.5,
+        ..Sampling::new(2, 2.0)
+    };
+    for sampling in [Sampling::new(2, 1.0), Sampling::new(2, 2.0), unguided_idle] {
+        let cfg_scale = sampling.cfg_scale;
+        let options = EngineOptions {
+            seed: 7,
+            sampling: Some(sampling),
+            ..EngineOptions::default()
         };
-        let mut engine = Engine::new(&gpu, &witch_bundle(), &options(2, cfg_scale, 7)).unwrap();
+        let mut engine = Engine::new(&gpu, &witch_bundle(), &options).unwrap();
         let mut context = engine.bundle.context.read(&gpu).unwrap();
         let jacobian = engine.shift_jacobian().to_vec();
         let mut root = engine.root();
         let mut noise = Rng::new(7);
-        for action in [Action::Forward, Action::Right] {
+        for action in [Action::Forward, Action::Right, Action::Idle] {
             let frame = engine.step(action).unwrap();
-            let n = noise.gaussian(context.len() / 3);
+            let n: Vec<f32> = noise
+                .gaussian(context.len() / 3)
+                .iter()
+                .map(|v| v * sampling.noise_scale)
+                .collect();
             let (points, window, new_root, clamped) = reference_frame(
                 &gpu,
                 &engine.bundle,
@@ -247,10 +258,7 @@ fn a_generated_frame_creates_nothing_and_reads_back_one_small_state() {
         assert_eq!(c.dispatches, 3 * engine.plan_counts().0 as u64, "{c:?}");
         assert_eq!(engine.state().frames, 4);
         // A settings change captures a new plan once, then creates nothing again.
-        engine.set_sampling(Sampling {
-            steps: 3,
-            cfg_scale,
-        });
+        engine.set_sampling(Sampling::new(3, cfg_scale));
         engine.frame(Action::Forward).unwrap();
         engine.finish();
         let before = gpu.counts();

@@ -572,10 +572,10 @@ fn a_four_step_ddim_sample_matches_pytorch() {
     for precision in precisions() {
         let mut f = Fixture::open("ddim_sample_4", precision);
         let (context, noise, a) = (f.input("io.in.context"), f.input("io.in.noise"), action(&f));
-        let sampling = Sampling {
-            steps: f.scalar("io.in.steps") as usize,
-            cfg_scale: f.scalar("io.in.cfg_scale"),
-        };
+        let sampling = Sampling::new(
+            f.scalar("io.in.steps") as usize,
+            f.scalar("io.in.cfg_scale"),
+        );
         let (mut r, w) = f.recorder();
         let unet = UNet::load(&w, &UNetConfig::TINY).unwrap();
         let x0 = sampler::sample_next(&mut r, &unet, &schedule(), &context, &[a], &noise, sampling)
@@ -591,10 +591,14 @@ fn witch_bundle() -> std::path::PathBuf {
 
 #[test]
 fn the_shipped_witch_bundle_generates_and_decodes_what_pytorch_does() {
-    // Trained weights, 10 DDIM steps without guidance (the bundle's defaults), then the
-    // decoder: values are latents of size ~3 and map coordinates in [0, 1].
-    for precision in precisions() {
-        let mut f = Fixture::open("witch_frame", precision);
+    // Trained weights, the bundle's sampler (10 DDIM steps, its guidance; Idle sampled
+    // as its manifest says), then the decoder: values are latents of size ~3 and map
+    // coordinates in [0, 1]. Forward and Idle.
+    for (name, precision) in ["witch_frame", "witch_idle_frame"]
+        .into_iter()
+        .flat_map(|name| precisions().into_iter().map(move |p| (name, p)))
+    {
+        let mut f = Fixture::open(name, precision);
         let (noise, a) = (f.input("io.in.noise"), action(&f));
         let bundle = Bundle::load(&witch_bundle(), &f.gpu, precision).unwrap();
         let sampling = bundle.manifest.sampler;

@@ -578,16 +578,25 @@ impl Engine {
         self.prepare()?;
         self.poll();
         let live = &self.live;
-        let noise = self.noise.gaussian(live.noise.len());
+        let scale = self.sampling.noise_scale;
+        let noise: Vec<f32> = self
+            .noise
+            .gaussian(live.noise.len())
+            .iter()
+            .map(|v| v * scale)
+            .collect();
         let mut bytes = self.precision.encode(&noise);
         bytes.resize(live.noise.buffer.size() as usize, 0);
         self.gpu.queue.write_buffer(&live.noise.buffer, 0, &bytes);
         let plan = self.plan.as_ref().expect("prepared");
-        let null = self.bundle.unet.cfg.null_action() as u32;
-        let ids = if plan.guided {
-            vec![action.id(), null]
+        let id = action.id() as usize;
+        let ids: Vec<u32> = if plan.guided {
+            let second = plan
+                .sampling
+                .second_half(&[id], self.bundle.unet.cfg.null_action());
+            vec![id as u32, second[0] as u32]
         } else {
-            vec![action.id()]
+            vec![id as u32]
         };
         plan.actions.write(&self.gpu, &ids);
         let slot = self.slots.iter().position(|s| !s.busy);

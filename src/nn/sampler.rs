@@ -72,16 +72,46 @@ impl Schedule {
     }
 }
 
+/// The model's id of the Idle action (`crate::action::Action::Idle`).
+pub const IDLE_ACTION: usize = 0;
+
 /// How a frame is sampled: DDIM steps and the guidance scale (1 = no guidance, one
 /// batch; otherwise the conditional and the null action run in one batch of two).
+/// With `guide_idle` false an Idle frame takes the conditional prediction alone: its
+/// second half runs Idle instead of the null action, so null + s·(cond − null) = cond
+/// (guidance away from the null action's average motion made a standing avatar creep,
+/// session 18). The starting noise is standard normal times `noise_scale`. Bundles
+/// without the two settings guide Idle and use scale 1.
 #[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
 pub struct Sampling {
     #[serde(rename = "ddim_steps")]
     pub steps: usize,
     pub cfg_scale: f32,
+    #[serde(default = "yes")]
+    pub guide_idle: bool,
+    #[serde(default = "one")]
+    pub noise_scale: f32,
+}
+
+fn yes() -> bool {
+    true
+}
+
+fn one() -> f32 {
+    1.0
 }
 
 impl Sampling {
+    /// `steps` DDIM steps at guidance `cfg_scale`, Idle guided, noise scale 1.
+    pub fn new(steps: usize, cfg_scale: f32) -> Self {
+        Self {
+            steps,
+            cfg_scale,
+            guide_idle: true,
+            noise_scale: 1.0,
+        }
+    }
+
     /// Whether this sampling fits a schedule of `schedule_steps` steps.
     pub fn check(&self, schedule_steps: usize) -> Result<(), String> {
         if self.steps == 0 || self.steps > schedule_steps {
@@ -91,9 +121,28 @@ impl Sampling {
             ))
         } else if !self.cfg_scale.is_finite() {
             Err(format!("CFG scale {} is not a number", self.cfg_scale))
+        } else if !(self.noise_scale.is_finite() && self.noise_scale > 0.0) {
+            Err(format!(
+                "noise scale {}: a positive number is needed",
+                self.noise_scale
+            ))
         } else {
             Ok(())
         }
+    }
+
+    /// The action ids of a guided batch's second half for the first half's `ids`: the
+    /// null action, or Idle itself for Idle when Idle is not guided.
+    pub fn second_half(&self, ids: &[usize], null: usize) -> Vec<usize> {
+        ids.iter()
+            .map(|&id| {
+                if id == IDLE_ACTION && !self.guide_idle {
+                    id
+                } else {
+                    null
+                }
+            })
+            .collect()
     }
 }
 
@@ -120,8 +169,8 @@ pub fn sample_next<'a>(
     };
     let cache = match actions {
         ActionIds::Host(ids) if guided => {
-            let null = vec![unet.cfg.null_action(); ids.len()];
-            unet.context(r, &context, &[ids, &null].concat())?
+            let second = sampling.second_half(ids, unet.cfg.null_action());
+            unet.context(r, &context, &[ids, &second].concat())?
         }
         _ => {
             assert_eq!(actions.len(), context.shape[0], "action ids for the batch");
@@ -179,6 +228,35 @@ mod tests {
             "{}",
             s.alpha_bar(999)
         );
+    }
+
+    #[test]
+    fn an_unguided_idle_runs_idle_in_the_null_half_and_old_manifests_guide_it() {
+        let guided = Sampling::new(10, 4.0);
+        assert_eq!(guided.second_half(&[0, 1, 4], 5), [5, 5, 5]);
+        let unguided = Sampling {
+            guide_idle: false,
+            ..guided
+        };
+        assert_eq!(unguided.second_half(&[0, 1, 4, 0], 5), [0, 5, 5, 0]);
+        let old: Sampling =
+            serde_json::from_str(r#"{"ddim_steps": 10, "cfg_scale": 4.0}"#).unwrap();
+        assert_eq!(old, guided);
+        let new: Sampling = serde_json::from_str(
+            r#"{"ddim_steps": 10, "cfg_scale": 4.0, "guide_idle": false, "noise_scale": 0.5}"#,
+        )
+        .unwrap();
+        assert!(!new.guide_idle && new.noise_scale == 0.5);
+        assert!(new.check(1000).is_ok());
+        for bad in [0.0, -1.0, f32::NAN] {
+            let e = Sampling {
+                noise_scale: bad,
+                ..new
+            }
+            .check(1000)
+            .unwrap_err();
+            assert!(e.contains("noise scale"), "{e}");
+        }
     }
 
     #[test]

@@ -2,7 +2,7 @@
 
 import torch
 
-from unica_train.diffusion import Schedule, ddim_step, sample_next, step_scales
+from unica_train.diffusion import Schedule, ddim_step, guided_eps, sample_next, sampler_options, step_scales
 from unica_train.unet import UNet, UNetConfig, conv_and_linear_flops, parameter_count
 from unica_train.vae import PositionVae, VaeConfig
 
@@ -105,6 +105,37 @@ def test_a_guidance_interval_guides_only_the_first_steps():
     torch.testing.assert_close(got, x, atol=1e-5, rtol=0)
     every = sample_next(Keyed(), s, torch.zeros(1, 3, 4, 16, 16), torch.tensor([1]), steps=4, cfg_scale=3.0, noise=noise)
     assert (every - got).abs().max() > 0.01
+
+
+def test_an_unguided_idle_takes_the_conditional_prediction_and_the_noise_scales():
+    class Keyed(torch.nn.Module):
+        # eps = 0.5 x_t + 0.1 × (action id + 1): Idle (0) 0.1, Forward (1) 0.2, null (5) 0.6.
+        cfg = UNetConfig()
+
+        def forward(self, latents, t_frames, action):
+            eps = 0.5 * latents[:, -1] + 0.1 * (action.float() + 1)[:, None, None, None]
+            return torch.stack([eps] * 4, 1)
+
+    x = torch.randn(3, 4, 4, 16, 16, generator=torch.Generator().manual_seed(3))
+    t = torch.tensor([[0, 0, 0, 500]] * 3)
+    action = torch.tensor([0, 1, 0])
+    base = 0.5 * x[:, -1]
+    guided = guided_eps(Keyed(), x, t, action, 4.0)
+    # null + s (cond - null): Idle 0.6 + 4 (0.1 - 0.6) = -1.4, Forward 0.6 + 4 (0.2 - 0.6) = -1.0.
+    for i, want in enumerate([-1.4, -1.0, -1.4]):
+        torch.testing.assert_close(guided[i] - base[i], torch.full_like(base[i], want), atol=1e-5, rtol=0)
+    unguided = guided_eps(Keyed(), x, t, action, 4.0, guide_idle=False)
+    for i, want in enumerate([0.1, -1.0, 0.1]):
+        torch.testing.assert_close(unguided[i] - base[i], torch.full_like(base[i], want), atol=1e-5, rtol=0)
+    # The starting noise: standard normal times noise_scale, from the same generator.
+    s, context = Schedule(), torch.zeros(1, 3, 4, 16, 16)
+    half = sample_next(Keyed(), s, context, torch.tensor([1]), steps=2, cfg_scale=4.0, noise_scale=0.5,
+                       generator=torch.Generator().manual_seed(4))
+    drawn = 0.5 * torch.randn(1, 4, 16, 16, generator=torch.Generator().manual_seed(4))
+    torch.testing.assert_close(half, sample_next(Keyed(), s, context, torch.tensor([1]), steps=2, cfg_scale=4.0, noise=drawn))
+    # Old manifests guide Idle at noise scale 1.
+    assert sampler_options({"ddim_steps": 10, "cfg_scale": 4.0}) == {"guide_idle": True, "noise_scale": 1.0}
+    assert sampler_options({"guide_idle": False, "noise_scale": 0.5}) == {"guide_idle": False, "noise_scale": 0.5}
 
 
 def test_vae_loss_falls_on_an_overfit_batch():

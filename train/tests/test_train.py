@@ -3,6 +3,7 @@ stage runs, resumes, and writes a bundle that loads."""
 
 import json
 
+import pytest
 import torch
 
 from unica_train import bundle
@@ -191,3 +192,33 @@ def test_refit_replaces_the_head_with_the_least_squares_one(quick_dataset_dir, t
         refit.main(["--bundle", str(old), "--data", str(quick_dataset_dir), "--out", str(old)])
     with pytest.raises(SystemExit, match="no-such-bundle"):
         refit.main(["--bundle", str(tmp_path / "no-such-bundle"), "--data", str(quick_dataset_dir), "--out", str(new)])
+
+
+def test_quarter_turns_encode_every_training_group_turned_and_turn_its_action(quick_dataset_dir, tmp_path):
+    from unica_train.dataset import quarter_turn_action
+    from unica_train.train import Run, TrainConfig
+
+    cfg = TrainConfig(**dict(TINY, quarter_turns=True, unet_steps=2, stage2_steps=1))
+    (tmp_path / "checkpoints").mkdir()
+    run = Run(quick_dataset_dir, tmp_path, cfg, torch.device("cpu"))
+    vae = run.train_vae(False)
+    latents, scale = run.encode_groups(vae)
+    assert run.turned.shape == (3, *latents.shape)
+    held = run.test_groups[0]
+    assert not run.turned[:, held].any(), "held-out groups are not turned into training"
+    i = run.train_groups[len(run.train_groups) // 2]
+    with torch.no_grad():
+        for turns in (1, 2, 3):
+            expected = vae.encoder(run.group_maps(i, turns))[0]
+            torch.testing.assert_close(run.turned[turns - 1, i], expected, atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(run.group_maps(i, 4), run.group_maps(i, 0))
+    assert not torch.allclose(run.turned[0, i], latents[i], atol=1e-3), "a turned group is another group"
+    # The scale is the unturned groups' (what a bundle without turns would have).
+    assert scale == pytest.approx(float(1.0 / latents[run.train_groups].std()))
+    # A second call reads the cache, turned latents included.
+    cached = Run(quick_dataset_dir, tmp_path, cfg, torch.device("cpu"))
+    again, _ = cached.encode_groups(vae)
+    assert torch.equal(again, latents) and torch.equal(cached.turned, run.turned)
+    unet, _ = run.train_unet(latents, scale, False)
+    assert all(torch.isfinite(p).all() for p in unet.parameters())
+    assert [quarter_turn_action(a) for a in range(5)] == [0, 3, 4, 2, 1]

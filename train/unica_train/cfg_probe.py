@@ -5,10 +5,12 @@ the same keys; the scale with the smallest summed distance error, among those wh
 every moving segment heads within 30° of the teacher's, is the best.
 
     python -m unica_train.cfg_probe --bundle B --data DATA --teacher RENDER/manifest.json \\
-        [--keys "30W 30S 30A 20I"] [--scales 1,2,3,4,5,6] [--guided-steps all,5] [--write]
+        [--keys "30W 30S 30A 20I"] [--scales 1,2,3,4,5,6] [--guided-steps all,5] \\
+        [--guide-idle yes|no] [--noise-scale S] [--write]
 
 `--teacher` is `unica render --teacher CHARACTER --keys K --size 16 --views 1`'s
-manifest; `--write` sets the bundle's `sampler.cfg_scale` to the best scale.
+manifest; `--write` sets the bundle's `sampler.cfg_scale` to the best scale (and its
+`guide_idle` and `noise_scale` to the ones probed with, the bundle's unless given).
 `--guided-steps` also tries guidance intervals (guidance over the first N DDIM steps
 only, the PyTorch sampler's `guided_steps`); the engine guides every step, so a best
 interval is reported, not written. Session 17 measured that the keys are lost with it
@@ -69,6 +71,8 @@ def main(argv=None):
     parser.add_argument("--scales", default="1,2,3,4,5,6")
     parser.add_argument("--guided-steps", default="all",
                         help="comma-separated guidance intervals to try: guide only the first N DDIM steps ('all': every step)")
+    parser.add_argument("--guide-idle", choices=("yes", "no"), help="guide Idle frames too (default: the bundle's sampler)")
+    parser.add_argument("--noise-scale", type=float, help="the starting noise's scale (default: the bundle's sampler)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--write", action="store_true", help="set the bundle's sampler.cfg_scale to the best scale")
     args = parser.parse_args(argv)
@@ -79,11 +83,17 @@ def main(argv=None):
     print("teacher  " + line(teacher))
     av = Avatar(args.bundle, args.data, 128)
     steps = av.manifest["sampler"]["ddim_steps"]
+    options = dict(av.sampler_options)
+    if args.guide_idle:
+        options["guide_idle"] = args.guide_idle == "yes"
+    if args.noise_scale is not None:
+        options["noise_scale"] = args.noise_scale
+    print(f"sampler: {steps} DDIM steps, Idle {'guided' if options['guide_idle'] else 'unguided'}, noise scale {options['noise_scale']:g}")
     results = []
     intervals = [None if g == "all" else int(g) for g in args.guided_steps.split(",")]
     for guided in intervals:
         for scale in [float(s) for s in args.scales.split(",")]:
-            run = av.rollout(args.keys, {"steps": steps, "cfg_scale": scale, "pca": True, "guided_steps": guided}, args.seed)
+            run = av.rollout(args.keys, {"steps": steps, "cfg_scale": scale, "pca": True, "guided_steps": guided, **options}, args.seed)
             model = segments(run["root_path"], args.keys)
             error, heads = score(model, teacher)
             results.append({"cfg_scale": scale, "guided_steps": guided, "segments": model, "distance_error_m": error,
@@ -100,6 +110,7 @@ def main(argv=None):
         path = args.bundle / "manifest.json"
         manifest = json.loads(path.read_text())
         manifest["sampler"]["cfg_scale"] = best["cfg_scale"]
+        manifest["sampler"].update(options)
         manifest["sampler"]["cfg_probe"] = {"keys": args.keys, "teacher": teacher, "results": results}
         path.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
         print(f"set {path}'s sampler to {label(best['cfg_scale'], best['guided_steps'], steps)}")

@@ -19,6 +19,28 @@ ANCHOR = 2  # the frame whose root is centred; its action drives frame 3 -> 4
 ACTIONS = ["Idle", "Forward", "Backward", "Left", "Right"]
 # Frames after a key change that count as "just after the switch" (stage-2 oversampling).
 AFTER_SWITCH = 20
+# The action a group's action becomes when the group is turned a quarter about +Y by
+# `quarter_turn`: the keys move along fixed world directions (src/avatar/locomotion.rs:
+# W +Z, S -Z, A +X, D -X), and a quarter turn takes +Z to +X, +X to -Z, -Z to -X, -X to +Z,
+# so W becomes A, A becomes S, S becomes D and D becomes W; Idle stays Idle.
+QUARTER_TURN_ACTION = (0, 3, 4, 2, 1)
+
+
+def quarter_turn(points: torch.Tensor, turns: int = 1) -> torch.Tensor:
+    """Points [..., 3] turned `turns` quarter turns about +Y: (x, y, z) -> (z, y, -x) each,
+    which turns a heading θ (0 along +Z, 90° along +X) into θ + 90°. The teacher's motion
+    is the same in every direction (gravity is vertical), so a turned group is a group she
+    could have made facing another way; `QUARTER_TURN_ACTION` turns its label with it."""
+    for _ in range(turns % 4):
+        points = torch.stack([points[..., 2], points[..., 1], -points[..., 0]], -1)
+    return points
+
+
+def quarter_turn_action(action: int, turns: int = 1) -> int:
+    """The action of a group turned `turns` quarter turns (`quarter_turn`)."""
+    for _ in range(turns % 4):
+        action = QUARTER_TURN_ACTION[action]
+    return action
 
 
 class DatasetError(ValueError):

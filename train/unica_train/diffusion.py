@@ -3,13 +3,17 @@ steps, epsilon prediction, Min-SNR weights, noise offset; the DDIM sampler with 
 classifier-free guidance (conditional and null action in one batch), optionally only over
 the first `guided_steps` DDIM steps (a guidance interval: measured in session 17, it
 keeps generated poses closer but loses the keys, so the engine guides every step;
-assets/witch/README.md)."""
+assets/witch/README.md). Two more sampler settings (session 18): `guide_idle` false
+samples Idle frames from the conditional prediction alone (guidance away from the null
+action's average motion pushed a standing avatar backwards: she crept), and
+`noise_scale` draws the starting noise at that temperature (less jitter at rest)."""
 
 from __future__ import annotations
 
 import torch
 
 STEPS = 1000
+IDLE = 0  # the Idle action id (dataset.ACTIONS)
 
 
 class Schedule:
@@ -49,16 +53,20 @@ def ddim_step(schedule: Schedule, x_t, eps, t: int, t_prev: int):
     return a_prev.sqrt() * x0 + (1 - a_prev).sqrt() * eps
 
 
-def guided_eps(model, latents, t_frames, action, cfg_scale: float):
+def guided_eps(model, latents, t_frames, action, cfg_scale: float, guide_idle: bool = True):
     """The target frame's noise prediction with classifier-free guidance: the conditional
-    and the null action run in one batch; eps = null + s (cond - null)."""
+    and the null action run in one batch; eps = null + s (cond - null). With `guide_idle`
+    false, samples whose action is Idle take the conditional prediction alone (s = 1)."""
     b = latents.shape[0]
     if cfg_scale == 1.0:
         return model(latents, t_frames, action)[:, -1]
     null = torch.full_like(action, model.cfg.actions)
     eps = model(latents.repeat(2, 1, 1, 1, 1), t_frames.repeat(2, 1), torch.cat([action, null]))[:, -1]
     cond, uncond = eps[:b], eps[b:]
-    return uncond + cfg_scale * (cond - uncond)
+    scale = torch.full((b,), float(cfg_scale), dtype=eps.dtype, device=eps.device)
+    if not guide_idle:
+        scale[action == IDLE] = 1.0
+    return uncond + scale.view(b, *[1] * (eps.dim() - 1)) * (cond - uncond)
 
 
 def step_scales(steps: int, cfg_scale: float, guided_steps: int | None = None) -> list[float]:
@@ -70,11 +78,13 @@ def step_scales(steps: int, cfg_scale: float, guided_steps: int | None = None) -
 
 @torch.no_grad()
 def sample_next(model, schedule: Schedule, context, action, steps: int = 10, cfg_scale: float = 1.0, noise=None, generator=None,
-                guided_steps: int | None = None):
+                guided_steps: int | None = None, guide_idle: bool = True, noise_scale: float = 1.0):
     """Generates the 4th latent frame from 3 clean context latents [B, 3, C, H, W]; guided
-    by `cfg_scale` over the first `guided_steps` steps (None: all)."""
+    by `cfg_scale` over the first `guided_steps` steps (None: all), Idle samples too unless
+    `guide_idle` is false; from `noise`, else from standard normal noise times
+    `noise_scale`."""
     b, device = context.shape[0], context.device
-    x = noise if noise is not None else torch.randn(context[:, :1].shape, generator=generator)[:, 0]
+    x = noise if noise is not None else noise_scale * torch.randn(context[:, :1].shape, generator=generator)[:, 0]
     x, action = x.to(device), action.to(device)
     times = schedule.ddim_timesteps(steps)
     scales = step_scales(steps, cfg_scale, guided_steps)
@@ -82,6 +92,12 @@ def sample_next(model, schedule: Schedule, context, action, steps: int = 10, cfg
         t_prev = times[i + 1] if i + 1 < len(times) else -1
         latents = torch.cat([context, x[:, None]], 1)
         t_frames = torch.tensor([[0, 0, 0, t]] * b, device=device)
-        eps = guided_eps(model, latents, t_frames, action, scales[i])
+        eps = guided_eps(model, latents, t_frames, action, scales[i], guide_idle)
         x = ddim_step(schedule, x, eps, t, t_prev)
     return x
+
+
+def sampler_options(sampler: dict) -> dict:
+    """The keyword arguments of `sample_next` a bundle manifest's `sampler` entry sets
+    beyond its steps and CFG scale (older bundles: guide Idle, noise scale 1)."""
+    return {"guide_idle": bool(sampler.get("guide_idle", True)), "noise_scale": float(sampler.get("noise_scale", 1.0))}

@@ -45,7 +45,7 @@ import torch
 from . import bundle as bundle_io
 from . import metrics, pca, recentre, splats
 from .dataset import ANCHOR, BakedDataset
-from .diffusion import Schedule, sample_next
+from .diffusion import Schedule, sample_next, sampler_options
 from .refiner import Frames, features, from_bundle, refined
 from .train import parse_keys
 
@@ -77,6 +77,7 @@ class Avatar:
         self.waist = self.extra["map.waist"].long()
         self.scale = self.manifest["normalisation"]["scale"]
         self.latent_scale = self.manifest["latent_scale"]
+        self.sampler_options = sampler_options(self.manifest["sampler"])  # guide_idle, noise_scale
         self.schedule = Schedule()
         self.pca_mean, self.pca_basis = self.extra["pca.mean"], self.extra["pca.basis"]
         self.colors = self.extra.get("map.colors", self.ds.pixel_colors())
@@ -121,7 +122,8 @@ class Avatar:
         out = recentre.rollout(
             self.vae, self.unet, self.schedule, self.latent_scale, self.extra["context.latents"], keys,
             setting["steps"], setting["cfg_scale"], seed, self.pixels, self.waist, self.scale, "latent",
-            frames=frames, basis=self.basis, on_frame=keep, guided_steps=setting.get("guided_steps"))
+            frames=frames, basis=self.basis, on_frame=keep, guided_steps=setting.get("guided_steps"),
+            **{k: setting.get(k, v) for k, v in self.sampler_options.items()})
         out["unit"] = torch.stack(drawn)
         out["ms_per_frame"] = (time.time() - started) * 1e3 / max(1, len(drawn))
         return out
@@ -149,7 +151,7 @@ def teacher_forced(av: Avatar, clip: int, f: int, gen: torch.Generator) -> tuple
     context = av.vae.encoder(av.ds.to_maps(unit[:3]))[0] * av.latent_scale
     action = int(av.ds.clips[clip]["actions"][f - 1])
     z = sample_next(av.unet, av.schedule, context[None], torch.tensor([action]), av.manifest["sampler"]["ddim_steps"],
-                    av.manifest["sampler"]["cfg_scale"], generator=gen)
+                    av.manifest["sampler"]["cfg_scale"], generator=gen, **av.sampler_options)
     new = recentre.decode_points(av.vae, z, av.latent_scale, av.pixels)[0]
     return (av.clean(new) - 0.5) / av.scale + root, world[3]
 

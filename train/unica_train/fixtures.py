@@ -19,7 +19,7 @@ import torch
 from safetensors.torch import save_file
 
 from . import bundle, pca, splats
-from .diffusion import Schedule, ddim_step, guided_eps, sample_next
+from .diffusion import Schedule, ddim_step, guided_eps, sample_next, sampler_options
 from .refiner import Refiner, RefinerConfig, features, from_bundle
 from .refiner import apply as apply_residuals
 from .layers import CrossAttention, Down, ResBlock, SpatialAttention, TemporalAttention, Up, timestep_embedding
@@ -88,7 +88,9 @@ def build() -> dict[str, dict[str, torch.Tensor]]:
     query = rand(3, 30)
     files["pca_projection"] = {"io.in.x": query, "io.in.mean": mean, "io.in.basis": basis, "io.out.y": pca.project(query, mean, basis)}
     files["alphas_cumprod"] = {"io.out.alphas_cumprod": schedule.alphas_cumprod}
-    files["witch_frame"] = witch_frame(rand(1, 4, 16, 16))
+    witch_noise = rand(1, 4, 16, 16)
+    files["witch_frame"] = witch_frame(witch_noise)
+    files["witch_idle_frame"] = witch_frame(witch_noise, action=0)
     unit, feats = rand(300, 3).sigmoid(), rand(300, 11)
     module_file("refiner", Refiner(TINY_REFINER), {"features": feats, "unit": unit}, lambda m, features, unit: m(features, unit))
     files["base_splats"], files["witch_refiner"] = witch_splats()
@@ -115,14 +117,16 @@ def pca_decoder() -> dict[str, torch.Tensor]:
     return {"io.in.z": z, "io.out.y": y, **{k: v.contiguous() for k, v in decoder.state_dict().items()}}
 
 
-def witch_frame(noise: torch.Tensor) -> dict[str, torch.Tensor]:
-    """The Witch bundle's next latent after its standing-start context under Forward, from
-    `noise`, with the bundle's DDIM steps and CFG scale, and the decoded position map."""
+def witch_frame(noise: torch.Tensor, action: int = 1) -> dict[str, torch.Tensor]:
+    """The Witch bundle's next latent after its standing-start context under `action`
+    (Forward; Idle for the unguided-Idle path), from `noise`, with the bundle's sampler
+    (DDIM steps, CFG scale, whether Idle is guided), and the decoded position map."""
     vae, unet, extra, manifest = bundle.load(WITCH_BUNDLE)
     sampler, scale = manifest["sampler"], manifest["latent_scale"]
-    action = torch.tensor([1])
+    action = torch.tensor([action])
     with torch.no_grad():
-        z = sample_next(unet, Schedule(), extra["context.latents"][None], action, sampler["ddim_steps"], sampler["cfg_scale"], noise)
+        z = sample_next(unet, Schedule(), extra["context.latents"][None], action, sampler["ddim_steps"], sampler["cfg_scale"], noise,
+                        guide_idle=sampler_options(sampler)["guide_idle"])
         decoded = vae.decode(z / scale)
     return {"io.in.noise": noise, "io.in.action": action.float(), "io.out.z": z, "io.out.map": decoded}
 

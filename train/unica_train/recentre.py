@@ -34,7 +34,7 @@ from pathlib import Path
 import torch
 
 from . import bundle as bundle_io
-from .diffusion import Schedule, sample_next
+from .diffusion import Schedule, sample_next, sampler_options
 from .train import parse_keys
 
 MAP_SIZE = 128
@@ -151,7 +151,7 @@ def keys_text(actions: list[int]) -> str:
 def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, pixels, waist, norm_scale, shift_mode,
             frames: int | None = None, basis: torch.Tensor | None = None, window: torch.Tensor | None = None,
             start_root: torch.Tensor | None = None, diagnose: bool = False, log_every: int = 0,
-            on_frame=None, guided_steps: int | None = None) -> dict:
+            on_frame=None, guided_steps: int | None = None, guide_idle: bool = True, noise_scale: float = 1.0) -> dict:
     """The live loop of train.py's `Run.rollout` from the clean context latents [3, C, h, w]
     (scaled), recentring each frame either by re-encoding the translated window
     ("reencode", the reference) or by the latent shift context − Σ δ_k J_k ("latent", no
@@ -185,7 +185,7 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
     started = time.time()
     for i, a in enumerate(actions):
         z = sample_next(unet, schedule, context[None], torch.tensor([a]), steps, cfg_scale, generator=gen,
-                        guided_steps=guided_steps)
+                        guided_steps=guided_steps, guide_idle=guide_idle, noise_scale=noise_scale)
         new = decode_points(vae, z, scale, pixels)[0]  # [N, 3]
         shift = root(new, waist) - 0.5
         if on_frame is not None:
@@ -417,7 +417,8 @@ def main(argv=None):
     for mode in args.modes.split():
         started = time.time()
         out = rollout(vae, unet, schedule, scale, extra["context.latents"], args.keys, steps, cfg_scale, args.seed,
-                      pixels, waist, norm, mode, frames=args.frames, basis=basis, diagnose=args.diagnose, log_every=50)
+                      pixels, waist, norm, mode, frames=args.frames, basis=basis, diagnose=args.diagnose, log_every=50,
+                      **sampler_options(manifest["sampler"]))
         out["seconds"] = round(time.time() - started, 1)
         out["basis"] = args.basis if mode == "latent" else None
         path = args.out / f"rollout_{mode}.json"

@@ -31,7 +31,7 @@ from safetensors.torch import load_file, save_file
 
 from . import bundle as bundle_io
 from . import pca
-from .diffusion import Schedule, sample_next
+from .diffusion import Schedule, sample_next, sampler_options
 from .report import every
 from .train import Run, TrainConfig
 
@@ -97,7 +97,7 @@ class Fit:
             context = self.vae.encoder(maps[:3])[0] * self.scale
             action = torch.tensor([self.run.groups[i].action])
             new = sample_next(self.unet, schedule, context[None], action, self.sampler["ddim_steps"], self.sampler["cfg_scale"],
-                              generator=gen)
+                              generator=gen, **sampler_options(self.sampler))
             z.append((new / self.scale).flatten(1))
             c.append(self.coefficients(maps[3:]))
             if (k + 1) % 100 == 0 or k + 1 == len(groups):

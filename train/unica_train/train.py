@@ -26,7 +26,7 @@ from pathlib import Path
 import torch
 
 from . import bundle, pca
-from .dataset import ANCHOR, BakedDataset
+from .dataset import ANCHOR, BakedDataset, quarter_turn, quarter_turn_action
 from .diffusion import Schedule, sample_next
 from .plot import curves
 from .unet import NULL_ACTION, UNet, UNetConfig, conv_and_linear_flops, parameter_count
@@ -51,6 +51,10 @@ class TrainConfig:
     clean_context_share: float = 0.3
     context_max_t: int = 300
     noise_offset: float = 0.1
+    # Also train the UNet on every training group turned by 90°, 180° and 270° about the
+    # vertical, its action turned with it (dataset.quarter_turn): each stop, start and turn
+    # of the transition table then appears facing all four key directions.
+    quarter_turns: bool = False
     min_snr_gamma: float = 5.0
     ema: float = 0.999
     pca_components: int = 200
@@ -106,6 +110,7 @@ class Run:
         held = set(cfg.held_out_clips)
         self.train_groups = [i for i, g in enumerate(self.groups) if g.clip not in held]
         self.test_groups = [i for i, g in enumerate(self.groups) if g.clip in held]
+        self.turned = None  # the quarter-turned training latents (encode_groups)
         self.mask = self.ds.mask().to(device)
         self.gen = torch.Generator().manual_seed(cfg.seed + rank)
         self.log_path = out / "losses.csv"
@@ -122,10 +127,11 @@ class Run:
             for k, v in values.items():
                 w.writerow([stage, step, k, f"{v:.6g}"])
 
-    def group_maps(self, index: int) -> torch.Tensor:
-        """The 4 normalised maps [4, 3, 128, 128] of group `index` (3rd frame's root at 0.5)."""
+    def group_maps(self, index: int, turns: int = 0) -> torch.Tensor:
+        """The 4 normalised maps [4, 3, 128, 128] of group `index` (3rd frame's root at 0.5),
+        turned `turns` quarter turns about +Y."""
         g = self.groups[index]
-        unit, _ = self.ds.normalise(self.world[g.clip][g.start:g.start + 4])
+        unit, _ = self.ds.normalise(quarter_turn(self.world[g.clip][g.start:g.start + 4], turns))
         return self.ds.to_maps(unit)
 
     def pick(self, pool: list[int], n: int) -> list[int]:
@@ -188,20 +194,40 @@ class Run:
     # -- latents ---------------------------------------------------------------------
     @torch.no_grad()
     def encode_groups(self, vae: PositionVae) -> tuple[torch.Tensor, float]:
+        """The encoder's latents of every group [G, 4, C, h, w] and the latent scale (one
+        over their standard deviation on the training groups). With `quarter_turns` the
+        training groups are also encoded turned by 1, 2 and 3 quarter turns, kept in
+        `self.turned` ([3, G, 4, C, h, w], zero for held-out groups); the scale stays that
+        of the unturned groups."""
         path = self.out / "checkpoints" / "latents.pt"
         if path.exists():
             saved = torch.load(path)
+            self.turned = saved.get("turned")
             return saved["latents"], saved["scale"]
-        latents = []
-        for start in range(0, len(self.groups), 64):
-            maps = torch.stack([self.group_maps(i) for i in range(start, min(start + 64, len(self.groups)))])
-            mean, _ = vae.encoder(maps.flatten(0, 1).to(self.device))
-            latents.append(mean.reshape(maps.shape[0], 4, *mean.shape[1:]).cpu())
-        latents = torch.cat(latents)
+        latents = self._encode(vae, range(len(self.groups)), 0, "latents")
+        self.turned = None
+        if self.cfg.quarter_turns:
+            self.turned = torch.zeros(3, *latents.shape)
+            for turns in (1, 2, 3):
+                self.turned[turns - 1, self.train_groups] = self._encode(vae, self.train_groups, turns, f"latents turned {turns * 90}°")
         scale = float(1.0 / latents[self.train_groups].std())
         if self.rank == 0:
-            torch.save({"latents": latents, "scale": scale}, path)
+            torch.save({"latents": latents, "scale": scale, "turned": self.turned}, path)
         return latents, scale
+
+    @torch.no_grad()
+    def _encode(self, vae: PositionVae, indices, turns: int, label: str) -> torch.Tensor:
+        indices = list(indices)
+        out, start = [], time.time()
+        for at in range(0, len(indices), 64):
+            chunk = indices[at:at + 64]
+            maps = torch.stack([self.group_maps(i, turns) for i in chunk])
+            mean, _ = vae.encoder(maps.flatten(0, 1).to(self.device))
+            out.append(mean.reshape(maps.shape[0], 4, *mean.shape[1:]).cpu())
+            done = at + len(chunk)
+            if self.rank == 0 and (done == len(indices) or at % 1024 == 0):
+                print(f"{label} {bar(done, len(indices))} {done}/{len(indices)} {time.time() - start:.0f} s", flush=True)
+        return torch.cat(out)
 
     # -- the UNet --------------------------------------------------------------------
     def train_unet(self, latents: torch.Tensor, scale: float, resume: bool):
@@ -233,9 +259,16 @@ class Run:
                 chosen = self.pick(after, n_after) + self.pick(steady, cfg.unet_batch - n_after)
             else:
                 chosen = self.pick(steady, cfg.unet_batch)
-            x0 = (latents[chosen] * scale).to(self.device)  # [B, 4, C, H, W]
+            if self.turned is not None:
+                # Each sample facing one of the four key directions, its action turned with it.
+                turns = torch.randint(0, 4, (len(chosen),), generator=self.gen).tolist()
+                x0 = torch.stack([latents[i] if k == 0 else self.turned[k - 1, i] for i, k in zip(chosen, turns)])
+                action = torch.tensor([quarter_turn_action(self.groups[i].action, k) for i, k in zip(chosen, turns)])
+            else:
+                x0 = latents[chosen]
+                action = torch.tensor([self.groups[i].action for i in chosen])
+            x0 = (x0 * scale).to(self.device)  # [B, 4, C, H, W]
             b = x0.shape[0]
-            action = torch.tensor([self.groups[i].action for i in chosen])
             action[torch.rand(b, generator=self.gen) < cfg.cfg_dropout] = NULL_ACTION
             t_target = torch.randint(0, schedule.steps, (b,), generator=self.gen)
             t_context = torch.randint(0, cfg.context_max_t, (b, 3), generator=self.gen)
