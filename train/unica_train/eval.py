@@ -512,7 +512,8 @@ def evaluate(args) -> dict:
     # the first step barely moves) is taken as its first root.
     roots = [f["root"] for f in json.loads(args.teacher.read_text())["frames"]]
     teacher = roots[:1] + roots
-    defaults = {"steps": av.manifest["sampler"]["ddim_steps"], "cfg_scale": av.manifest["sampler"]["cfg_scale"], "pca": True}
+    defaults = {"steps": av.manifest["sampler"]["ddim_steps"], "cfg_scale": av.manifest["sampler"]["cfg_scale"], "pca": True,
+                **av.sampler_options}
     keys = args.keys or ("20W 20S 20A 20D 20I" if quick else KEYS)
     frames = sum(int(t[:-1]) for t in keys.split())
     began = time.time()

@@ -165,7 +165,8 @@ def write_report(out: Path, results: dict, sheet: list, masked_sheet: list | Non
         "",
         f"Bundle `{results['bundle']}`, dataset `{results['data']}`, key script `{results['keys']}`, seed {results['seed']}"
         f"{' (quick mode: a short script, fewer frames)' if results['quick'] else ''}. Sampler: {d['steps']} DDIM steps, "
-        f"CFG {d['cfg_scale']}, PCA on. Written by `unica eval` in {results['minutes']:.1f} min.",
+        f"CFG {d['cfg_scale']}{'' if d.get('guide_idle', True) else ' (Idle frames unguided)'}, starting noise × "
+        f"{d.get('noise_scale', 1.0):g}, PCA on. Written by `unica eval` in {results['minutes']:.1f} min.",
         "",
         *(_masked_section(results, results["data"]) if "masked" in results else []),
         "## Image level",
