@@ -25,10 +25,10 @@ fn gpu() -> GpuContext {
     GpuContext::headless(&GpuOptions::default()).expect("a GPU adapter (lavapipe in CI)")
 }
 
-fn options(steps: usize, cfg_scale: f32, seed: u64) -> EngineOptions {
+fn options(sampling: Sampling, seed: u64) -> EngineOptions {
     EngineOptions {
         seed,
-        sampling: Some(Sampling::new(steps, cfg_scale)),
+        sampling: Some(sampling),
         ..EngineOptions::default()
     }
 }
@@ -127,12 +127,7 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
     };
     for sampling in [Sampling::new(2, 1.0), Sampling::new(2, 2.0), unguided_idle] {
         let cfg_scale = sampling.cfg_scale;
-        let options = EngineOptions {
-            seed: 7,
-            sampling: Some(sampling),
-            ..EngineOptions::default()
-        };
-        let mut engine = Engine::new(&gpu, &witch_bundle(), &options).unwrap();
+        let mut engine = Engine::new(&gpu, &witch_bundle(), &options(sampling, 7)).unwrap();
         let mut context = engine.bundle.context.read(&gpu).unwrap();
         let jacobian = engine.shift_jacobian().to_vec();
         let mut root = engine.root();
@@ -242,7 +237,12 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
 fn a_generated_frame_creates_nothing_and_reads_back_one_small_state() {
     let gpu = gpu();
     for cfg_scale in [1.0, 2.0] {
-        let mut engine = Engine::new(&gpu, &witch_bundle(), &options(2, cfg_scale, 1)).unwrap();
+        let mut engine = Engine::new(
+            &gpu,
+            &witch_bundle(),
+            &options(Sampling::new(2, cfg_scale), 1),
+        )
+        .unwrap();
         engine.frame(Action::Forward).unwrap();
         engine.finish();
         let before = gpu.counts();
@@ -273,7 +273,8 @@ fn a_generated_frame_creates_nothing_and_reads_back_one_small_state() {
 fn the_same_seed_and_keys_give_the_same_bytes() {
     let gpu = gpu();
     let run = |seed: u64| -> Vec<Vec<Vec3>> {
-        let mut engine = Engine::new(&gpu, &witch_bundle(), &options(2, 1.0, seed)).unwrap();
+        let mut engine =
+            Engine::new(&gpu, &witch_bundle(), &options(Sampling::new(2, 1.0), seed)).unwrap();
         [Action::Forward, Action::Right, Action::Idle]
             .into_iter()
             .map(|a| engine.step(a).unwrap().points)
@@ -315,7 +316,7 @@ fn the_gpu_splats_equal_the_cpu_appearance_on_the_shipped_bundle() {
     use unica::engine::appearance::Appearance;
     let gpu = gpu();
     for (level, refine) in [(128, true), (256, true), (256, false)] {
-        let mut options = options(2, 1.0, 11);
+        let mut options = options(Sampling::new(2, 1.0), 11);
         options.splat_level = Some(level);
         options.refine = refine;
         let mut engine = Engine::new(&gpu, &witch_bundle(), &options).unwrap();

@@ -578,25 +578,20 @@ impl Engine {
         self.prepare()?;
         self.poll();
         let live = &self.live;
-        let scale = self.sampling.noise_scale;
-        let noise: Vec<f32> = self
-            .noise
-            .gaussian(live.noise.len())
-            .iter()
-            .map(|v| v * scale)
-            .collect();
+        let mut noise = self.noise.gaussian(live.noise.len());
+        for v in &mut noise {
+            *v *= self.sampling.noise_scale;
+        }
         let mut bytes = self.precision.encode(&noise);
         bytes.resize(live.noise.buffer.size() as usize, 0);
         self.gpu.queue.write_buffer(&live.noise.buffer, 0, &bytes);
         let plan = self.plan.as_ref().expect("prepared");
-        let id = action.id() as usize;
-        let ids: Vec<u32> = if plan.guided {
-            let second = plan
-                .sampling
-                .second_half(&[id], self.bundle.unet.cfg.null_action());
-            vec![id as u32, second[0] as u32]
+        let ids = if plan.guided {
+            let null = self.bundle.unet.cfg.null_action();
+            let partner = plan.sampling.partner(action.id() as usize, null);
+            vec![action.id(), partner as u32]
         } else {
-            vec![id as u32]
+            vec![action.id()]
         };
         plan.actions.write(&self.gpu, &ids);
         let slot = self.slots.iter().position(|s| !s.busy);

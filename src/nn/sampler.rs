@@ -7,6 +7,7 @@ use serde::Deserialize;
 use super::Tensor;
 use super::ops::Recorder;
 use super::unet::{ActionIds, UNet};
+use crate::action::Action;
 use crate::gpu::GpuError;
 
 /// The training noise schedule, as the bundle manifest's `diffusion` entry.
@@ -72,9 +73,6 @@ impl Schedule {
     }
 }
 
-/// The model's id of the Idle action (`crate::action::Action::Idle`).
-pub const IDLE_ACTION: usize = 0;
-
 /// How a frame is sampled: DDIM steps and the guidance scale (1 = no guidance, one
 /// batch; otherwise the conditional and the null action run in one batch of two).
 /// With `guide_idle` false an Idle frame takes the conditional prediction alone: its
@@ -131,18 +129,14 @@ impl Sampling {
         }
     }
 
-    /// The action ids of a guided batch's second half for the first half's `ids`: the
-    /// null action, or Idle itself for Idle when Idle is not guided.
-    pub fn second_half(&self, ids: &[usize], null: usize) -> Vec<usize> {
-        ids.iter()
-            .map(|&id| {
-                if id == IDLE_ACTION && !self.guide_idle {
-                    id
-                } else {
-                    null
-                }
-            })
-            .collect()
+    /// The action id that pairs with `id` in a guided batch's second half: the null
+    /// action, or Idle itself for Idle when Idle is not guided.
+    pub fn partner(&self, id: usize, null: usize) -> usize {
+        if id == Action::Idle.id() as usize && !self.guide_idle {
+            id
+        } else {
+            null
+        }
     }
 }
 
@@ -169,7 +163,8 @@ pub fn sample_next<'a>(
     };
     let cache = match actions {
         ActionIds::Host(ids) if guided => {
-            let second = sampling.second_half(ids, unet.cfg.null_action());
+            let null = unet.cfg.null_action();
+            let second: Vec<usize> = ids.iter().map(|&id| sampling.partner(id, null)).collect();
             unet.context(r, &context, &[ids, &second].concat())?
         }
         _ => {
@@ -233,12 +228,15 @@ mod tests {
     #[test]
     fn an_unguided_idle_runs_idle_in_the_null_half_and_old_manifests_guide_it() {
         let guided = Sampling::new(10, 4.0);
-        assert_eq!(guided.second_half(&[0, 1, 4], 5), [5, 5, 5]);
+        let partners = |s: Sampling, ids: &[usize]| -> Vec<usize> {
+            ids.iter().map(|&id| s.partner(id, 5)).collect()
+        };
+        assert_eq!(partners(guided, &[0, 1, 4]), [5, 5, 5]);
         let unguided = Sampling {
             guide_idle: false,
             ..guided
         };
-        assert_eq!(unguided.second_half(&[0, 1, 4, 0], 5), [0, 5, 5, 0]);
+        assert_eq!(partners(unguided, &[0, 1, 4, 0]), [0, 5, 5, 0]);
         let old: Sampling =
             serde_json::from_str(r#"{"ddim_steps": 10, "cfg_scale": 4.0}"#).unwrap();
         assert_eq!(old, guided);

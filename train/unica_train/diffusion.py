@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import torch
 
+from .dataset import ACTIONS
+
 STEPS = 1000
-IDLE = 0  # the Idle action id (dataset.ACTIONS)
+IDLE = ACTIONS.index("Idle")
 
 
 class Schedule:

@@ -126,7 +126,7 @@ def witch_frame(noise: torch.Tensor, action: int = 1) -> dict[str, torch.Tensor]
     action = torch.tensor([action])
     with torch.no_grad():
         z = sample_next(unet, Schedule(), extra["context.latents"][None], action, sampler["ddim_steps"], sampler["cfg_scale"], noise,
-                        guide_idle=sampler_options(sampler)["guide_idle"])
+                        **sampler_options(sampler))
         decoded = vae.decode(z / scale)
     return {"io.in.noise": noise, "io.in.action": action.float(), "io.out.z": z, "io.out.map": decoded}
 

@@ -62,6 +62,7 @@ class Fit:
             raise SystemExit(f"{bundle}: its VAE decoder is {self.vae.cfg.decoder!r}; only a PCA head can be refitted")
         self.scale = self.manifest["latent_scale"]
         self.sampler = self.manifest["sampler"]
+        self.sampler_options = sampler_options(self.sampler)  # guide_idle, noise_scale
         self.run = Run(data, out, TrainConfig(held_out_clips=held_out), torch.device("cpu"))
         if not self.run.test_groups or not self.run.train_groups:
             raise SystemExit(f"{data}: held-out clips {held_out} leave no training or no held-out frames")
@@ -97,7 +98,7 @@ class Fit:
             context = self.vae.encoder(maps[:3])[0] * self.scale
             action = torch.tensor([self.run.groups[i].action])
             new = sample_next(self.unet, schedule, context[None], action, self.sampler["ddim_steps"], self.sampler["cfg_scale"],
-                              generator=gen, **sampler_options(self.sampler))
+                              generator=gen, **self.sampler_options)
             z.append((new / self.scale).flatten(1))
             c.append(self.coefficients(maps[3:]))
             if (k + 1) % 100 == 0 or k + 1 == len(groups):

@@ -259,14 +259,11 @@ class Run:
                 chosen = self.pick(after, n_after) + self.pick(steady, cfg.unet_batch - n_after)
             else:
                 chosen = self.pick(steady, cfg.unet_batch)
-            if self.turned is not None:
-                # Each sample facing one of the four key directions, its action turned with it.
-                turns = torch.randint(0, 4, (len(chosen),), generator=self.gen).tolist()
-                x0 = torch.stack([latents[i] if k == 0 else self.turned[k - 1, i] for i, k in zip(chosen, turns)])
-                action = torch.tensor([quarter_turn_action(self.groups[i].action, k) for i, k in zip(chosen, turns)])
-            else:
-                x0 = latents[chosen]
-                action = torch.tensor([self.groups[i].action for i in chosen])
+            # With quarter turns each sample faces one of the four key directions, its action
+            # turned with it; without, every sample is unturned.
+            turns = [0] * len(chosen) if self.turned is None else torch.randint(0, 4, (len(chosen),), generator=self.gen).tolist()
+            x0 = torch.stack([latents[i] if k == 0 else self.turned[k - 1, i] for i, k in zip(chosen, turns)])
+            action = torch.tensor([quarter_turn_action(self.groups[i].action, k) for i, k in zip(chosen, turns)])
             x0 = (x0 * scale).to(self.device)  # [B, 4, C, H, W]
             b = x0.shape[0]
             action[torch.rand(b, generator=self.gen) < cfg.cfg_dropout] = NULL_ACTION
