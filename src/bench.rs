@@ -656,7 +656,7 @@ pub fn live(
     };
     let mut engine = Engine::new(gpu, dir, &options)?;
     writeln!(out, "adapter: {}", gpu.adapter_label())?;
-    let (dispatches, flops) = engine.plan_counts();
+    let (dispatches, flops) = engine.plan_counts(Action::Forward);
     writeln!(
         out,
         "live: {} DDIM steps, CFG {}, splat level {level} ({} splats, refiner {}); frame plan: \
@@ -668,6 +668,14 @@ pub fn live(
         engine.plan_copies(),
         flops as f64 / 1e9
     )?;
+    let (idle_dispatches, idle_flops) = engine.plan_counts(Action::Idle);
+    if (idle_dispatches, idle_flops) != (dispatches, flops) {
+        writeln!(
+            out,
+            "idle frames (unguided, one batch): {idle_dispatches} dispatches, {:.2} GFLOP",
+            idle_flops as f64 / 1e9
+        )?;
+    }
     let keys = [
         Action::Forward,
         Action::Forward,

@@ -243,7 +243,7 @@ struct BenchArgs {
     /// Instead of the tables: N generated frames of --bundle after a warm-up, as the app
     /// makes them (key to splat buffer), and the GPU work counted per frame: dispatches,
     /// submissions, readbacks and their bytes, buffers and bind groups created, CPU and
-    /// wall milliseconds
+    /// wall milliseconds (with the bundle's Idle guidance and noise scale)
     #[arg(long, value_name = "N", requires = "bundle", conflicts_with = "soak")]
     live: Option<usize>,
     /// Splat level of the --bundle live-frame rows (128, 256, 512 or 1024) [default: 1024
@@ -446,6 +446,12 @@ struct EvalArgs {
     /// A short script and fewer frames (a few minutes; CI)
     #[arg(long)]
     quick: bool,
+    /// The key script the avatar and the teacher are driven on, e.g. "60W 60S 60A 60D 30I"
+    /// [default: that one; with --quick "20W 20S 20A 20D 20I"]. Speeds are measured after
+    /// the first 15 frames of each key where every movement key is held at least 40 frames, else
+    /// after the first 5 (then they include most of each turn)
+    #[arg(long, value_name = "SCRIPT")]
+    keys: Option<String>,
     /// Seed of the sampler noise
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -501,6 +507,12 @@ fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
         if frames == 0 {
             bail!("--live must be at least 1 frame");
         }
+        // The bundle's Idle guidance and noise scale, with --steps and --cfg-scale.
+        let sampling = crate::nn::sampler::Sampling {
+            steps: args.steps,
+            cfg_scale: args.cfg_scale,
+            ..crate::nn::bundle::read_manifest(&dir.join("manifest.json"))?.sampler
+        };
         let level = args
             .splat_level
             .unwrap_or_else(|| crate::engine::appearance::default_level(&gpu));
@@ -896,7 +908,6 @@ fn view(args: ViewArgs, gpu: GpuOptions) -> anyhow::Result<()> {
     })
 }
 
-/// The evaluation's key script (the paper's), and the quick one.
 /// The evaluation's key script: every movement key, a 180° (W→S, A→D) and a 90° (S→A)
 /// turn, and enough idle at the end to see the root come to rest.
 const EVAL_KEYS: &str = "60W 60S 60A 60D 30I";
@@ -920,12 +931,12 @@ fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         );
     }
     std::fs::create_dir_all(&args.out).with_context(|| args.out.display().to_string())?;
-    let script = if args.quick {
-        EVAL_KEYS_QUICK
-    } else {
-        EVAL_KEYS
+    let script = match (&args.keys, args.quick) {
+        (Some(keys), _) => keys.as_str(),
+        (None, true) => EVAL_KEYS_QUICK,
+        (None, false) => EVAL_KEYS,
     };
-    let keys = KeyScript::parse(script)?;
+    let keys = KeyScript::parse(script).context("--keys")?;
     let clips: Vec<PathBuf> = if args.clips.is_empty() {
         manifest.clip_files.iter().map(PathBuf::from).collect()
     } else {

@@ -255,7 +255,11 @@ fn a_generated_frame_creates_nothing_and_reads_back_one_small_state() {
         assert_eq!(c.submissions, 3, "{c:?}");
         assert_eq!(c.readbacks, 3, "{c:?}");
         assert!(c.readback_bytes <= 3 * 256, "{c:?}");
-        assert_eq!(c.dispatches, 3 * engine.plan_counts().0 as u64, "{c:?}");
+        assert_eq!(
+            c.dispatches,
+            3 * engine.plan_counts(Action::Forward).0 as u64,
+            "{c:?}"
+        );
         assert_eq!(engine.state().frames, 4);
         // A settings change captures a new plan once, then creates nothing again.
         engine.set_sampling(Sampling::new(3, cfg_scale));
@@ -376,4 +380,46 @@ fn a_dispatch_with_the_wrong_bindings_is_caught_when_recorded() {
         text.contains("engine/frame_unit.wgsl") && text.contains("declares 6"),
         "{text}"
     );
+}
+
+#[test]
+fn an_unguided_idle_runs_a_one_batch_plan_and_a_guided_idle_the_guided_one() {
+    // With guidance on and Idle unguided, Idle frames run a second captured plan whose
+    // UNet runs one batch (the conditional prediction alone) instead of two; both plans
+    // are made once, and switching between them creates nothing.
+    let gpu = gpu();
+    let unguided_idle = Sampling {
+        guide_idle: false,
+        ..Sampling::new(2, 2.0)
+    };
+    let mut engine = Engine::new(&gpu, &witch_bundle(), &options(unguided_idle, 1)).unwrap();
+    engine.frame(Action::Forward).unwrap();
+    engine.finish();
+    let (moving, moving_flops) = engine.plan_counts(Action::Forward);
+    let (idle, idle_flops) = engine.plan_counts(Action::Idle);
+    println!(
+        "moving {moving} dispatches {moving_flops} FLOP; idle {idle} dispatches {idle_flops} FLOP"
+    );
+    assert!(
+        idle < moving && 10 * idle_flops < 7 * moving_flops,
+        "{idle_flops} vs {moving_flops}"
+    );
+    let before = gpu.counts();
+    for action in [Action::Idle, Action::Idle, Action::Forward, Action::Idle] {
+        engine.frame(action).unwrap();
+        engine.finish();
+    }
+    let c = gpu.counts() - before;
+    assert_eq!((c.buffers, c.bind_groups), (0, 0), "{c:?}");
+    assert_eq!(c.dispatches, (3 * idle + moving) as u64, "{c:?}");
+    // A sampler that guides Idle (older bundles) runs the guided plan for every key.
+    let mut guided =
+        Engine::new(&gpu, &witch_bundle(), &options(Sampling::new(2, 2.0), 1)).unwrap();
+    guided.frame(Action::Idle).unwrap();
+    guided.finish();
+    assert_eq!(
+        guided.plan_counts(Action::Idle),
+        guided.plan_counts(Action::Forward)
+    );
+    assert_eq!(guided.plan_counts(Action::Forward), (moving, moving_flops));
 }

@@ -8,7 +8,9 @@
 //! asynchronously and picked up by [`Engine::poll`]. Beside a window
 //! (`EngineOptions::split`) the plan is submitted part by part (context pass, each step,
 //! decode), each part waited for on the caller's thread, so the window's own submissions
-//! interleave. `appearance` turns a frame's points into splats.
+//! interleave. A guided sampler that leaves Idle unguided gets a second, one-batch plan
+//! for Idle frames (the conditional prediction alone, half the UNet work).
+//! `appearance` turns a frame's points into splats.
 
 pub mod appearance;
 pub mod kernels;
@@ -144,6 +146,9 @@ pub struct Engine {
     split: bool,
     live: Live,
     plan: Option<FramePlan>,
+    /// The plan Idle frames run when the sampler guides but leaves Idle unguided
+    /// (`Sampling::guide_idle` false): one batch instead of the guided two.
+    idle_plan: Option<FramePlan>,
     /// The frame's splats (when asked for) and whether they use the refiner.
     splats: Option<SplatFrame>,
     refine: bool,
@@ -216,6 +221,7 @@ impl Engine {
             split: options.split,
             live,
             plan: None,
+            idle_plan: None,
             splats: None,
             refine: options.refine,
             pacer: None,
@@ -375,8 +381,7 @@ impl Engine {
     pub fn profile(&mut self, action: Action) -> Result<Vec<(&'static str, usize, f64)>, GpuError> {
         self.frame(action)?;
         self.finish();
-        let plan = &self.plan.as_ref().expect("prepared").plan;
-        Ok(plan.profile(&self.gpu))
+        Ok(self.plan_for(action).plan.profile(&self.gpu))
     }
 
     /// Generates a frame (as [`Engine::frame`]), then runs its plan once more stage by
@@ -386,8 +391,7 @@ impl Engine {
     pub fn profile_stages(&mut self, action: Action) -> Result<Vec<StageProfile>, GpuError> {
         self.frame(action)?;
         self.finish();
-        let plan = &self.plan.as_ref().expect("prepared").plan;
-        Ok(plan.profile_stages(&self.gpu))
+        Ok(self.plan_for(action).plan.profile_stages(&self.gpu))
     }
 
     /// The kernel variant the frame plan records (by adapter, or `UNICA_KERNELS`).
@@ -395,11 +399,13 @@ impl Engine {
         crate::nn::Kernels::for_adapter(&self.gpu)
     }
 
-    /// The frame plan's compute dispatches and FLOPs.
-    pub fn plan_counts(&self) -> (usize, u64) {
-        self.plan
-            .as_ref()
-            .map_or((0, 0), |p| (p.plan.dispatches(), p.plan.flops()))
+    /// The compute dispatches and FLOPs of the plan a frame under `action` runs (0 before
+    /// the first frame).
+    pub fn plan_counts(&self, action: Action) -> (usize, u64) {
+        self.plan.as_ref().map_or((0, 0), |_| {
+            let p = self.plan_for(action);
+            (p.plan.dispatches(), p.plan.flops())
+        })
     }
 
     /// The frame plan's copies (buffer to buffer and buffer to texels; no shader runs).
@@ -423,22 +429,40 @@ impl Engine {
             .as_ref()
             .is_some_and(|p| p.sampling == self.sampling && p.pca == self.pca && p.look == look);
         if !fresh {
-            self.plan = Some(self.capture()?);
+            let sampling = self.sampling;
+            self.plan = Some(self.capture(sampling)?);
+            self.idle_plan = if sampling.cfg_scale != 1.0 && !sampling.guide_idle {
+                let unguided = Sampling {
+                    cfg_scale: 1.0,
+                    ..sampling
+                };
+                Some(self.capture(unguided)?)
+            } else {
+                None
+            };
         }
         Ok(())
     }
 
-    fn capture(&mut self) -> Result<FramePlan, GpuError> {
+    /// The plan a frame under `action` runs (once prepared).
+    fn plan_for(&self, action: Action) -> &FramePlan {
+        match (&self.idle_plan, action) {
+            (Some(idle), Action::Idle) => idle,
+            _ => self.plan.as_ref().expect("prepared"),
+        }
+    }
+
+    fn capture(&mut self, sampling: Sampling) -> Result<FramePlan, GpuError> {
         let live = &self.live;
         let bundle = &self.bundle;
-        let guided = self.sampling.cfg_scale != 1.0;
+        let guided = sampling.cfg_scale != 1.0;
         let mut r = Recorder::capture(&self.gpu, &mut self.pipelines, self.precision);
         if self.split {
             r.steps().limit_parts(SPLIT_STEPS);
         }
         let actions = r.indices("engine.actions", &vec![0; if guided { 2 } else { 1 }])?;
         let latent =
-            bundle.generate_with(&mut r, &live.context, &actions, &live.noise, self.sampling)?;
+            bundle.generate_with(&mut r, &live.context, &actions, &live.noise, sampling)?;
         r.boundary();
         r.stage("vae-decode");
         let map = bundle.decode(&mut r, &latent)?;
@@ -564,7 +588,7 @@ impl Engine {
             plan: r.finish(),
             actions,
             guided,
-            sampling: self.sampling,
+            sampling,
             pca: self.pca,
             look: self.splats.as_ref().map(|s| (s.level(), s.refines())),
         })
@@ -585,7 +609,11 @@ impl Engine {
         let mut bytes = self.precision.encode(&noise);
         bytes.resize(live.noise.buffer.size() as usize, 0);
         self.gpu.queue.write_buffer(&live.noise.buffer, 0, &bytes);
-        let plan = self.plan.as_ref().expect("prepared");
+        // Field by field (not `plan_for`), so the pacer below can be borrowed mutably.
+        let plan = match (&self.idle_plan, action) {
+            (Some(idle), Action::Idle) => idle,
+            _ => self.plan.as_ref().expect("prepared"),
+        };
         let ids = if plan.guided {
             let null = self.bundle.unet.cfg.null_action();
             let partner = plan.sampling.partner(action.id() as usize, null);

@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from unica_train.eval import pose_set, teacher_chamfer
+from unica_train.eval import _turn, pose_set, settle_frames, teacher_chamfer
 
 ROOT = Path(__file__).resolve().parents[2]
 BINARY = ROOT / "target" / "release" / "unica"
@@ -84,3 +84,24 @@ def test_teacher_chamfer_matches_each_frame_against_the_other_clips_only():
     assert poses.shape == (10, 2, 3) and owner.tolist() == [0] * 5 + [1] * 5
     assert torch.allclose(poses[0], narrow - narrow.mean(0))
     assert teacher_chamfer(av, poses, owner, 2, 6, seed=0) == pytest.approx(100.0, rel=1e-5)
+
+
+def test_speeds_settle_15_frames_only_where_every_key_is_held_40():
+    assert settle_frames("60W 60S 60A 60D 30I") == 15
+    assert settle_frames("40W 40I") == 15
+    assert settle_frames("20W 20S 20A 20D 20I") == 5
+    assert settle_frames("60W 39S") == 5
+    assert settle_frames("40W 10I") == 15  # Idle runs have no speed
+
+
+def test_the_summary_takes_the_slowest_turn_of_each_kind_against_the_teacher():
+    turns = [{"turn": "W→S (180°)", "generated": 12, "teacher": 14},
+             {"turn": "S→A (90°)", "generated": 3, "teacher": 8},
+             {"turn": "A→D (180°)", "generated": 22, "teacher": 14}]
+    assert _turn(turns, 180) == (22, 14)
+    assert _turn(turns, 90) == (3, 8)
+    assert _turn(turns, 45) == (None, None)
+    # A turn that never completes is the slowest; a slower teacher excuses a slower turn.
+    assert _turn(turns + [{"turn": "D→A (180°)", "generated": None, "teacher": 14}], 180) == (None, 14)
+    assert _turn([{"turn": "W→S (180°)", "generated": 20, "teacher": 20},
+                  {"turn": "A→D (180°)", "generated": 16, "teacher": 10}], 180) == (16, 10)

@@ -286,6 +286,15 @@ def against_teacher(path: torch.Tensor, teacher: torch.Tensor, actions: list[int
     return segments, turns
 
 
+def settle_frames(keys: str) -> int:
+    """The frames at the start of each key's run left out of its speed and heading: 15
+    (a 180° turn takes the teacher 14) where every movement key is held at least 40
+    frames, else 5 (short scripts such as the quick one, whose speeds then include most of
+    each turn)."""
+    held = [int(t[:-1]) for t in keys.split() if t[-1].upper() != "I"]
+    return 15 if min(held, default=0) >= 40 else 5
+
+
 def turn_points(actions: list[int]) -> list[tuple[str, int, float]]:
     """(label, switch frame, target heading) of each change between movement keys."""
     out = []
@@ -437,12 +446,21 @@ def motion(path: torch.Tensor, teacher: torch.Tensor, actions: list[int], settle
             "teacher_stop_frames": teacher_stop, "teacher_stop_distance_m": teacher_drift}
 
 
-def _turn(turns: list, degrees: int, who: str):
-    """The first turn of `degrees` in the script, frames (None if it never completes)."""
-    for t in turns:
-        if t["turn"].endswith(f"({degrees}°)"):
-            return t[who]
-    return None
+def _turn(turns: list, degrees: int) -> tuple:
+    """(generated, teacher) frames of the script's slowest turn of `degrees` against the
+    teacher's (a turn that never completes, None, is the slowest); (None, None) if the
+    script has no such turn."""
+    kind = [t for t in turns if t["turn"].endswith(f"({degrees}°)")]
+    if not kind:
+        return None, None
+
+    def lag(t):
+        if t["generated"] is None:
+            return math.inf
+        return t["generated"] / t["teacher"] if t["teacher"] else t["generated"]
+
+    worst = max(kind, key=lag)
+    return worst["generated"], worst["teacher"]
 
 
 def summary(results: dict) -> dict:
@@ -450,6 +468,7 @@ def summary(results: dict) -> dict:
     (`teacher_<key>`) and the dataset against itself for the Fréchet stand-in."""
     m, mo, long = results["masked"], results["masked"]["motion"], results["long_run"]
     forced, free = m["teacher_forced"]["generated"]["black"], m["free_running"]["black"]
+    turn180, turn90 = _turn(mo["turns"], 180), _turn(mo["turns"], 90)
     out = {
         "vae_mm": results["vae_mm"],
         "chamfer_mm": m["chamfer_mm"],
@@ -467,10 +486,11 @@ def summary(results: dict) -> dict:
         "stop_distance_m": mo["stop_distance_m"],
         "teacher_stop_distance_m": mo["teacher_stop_distance_m"],
         "speed_error_pct": max(s["speed_error_pct"] for s in mo["segments"]),
-        "turn180_frames": _turn(mo["turns"], 180, "generated"),
-        "teacher_turn180_frames": _turn(mo["turns"], 180, "teacher"),
-        "turn90_frames": _turn(mo["turns"], 90, "generated"),
-        "teacher_turn90_frames": _turn(mo["turns"], 90, "teacher"),
+        # The slowest turn of each kind against the teacher's (the script has two 180° ones).
+        "turn180_frames": turn180[0],
+        "teacher_turn180_frames": turn180[1],
+        "turn90_frames": turn90[0],
+        "teacher_turn90_frames": turn90[1],
         "drift_slope": long["slope_per_1000_frames"],
         "drift_frames": long["frames"],
         "drift_finite": long["finite"],
@@ -528,8 +548,9 @@ def evaluate(args) -> dict:
     poses, owner = pose_set(av, POSE_STRIDE)
     print(f"sequence … ({time.time() - began:.0f} s)", flush=True)
     run = av.rollout(keys, defaults, args.seed)
-    settle = 5 if quick else 15
+    settle = settle_frames(keys)
     results["sequence"] = sequence_level(av, run, teacher, keys, poses, reference, settle)
+    results["settle"] = settle
     results["sequence"]["path"] = run["root_path"]
     results["sequence"]["teacher_headings"] = metrics.headings(torch.tensor(teacher[: frames + 1])).tolist()
     results["sequence"]["dataset_fvd_pca"] = dataset_frechet(per_clip)

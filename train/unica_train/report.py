@@ -137,6 +137,8 @@ def _masked_section(results: dict, data: str) -> list[str]:
         f"**{_fmt(mo['stop_frames'], 0)} frames** (teacher {_fmt(mo['teacher_stop_frames'], 0)}) and travels "
         f"{mo['stop_distance_m']:.2f} m after the release (teacher {mo['teacher_stop_distance_m']:.2f} m).",
         "",
+        f"- Speeds and headings: each key's frames after its first {results.get('settle', 15)} (keys {results['keys']}).",
+        "",
         "| key | speed (m/s) | teacher | error | heading (°) | teacher |",
         "| --- | --- | --- | --- | --- | --- |",
     ]
