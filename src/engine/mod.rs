@@ -128,6 +128,20 @@ struct FramePlan {
     look: Option<(usize, bool)>,
 }
 
+/// The plan a frame under `action` runs, once prepared: the Idle plan for Idle where
+/// there is one, else the frame plan. (Takes the two fields, not the engine, so a caller
+/// can borrow the engine's other fields beside it.)
+fn plan_for<'a>(
+    plan: &'a Option<FramePlan>,
+    idle_plan: &'a Option<FramePlan>,
+    action: Action,
+) -> &'a FramePlan {
+    match (idle_plan, action) {
+        (Some(idle), Action::Idle) => idle,
+        _ => plan.as_ref().expect("prepared"),
+    }
+}
+
 /// A mapped readback of the frame state in flight.
 struct Slot {
     staging: wgpu::Buffer,
@@ -381,7 +395,8 @@ impl Engine {
     pub fn profile(&mut self, action: Action) -> Result<Vec<(&'static str, usize, f64)>, GpuError> {
         self.frame(action)?;
         self.finish();
-        Ok(self.plan_for(action).plan.profile(&self.gpu))
+        let plan = plan_for(&self.plan, &self.idle_plan, action);
+        Ok(plan.plan.profile(&self.gpu))
     }
 
     /// Generates a frame (as [`Engine::frame`]), then runs its plan once more stage by
@@ -391,7 +406,8 @@ impl Engine {
     pub fn profile_stages(&mut self, action: Action) -> Result<Vec<StageProfile>, GpuError> {
         self.frame(action)?;
         self.finish();
-        Ok(self.plan_for(action).plan.profile_stages(&self.gpu))
+        let plan = plan_for(&self.plan, &self.idle_plan, action);
+        Ok(plan.plan.profile_stages(&self.gpu))
     }
 
     /// The kernel variant the frame plan records (by adapter, or `UNICA_KERNELS`).
@@ -402,10 +418,11 @@ impl Engine {
     /// The compute dispatches and FLOPs of the plan a frame under `action` runs (0 before
     /// the first frame).
     pub fn plan_counts(&self, action: Action) -> (usize, u64) {
-        self.plan.as_ref().map_or((0, 0), |_| {
-            let p = self.plan_for(action);
-            (p.plan.dispatches(), p.plan.flops())
-        })
+        if self.plan.is_none() {
+            return (0, 0);
+        }
+        let p = plan_for(&self.plan, &self.idle_plan, action);
+        (p.plan.dispatches(), p.plan.flops())
     }
 
     /// The frame plan's copies (buffer to buffer and buffer to texels; no shader runs).
@@ -442,14 +459,6 @@ impl Engine {
             };
         }
         Ok(())
-    }
-
-    /// The plan a frame under `action` runs (once prepared).
-    fn plan_for(&self, action: Action) -> &FramePlan {
-        match (&self.idle_plan, action) {
-            (Some(idle), Action::Idle) => idle,
-            _ => self.plan.as_ref().expect("prepared"),
-        }
     }
 
     fn capture(&mut self, sampling: Sampling) -> Result<FramePlan, GpuError> {
@@ -609,11 +618,7 @@ impl Engine {
         let mut bytes = self.precision.encode(&noise);
         bytes.resize(live.noise.buffer.size() as usize, 0);
         self.gpu.queue.write_buffer(&live.noise.buffer, 0, &bytes);
-        // Field by field (not `plan_for`), so the pacer below can be borrowed mutably.
-        let plan = match (&self.idle_plan, action) {
-            (Some(idle), Action::Idle) => idle,
-            _ => self.plan.as_ref().expect("prepared"),
-        };
+        let plan = plan_for(&self.plan, &self.idle_plan, action);
         let ids = if plan.guided {
             let null = self.bundle.unet.cfg.null_action();
             let partner = plan.sampling.partner(action.id() as usize, null);
