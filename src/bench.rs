@@ -668,11 +668,18 @@ pub fn live(
         engine.plan_copies(),
         flops as f64 / 1e9
     )?;
-    let (idle_dispatches, idle_flops) = engine.plan_counts(Action::Idle);
-    if (idle_dispatches, idle_flops) != (dispatches, flops) {
+    let idle = engine.sampling().for_action(Action::Idle);
+    if idle.cfg_scale != engine.sampling().cfg_scale {
+        let (idle_dispatches, idle_flops) = engine.plan_counts(Action::Idle);
         writeln!(
             out,
-            "idle frames (unguided, one batch): {idle_dispatches} dispatches, {:.2} GFLOP",
+            "idle frames (CFG {}{}): {idle_dispatches} dispatches, {:.2} GFLOP",
+            idle.cfg_scale,
+            if idle.cfg_scale == 1.0 {
+                ", unguided, one batch"
+            } else {
+                ""
+            },
             idle_flops as f64 / 1e9
         )?;
     }

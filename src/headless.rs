@@ -237,6 +237,7 @@ pub fn render(
             "cfg_scale": engine.sampling().cfg_scale,
             "guide_idle": engine.sampling().guide_idle,
             "noise_scale": engine.sampling().noise_scale,
+            "idle_cfg_scale": engine.sampling().idle_cfg_scale,
             "pca": options.pca,
             "splat_level": engine.splat_level(),
             "splats_per_frame": engine.splats().map(|(_, n)| n),

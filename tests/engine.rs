@@ -1,7 +1,7 @@
 //! The live frame on the GPU (src/engine): the captured plan against a CPU reference of
 //! the same loop on the shipped Witch bundle (generate and decode recorded the ordinary
 //! way, then clamping, root shift, PCA projection, world placement and the window's slide
-//! on the host), the frame-state kernel on known values, determinism, and the counts of a
+//! as maps on the host, the slid maps encoded the ordinary way), the frame-state kernel on known values, determinism, and the counts of a
 //! generated frame (nothing created, one readback of at most 256 bytes).
 
 use std::path::{Path, PathBuf};
@@ -33,19 +33,50 @@ fn options(sampling: Sampling, seed: u64) -> EngineOptions {
     }
 }
 
-/// The loop of one engine frame on the host: `context` [1, F-1, C, h, w] values and
-/// the world root before the frame; returns (world points, new window, new root).
+/// The window's maps before the first frame: the standing-start context decoded, the
+/// background set to 0.
+fn start_maps(gpu: &GpuContext, bundle: &Bundle) -> Vec<f32> {
+    let mut pipelines = PipelineCache::default();
+    let mut r = Recorder::new(gpu, &mut pipelines, Precision::F32);
+    let maps = bundle.decode(&mut r, &bundle.context).unwrap();
+    r.submit();
+    let mut maps = maps.read(gpu).unwrap();
+    let plane = bundle.manifest.map_size * bundle.manifest.map_size;
+    let mut foreground = vec![false; plane];
+    for &p in &bundle.pixels {
+        foreground[p as usize] = true;
+    }
+    for (i, v) in maps.iter_mut().enumerate() {
+        if !foreground[i % plane] {
+            *v = 0.0;
+        }
+    }
+    maps
+}
+
+/// One engine frame's result on the host.
+struct Reference {
+    points: Vec<Vec3>,
+    /// The next context latents and the window's maps they encode.
+    context: Vec<f32>,
+    maps: Vec<f32>,
+    root: Vec3,
+    clamped: usize,
+}
+
+/// The loop of one engine frame on the host: `context` [1, F-1, C, h, w] values, the
+/// window's `maps` [F-1, 3, S, S] and the world root before the frame.
 #[allow(clippy::too_many_arguments)]
 fn reference_frame(
     gpu: &GpuContext,
     bundle: &Bundle,
     context: &[f32],
+    maps: &[f32],
     noise: &[f32],
     action: Action,
     sampling: Sampling,
     root: Vec3,
-    jacobian: &[f32],
-) -> (Vec<Vec3>, Vec<f32>, Vec3, usize) {
+) -> Reference {
     let mut pipelines = PipelineCache::default();
     let mut r = Recorder::new(gpu, &mut pipelines, Precision::F32);
     let cfg = &bundle.unet.cfg;
@@ -61,7 +92,7 @@ fn reference_frame(
         .unwrap();
     let map = bundle.decode(&mut r, &latent).unwrap();
     r.submit();
-    let (latent, map) = (latent.read(gpu).unwrap(), map.read(gpu).unwrap());
+    let map = map.read(gpu).unwrap();
     let plane = map.len() / 3;
     let mut clamped = 0;
     let unit: Vec<Vec3> = bundle
@@ -85,23 +116,45 @@ fn reference_frame(
         .iter()
         .map(|&p| (p - Vec3::splat(0.5)) / scale + root)
         .collect();
-    let l = latent.len();
-    let frames = context.len() / l;
-    let window = (0..frames * l)
-        .map(|i| {
-            let (f, j) = (i / l, i % l);
-            let mut v = if f + 1 < frames {
-                context[i + l]
-            } else {
-                latent[j]
-            };
-            for k in 0..3 {
-                v += -shift[k] * jacobian[k * l + j];
-            }
-            v
-        })
+    // The slide: frames 1.. of the window then the new frame's clamped points, all moved
+    // by -shift, background 0; then encoded and scaled.
+    let frames = cfg.frames - 1;
+    let per_frame = 3 * plane;
+    let mut next: Vec<f32> = maps[per_frame..].to_vec();
+    next.resize(frames * per_frame, 0.0);
+    let mut foreground = vec![false; plane];
+    for &p in &bundle.pixels {
+        foreground[p as usize] = true;
+    }
+    let last = (frames - 1) * per_frame;
+    for (point, &p) in bundle.pixels.iter().enumerate() {
+        for k in 0..3 {
+            next[last + k * plane + p as usize] = unit[point][k];
+        }
+    }
+    for (i, v) in next.iter_mut().enumerate() {
+        if foreground[i % plane] {
+            *v -= shift[(i / plane) % 3];
+        }
+    }
+    let size = bundle.manifest.map_size;
+    let mut r = Recorder::new(gpu, &mut pipelines, Precision::F32);
+    let input = r.upload("maps", &[frames, 3, size, size], &next).unwrap();
+    let means = bundle.encoder.forward(&mut r, &input).unwrap();
+    r.submit();
+    let context = means
+        .read(gpu)
+        .unwrap()
+        .iter()
+        .map(|v| v * bundle.manifest.latent_scale)
         .collect();
-    (points, window, root + shift / scale, clamped)
+    Reference {
+        points,
+        context,
+        maps: next,
+        root: root + shift / scale,
+        clamped,
+    }
 }
 
 fn worst(a: &[Vec3], b: &[Vec3]) -> f32 {
@@ -114,22 +167,32 @@ fn worst(a: &[Vec3], b: &[Vec3]) -> f32 {
 
 #[test]
 fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
-    // Three frames each without guidance, with guidance, and with guidance but Idle
-    // unguided and the noise scaled (two DDIM steps: the plan's structure is the same for
+    // Three frames each without guidance, with guidance, with guidance but Idle
+    // unguided and the noise scaled, and with Idle guided at its own scale (two DDIM steps: the plan's structure is the same for
     // any count). Tolerance: 2e-5 m (0.02 mm) on world points and 2e-5 m on the root;
-    // both sides run the same f32 kernels and differ only in summation order and fused
-    // multiply-adds of the PCA, the slide and the world placement (measured ≈ 1e-6 m).
+    // both sides run the same f32 kernels (the encoder of the slid maps included) and
+    // differ only in summation order and fused multiply-adds of the PCA, the slide and
+    // the world placement (measured ≈ 1e-6 m).
     let gpu = gpu();
     let unguided_idle = Sampling {
         guide_idle: false,
         noise_scale: 0.5,
         ..Sampling::new(2, 2.0)
     };
-    for sampling in [Sampling::new(2, 1.0), Sampling::new(2, 2.0), unguided_idle] {
+    let idle_scaled = Sampling {
+        idle_cfg_scale: Some(1.5),
+        ..unguided_idle
+    };
+    for sampling in [
+        Sampling::new(2, 1.0),
+        Sampling::new(2, 2.0),
+        unguided_idle,
+        idle_scaled,
+    ] {
         let cfg_scale = sampling.cfg_scale;
         let mut engine = Engine::new(&gpu, &witch_bundle(), &options(sampling, 7)).unwrap();
         let mut context = engine.bundle.context.read(&gpu).unwrap();
-        let jacobian = engine.shift_jacobian().to_vec();
+        let mut maps = start_maps(&gpu, &engine.bundle);
         let mut root = engine.root();
         let mut noise = Rng::new(7);
         for action in [Action::Forward, Action::Right, Action::Idle] {
@@ -139,29 +202,29 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
                 .iter()
                 .map(|v| v * sampling.noise_scale)
                 .collect();
-            let (points, window, new_root, clamped) = reference_frame(
+            let reference = reference_frame(
                 &gpu,
                 &engine.bundle,
                 &context,
+                &maps,
                 &n,
                 action,
                 sampling,
                 root,
-                &jacobian,
             );
-            let error = worst(&frame.points, &points);
+            let error = worst(&frame.points, &reference.points);
             assert!(
                 error < 2e-5,
                 "cfg {cfg_scale} {action:?}: points differ by {error} m"
             );
             assert!(
-                frame.root.distance(new_root) < 2e-5,
-                "root {} vs {new_root}",
-                frame.root
+                frame.root.distance(reference.root) < 2e-5,
+                "root {} vs {}",
+                frame.root,
+                reference.root
             );
-            assert_eq!(frame.clamped, clamped);
-            context = window;
-            root = new_root;
+            assert_eq!(frame.clamped, reference.clamped);
+            (context, maps, root) = (reference.context, reference.maps, reference.root);
         }
     }
 }
@@ -231,6 +294,88 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
     for (got, want) in state.shift.iter().zip(want) {
         assert!((got - want).abs() < 1e-6, "{:?}", state.shift);
     }
+}
+
+#[test]
+fn the_slide_kernel_slides_the_maps_recentres_them_and_moves_the_root() {
+    // A window of 2 frames of 2×2 maps (plane 4) with foreground pixels 0, 2 and 3 (pixel 1
+    // is background, 0 in the maps); shift (0.1, -0.2, 0.05), scale 2. Frame 0 of the
+    // result is frame 1 moved by -shift, frame 1 the new points moved by -shift, the
+    // background 0 everywhere; the root moves by shift / scale and the frame is counted.
+    let gpu = gpu();
+    let mut pipelines = PipelineCache::default();
+    let mut r = Recorder::new(&gpu, &mut pipelines, Precision::F32);
+    #[rustfmt::skip]
+    let maps = [
+        // frame 0 (dropped)
+        9.0, 0.0, 9.0, 9.0,  9.0, 0.0, 9.0, 9.0,  9.0, 0.0, 9.0, 9.0,
+        // frame 1: x, y, z planes
+        0.1, 0.0, 0.2, 0.3,  0.4, 0.0, 0.5, 0.6,  0.7, 0.0, 0.8, 0.9,
+    ];
+    let maps = Tensor::upload(&gpu, "maps", &[2, 3, 2, 2], &maps, Precision::F32).unwrap();
+    let next = Tensor::empty(&gpu, "next", &[2, 3, 2, 2], Precision::F32).unwrap();
+    let buffer = |v: &[u8]| {
+        gpu.storage_buffer_init("in", v, wgpu::BufferUsages::empty())
+            .unwrap()
+    };
+    // The new frame's points 0, 1, 2 (pixels 0, 2, 3), xyz each.
+    let unit = buffer(bytemuck::cast_slice(&[
+        0.11f32, 0.12, 0.13, 0.21, 0.22, 0.23, 0.31, 0.32, 0.33,
+    ]));
+    let background = unica::engine::recentre::BACKGROUND;
+    let point_of = buffer(bytemuck::cast_slice(&[0u32, background, 1, 2]));
+    let start = FrameState {
+        root: [1.0, 2.0, 3.0, 0.0],
+        shift: [0.1, -0.2, 0.05, 0.0],
+        clamped: 0,
+        clamped_total: 0,
+        frames: 4,
+        reserved: 0,
+    };
+    let state = gpu
+        .storage_buffer_init(
+            "state",
+            bytemuck::bytes_of(&start),
+            wgpu::BufferUsages::COPY_SRC,
+        )
+        .unwrap();
+    let params = PostParams {
+        points: 3,
+        plane: 4,
+        waist: 0,
+        components: 0,
+        scale: 2.0,
+        latent: 1,
+        frames: 2,
+        reserved: 0,
+    };
+    r.dispatch(
+        &kernels::SLIDE,
+        &params,
+        &[&maps.buffer, &unit, &point_of, &state, &next.buffer],
+        r.grid(24),
+    );
+    r.submit();
+    #[rustfmt::skip]
+    let want = [
+        0.1 - 0.1, 0.0, 0.2 - 0.1, 0.3 - 0.1,
+        0.4 + 0.2, 0.0, 0.5 + 0.2, 0.6 + 0.2,
+        0.7 - 0.05, 0.0, 0.8 - 0.05, 0.9 - 0.05,
+        0.11 - 0.1, 0.0, 0.21 - 0.1, 0.31 - 0.1,
+        0.12 + 0.2, 0.0, 0.22 + 0.2, 0.32 + 0.2,
+        0.13 - 0.05, 0.0, 0.23 - 0.05, 0.33 - 0.05,
+    ];
+    let got = next.read(&gpu).unwrap();
+    for (i, (g, w)) in got.iter().zip(want).enumerate() {
+        assert!((g - w).abs() < 1e-6, "value {i}: {g} against {w}");
+    }
+    let state: FrameState =
+        bytemuck::pod_read_unaligned(&readback::buffer(&gpu, &state, "state").unwrap());
+    let root = [1.05, 1.9, 3.025];
+    for (g, w) in state.root.iter().zip(root) {
+        assert!((g - w).abs() < 1e-6, "{:?}", state.root);
+    }
+    assert_eq!(state.frames, 5);
 }
 
 #[test]
@@ -422,4 +567,16 @@ fn an_unguided_idle_runs_a_one_batch_plan_and_a_guided_idle_the_guided_one() {
         guided.plan_counts(Action::Forward)
     );
     assert_eq!(guided.plan_counts(Action::Forward), (moving, moving_flops));
+    // Idle guided at a scale of its own: a second guided plan, the same work.
+    let idle_scaled = Sampling {
+        idle_cfg_scale: Some(1.5),
+        ..unguided_idle
+    };
+    let mut scaled = Engine::new(&gpu, &witch_bundle(), &options(idle_scaled, 1)).unwrap();
+    scaled.frame(Action::Idle).unwrap();
+    scaled.finish();
+    assert_eq!(
+        scaled.plan_counts(Action::Idle),
+        scaled.plan_counts(Action::Forward)
+    );
 }

@@ -1,6 +1,7 @@
 //! The engine's own kernels, which keep a generated frame on the GPU after the decode:
 //! clamping and the root shift (`frame_unit`), the PCA projection (`pca_coefficients`,
-//! `frame_points`) and the window's slide with the world root's update (`slide`). Their
+//! `frame_points`) and the window's slide as maps with the world root's update (`slide`;
+//! the engine then encodes the slid maps). Their
 //! parameter structs are declared once here for Rust and WGSL (`gpu_struct!`); the WGSL
 //! is in `shaders/engine/`. CPU references of the same arithmetic are in this module's
 //! tests and in `tests/engine.rs`.
@@ -54,7 +55,8 @@ pub const FRAME_UNIT: Shader =
     wgsl_shader!("engine/frame_unit.wgsl", [PostParams, FrameState], elem);
 pub const PCA_COEFFICIENTS: Shader = wgsl_shader!("engine/pca_coefficients.wgsl", [PostParams, FrameState], f16: false, subgroups: false);
 pub const FRAME_POINTS: Shader = wgsl_shader!("engine/frame_points.wgsl", [PostParams, FrameState], f16: false, subgroups: false);
-pub const SLIDE: Shader = wgsl_shader!("engine/slide.wgsl", [PostParams, FrameState], elem);
+pub const SLIDE: Shader = wgsl_shader!("engine/slide.wgsl", [PostParams, FrameState], elem)
+    .with_uints(&[("BACKGROUND", super::recentre::BACKGROUND)]);
 
 /// Every shader of the engine stage.
 pub const ALL: &[Shader] = &[FRAME_UNIT, PCA_COEFFICIENTS, FRAME_POINTS, SLIDE];

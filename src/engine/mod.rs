@@ -1,21 +1,24 @@
 //! The live neural avatar (DESIGN §6): a ring of three context latents on the GPU → the
 //! UNet + DDIM with CFG → decode → clamping and the new frame's root shift → PCA cleans
-//! what is drawn (never fed back) → world-space points, while the window is recentred in
-//! latent space and slid and the world root accumulates. All of it is one captured
+//! what is drawn (never fed back) → world-space points, while the window of maps slides,
+//! is recentred on the new root and is encoded into the next context latents, and the
+//! world root accumulates. All of it is one captured
 //! [`Plan`] made at load (and again when the sampling or PCA setting changes): a generated
 //! frame writes its noise and action ids, submits the plan and creates nothing. The only
 //! readback is the 48-byte [`FrameState`] (world root, shift, clamp counts), mapped
 //! asynchronously and picked up by [`Engine::poll`]. Beside a window
 //! (`EngineOptions::split`) the plan is submitted part by part (context pass, each step,
 //! decode), each part waited for on the caller's thread, so the window's own submissions
-//! interleave. A guided sampler that leaves Idle unguided gets a second, one-batch plan
-//! for Idle frames (the conditional prediction alone, half the UNet work).
+//! interleave. A guided sampler whose Idle frames are guided at another scale
+//! (`Sampling::for_action`) gets a second plan for them: one batch where Idle is
+//! unguided (the conditional prediction alone, half the UNet work), else the guided
+//! batch at Idle's scale.
 //! `appearance` turns a frame's points into splats.
 
 pub mod appearance;
 pub mod kernels;
 pub mod pca;
-mod recentre;
+pub mod recentre;
 pub mod surface;
 
 use std::path::Path;
@@ -38,7 +41,7 @@ use crate::splat::frame::SplatFrame;
 use crate::splat::ply::Splat;
 use crate::splat::raster::GpuSplat;
 use kernels::{FrameState, PostParams};
-use recentre::ShiftBasis;
+use recentre::Start;
 
 /// How the engine runs.
 #[derive(Clone, Debug)]
@@ -92,10 +95,16 @@ pub struct Frame {
 
 /// The loop's buffers, made once at load.
 struct Live {
-    /// [1, F-1, C, h, w]: the window of clean context latents (the engine's own copy).
+    /// [1, F-1, C, h, w]: the window of clean context latents (the engine's own copy),
+    /// the encoding of `maps` after the first frame.
     context: Tensor,
-    /// The slid window, copied into `context` at the end of each frame.
-    window: Tensor,
+    /// [F-1, 3, S, S]: the window's frames as maps (background 0), normalised so the
+    /// last frame's root is at 0.5.
+    maps: Tensor,
+    /// The slid maps, copied into `maps` before they are encoded.
+    next_maps: Tensor,
+    /// [S²]: each pixel's foreground point, or `recentre::BACKGROUND`.
+    point_of: wgpu::Buffer,
     /// [1, C, h, w]: the frame's starting noise, written before each frame.
     noise: Tensor,
     pixels: wgpu::Buffer,
@@ -112,7 +121,6 @@ struct Live {
     coefficient_texels: Texels,
     /// 3N world-space values: the frame's drawn points.
     points: wgpu::Buffer,
-    jacobian: wgpu::Buffer,
     state: wgpu::Buffer,
     components: usize,
 }
@@ -160,15 +168,15 @@ pub struct Engine {
     split: bool,
     live: Live,
     plan: Option<FramePlan>,
-    /// The plan Idle frames run when the sampler guides but leaves Idle unguided
-    /// (`Sampling::guide_idle` false): one batch instead of the guided two.
+    /// The plan Idle frames run when the sampler guides them at another scale than the
+    /// keys (`Sampling::for_action`): one batch where Idle is unguided.
     idle_plan: Option<FramePlan>,
     /// The frame's splats (when asked for) and whether they use the refiner.
     splats: Option<SplatFrame>,
     refine: bool,
     /// Called between the parts of a split frame (see [`Engine::set_pacer`]).
     pacer: Option<Box<dyn FnMut() + Send>>,
-    basis: ShiftBasis,
+    start: Start,
     slots: Vec<Slot>,
     /// The latest frame state read back, and the frames submitted.
     state: FrameState,
@@ -205,15 +213,15 @@ impl Engine {
                 problem,
             })?;
         let mut pipelines = PipelineCache::default();
-        let basis = ShiftBasis::measure(gpu, &mut pipelines, options.precision, &bundle)?;
+        let start = Start::measure(gpu, &mut pipelines, options.precision, &bundle)?;
         let scale = bundle.manifest.normalisation.scale;
-        let lowest = basis
+        let lowest = start
             .standing
             .iter()
             .map(|p| p.y)
             .fold(f32::INFINITY, f32::min);
         let start_root = Vec3::new(0.0, (0.5 - lowest) / scale, 0.0);
-        let live = Live::new(gpu, &bundle, &basis, options.precision, start_root)?;
+        let live = Live::new(gpu, &bundle, &start, options.precision, start_root)?;
         let slots = (0..SLOTS)
             .map(|_| Slot {
                 staging: gpu.create_buffer(&wgpu::BufferDescriptor {
@@ -239,7 +247,7 @@ impl Engine {
             splats: None,
             refine: options.refine,
             pacer: None,
-            basis,
+            start,
             slots,
             state: initial_state(start_root),
             start_root,
@@ -282,7 +290,7 @@ impl Engine {
     /// generated frame).
     pub fn standing_points(&self) -> Vec<Vec3> {
         let scale = self.bundle.manifest.normalisation.scale;
-        self.basis
+        self.start
             .standing
             .iter()
             .map(|&p| (p - Vec3::splat(0.5)) / scale + self.start_root)
@@ -301,12 +309,6 @@ impl Engine {
     /// Takes effect from the next frame (the plan is captured again then).
     pub fn set_pca(&mut self, on: bool) {
         self.pca = on;
-    }
-
-    /// The latent response to a uniform shift of the frame, J_x, J_y, J_z one after the
-    /// other ([3, C·h·w], see `recentre`): what the window's slide subtracts.
-    pub fn shift_jacobian(&self) -> &[f32] {
-        &self.basis.jacobian
     }
 
     /// A split frame calls `pacer` on the submitting thread after each part has run, so
@@ -448,12 +450,9 @@ impl Engine {
         if !fresh {
             let sampling = self.sampling;
             self.plan = Some(self.capture(sampling)?);
-            self.idle_plan = if sampling.cfg_scale != 1.0 && !sampling.guide_idle {
-                let unguided = Sampling {
-                    cfg_scale: 1.0,
-                    ..sampling
-                };
-                Some(self.capture(unguided)?)
+            let idle = sampling.for_action(Action::Idle);
+            self.idle_plan = if idle.cfg_scale != sampling.cfg_scale {
+                Some(self.capture(idle)?)
             } else {
                 None
             };
@@ -575,23 +574,32 @@ impl Engine {
             );
         }
         r.stage("geometry");
-        let grid = r.grid(live.window.len());
+        let grid = r.grid(live.maps.len());
         r.dispatch(
             &kernels::SLIDE,
             &params,
             &[
-                &live.context.buffer,
-                &latent.buffer,
-                &live.jacobian,
+                &live.maps.buffer,
+                &live.unit,
+                &live.point_of,
                 &live.state,
-                &live.window.buffer,
+                &live.next_maps.buffer,
             ],
             grid,
         );
         r.copy(
-            &live.window.buffer,
+            &live.next_maps.buffer,
+            &live.maps.buffer,
+            live.maps.buffer.size(),
+        );
+        r.stage("vae-encode");
+        let means = bundle.encoder.forward(&mut r, &live.maps)?;
+        let scale = bundle.manifest.latent_scale;
+        let scaled = r.axpby(scale, &means, 0, 0.0, &means, 0, &means.shape)?;
+        r.copy(
+            &scaled.buffer,
             &live.context.buffer,
-            live.window.buffer.size(),
+            live.context.buffer.size(),
         );
         Ok(FramePlan {
             plan: r.finish(),
@@ -767,7 +775,7 @@ impl Live {
     fn new(
         gpu: &GpuContext,
         bundle: &Bundle,
-        basis: &ShiftBasis,
+        start: &Start,
         precision: Precision,
         start_root: Vec3,
     ) -> Result<Self, GpuError> {
@@ -784,13 +792,6 @@ impl Live {
             context.buffer.size(),
         );
         gpu.submit([encoder.finish()]);
-        let f32s = |label: &str, values: &[f32]| {
-            gpu.storage_buffer_init(
-                label,
-                bytemuck::cast_slice(values),
-                wgpu::BufferUsages::empty(),
-            )
-        };
         let u32s = |label: &str, values: &[u32]| {
             gpu.storage_buffer_init(
                 label,
@@ -801,8 +802,12 @@ impl Live {
         let d = 3 * bundle.pixels.len();
         let components = bundle.pca_basis.len() / d.max(1);
         let state = initial_state(start_root);
+        let size = bundle.manifest.map_size;
+        let map_shape = [cfg.frames - 1, 3, size, size];
         Ok(Self {
-            window: Tensor::empty(gpu, "engine.window", &shape, precision)?,
+            maps: Tensor::upload(gpu, "engine.maps", &map_shape, &start.maps, precision)?,
+            next_maps: Tensor::empty(gpu, "engine.next_maps", &map_shape, precision)?,
+            point_of: u32s("engine.point_of", &start.point_of)?,
             noise: Tensor::empty(gpu, "engine.noise", &[1, cfg.latent, side, side], precision)?,
             context,
             pixels: u32s("engine.pixels", &bundle.pixels)?,
@@ -837,7 +842,6 @@ impl Live {
                 4 * d as u64,
                 wgpu::BufferUsages::COPY_SRC,
             )?,
-            jacobian: f32s("engine.jacobian", &basis.jacobian)?,
             state: gpu.storage_buffer_init(
                 "engine.state",
                 bytemuck::bytes_of(&state),

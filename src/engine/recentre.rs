@@ -1,26 +1,35 @@
-//! Recentring the window without re-encoding: when the window slides, every context frame
-//! is translated by -δ (the new frame's root shift). A uniform shift of the foreground
-//! along axis k moves the encoder's latents along J_k = ∂E/∂δ_k, measured once per
-//! bundle by central differences at the standing start's context frames (averaged; as
-//! `train/unica_train/recentre.py`'s `bundle_basis`, whose rollouts validated it against
-//! re-encoding); the window then moves by -Σ δ_k J_k in latent space (`slide.wgsl`).
+//! Recentring the window by re-encoding it: the engine keeps the window's three context
+//! frames as position maps beside their latents. When the window slides, frames 1 and 2
+//! and the new frame (its clamped points) are translated by -δ, the new frame's root
+//! shift, written as maps with background 0 (`slide.wgsl`), and encoded again: the
+//! context latents are the encoder's means of those maps times the latent scale, as in
+//! the trainer's reference loop (`train/unica_train/recentre.py`, mode "reencode").
+//!
+//! (Until session 20 the slide was applied in latent space as -Σ δ_k J_k, J the encoder's
+//! response to a uniform shift measured once per bundle. The PyTorch loop measured that
+//! approximation as the cause of the avatar's short stride: 2.11 m/s on W against 2.42
+//! re-encoded and the teacher's 2.39. Re-encoding three 128² maps costs 0.8 GFLOP a
+//! frame.) This module makes the window's starting maps: the standing-start context
+//! decoded, background 0.
 
 use crate::gpu::GpuContext;
 use crate::gpu::kernel::{PipelineCache, Precision};
 use crate::nn::{Bundle, LoadError, Recorder};
 
-/// The half-width of the central difference, in normalised units: about the root shift
-/// of one running frame, so J is the secant over the shifts the loop meets.
-const STEP: f32 = 0.03;
+/// Marks a background pixel in [`Start::point_of`].
+pub const BACKGROUND: u32 = u32::MAX;
 
-pub struct ShiftBasis {
-    /// J_x, J_y, J_z one after the other, each one latent frame's values: [3, C·h·w].
-    pub jacobian: Vec<f32>,
-    /// The standing start's last frame decoded: its foreground points, normalised.
+pub struct Start {
+    /// The standing start's context frames decoded, foreground kept and background 0:
+    /// [F-1, 3, S, S], the window's maps before the first frame.
+    pub maps: Vec<f32>,
+    /// The standing start's last frame: its foreground points, normalised.
     pub standing: Vec<glam::Vec3>,
+    /// For every map pixel the index of its foreground point, or [`BACKGROUND`].
+    pub point_of: Vec<u32>,
 }
 
-impl ShiftBasis {
+impl Start {
     pub fn measure(
         gpu: &GpuContext,
         pipelines: &mut PipelineCache,
@@ -31,57 +40,56 @@ impl ShiftBasis {
         let size = bundle.manifest.map_size;
         let plane = size * size;
         let context_frames = cfg.frames - 1;
-        // The standing start's last frame, decoded.
         let mut r = Recorder::new(gpu, pipelines, precision);
-        let maps = bundle.decode(&mut r, &bundle.context)?;
+        let decoded = bundle.decode(&mut r, &bundle.context)?;
         r.submit();
-        let maps = maps.read(gpu)?;
+        let decoded = decoded.read(gpu)?;
+        let point_of = point_of(&bundle.pixels, plane);
+        let maps: Vec<f32> = decoded
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| {
+                if point_of[i % plane] == BACKGROUND {
+                    0.0
+                } else {
+                    v
+                }
+            })
+            .collect();
         let last = &maps[(context_frames - 1) * 3 * plane..context_frames * 3 * plane];
         let standing = bundle
             .pixels
             .iter()
             .map(|&p| {
-                glam::Vec3::new(
-                    last[p as usize],
-                    last[plane + p as usize],
-                    last[2 * plane + p as usize],
-                )
+                let p = p as usize;
+                glam::Vec3::new(last[p], last[plane + p], last[2 * plane + p])
             })
             .collect();
-        // Every context frame's foreground shifted by ±STEP along each axis, background 0:
-        // batch entry (frame · 3 + k) · 2 + (0: +, 1: −).
-        let mut shifted = Vec::with_capacity(context_frames * 6 * 3 * plane);
-        for frame in maps.chunks_exact(3 * plane) {
-            for k in 0..3 {
-                for sign in [1.0, -1.0] {
-                    let mut map = vec![0.0; 3 * plane];
-                    for &p in &bundle.pixels {
-                        for c in 0..3 {
-                            let i = c * plane + p as usize;
-                            map[i] = frame[i] + if c == k { sign * STEP } else { 0.0 };
-                        }
-                    }
-                    shifted.extend(map);
-                }
-            }
-        }
-        let batch = 6 * context_frames;
-        let mut r = Recorder::new(gpu, pipelines, precision);
-        let input = r.upload("recentre.maps", &[batch, 3, size, size], &shifted)?;
-        let means = bundle.encoder.forward(&mut r, &input)?;
-        r.submit();
-        let means = means.read(gpu)?;
-        let latent = means.len() / batch;
-        let factor = bundle.manifest.latent_scale / (2.0 * STEP * context_frames as f32);
-        let mut jacobian = vec![0.0; 3 * latent];
-        for (k, j) in jacobian.chunks_exact_mut(latent).enumerate() {
-            for frame in 0..context_frames {
-                let entry = |sign: usize| &means[((frame * 3 + k) * 2 + sign) * latent..][..latent];
-                for (v, (a, b)) in j.iter_mut().zip(entry(0).iter().zip(entry(1))) {
-                    *v += (a - b) * factor;
-                }
-            }
-        }
-        Ok(Self { jacobian, standing })
+        Ok(Self {
+            maps,
+            standing,
+            point_of,
+        })
+    }
+}
+
+/// Each of `plane` pixels' index in `pixels` (the foreground list), or [`BACKGROUND`].
+pub fn point_of(pixels: &[u32], plane: usize) -> Vec<u32> {
+    let mut out = vec![BACKGROUND; plane];
+    for (point, &p) in pixels.iter().enumerate() {
+        out[p as usize] = point as u32;
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn point_of_inverts_the_foreground_list() {
+        // Pixels 3, 0 and 5 of a 2×3 map are foreground, in that order.
+        let out = point_of(&[3, 0, 5], 6);
+        assert_eq!(out, vec![1, BACKGROUND, BACKGROUND, 0, BACKGROUND, 2]);
     }
 }

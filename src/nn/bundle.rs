@@ -14,6 +14,7 @@ use super::sampler::{self, DiffusionConfig, Sampling, Schedule};
 use super::unet::{UNet, UNetConfig};
 use super::vae::{Decoder, Encoder, VaeConfig};
 use super::weights::{LoadError, Weights};
+use crate::action::Action;
 use crate::gpu::kernel::Precision;
 use crate::gpu::{GpuContext, GpuError};
 use crate::nn::ops::MAX_HEAD_SIZE;
@@ -135,7 +136,8 @@ impl Bundle {
     }
 
     /// Records the generation of the frame after `context` [1, F-1, C, h, w] under
-    /// `action` from `noise` [1, C, h, w] with `sampling`; returns its latent.
+    /// `action` from `noise` [1, C, h, w] with `sampling` (as it applies to that action,
+    /// [`Sampling::for_action`]); returns its latent.
     pub fn generate(
         &self,
         r: &mut Recorder,
@@ -151,7 +153,11 @@ impl Bundle {
             context,
             &[action],
             noise,
-            sampling,
+            if action == Action::Idle.id() as usize {
+                sampling.for_action(Action::Idle)
+            } else {
+                sampling
+            },
         )
     }
 

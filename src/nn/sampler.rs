@@ -78,8 +78,11 @@ impl Schedule {
 /// With `guide_idle` false an Idle frame takes the conditional prediction alone: its
 /// second half runs Idle instead of the null action, so null + s·(cond − null) = cond
 /// (guidance away from the null action's average motion made a standing avatar creep,
-/// session 18). The starting noise is standard normal times `noise_scale`. Bundles
-/// without the two settings guide Idle and use scale 1.
+/// session 18). `idle_cfg_scale`, where set, is Idle's own guidance scale when the
+/// sampler guides, and overrides `guide_idle` (session 20: 1.5 brings the Witch to rest
+/// as the teacher does; see [`Sampling::for_action`]). The starting noise is standard
+/// normal times `noise_scale`. Bundles without these settings guide Idle as the keys and
+/// use noise scale 1.
 #[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
 pub struct Sampling {
     #[serde(rename = "ddim_steps")]
@@ -89,6 +92,8 @@ pub struct Sampling {
     pub guide_idle: bool,
     #[serde(default = "one")]
     pub noise_scale: f32,
+    #[serde(default)]
+    pub idle_cfg_scale: Option<f32>,
 }
 
 fn yes() -> bool {
@@ -107,6 +112,31 @@ impl Sampling {
             cfg_scale,
             guide_idle: true,
             noise_scale: 1.0,
+            idle_cfg_scale: None,
+        }
+    }
+
+    /// The sampling a frame under `action` runs: an Idle frame of a guided sampler at
+    /// `idle_cfg_scale` where set (guided against the null action), else unguided where
+    /// `guide_idle` is false; every other frame as `self`. (The trainer's
+    /// `diffusion.idle_scale`.)
+    pub fn for_action(&self, action: Action) -> Sampling {
+        if action != Action::Idle || self.cfg_scale == 1.0 {
+            return *self;
+        }
+        match (self.idle_cfg_scale, self.guide_idle) {
+            (Some(scale), _) => Sampling {
+                cfg_scale: scale,
+                guide_idle: true,
+                idle_cfg_scale: None,
+                ..*self
+            },
+            (None, false) => Sampling {
+                cfg_scale: 1.0,
+                guide_idle: true,
+                ..*self
+            },
+            (None, true) => *self,
         }
     }
 
@@ -119,6 +149,11 @@ impl Sampling {
             ))
         } else if !self.cfg_scale.is_finite() {
             Err(format!("CFG scale {} is not a number", self.cfg_scale))
+        } else if self.idle_cfg_scale.is_some_and(|s| !s.is_finite()) {
+            Err(format!(
+                "Idle CFG scale {} is not a number",
+                self.idle_cfg_scale.unwrap_or_default()
+            ))
         } else if !(self.noise_scale.is_finite() && self.noise_scale > 0.0) {
             Err(format!(
                 "noise scale {}: a positive number is needed",
@@ -130,9 +165,10 @@ impl Sampling {
     }
 
     /// The action id that pairs with `id` in a guided batch's second half: the null
-    /// action, or Idle itself for Idle when Idle is not guided.
+    /// action, or Idle itself for Idle when Idle is not guided (and has no scale of its
+    /// own).
     pub fn partner(&self, id: usize, null: usize) -> usize {
-        if id == Action::Idle.id() as usize && !self.guide_idle {
+        if id == Action::Idle.id() as usize && !self.guide_idle && self.idle_cfg_scale.is_none() {
             id
         } else {
             null
@@ -255,6 +291,45 @@ mod tests {
             .unwrap_err();
             assert!(e.contains("noise scale"), "{e}");
         }
+    }
+
+    #[test]
+    fn idle_frames_take_their_own_scale_where_the_sampler_guides() {
+        let keys = Sampling::new(10, 4.5);
+        let at = |s: Sampling, a: Action| s.for_action(a).cfg_scale;
+        // Guided Idle (older bundles): as the keys.
+        assert_eq!(at(keys, Action::Idle), 4.5);
+        // Unguided Idle: 1; an Idle scale overrides guide_idle; the keys keep theirs.
+        let unguided = Sampling {
+            guide_idle: false,
+            ..keys
+        };
+        assert_eq!(at(unguided, Action::Idle), 1.0);
+        let own = Sampling {
+            idle_cfg_scale: Some(1.5),
+            ..unguided
+        };
+        assert_eq!(at(own, Action::Idle), 1.5);
+        assert_eq!(own.for_action(Action::Forward), own);
+        // The Idle sampling pairs Idle with the null action (it is guided).
+        assert_eq!(own.for_action(Action::Idle).partner(0, 5), 5);
+        assert_eq!(unguided.partner(0, 5), 0);
+        // An unguided sampler leaves Idle unguided whatever its scale.
+        let plain = Sampling {
+            cfg_scale: 1.0,
+            ..own
+        };
+        assert_eq!(at(plain, Action::Idle), 1.0);
+        let parsed: Sampling = serde_json::from_str(
+            r#"{"ddim_steps": 10, "cfg_scale": 4.5, "guide_idle": false, "noise_scale": 0.5, "idle_cfg_scale": 1.5}"#,
+        )
+        .unwrap();
+        assert_eq!(parsed.idle_cfg_scale, Some(1.5));
+        let bad = Sampling {
+            idle_cfg_scale: Some(f32::NAN),
+            ..own
+        };
+        assert!(bad.check(1000).unwrap_err().contains("Idle CFG scale"));
     }
 
     #[test]

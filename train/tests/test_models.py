@@ -2,7 +2,7 @@
 
 import torch
 
-from unica_train.diffusion import Schedule, ddim_step, guided_eps, sample_next, sampler_options, step_scales
+from unica_train.diffusion import Schedule, ddim_step, guided_eps, idle_scale, sample_next, sampler_options, step_scales
 from unica_train.unet import UNet, UNetConfig, conv_and_linear_flops, parameter_count
 from unica_train.vae import PositionVae, VaeConfig
 
@@ -133,9 +133,16 @@ def test_an_unguided_idle_takes_the_conditional_prediction_and_the_noise_scales(
                        generator=torch.Generator().manual_seed(4))
     drawn = 0.5 * torch.randn(1, 4, 16, 16, generator=torch.Generator().manual_seed(4))
     torch.testing.assert_close(half, sample_next(Keyed(), s, context, torch.tensor([1]), steps=2, cfg_scale=4.0, noise=drawn))
+    # An Idle scale of its own: Idle 0.6 + 1.5 (0.1 - 0.6) = -0.15, Forward as before; it
+    # overrides guide_idle, and an unguided step leaves every sample unguided.
+    own = guided_eps(Keyed(), x, t, action, 4.0, guide_idle=False, idle_cfg_scale=1.5)
+    for i, want in enumerate([-0.15, -1.0, -0.15]):
+        torch.testing.assert_close(own[i] - base[i], torch.full_like(base[i], want), atol=1e-5, rtol=0)
+    assert [idle_scale(4.0), idle_scale(4.0, False), idle_scale(4.0, False, 1.5), idle_scale(1.0, True, 1.5)] == [4.0, 1.0, 1.5, 1.0]
     # Old manifests guide Idle at noise scale 1.
-    assert sampler_options({"ddim_steps": 10, "cfg_scale": 4.0}) == {"guide_idle": True, "noise_scale": 1.0}
-    assert sampler_options({"guide_idle": False, "noise_scale": 0.5}) == {"guide_idle": False, "noise_scale": 0.5}
+    assert sampler_options({"ddim_steps": 10, "cfg_scale": 4.0}) == {"guide_idle": True, "noise_scale": 1.0, "idle_cfg_scale": None}
+    assert sampler_options({"guide_idle": False, "noise_scale": 0.5, "idle_cfg_scale": 1.5}) == {
+        "guide_idle": False, "noise_scale": 0.5, "idle_cfg_scale": 1.5}
 
 
 def test_vae_loss_falls_on_an_overfit_batch():

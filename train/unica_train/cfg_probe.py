@@ -88,7 +88,9 @@ def main(argv=None):
         options["guide_idle"] = args.guide_idle == "yes"
     if args.noise_scale is not None:
         options["noise_scale"] = args.noise_scale
-    print(f"sampler: {steps} DDIM steps, Idle {'guided' if options['guide_idle'] else 'unguided'}, noise scale {options['noise_scale']:g}")
+    idle = options.get("idle_cfg_scale")
+    idle_text = f"at CFG {idle:g}" if idle is not None else "guided" if options["guide_idle"] else "unguided"
+    print(f"sampler: {steps} DDIM steps, Idle {idle_text}, noise scale {options['noise_scale']:g}")
     results = []
     intervals = [None if g == "all" else int(g) for g in args.guided_steps.split(",")]
     for guided in intervals:

@@ -6,7 +6,10 @@ keeps generated poses closer but loses the keys, so the engine guides every step
 assets/witch/README.md). Two more sampler settings (session 18): `guide_idle` false
 samples Idle frames from the conditional prediction alone (guidance away from the null
 action's average motion pushed a standing avatar backwards: she crept), and
-`noise_scale` draws the starting noise at that temperature (less jitter at rest)."""
+`noise_scale` draws the starting noise at that temperature (less jitter at rest). Since
+session 20 `idle_cfg_scale`, where set, is the guidance scale of Idle samples in guided
+steps instead (1.5 for the Witch: unguided she glided on for 20 frames once the window
+was re-encoded, guided at 4.5 she stopped in two frames and then crept)."""
 
 from __future__ import annotations
 
@@ -55,10 +58,22 @@ def ddim_step(schedule: Schedule, x_t, eps, t: int, t_prev: int):
     return a_prev.sqrt() * x0 + (1 - a_prev).sqrt() * eps
 
 
-def guided_eps(model, latents, t_frames, action, cfg_scale: float, guide_idle: bool = True):
+def idle_scale(cfg_scale: float, guide_idle: bool = True, idle_cfg_scale: float | None = None) -> float:
+    """The guidance scale of an Idle sample in a step guided by `cfg_scale`: 1 in an
+    unguided step; else `idle_cfg_scale` where set, else `cfg_scale`, or 1 with
+    `guide_idle` false."""
+    if cfg_scale == 1.0:
+        return 1.0
+    if idle_cfg_scale is not None:
+        return float(idle_cfg_scale)
+    return float(cfg_scale) if guide_idle else 1.0
+
+
+def guided_eps(model, latents, t_frames, action, cfg_scale: float, guide_idle: bool = True,
+               idle_cfg_scale: float | None = None):
     """The target frame's noise prediction with classifier-free guidance: the conditional
-    and the null action run in one batch; eps = null + s (cond - null). With `guide_idle`
-    false, samples whose action is Idle take the conditional prediction alone (s = 1)."""
+    and the null action run in one batch; eps = null + s (cond - null), s = `cfg_scale`,
+    for Idle samples `idle_scale(...)` (s = 1: the conditional prediction alone)."""
     b = latents.shape[0]
     if cfg_scale == 1.0:
         return model(latents, t_frames, action)[:, -1]
@@ -66,8 +81,7 @@ def guided_eps(model, latents, t_frames, action, cfg_scale: float, guide_idle: b
     eps = model(latents.repeat(2, 1, 1, 1, 1), t_frames.repeat(2, 1), torch.cat([action, null]))[:, -1]
     cond, uncond = eps[:b], eps[b:]
     scale = torch.full((b,), float(cfg_scale), dtype=eps.dtype, device=eps.device)
-    if not guide_idle:
-        scale[action == IDLE] = 1.0
+    scale[action == IDLE] = idle_scale(cfg_scale, guide_idle, idle_cfg_scale)
     return uncond + scale.view(b, *[1] * (eps.dim() - 1)) * (cond - uncond)
 
 
@@ -80,10 +94,11 @@ def step_scales(steps: int, cfg_scale: float, guided_steps: int | None = None) -
 
 @torch.no_grad()
 def sample_next(model, schedule: Schedule, context, action, steps: int = 10, cfg_scale: float = 1.0, noise=None, generator=None,
-                guided_steps: int | None = None, guide_idle: bool = True, noise_scale: float = 1.0):
+                guided_steps: int | None = None, guide_idle: bool = True, noise_scale: float = 1.0,
+                idle_cfg_scale: float | None = None):
     """Generates the 4th latent frame from 3 clean context latents [B, 3, C, H, W]; guided
-    by `cfg_scale` over the first `guided_steps` steps (None: all), Idle samples too unless
-    `guide_idle` is false; from `noise`, else from standard normal noise times
+    by `cfg_scale` over the first `guided_steps` steps (None: all), Idle samples at
+    `idle_scale(...)`; from `noise`, else from standard normal noise times
     `noise_scale`."""
     b, device = context.shape[0], context.device
     x = noise if noise is not None else noise_scale * torch.randn(context[:, :1].shape, generator=generator)[:, 0]
@@ -94,12 +109,15 @@ def sample_next(model, schedule: Schedule, context, action, steps: int = 10, cfg
         t_prev = times[i + 1] if i + 1 < len(times) else -1
         latents = torch.cat([context, x[:, None]], 1)
         t_frames = torch.tensor([[0, 0, 0, t]] * b, device=device)
-        eps = guided_eps(model, latents, t_frames, action, scales[i], guide_idle)
+        eps = guided_eps(model, latents, t_frames, action, scales[i], guide_idle, idle_cfg_scale)
         x = ddim_step(schedule, x, eps, t, t_prev)
     return x
 
 
 def sampler_options(sampler: dict) -> dict:
     """The keyword arguments of `sample_next` a bundle manifest's `sampler` entry sets
-    beyond its steps and CFG scale (older bundles: guide Idle, noise scale 1)."""
-    return {"guide_idle": bool(sampler.get("guide_idle", True)), "noise_scale": float(sampler.get("noise_scale", 1.0))}
+    beyond its steps and CFG scale (older bundles: guide Idle, noise scale 1, no Idle
+    scale of its own)."""
+    idle = sampler.get("idle_cfg_scale")
+    return {"guide_idle": bool(sampler.get("guide_idle", True)), "noise_scale": float(sampler.get("noise_scale", 1.0)),
+            "idle_cfg_scale": None if idle is None else float(idle)}

@@ -6,8 +6,8 @@ networks (LPIPS, FVD).
 
 (`unica eval --bundle B --data DATA --out OUT` first drives the teacher headless on the
 key script to make TEACHER.json, then runs this.) The live loop is the trainer's
-reference of the WGSL engine (recentre.rollout with the latent shift, parity-tested
-against it), run in PyTorch because a 2-core CPU runs it there ~20× faster than lavapipe.
+reference of the WGSL engine (recentre.rollout re-encoding the slid window, as the
+engine does since session 20), run in PyTorch because a 2-core CPU runs it there ~20× faster than lavapipe.
 
 1. Image level: held-out dataset frames, each generated from its three ground-truth
    context frames and the true action, drawn as splats from the dataset's four cardinal
@@ -84,7 +84,6 @@ class Avatar:
         self.nbrs = splats.neighbours(self.pixels, 128)
         self.level = splats.Level(self.pixels, self.colors, level)
         self.refiner = from_bundle(self.manifest, self.extra)
-        self.basis = recentre.bundle_basis(self.vae, self.extra, self.manifest)
 
     def clean(self, unit: torch.Tensor) -> torch.Tensor:
         """PCA clean-up of normalised points [N, 3] (the root's shift kept)."""
@@ -121,8 +120,8 @@ class Avatar:
         started = time.time()
         out = recentre.rollout(
             self.vae, self.unet, self.schedule, self.latent_scale, self.extra["context.latents"], keys,
-            setting["steps"], setting["cfg_scale"], seed, self.pixels, self.waist, self.scale, "latent",
-            frames=frames, basis=self.basis, on_frame=keep, guided_steps=setting.get("guided_steps"),
+            setting["steps"], setting["cfg_scale"], seed, self.pixels, self.waist, self.scale, "reencode",
+            frames=frames, on_frame=keep, guided_steps=setting.get("guided_steps"),
             **{k: setting.get(k, v) for k, v in self.sampler_options.items()})
         out["unit"] = torch.stack(drawn)
         out["ms_per_frame"] = (time.time() - started) * 1e3 / max(1, len(drawn))

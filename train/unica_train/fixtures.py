@@ -119,8 +119,8 @@ def pca_decoder() -> dict[str, torch.Tensor]:
 
 def witch_frame(noise: torch.Tensor, action: int = 1) -> dict[str, torch.Tensor]:
     """The Witch bundle's next latent after its standing-start context under `action`
-    (Forward; Idle for the unguided-Idle path), from `noise`, with the bundle's sampler
-    (DDIM steps, CFG scale, whether Idle is guided), and the decoded position map."""
+    (Forward; Idle for Idle's own guidance scale), from `noise`, with the bundle's sampler
+    (DDIM steps, CFG scale, how Idle is guided, noise scale), and the decoded position map."""
     vae, unet, extra, manifest = bundle.load(WITCH_BUNDLE)
     sampler, scale = manifest["sampler"], manifest["latent_scale"]
     action = torch.tensor([action])

@@ -151,7 +151,8 @@ def keys_text(actions: list[int]) -> str:
 def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, pixels, waist, norm_scale, shift_mode,
             frames: int | None = None, basis: torch.Tensor | None = None, window: torch.Tensor | None = None,
             start_root: torch.Tensor | None = None, diagnose: bool = False, log_every: int = 0,
-            on_frame=None, guided_steps: int | None = None, guide_idle: bool = True, noise_scale: float = 1.0) -> dict:
+            on_frame=None, guided_steps: int | None = None, guide_idle: bool = True, noise_scale: float = 1.0,
+            idle_cfg_scale: float | None = None) -> dict:
     """The live loop of train.py's `Run.rollout` from the clean context latents [3, C, h, w]
     (scaled), recentring each frame either by re-encoding the translated window
     ("reencode", the reference) or by the latent shift context − Σ δ_k J_k ("latent", no
@@ -185,8 +186,10 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
     started = time.time()
     for i, a in enumerate(actions):
         z = sample_next(unet, schedule, context[None], torch.tensor([a]), steps, cfg_scale, generator=gen,
-                        guided_steps=guided_steps, guide_idle=guide_idle, noise_scale=noise_scale)
-        new = decode_points(vae, z, scale, pixels)[0]  # [N, 3]
+                        guided_steps=guided_steps, guide_idle=guide_idle, noise_scale=noise_scale,
+                        idle_cfg_scale=idle_cfg_scale)
+        # [N, 3], NaN to the cube's centre and clamped into it, as the engine does
+        new = decode_points(vae, z, scale, pixels)[0].nan_to_num(0.5).clamp(0.0, 1.0)
         shift = root(new, waist) - 0.5
         if on_frame is not None:
             on_frame(i, new, shift)

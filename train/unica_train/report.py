@@ -153,6 +153,13 @@ def _masked_section(results: dict, data: str) -> list[str]:
     return lines
 
 
+def _idle_text(d: dict) -> str:
+    """How Idle frames are guided, for the sampler line ('' where as the keys)."""
+    if d.get("idle_cfg_scale") is not None:
+        return f" (Idle frames at CFG {d['idle_cfg_scale']:g})"
+    return "" if d.get("guide_idle", True) else " (Idle frames unguided)"
+
+
 def write_report(out: Path, results: dict, sheet: list, masked_sheet: list | None = None) -> None:
     _turn_plot(out / "turns.png", results)
     _drift_plot(out / "drift.png", results["long_run"])
@@ -167,7 +174,7 @@ def write_report(out: Path, results: dict, sheet: list, masked_sheet: list | Non
         "",
         f"Bundle `{results['bundle']}`, dataset `{results['data']}`, key script `{results['keys']}`, seed {results['seed']}"
         f"{' (quick mode: a short script, fewer frames)' if results['quick'] else ''}. Sampler: {d['steps']} DDIM steps, "
-        f"CFG {d['cfg_scale']}{'' if d.get('guide_idle', True) else ' (Idle frames unguided)'}, starting noise × "
+        f"CFG {d['cfg_scale']}{_idle_text(d)}, starting noise × "
         f"{d.get('noise_scale', 1.0):g}, PCA on. Written by `unica eval` in {results['minutes']:.1f} min.",
         "",
         *(_masked_section(results, results["data"]) if "masked" in results else []),
