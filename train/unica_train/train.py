@@ -391,7 +391,8 @@ class Run:
         context = encode(window)
         for i, a in enumerate(keys):
             z = sample_next(unet, schedule, context[None], torch.tensor([a]), cfg.ddim_steps, cfg.cfg_scale, generator=gen)
-            new = (vae.decode(z / scale)[0].flatten(1)[:, ds.pixels]).T  # [N, 3]
+            # [N, 3], NaN to the cube's centre and clamped into it, as the engine does
+            new = (vae.decode(z / scale)[0].flatten(1)[:, ds.pixels]).T.nan_to_num(0.5).clamp(0.0, 1.0)
             shift = ds.root(new) - 0.5
             world_root = world_root + shift / ds.scale
             window = torch.cat([window[1:], new[None]]) - shift
