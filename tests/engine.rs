@@ -33,6 +33,25 @@ fn options(sampling: Sampling, seed: u64) -> EngineOptions {
     }
 }
 
+/// Whether each map pixel is foreground.
+fn foreground(bundle: &Bundle) -> Vec<bool> {
+    let mut out = vec![false; bundle.manifest.map_size * bundle.manifest.map_size];
+    for &p in &bundle.pixels {
+        out[p as usize] = true;
+    }
+    out
+}
+
+/// A frame-state buffer starting at `state`, readable back.
+fn state_buffer(gpu: &GpuContext, state: &FrameState) -> wgpu::Buffer {
+    gpu.storage_buffer_init(
+        "state",
+        bytemuck::bytes_of(state),
+        wgpu::BufferUsages::COPY_SRC,
+    )
+    .unwrap()
+}
+
 /// The window's maps before the first frame: the standing-start context decoded, the
 /// background set to 0.
 fn start_maps(gpu: &GpuContext, bundle: &Bundle) -> Vec<f32> {
@@ -41,11 +60,8 @@ fn start_maps(gpu: &GpuContext, bundle: &Bundle) -> Vec<f32> {
     let maps = bundle.decode(&mut r, &bundle.context).unwrap();
     r.submit();
     let mut maps = maps.read(gpu).unwrap();
-    let plane = bundle.manifest.map_size * bundle.manifest.map_size;
-    let mut foreground = vec![false; plane];
-    for &p in &bundle.pixels {
-        foreground[p as usize] = true;
-    }
+    let foreground = foreground(bundle);
+    let plane = foreground.len();
     for (i, v) in maps.iter_mut().enumerate() {
         if !foreground[i % plane] {
             *v = 0.0;
@@ -122,10 +138,7 @@ fn reference_frame(
     let per_frame = 3 * plane;
     let mut next: Vec<f32> = maps[per_frame..].to_vec();
     next.resize(frames * per_frame, 0.0);
-    let mut foreground = vec![false; plane];
-    for &p in &bundle.pixels {
-        foreground[p as usize] = true;
-    }
+    let foreground = foreground(bundle);
     let last = (frames - 1) * per_frame;
     for (point, &p) in bundle.pixels.iter().enumerate() {
         for k in 0..3 {
@@ -260,13 +273,7 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
         frames: 0,
         reserved: 0,
     };
-    let state = gpu
-        .storage_buffer_init(
-            "state",
-            bytemuck::bytes_of(&start),
-            wgpu::BufferUsages::COPY_SRC,
-        )
-        .unwrap();
+    let state = state_buffer(&gpu, &start);
     let params = PostParams {
         points: 3,
         plane: 4,
@@ -332,13 +339,7 @@ fn the_slide_kernel_slides_the_maps_recentres_them_and_moves_the_root() {
         frames: 4,
         reserved: 0,
     };
-    let state = gpu
-        .storage_buffer_init(
-            "state",
-            bytemuck::bytes_of(&start),
-            wgpu::BufferUsages::COPY_SRC,
-        )
-        .unwrap();
+    let state = state_buffer(&gpu, &start);
     let params = PostParams {
         points: 3,
         plane: 4,

@@ -213,7 +213,7 @@ impl Engine {
                 problem,
             })?;
         let mut pipelines = PipelineCache::default();
-        let start = Start::measure(gpu, &mut pipelines, options.precision, &bundle)?;
+        let start = Start::decode(gpu, &mut pipelines, options.precision, &bundle)?;
         let scale = bundle.manifest.normalisation.scale;
         let lowest = start
             .standing

@@ -30,7 +30,7 @@ pub struct Start {
 }
 
 impl Start {
-    pub fn measure(
+    pub fn decode(
         gpu: &GpuContext,
         pipelines: &mut PipelineCache,
         precision: Precision,

@@ -165,10 +165,10 @@ impl Sampling {
     }
 
     /// The action id that pairs with `id` in a guided batch's second half: the null
-    /// action, or Idle itself for Idle when Idle is not guided (and has no scale of its
-    /// own).
+    /// action, or Idle itself for Idle when Idle frames are unguided
+    /// ([`Sampling::for_action`]).
     pub fn partner(&self, id: usize, null: usize) -> usize {
-        if id == Action::Idle.id() as usize && !self.guide_idle && self.idle_cfg_scale.is_none() {
+        if id == Action::Idle.id() as usize && self.for_action(Action::Idle).cfg_scale == 1.0 {
             id
         } else {
             null
