@@ -77,7 +77,7 @@ class Avatar:
         self.waist = self.extra["map.waist"].long()
         self.scale = self.manifest["normalisation"]["scale"]
         self.latent_scale = self.manifest["latent_scale"]
-        self.sampler_options = sampler_options(self.manifest["sampler"])  # guide_idle, noise_scale
+        self.sampler_options = sampler_options(self.manifest["sampler"])  # guide_idle, noise_scale, idle_cfg_scale
         self.schedule = Schedule()
         self.pca_mean, self.pca_basis = self.extra["pca.mean"], self.extra["pca.basis"]
         self.colors = self.extra.get("map.colors", self.ds.pixel_colors())

@@ -62,7 +62,7 @@ class Fit:
             raise SystemExit(f"{bundle}: its VAE decoder is {self.vae.cfg.decoder!r}; only a PCA head can be refitted")
         self.scale = self.manifest["latent_scale"]
         self.sampler = self.manifest["sampler"]
-        self.sampler_options = sampler_options(self.sampler)  # guide_idle, noise_scale
+        self.sampler_options = sampler_options(self.sampler)  # guide_idle, noise_scale, idle_cfg_scale
         self.run = Run(data, out, TrainConfig(held_out_clips=held_out), torch.device("cpu"))
         if not self.run.test_groups or not self.run.train_groups:
             raise SystemExit(f"{data}: held-out clips {held_out} leave no training or no held-out frames")
