@@ -668,8 +668,7 @@ pub fn live(
         engine.plan_copies(),
         flops as f64 / 1e9
     )?;
-    let idle = engine.sampling().for_action(Action::Idle);
-    if idle.cfg_scale != engine.sampling().cfg_scale {
+    if let Some(idle) = engine.sampling().idle_plan() {
         let (idle_dispatches, idle_flops) = engine.plan_counts(Action::Idle);
         writeln!(
             out,

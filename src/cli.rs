@@ -237,7 +237,8 @@ struct BenchArgs {
     #[arg(long, default_value_t = 250_000)]
     splats: usize,
     /// Instead of the tables: run the live loop of --bundle for N frames (geometry
-    /// only) and report speed, clamped and non-finite values, memory and path headings
+    /// only, with the bundle's Idle guidance and noise scale) and report speed, clamped
+    /// and non-finite values, memory and path headings
     #[arg(long, value_name = "N", requires = "bundle")]
     soak: Option<usize>,
     /// Instead of the tables: N generated frames of --bundle after a warm-up, as the app
@@ -500,19 +501,24 @@ fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
         bail!("--repeat must be at least 1");
     }
     let gpu = GpuContext::headless(gpu_options)?;
+    // The live rows run as the app does: the bundle's Idle guidance and noise scale, with
+    // --steps and --cfg-scale.
+    let bundled = |dir: &Path| -> anyhow::Result<crate::nn::sampler::Sampling> {
+        Ok(crate::nn::sampler::Sampling {
+            steps: args.steps,
+            cfg_scale: args.cfg_scale,
+            ..crate::nn::bundle::read_manifest(&dir.join("manifest.json"))?.sampler
+        })
+    };
     if let (Some(frames), Some(dir)) = (args.soak, &args.bundle) {
+        let sampling = bundled(dir)?;
         return crate::bench::soak(&gpu, dir, frames, Some(sampling), &mut std::io::stdout());
     }
     if let (Some(frames), Some(dir)) = (args.live, &args.bundle) {
         if frames == 0 {
             bail!("--live must be at least 1 frame");
         }
-        // The bundle's Idle guidance and noise scale, with --steps and --cfg-scale.
-        let sampling = crate::nn::sampler::Sampling {
-            steps: args.steps,
-            cfg_scale: args.cfg_scale,
-            ..crate::nn::bundle::read_manifest(&dir.join("manifest.json"))?.sampler
-        };
+        let sampling = bundled(dir)?;
         let level = args
             .splat_level
             .unwrap_or_else(|| crate::engine::appearance::default_level(&gpu));

@@ -280,9 +280,9 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
         waist: 2,
         components: 0,
         scale: 1.0,
-        latent: 1,
         frames: 1,
-        reserved: 0,
+        reserved0: 0,
+        reserved1: 0,
     };
     r.dispatch(
         &kernels::FRAME_UNIT,
@@ -346,9 +346,9 @@ fn the_slide_kernel_slides_the_maps_recentres_them_and_moves_the_root() {
         waist: 0,
         components: 0,
         scale: 2.0,
-        latent: 1,
         frames: 2,
-        reserved: 0,
+        reserved0: 0,
+        reserved1: 0,
     };
     r.dispatch(
         &kernels::SLIDE,
@@ -505,9 +505,9 @@ fn a_dispatch_with_the_wrong_bindings_is_caught_when_recorded() {
             waist: 1,
             components: 0,
             scale: 1.0,
-            latent: 1,
             frames: 1,
-            reserved: 0,
+            reserved0: 0,
+            reserved1: 0,
         };
         // frame_unit binds five buffers after its parameters; four are given.
         r.dispatch(

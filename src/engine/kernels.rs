@@ -26,11 +26,10 @@ gpu_struct! {
         pub components: u32,
         /// The normalisation scale (normalised units per metre).
         pub scale: f32,
-        /// Values per latent frame (C·h·w).
-        pub latent: u32,
         /// Context frames in the window (F-1).
         pub frames: u32,
-        pub reserved: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
     }
 }
 

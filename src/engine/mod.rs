@@ -450,11 +450,9 @@ impl Engine {
         if !fresh {
             let sampling = self.sampling;
             self.plan = Some(self.capture(sampling)?);
-            let idle = sampling.for_action(Action::Idle);
-            self.idle_plan = if idle.cfg_scale != sampling.cfg_scale {
-                Some(self.capture(idle)?)
-            } else {
-                None
+            self.idle_plan = match sampling.idle_plan() {
+                Some(idle) => Some(self.capture(idle)?),
+                None => None,
             };
         }
         Ok(())
@@ -483,9 +481,9 @@ impl Engine {
             waist: bundle.waist.len() as u32,
             components: if self.pca { live.components as u32 } else { 0 },
             scale: bundle.manifest.normalisation.scale,
-            latent: (live.noise.len()) as u32,
             frames: (cfg.frames - 1) as u32,
-            reserved: 0,
+            reserved0: 0,
+            reserved1: 0,
         };
         let one = crate::gpu::kernel::Grid { x: 1, y: 1 };
         r.dispatch(

@@ -140,6 +140,14 @@ impl Sampling {
         }
     }
 
+    /// The sampling Idle frames run where it differs in guidance from every other frame's
+    /// (so a live loop needs a second plan for them); None where Idle frames run as the
+    /// keys do.
+    pub fn idle_plan(&self) -> Option<Sampling> {
+        let idle = self.for_action(Action::Idle);
+        (idle.cfg_scale != self.cfg_scale).then_some(idle)
+    }
+
     /// Whether this sampling fits a schedule of `schedule_steps` steps.
     pub fn check(&self, schedule_steps: usize) -> Result<(), String> {
         if self.steps == 0 || self.steps > schedule_steps {
@@ -320,6 +328,16 @@ mod tests {
             ..own
         };
         assert_eq!(at(plain, Action::Idle), 1.0);
+        // A second plan only where Idle's guidance differs from the keys'.
+        assert_eq!(keys.idle_plan(), None);
+        assert_eq!(plain.idle_plan(), None);
+        assert_eq!(unguided.idle_plan().map(|s| s.cfg_scale), Some(1.0));
+        assert_eq!(own.idle_plan(), Some(own.for_action(Action::Idle)));
+        let same = Sampling {
+            idle_cfg_scale: Some(4.5),
+            ..own
+        };
+        assert_eq!(same.idle_plan(), None);
         let parsed: Sampling = serde_json::from_str(
             r#"{"ddim_steps": 10, "cfg_scale": 4.5, "guide_idle": false, "noise_scale": 0.5, "idle_cfg_scale": 1.5}"#,
         )
