@@ -460,6 +460,16 @@ struct EvalArgs {
     /// twice]
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(100..))]
     long_frames: Option<u32>,
+    /// Seeds of the PyTorch loop whose stop, speeds and turns the report gives beside the
+    /// engine's run (summary.json's seeds_* keys are the worst of them) [default: 3; with
+    /// --quick 2]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
+    motion_seeds: Option<u32>,
+    /// The key script whose every movement key is released into Idle, run from each of
+    /// --motion-seeds seeds for the stop after each direction [default: "40W 30I 40S 30I
+    /// 40A 30I 40D 30I"; with --quick "20W 20I 20S 20I 20A 20I 20D 20I"]
+    #[arg(long, value_name = "SCRIPT")]
+    stops_keys: Option<String>,
 }
 
 /// Parses the process arguments and runs the command.
@@ -918,6 +928,10 @@ fn view(args: ViewArgs, gpu: GpuOptions) -> anyhow::Result<()> {
 /// turn, and enough idle at the end to see the root come to rest.
 const EVAL_KEYS: &str = "60W 60S 60A 60D 30I";
 const EVAL_KEYS_QUICK: &str = "20W 20S 20A 20D 20I";
+/// The stops scripts (`unica eval --stops-keys`): every movement key released into Idle;
+/// the same as the trainer's `eval.STOPS_KEYS` and `STOPS_KEYS_QUICK`.
+const EVAL_STOPS_KEYS: &str = "40W 30I 40S 30I 40A 30I 40D 30I";
+const EVAL_STOPS_KEYS_QUICK: &str = "20W 20I 20S 20I 20A 20I 20D 20I";
 
 /// Drives the teacher on the evaluation's key script (geometry only), then runs the
 /// trainer's evaluation (`python3 -m unica_train.eval`, or $UNICA_PYTHON) on it.
@@ -948,16 +962,25 @@ fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     } else {
         args.clips
     };
-    let roots = crate::headless::teacher_roots(&character, &clips, &keys)?;
+    let stops_script = match (&args.stops_keys, args.quick) {
+        (Some(keys), _) => keys.as_str(),
+        (None, true) => EVAL_STOPS_KEYS_QUICK,
+        (None, false) => EVAL_STOPS_KEYS,
+    };
+    let stops_keys = KeyScript::parse(stops_script).context("--stops-keys")?;
     let teacher = args.out.join("teacher.json");
-    let frames: Vec<_> = roots
-        .iter()
-        .map(|r| serde_json::json!({ "root": r.to_array() }))
-        .collect();
-    crate::files::write_atomic(
-        &teacher,
-        serde_json::to_string(&serde_json::json!({ "frames": frames }))?.as_bytes(),
-    )?;
+    let stops_teacher = args.out.join("teacher_stops.json");
+    for (keys, path) in [(&keys, &teacher), (&stops_keys, &stops_teacher)] {
+        let roots = crate::headless::teacher_roots(&character, &clips, keys)?;
+        let frames: Vec<_> = roots
+            .iter()
+            .map(|r| serde_json::json!({ "root": r.to_array() }))
+            .collect();
+        crate::files::write_atomic(
+            path,
+            serde_json::to_string(&serde_json::json!({ "frames": frames }))?.as_bytes(),
+        )?;
+    }
     // The free-running rollout through the shipped engine path (the WGSL model, PCA
     // clean-up): each frame's drawn points, which the report compares with the teacher.
     let engine_dir = args.out.join("engine");
@@ -994,6 +1017,9 @@ fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         .arg(&args.data)
         .arg("--teacher")
         .arg(&teacher)
+        .args(["--stops-keys", stops_script])
+        .arg("--stops-teacher")
+        .arg(&stops_teacher)
         .arg("--out")
         .arg(&args.out)
         .args(["--seed", &args.seed.to_string()]);
@@ -1002,6 +1028,9 @@ fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     }
     if let Some(n) = args.long_frames {
         command.args(["--long-frames", &n.to_string()]);
+    }
+    if let Some(n) = args.motion_seeds {
+        command.args(["--motion-seeds", &n.to_string()]);
     }
     let status = command.status().with_context(|| {
         format!(

@@ -57,6 +57,16 @@ def test_unica_eval_quick_writes_a_report_with_finite_numbers(tmp_path):
     tf = masked["teacher_forced"]
     assert tf["ground_truth"]["black"]["psnr"] > tf["generated"]["black"]["psnr"], tf
     assert "## Masked images" in (out / "report.md").read_text()
+    # Motion from two seeds (quick), the first the sequence-level run's; the seeds_* keys
+    # are the worst of them.
+    assert [r["seed"] for r in masked["motion_by_seed"]] == [0, 1] == summary["seeds"]
+    stops = [st["frames"] for r in masked["motion_by_seed"] for st in r["stops"]]
+    assert summary["seeds_stop_frames"] == (None if None in stops else max(stops))
+    speed = max(s["speed_error_pct"] for r in masked["motion_by_seed"] for s in r["segments"])
+    assert summary["seeds_speed_error_pct"] == pytest.approx(speed)
+    assert "from 2 seeds" in (out / "report.md").read_text()
+    # The stops script releases every movement key: four stops, then the main script's.
+    assert [st["after"] for st in masked["motion_by_seed"][1]["stops"]] == ["W", "S", "A", "D", "D"]
 
 
 class _Clips:
@@ -105,3 +115,18 @@ def test_the_summary_takes_the_slowest_turn_of_each_kind_against_the_teacher():
     assert _turn(turns + [{"turn": "D→A (180°)", "generated": None, "teacher": 14}], 180) == (None, 14)
     assert _turn([{"turn": "W→S (180°)", "generated": 20, "teacher": 20},
                   {"turn": "A→D (180°)", "generated": 16, "teacher": 10}], 180) == (16, 10)
+
+
+def test_every_release_gets_its_own_stop():
+    from unica_train.eval import stops
+
+    # 3 frames of W at 0.1 m a frame, 4 of Idle that stop after 2 (0.05, 0.01, 0, 0), 2
+    # of A, 3 of Idle that never stop (0.1 m a frame throughout).
+    steps = [(0, 0.1)] * 3 + [(0, 0.05), (0, 0.01), (0, 0), (0, 0)] + [(0.1, 0)] * 2 + [(0.1, 0)] * 3
+    path = [[0.0, 1.0, 0.0]]
+    for dx, dz in steps:
+        path.append([path[-1][0] + dx, 1.0, path[-1][2] + dz])
+    actions = [1] * 3 + [0] * 4 + [3] * 2 + [0] * 3
+    got = stops(torch.tensor(path), torch.tensor(path), actions)
+    assert [(s["after"], s["release_frame"], s["frames"], s["teacher_frames"]) for s in got] == [("W", 3, 2, 2), ("A", 9, None, None)]
+    assert got[0]["distance_m"] == pytest.approx(0.06) and got[1]["distance_m"] == pytest.approx(0.3)

@@ -268,3 +268,30 @@ def test_report_names_the_pose_stride_in_words():
     assert [every(n) for n in (1, 2, 3, 4, 11, 12, 21, 22, 23, 111)] == [
         "every", "every 2nd", "every 3rd", "every 4th", "every 11th", "every 12th", "every 21st", "every 22nd", "every 23rd",
         "every 111th"]
+
+
+def test_the_cfg_probe_gives_the_evaluations_turns_stop_and_speed():
+    from unica_train.cfg_probe import motion_line, motion_numbers
+
+    # 20 frames of W at 0.08 m a frame (2.4 m/s), then A at once, then 10 frames of Idle
+    # that stop after 2: 0.04 m, 0.01 m, then still.
+    path = [[0.0, 1.0, 0.0]]
+    for _ in range(20):
+        path.append([path[-1][0], 1.0, path[-1][2] + 0.08])
+    for _ in range(20):
+        path.append([path[-1][0] + 0.08, 1.0, path[-1][2]])
+    for step in [0.04, 0.01] + [0.0] * 8:
+        path.append([path[-1][0] + step, 1.0, path[-1][2]])
+    teacher = [list(p) for p in path]
+    got = motion_numbers(path, teacher, "20W 20A 10I")
+    assert got["turns"] == {"W→A (90°)": (1, 1)}  # the first A step already heads +X
+    assert got["stop_frames"] == 2 and got["teacher_stop_frames"] == 2
+    assert abs(got["stop_distance_m"] - 0.05) < 1e-6
+    assert got["speed_error_pct"] == 0.0
+    slow = [list(p) for p in path]
+    for i in range(1, 21):  # W at 0.072 m a frame: 10 % slow
+        slow[i][2] = 0.072 * i
+    for i in range(21, len(slow)):
+        slow[i][2] = 0.072 * 20
+    assert abs(motion_numbers(slow, teacher, "20W 20A 10I")["speed_error_pct"] - 10.0) < 1e-3
+    assert "stops after A 2/2 (0.05 m)" in motion_line(got)

@@ -6,7 +6,7 @@ every moving segment heads within 30° of the teacher's, is the best.
 
     python -m unica_train.cfg_probe --bundle B --data DATA --teacher RENDER/manifest.json \\
         [--keys "30W 30S 30A 20I"] [--scales 1,2,3,4,5,6] [--guided-steps all,5] \\
-        [--guide-idle yes|no] [--noise-scale S] [--write]
+        [--guide-idle yes|no] [--noise-scale S] [--idle-scale S] [--seeds 0,1] [--write]
 
 `--teacher` is `unica render --teacher CHARACTER --keys K --size 16 --views 1`'s
 manifest; `--write` sets the bundle's `sampler.cfg_scale` to the best scale (and its
@@ -14,13 +14,22 @@ manifest; `--write` sets the bundle's `sampler.cfg_scale` to the best scale (and
 `--guided-steps` also tries guidance intervals (guidance over the first N DDIM steps
 only, the PyTorch sampler's `guided_steps`); the engine guides every step, so a best
 interval is reported, not written. Session 17 measured that the keys are lost with it
-(assets/witch/README.md)."""
+(assets/witch/README.md).
+
+Each line also gives the evaluation's motion numbers for the run (`eval.motion`, as
+`unica eval` scores them): every turn's frames, the stop after every release (frames
+until the root stays below 0.05 m/s, and the distance), and the worst key's speed error;
+`--noise-scale` and `--idle-scale` take comma-separated lists and `--seeds` several seeds,
+so one call measures a grid. The best is chosen as before, by the distance error summed
+over the seeds."""
 
 from __future__ import annotations
 
 import argparse
 import json
 from pathlib import Path
+
+import torch
 
 from . import compare
 
@@ -62,6 +71,38 @@ def label(scale: float, guided: int | None, steps: int) -> str:
     return f"cfg {scale:3.1f}" + ("" if guided is None or guided >= steps else f" for {guided}/{steps} steps")
 
 
+def floats(text: str | None) -> list[float]:
+    return [float(v) for v in text.split(",")] if text else []
+
+
+def idle_label(options: dict, idle: float | None) -> str:
+    """How Idle frames are guided: "CFG 1.5", "guided" (as the keys) or "unguided"."""
+    return f"CFG {idle:g}" if idle is not None else "guided" if options["guide_idle"] else "unguided"
+
+
+def motion_numbers(path: list[list[float]], teacher: list[list[float]], keys: str) -> dict:
+    """The evaluation's motion numbers (`eval.motion`) of a rollout's root path against the
+    teacher's: turns {label: (frames, teacher's)}, stop frames and distance, worst speed
+    error in %."""
+    from .eval import motion, settle_frames
+    from .train import parse_keys
+
+    frames = len(path) - 1
+    m = motion(torch.tensor(path), torch.tensor(teacher[: len(path)]), parse_keys(keys, frames), settle_frames(keys))
+    return {"turns": {t["turn"]: (t["generated"], t["teacher"]) for t in m["turns"]},
+            "stop_frames": m["stop_frames"], "teacher_stop_frames": m["teacher_stop_frames"],
+            "stop_distance_m": m["stop_distance_m"], "stops": m["stops"],
+            "speed_error_pct": max((s["speed_error_pct"] for s in m["segments"]), default=0.0)}
+
+
+def motion_line(m: dict) -> str:
+    turns = ", ".join(f"{k.split()[0]} {g if g is not None else '—'}/{t}" for k, (g, t) in m["turns"].items())
+    frames = lambda n: "never" if n is None else n
+    stops = ", ".join(f"{st['after']} {frames(st['frames'])}/{frames(st['teacher_frames'])} ({st['distance_m']:.2f} m)"
+                      for st in m["stops"])
+    return (f"turns (teacher) {turns}; stops after {stops}; worst speed error {m['speed_error_pct']:.1f} %")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--bundle", required=True, type=Path)
@@ -72,39 +113,52 @@ def main(argv=None):
     parser.add_argument("--guided-steps", default="all",
                         help="comma-separated guidance intervals to try: guide only the first N DDIM steps ('all': every step)")
     parser.add_argument("--guide-idle", choices=("yes", "no"), help="guide Idle frames too (default: the bundle's sampler)")
-    parser.add_argument("--noise-scale", type=float, help="the starting noise's scale (default: the bundle's sampler)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--noise-scale", help="the starting noise's scale, comma-separated to try several (default: the bundle's sampler)")
+    parser.add_argument("--idle-scale", help="Idle frames' CFG scale, comma-separated to try several (default: the bundle's sampler)")
+    parser.add_argument("--seeds", default="0", help="comma-separated seeds; each setting runs every one")
     parser.add_argument("--write", action="store_true", help="set the bundle's sampler.cfg_scale to the best scale")
     args = parser.parse_args(argv)
     from .eval import Avatar
 
     frames = json.loads(args.teacher.read_text())["frames"]
-    teacher = segments([frames[0]["root"]] + [f["root"] for f in frames], args.keys)
+    roots = [frames[0]["root"]] + [f["root"] for f in frames]
+    teacher = segments(roots, args.keys)
     print("teacher  " + line(teacher))
     av = Avatar(args.bundle, args.data, 128)
     steps = av.manifest["sampler"]["ddim_steps"]
     options = dict(av.sampler_options)
     if args.guide_idle:
         options["guide_idle"] = args.guide_idle == "yes"
-    if args.noise_scale is not None:
-        options["noise_scale"] = args.noise_scale
-    idle = options.get("idle_cfg_scale")
-    idle_text = f"at CFG {idle:g}" if idle is not None else "guided" if options["guide_idle"] else "unguided"
-    print(f"sampler: {steps} DDIM steps, Idle {idle_text}, noise scale {options['noise_scale']:g}")
+    noise_scales = floats(args.noise_scale) or [options["noise_scale"]]
+    idle_scales = floats(args.idle_scale) or [options.get("idle_cfg_scale")]
+    seeds = [int(s) for s in args.seeds.split(",")]
+    print(f"sampler: {steps} DDIM steps, Idle {idle_label(options, options.get('idle_cfg_scale'))}, "
+          f"noise scale {options['noise_scale']:g}")
     results = []
     intervals = [None if g == "all" else int(g) for g in args.guided_steps.split(",")]
     for guided in intervals:
-        for scale in [float(s) for s in args.scales.split(",")]:
-            run = av.rollout(args.keys, {"steps": steps, "cfg_scale": scale, "pca": True, "guided_steps": guided, **options}, args.seed)
-            model = segments(run["root_path"], args.keys)
-            error, heads = score(model, teacher)
-            results.append({"cfg_scale": scale, "guided_steps": guided, "segments": model, "distance_error_m": error,
-                            "headings_ok": heads})
-            print(f"{label(scale, guided, steps)}  " + line(model) + f"  distance error {error:.2f} m, headings {'ok' if heads else 'off'}",
-                  flush=True)
+        for noise in noise_scales:
+            for idle in idle_scales:
+                for scale in [float(s) for s in args.scales.split(",")]:
+                    setting = dict(options, noise_scale=noise, idle_cfg_scale=idle)
+                    runs, error, heads = [], 0.0, True
+                    for seed in seeds:
+                        run = av.rollout(args.keys, {"steps": steps, "cfg_scale": scale, "pca": True,
+                                                     "guided_steps": guided, **setting}, seed)
+                        model = segments(run["root_path"], args.keys)
+                        seed_error, seed_heads = score(model, teacher)
+                        moved = motion_numbers(run["root_path"], roots, args.keys)
+                        error, heads = error + seed_error, heads and seed_heads
+                        runs.append({"seed": seed, "segments": model, "distance_error_m": seed_error, **moved})
+                        print(f"{label(scale, guided, steps)}, noise {noise:g}, Idle {idle_label(setting, idle)}, seed {seed}  "
+                              + line(model) + f"  distance error {seed_error:.2f} m, headings {'ok' if seed_heads else 'off'}"
+                              + "\n    " + motion_line(moved), flush=True)
+                    results.append({"cfg_scale": scale, "guided_steps": guided, "noise_scale": noise,
+                                    "idle_cfg_scale": idle, "runs": runs, "distance_error_m": error, "headings_ok": heads})
     ok = [r for r in results if r["headings_ok"]] or results
     best = min(ok, key=lambda r: r["distance_error_m"])
-    print(f"best: {label(best['cfg_scale'], best['guided_steps'], steps)}")
+    print(f"best: {label(best['cfg_scale'], best['guided_steps'], steps)}, noise {best['noise_scale']:g}, "
+          f"Idle {idle_label(options, best['idle_cfg_scale'])}")
     if args.write and best["guided_steps"] is not None and best["guided_steps"] < steps:
         raise SystemExit(f"{args.bundle}: not written: the engine guides every DDIM step, and the best here guides "
                          f"only {best['guided_steps']} of {steps}")
@@ -112,7 +166,9 @@ def main(argv=None):
         path = args.bundle / "manifest.json"
         manifest = json.loads(path.read_text())
         manifest["sampler"]["cfg_scale"] = best["cfg_scale"]
-        manifest["sampler"].update(options)
+        manifest["sampler"].update(options, noise_scale=best["noise_scale"])
+        if best["idle_cfg_scale"] is not None:
+            manifest["sampler"]["idle_cfg_scale"] = best["idle_cfg_scale"]
         manifest["sampler"]["cfg_probe"] = {"keys": args.keys, "teacher": teacher, "results": results}
         path.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
         print(f"set {path}'s sampler to {label(best['cfg_scale'], best['guided_steps'], steps)}")

@@ -58,6 +58,9 @@ WINDOW = 16
 NAMES = "IWSAD"
 # The clips the bundle's models never saw (a short dataset without them: its last clip).
 HELD_OUT_CLIPS = (4, 13)
+# The stops script: a release after every movement key (`--stops-keys`).
+STOPS_KEYS = "40W 30I 40S 30I 40A 30I 40D 30I"
+STOPS_KEYS_QUICK = "20W 20I 20S 20I 20A 20I 20D 20I"
 # Headings of the keys (W +Z, S -Z, A +X, D -X), degrees.
 KEY_HEADINGS = {1: 0.0, 2: 180.0, 3: 90.0, 4: -90.0}
 
@@ -280,8 +283,11 @@ def against_teacher(path: torch.Tensor, teacher: torch.Tensor, actions: list[int
                          "teacher_speed": teach_seg["speed"], "teacher_heading": teach_seg["heading"]})
     turns = {}
     for label, switch, target in turn_points(actions):
-        turns[label] = {"generated": metrics.turn_frames(path, switch, target),
-                        "teacher": metrics.turn_frames(teacher, switch, target)}
+        # actions[i] moves path[i] to path[i + 1]: the first frame under the new key is
+        # path[switch + 1] (until session 20 this passed `switch`, which counted every
+        # turn, the teacher's too, one frame long).
+        turns[label] = {"generated": metrics.turn_frames(path, switch + 1, target),
+                        "teacher": metrics.turn_frames(teacher, switch + 1, target)}
     return segments, turns
 
 
@@ -442,7 +448,25 @@ def motion(path: torch.Tensor, teacher: torch.Tensor, actions: list[int], settle
     stop, drift = metrics.stop_frames(path, release, FRAME_RATE)
     teacher_stop, teacher_drift = metrics.stop_frames(teacher[: path.shape[0]], release, FRAME_RATE)
     return {"segments": segments, "turns": turns, "release_frame": release, "stop_frames": stop, "stop_distance_m": drift,
-            "teacher_stop_frames": teacher_stop, "teacher_stop_distance_m": teacher_drift}
+            "teacher_stop_frames": teacher_stop, "teacher_stop_distance_m": teacher_drift,
+            "stops": stops(path, teacher, actions)}
+
+
+def stops(path: torch.Tensor, teacher: torch.Tensor, actions: list[int]) -> list[dict]:
+    """The stop after every release of a movement key (each Idle run that follows one, up
+    to the next key press or the end): the key released, its frame, and the frames until
+    the root stays below 0.05 m/s and the distance travelled, the teacher's beside them
+    (frames None: still moving when the next key is pressed)."""
+    out = []
+    for r in range(1, len(actions)):
+        if actions[r] != 0 or actions[r - 1] == 0:
+            continue
+        end = next((j for j in range(r, len(actions)) if actions[j] != 0), len(actions))
+        frames, distance = metrics.stop_frames(path[: end + 1], r, FRAME_RATE)
+        teacher_frames, teacher_distance = metrics.stop_frames(teacher[: end + 1], r, FRAME_RATE)
+        out.append({"after": NAMES[actions[r - 1]], "release_frame": r, "frames": frames, "distance_m": distance,
+                    "teacher_frames": teacher_frames, "teacher_distance_m": teacher_distance})
+    return out
 
 
 def _turn(turns: list, degrees: int) -> tuple:
@@ -468,6 +492,9 @@ def summary(results: dict) -> dict:
     m, mo, long = results["masked"], results["masked"]["motion"], results["long_run"]
     forced, free = m["teacher_forced"]["generated"]["black"], m["free_running"]["black"]
     turn180, turn90 = _turn(mo["turns"], 180), _turn(mo["turns"], 90)
+    by_seed = m.get("motion_by_seed") or [dict(mo, seed=results["seed"])]
+    # Every release of every seed (older results: the main script's last release).
+    all_stops = [st for r in by_seed for st in r.get("stops") or [{"frames": r["stop_frames"], "distance_m": r["stop_distance_m"]}]]
     out = {
         "vae_mm": results["vae_mm"],
         "chamfer_mm": m["chamfer_mm"],
@@ -494,6 +521,13 @@ def summary(results: dict) -> dict:
         "drift_frames": long["frames"],
         "drift_finite": long["finite"],
         "drift_ci95": long["ci95_per_1000_frames"],
+        # The worst over `motion_by_seed` (the PyTorch loop, several seeds).
+        "seeds": [r["seed"] for r in by_seed],
+        "seeds_stop_frames": None if any(st["frames"] is None for st in all_stops) else max(st["frames"] for st in all_stops),
+        "seeds_stop_distance_m": max(st["distance_m"] for st in all_stops),
+        "seeds_speed_error_pct": max(max(s["speed_error_pct"] for s in r["segments"]) for r in by_seed),
+        "seeds_turn180_frames": _turn([t for r in by_seed for t in r["turns"]], 180)[0],
+        "seeds_turn90_frames": _turn([t for r in by_seed for t in r["turns"]], 90)[0],
         "fvd_pca": results["sequence"]["fvd_pca"],
         "dataset_fvd_pca": results["sequence"]["dataset_fvd_pca"],
         "image_size": m["teacher_forced"]["size"],
@@ -570,6 +604,26 @@ def evaluate(args) -> dict:
     masked["poses"] = int(poses.shape[0])
     masked["pose_stride"] = POSE_STRIDE
     masked["motion"] = motion(torch.tensor(free["root_path"]), torch.tensor(teacher), parse_keys(keys, free["frames"]), settle)
+    # One seed can be lucky: the same script's motion from more seeds (the PyTorch loop;
+    # the sequence-level run above is the first).
+    # A stop after every movement key: the stops script, each release followed by Idle.
+    seeds = [args.seed + k for k in range(max(1, args.motion_seeds or (2 if quick else 3)))]
+    stop_keys = args.stops_keys or (STOPS_KEYS_QUICK if quick else STOPS_KEYS)
+    stop_teacher = None
+    if args.stops_teacher is not None:
+        stop_roots = [f["root"] for f in json.loads(args.stops_teacher.read_text())["frames"]]
+        stop_teacher = torch.tensor(stop_roots[:1] + stop_roots)
+    print(f"motion over seeds {seeds} … ({time.time() - began:.0f} s)", flush=True)
+    masked["motion_by_seed"] = []
+    for seed in seeds:
+        r = run if seed == args.seed else av.rollout(keys, defaults, seed)
+        row = {"seed": seed, **motion(torch.tensor(r["root_path"]), torch.tensor(teacher), parse_keys(keys, r["frames"]), settle)}
+        if stop_teacher is not None:
+            s_run = av.rollout(stop_keys, defaults, seed)
+            row["stops_keys"] = stop_keys
+            row["stops"] = stops(torch.tensor(s_run["root_path"]), stop_teacher, parse_keys(stop_keys, s_run["frames"])) + \
+                row["stops"]
+        masked["motion_by_seed"].append(row)
     results["masked"] = masked
     long_frames = args.long_frames or frames * (2 if quick else 10)
     print(f"long run ({long_frames} frames, the script repeated) … ({time.time() - began:.0f} s)", flush=True)
@@ -611,6 +665,13 @@ def main(argv=None):
     parser.add_argument("--level", type=int, default=256, choices=[128, 256, 512], help="splat level of the image-level metrics")
     parser.add_argument("--masked-size", type=int, default=512, help="image size of the masked metrics (the renders' size)")
     parser.add_argument("--keys", help=f"key script (default {KEYS}; quick: 20W 20S 20A 20D 20I); the teacher's path must follow it")
+    parser.add_argument("--motion-seeds", type=int,
+                        help="seeds of the PyTorch loop whose stop, speeds and turns are reported beside the engine's "
+                        "(default 3; quick: 2)")
+    parser.add_argument("--stops-keys", help=f"key script with a release after every movement key (default {STOPS_KEYS}; "
+                        f"quick: {STOPS_KEYS_QUICK}); its teacher path is --stops-teacher")
+    parser.add_argument("--stops-teacher", type=Path,
+                        help="manifest.json of `unica render --teacher` on --stops-keys (without it: only the main script's stop)")
     parser.add_argument("--long-frames", type=int, help="frames of the long (drift) run (default: the script 10 times; quick: twice)")
     parser.add_argument("--engine", type=Path, help="the engine's free-running rollout on the key script (`unica render --bundle B "
                         "--keys K --points`; `unica eval` writes it); without it the PyTorch rollout stands in")

@@ -148,6 +148,27 @@ def _masked_section(results: dict, data: str) -> list[str]:
     lines += ["", "| turn | frames | teacher |", "| --- | --- | --- |"]
     for t in mo["turns"]:
         lines.append(f"| {t['turn']} | {_fmt(t['generated'], 0)} | {_fmt(t['teacher'], 0)} |")
+    by_seed = m.get("motion_by_seed", [])
+    if by_seed:
+        names = [t["turn"] for t in by_seed[0]["turns"]]
+        stops_keys = by_seed[0].get("stops_keys")
+        lines += ["", f"The PyTorch loop from {len(by_seed)} seeds (one seed can be lucky; summary.json's `seeds_*` keys are "
+                  f"the worst of them): turns and speeds on `{results['keys']}`, and the stop after every release"
+                  + (f" of `{stops_keys}` and of that script" if stops_keys else "") + ":", "",
+                  "| seed | " + " | ".join(names) + " | worst speed error |", "| --- |" + " --- |" * (len(names) + 1)]
+        for r in by_seed:
+            turns = " | ".join(f"{_fmt(t['generated'], 0)} ({_fmt(t['teacher'], 0)})" for t in r["turns"])
+            worst = max(s["speed_error_pct"] for s in r["segments"])
+            lines.append(f"| {r['seed']} | {turns} | {worst:.1f} % |")
+        releases = [f"after {st['after']} (frame {st['release_frame']})" for st in by_seed[0].get("stops", [])]
+        if releases:
+            lines += ["", "| seed | " + " | ".join(releases) + " |", "| --- |" + " --- |" * len(releases)]
+            for r in by_seed:
+                cells = " | ".join(f"{_fmt(st['frames'], 0)} fr, {st['distance_m']:.2f} m ({_fmt(st['teacher_frames'], 0)} fr, "
+                                   f"{st['teacher_distance_m']:.2f} m)" for st in r["stops"])
+                lines.append(f"| {r['seed']} | {cells} |")
+        lines += ["", "(the teacher's in brackets; a stop is the frames until the root stays below 0.05 m/s, — where it "
+                  "is still moving when the next key is pressed, and the distance travelled after the release)"]
     lines += ["", f"The dataset is rebuilt with `unica bake <the character> --out {data}` (the character file is in "
               "the dataset's manifest).", ""]
     return lines
