@@ -164,10 +164,11 @@ def _masked_section(results: dict, data: str) -> list[str]:
         if releases:
             lines += ["", "| seed | " + " | ".join(releases) + " |", "| --- |" + " --- |" * len(releases)]
             for r in by_seed:
-                cells = " | ".join(f"{_fmt(st['frames'], 0)} fr, {st['distance_m']:.2f} m ({_fmt(st['teacher_frames'], 0)} fr, "
+                frames = lambda n: "never" if n is None else f"{n} fr"
+                cells = " | ".join(f"{frames(st['frames'])}, {st['distance_m']:.2f} m ({frames(st['teacher_frames'])}, "
                                    f"{st['teacher_distance_m']:.2f} m)" for st in r["stops"])
                 lines.append(f"| {r['seed']} | {cells} |")
-        lines += ["", "(the teacher's in brackets; a stop is the frames until the root stays below 0.05 m/s, — where it "
+        lines += ["", "(the teacher's in brackets; a stop is the frames until the root stays below 0.05 m/s, never where it "
                   "is still moving when the next key is pressed, and the distance travelled after the release)"]
     lines += ["", f"The dataset is rebuilt with `unica bake <the character> --out {data}` (the character file is in "
               "the dataset's manifest).", ""]
