@@ -444,12 +444,13 @@ def motion(path: torch.Tensor, teacher: torch.Tensor, actions: list[int], settle
     segments = [dict(s, speed_error_pct=100 * abs(s["speed"] - s["teacher_speed"]) / s["teacher_speed"])
                 for s in all_segments if s["key"] != NAMES[0]]
     turns = [{"turn": label, **t} for label, t in by_label.items()]
-    release = max(i for i in range(1, len(actions)) if actions[i] == 0 and actions[i - 1] != 0)
-    stop, drift = metrics.stop_frames(path, release, FRAME_RATE)
-    teacher_stop, teacher_drift = metrics.stop_frames(teacher[: path.shape[0]], release, FRAME_RATE)
-    return {"segments": segments, "turns": turns, "release_frame": release, "stop_frames": stop, "stop_distance_m": drift,
-            "teacher_stop_frames": teacher_stop, "teacher_stop_distance_m": teacher_drift,
-            "stops": stops(path, teacher, actions)}
+    every = stops(path, teacher, actions)
+    if not every:
+        raise ValueError("the key script releases no movement key into Idle, so there is no stop to measure")
+    last = every[-1]  # the headline stop: after the script's last release
+    return {"segments": segments, "turns": turns, "release_frame": last["release_frame"], "stop_frames": last["frames"],
+            "stop_distance_m": last["distance_m"], "teacher_stop_frames": last["teacher_frames"],
+            "teacher_stop_distance_m": last["teacher_distance_m"], "stops": every}
 
 
 def stops(path: torch.Tensor, teacher: torch.Tensor, actions: list[int]) -> list[dict]:
@@ -492,9 +493,8 @@ def summary(results: dict) -> dict:
     m, mo, long = results["masked"], results["masked"]["motion"], results["long_run"]
     forced, free = m["teacher_forced"]["generated"]["black"], m["free_running"]["black"]
     turn180, turn90 = _turn(mo["turns"], 180), _turn(mo["turns"], 90)
-    by_seed = m.get("motion_by_seed") or [dict(mo, seed=results["seed"])]
-    # Every release of every seed (older results: the main script's last release).
-    all_stops = [st for r in by_seed for st in r.get("stops") or [{"frames": r["stop_frames"], "distance_m": r["stop_distance_m"]}]]
+    by_seed = m["motion_by_seed"]
+    all_stops = [st for r in by_seed for st in r["stops"]]  # every release of every seed
     out = {
         "vae_mm": results["vae_mm"],
         "chamfer_mm": m["chamfer_mm"],
