@@ -682,6 +682,18 @@ pub fn live(
             idle_flops as f64 / 1e9
         )?;
     }
+    if let (Some(brake), Some((brake_dispatches, brake_flops))) =
+        (engine.sampling().brake(), engine.brake_plan_counts())
+    {
+        writeln!(
+            out,
+            "braking Idle frames (the first {} after a key, CFG {}): {brake_dispatches} dispatches, \
+             {:.2} GFLOP",
+            engine.sampling().idle_brake_frames,
+            brake.cfg_scale,
+            brake_flops as f64 / 1e9
+        )?;
+    }
     let keys = [
         Action::Forward,
         Action::Forward,

@@ -238,6 +238,8 @@ pub fn render(
             "guide_idle": engine.sampling().guide_idle,
             "noise_scale": engine.sampling().noise_scale,
             "idle_cfg_scale": engine.sampling().idle_cfg_scale,
+            "idle_brake_cfg_scale": engine.sampling().idle_brake_cfg_scale,
+            "idle_brake_frames": engine.sampling().idle_brake_frames,
             "pca": options.pca,
             "splat_level": engine.splat_level(),
             "splats_per_frame": engine.splats().map(|(_, n)| n),

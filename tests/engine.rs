@@ -12,7 +12,7 @@ use unica::engine::kernels::{self, FrameState, PostParams};
 use unica::engine::{Engine, EngineOptions, pca};
 use unica::gpu::kernel::{Grid, PipelineCache, Precision};
 use unica::gpu::{GpuContext, GpuOptions, readback};
-use unica::nn::sampler::Sampling;
+use unica::nn::sampler::{Sampling, idle_run};
 use unica::nn::{Bundle, Recorder, Tensor};
 use unica::random::Rng;
 use unica::splat::ply::Splat;
@@ -180,9 +180,10 @@ fn worst(a: &[Vec3], b: &[Vec3]) -> f32 {
 
 #[test]
 fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
-    // Three frames each without guidance, with guidance, with guidance but Idle
-    // unguided and the noise scaled, and with Idle guided at its own scale (two DDIM steps: the plan's structure is the same for
-    // any count). Tolerance: 2e-5 m (0.02 mm) on world points and 2e-5 m on the root;
+    // Four frames (W, D, Idle, Idle) each without guidance, with guidance, with guidance
+    // but Idle unguided and the noise scaled, with Idle guided at its own scale, and
+    // braking the first Idle frame after a key at a third scale (two DDIM steps: the
+    // plan's structure is the same for any count). Tolerance: 2e-5 m (0.02 mm) on world points and 2e-5 m on the root;
     // both sides run the same f32 kernels (the encoder of the slid maps included) and
     // differ only in summation order and fused multiply-adds of the PCA, the slide and
     // the world placement (measured ≈ 1e-6 m).
@@ -196,11 +197,17 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
         idle_cfg_scale: Some(1.5),
         ..unguided_idle
     };
+    let braking = Sampling {
+        idle_brake_cfg_scale: Some(3.0),
+        idle_brake_frames: 1,
+        ..idle_scaled
+    };
     for sampling in [
         Sampling::new(2, 1.0),
         Sampling::new(2, 2.0),
         unguided_idle,
         idle_scaled,
+        braking,
     ] {
         let cfg_scale = sampling.cfg_scale;
         let mut engine = Engine::new(&gpu, &witch_bundle(), &options(sampling, 7)).unwrap();
@@ -208,8 +215,10 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
         let mut maps = start_maps(&gpu, &engine.bundle);
         let mut root = engine.root();
         let mut noise = Rng::new(7);
-        for action in [Action::Forward, Action::Right, Action::Idle] {
+        let mut after_key = None;
+        for action in [Action::Forward, Action::Right, Action::Idle, Action::Idle] {
             let frame = engine.step(action).unwrap();
+            after_key = idle_run(after_key, action);
             let n: Vec<f32> = noise
                 .gaussian(context.len() / 3)
                 .iter()
@@ -222,13 +231,13 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
                 &maps,
                 &n,
                 action,
-                sampling,
+                sampling.for_frame(action, after_key),
                 root,
             );
             let error = worst(&frame.points, &reference.points);
             assert!(
                 error < 2e-5,
-                "cfg {cfg_scale} {action:?}: points differ by {error} m"
+                "cfg {cfg_scale} {action:?} {after_key:?}: points differ by {error} m"
             );
             assert!(
                 frame.root.distance(reference.root) < 2e-5,
@@ -580,4 +589,33 @@ fn an_unguided_idle_runs_a_one_batch_plan_and_a_guided_idle_the_guided_one() {
         scaled.plan_counts(Action::Idle),
         scaled.plan_counts(Action::Forward)
     );
+    assert_eq!(scaled.brake_plan_counts(), None);
+    // Braking the first Idle frames after a key: a third guided plan, the same work,
+    // run for the first two Idle frames after W (not at the standing start), made once.
+    let braking = Sampling {
+        idle_brake_cfg_scale: Some(3.0),
+        idle_brake_frames: 2,
+        ..idle_scaled
+    };
+    let mut brakes = Engine::new(&gpu, &witch_bundle(), &options(braking, 1)).unwrap();
+    assert_eq!(
+        brakes.brake_plan_counts(),
+        Some(brakes.plan_counts(Action::Forward))
+    );
+    let before = gpu.counts();
+    let mut runs = vec![];
+    for action in [
+        Action::Idle,
+        Action::Forward,
+        Action::Idle,
+        Action::Idle,
+        Action::Idle,
+    ] {
+        brakes.frame(action).unwrap();
+        brakes.finish();
+        runs.push(brakes.after_key());
+    }
+    assert_eq!(runs, [None, Some(0), Some(1), Some(2), Some(3)]);
+    let c = gpu.counts() - before;
+    assert_eq!((c.buffers, c.bind_groups), (0, 0), "{c:?}");
 }

@@ -12,7 +12,8 @@
 //! interleave. A guided sampler whose Idle frames are guided at another scale
 //! (`Sampling::for_action`) gets a second plan for them: one batch where Idle is
 //! unguided (the conditional prediction alone, half the UNet work), else the guided
-//! batch at Idle's scale.
+//! batch at Idle's scale; one that brakes (`Sampling::for_frame`: the first Idle frames
+//! after a key at a braking scale) a third, the guided batch at that scale.
 //! `appearance` turns a frame's points into splats.
 
 pub mod appearance;
@@ -34,7 +35,7 @@ use crate::gpu::texels::Texels;
 use crate::gpu::{Bound, GpuContext, GpuError, readback};
 use crate::nn::ops::{Indices, Plan};
 use crate::nn::refiner::{Order, Orders};
-use crate::nn::sampler::Sampling;
+use crate::nn::sampler::{Sampling, idle_run};
 use crate::nn::{Bundle, LoadError, Recorder, Tensor};
 use crate::random::Rng;
 use crate::splat::frame::SplatFrame;
@@ -136,17 +137,36 @@ struct FramePlan {
     look: Option<(usize, bool)>,
 }
 
-/// The plan a frame under `action` runs, once prepared: the Idle plan for Idle where
-/// there is one, else the frame plan. (Takes the two fields, not the engine, so a caller
-/// can borrow the engine's other fields beside it.)
-fn plan_for<'a>(
-    plan: &'a Option<FramePlan>,
-    idle_plan: &'a Option<FramePlan>,
-    action: Action,
-) -> &'a FramePlan {
-    match (idle_plan, action) {
-        (Some(idle), Action::Idle) => idle,
-        _ => plan.as_ref().expect("prepared"),
+/// The captured plans: every frame's, Idle's where its guidance differs, braking Idle's
+/// where the sampler brakes.
+#[derive(Default)]
+struct Plans {
+    keys: Option<FramePlan>,
+    /// The plan Idle frames run when the sampler guides them at another scale than the
+    /// keys (`Sampling::for_action`): one batch where Idle is unguided.
+    idle: Option<FramePlan>,
+    /// The plan of the first Idle frames after a key when the sampler brakes
+    /// (`Sampling::brake`).
+    brake: Option<FramePlan>,
+}
+
+impl Plans {
+    /// The plan a frame under `action` runs, once prepared, `after_key` being its
+    /// `sampler::idle_run`: the braking plan for the first Idle frames after a key where
+    /// there is one, the Idle plan for other Idle frames where there is one, else the
+    /// frame plan.
+    fn get(&self, action: Action, after_key: Option<u32>) -> &FramePlan {
+        let keys = self.keys.as_ref().expect("prepared");
+        if action != Action::Idle {
+            return keys;
+        }
+        match (&self.brake, &self.idle) {
+            (Some(brake), _) if keys.sampling.for_frame(action, after_key) == brake.sampling => {
+                brake
+            }
+            (_, Some(idle)) => idle,
+            _ => keys,
+        }
     }
 }
 
@@ -167,10 +187,10 @@ pub struct Engine {
     pca: bool,
     split: bool,
     live: Live,
-    plan: Option<FramePlan>,
-    /// The plan Idle frames run when the sampler guides them at another scale than the
-    /// keys (`Sampling::for_action`): one batch where Idle is unguided.
-    idle_plan: Option<FramePlan>,
+    plans: Plans,
+    /// Idle frames since the last key, the latest frame counted (`sampler::idle_run`;
+    /// None before any key).
+    after_key: Option<u32>,
     /// The frame's splats (when asked for) and whether they use the refiner.
     splats: Option<SplatFrame>,
     refine: bool,
@@ -242,8 +262,8 @@ impl Engine {
             pca: options.pca,
             split: options.split,
             live,
-            plan: None,
-            idle_plan: None,
+            plans: Plans::default(),
+            after_key: None,
             splats: None,
             refine: options.refine,
             pacer: None,
@@ -397,7 +417,7 @@ impl Engine {
     pub fn profile(&mut self, action: Action) -> Result<Vec<(&'static str, usize, f64)>, GpuError> {
         self.frame(action)?;
         self.finish();
-        let plan = plan_for(&self.plan, &self.idle_plan, action);
+        let plan = self.plans.get(action, self.after_key);
         Ok(plan.plan.profile(&self.gpu))
     }
 
@@ -408,7 +428,7 @@ impl Engine {
     pub fn profile_stages(&mut self, action: Action) -> Result<Vec<StageProfile>, GpuError> {
         self.frame(action)?;
         self.finish();
-        let plan = plan_for(&self.plan, &self.idle_plan, action);
+        let plan = self.plans.get(action, self.after_key);
         Ok(plan.plan.profile_stages(&self.gpu))
     }
 
@@ -417,19 +437,32 @@ impl Engine {
         crate::nn::Kernels::for_adapter(&self.gpu)
     }
 
-    /// The compute dispatches and FLOPs of the plan a frame under `action` runs (0 before
-    /// the first frame).
+    /// The compute dispatches and FLOPs of the plan the next frame under `action` runs
+    /// (0 before the plans are captured).
     pub fn plan_counts(&self, action: Action) -> (usize, u64) {
-        if self.plan.is_none() {
+        if self.plans.keys.is_none() {
             return (0, 0);
         }
-        let p = plan_for(&self.plan, &self.idle_plan, action);
+        let p = self.plans.get(action, idle_run(self.after_key, action));
         (p.plan.dispatches(), p.plan.flops())
+    }
+
+    /// The dispatches and FLOPs of the braking Idle frames' plan, where the sampler
+    /// brakes (and the plans are captured).
+    pub fn brake_plan_counts(&self) -> Option<(usize, u64)> {
+        let p = self.plans.brake.as_ref()?;
+        Some((p.plan.dispatches(), p.plan.flops()))
+    }
+
+    /// Idle frames since the last key, the latest frame counted (`sampler::idle_run`;
+    /// None before any key).
+    pub fn after_key(&self) -> Option<u32> {
+        self.after_key
     }
 
     /// The frame plan's copies (buffer to buffer and buffer to texels; no shader runs).
     pub fn plan_copies(&self) -> usize {
-        self.plan.as_ref().map_or(0, |p| p.plan.copies())
+        self.plans.keys.as_ref().map_or(0, |p| p.plan.copies())
     }
 
     /// The buffer of the latest frame's drawn points: 3N f32, world space (N =
@@ -443,16 +476,22 @@ impl Engine {
     /// load, and after a settings change; never otherwise).
     pub fn prepare(&mut self) -> Result<(), GpuError> {
         let look = self.splats.as_ref().map(|s| (s.level(), s.refines()));
-        let fresh = self
-            .plan
-            .as_ref()
-            .is_some_and(|p| p.sampling == self.sampling && p.pca == self.pca && p.look == look);
+        let fresh =
+            self.plans.keys.as_ref().is_some_and(|p| {
+                p.sampling == self.sampling && p.pca == self.pca && p.look == look
+            });
         if !fresh {
             let sampling = self.sampling;
-            self.plan = Some(self.capture(sampling)?);
-            self.idle_plan = match sampling.idle_plan() {
-                Some(idle) => Some(self.capture(idle)?),
-                None => None,
+            self.plans = Plans {
+                keys: Some(self.capture(sampling)?),
+                idle: match sampling.idle_plan() {
+                    Some(idle) => Some(self.capture(idle)?),
+                    None => None,
+                },
+                brake: match sampling.brake() {
+                    Some(brake) => Some(self.capture(brake)?),
+                    None => None,
+                },
             };
         }
         Ok(())
@@ -624,7 +663,8 @@ impl Engine {
         let mut bytes = self.precision.encode(&noise);
         bytes.resize(live.noise.buffer.size() as usize, 0);
         self.gpu.queue.write_buffer(&live.noise.buffer, 0, &bytes);
-        let plan = plan_for(&self.plan, &self.idle_plan, action);
+        self.after_key = idle_run(self.after_key, action);
+        let plan = self.plans.get(action, self.after_key);
         let ids = if plan.guided {
             let null = self.bundle.unet.cfg.null_action();
             let partner = plan.sampling.partner(action.id() as usize, null);

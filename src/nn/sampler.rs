@@ -82,7 +82,9 @@ impl Schedule {
 /// sampler guides, and overrides `guide_idle` (session 20: 1.5 brings the Witch to rest
 /// as the teacher does; see [`Sampling::for_action`]). The starting noise is standard
 /// normal times `noise_scale`. Bundles without these settings guide Idle as the keys and
-/// use noise scale 1.
+/// use noise scale 1. A live loop brakes where `idle_brake_cfg_scale` is set: the first
+/// `idle_brake_frames` Idle frames after a key are guided at that scale (session 22: at
+/// 1.5 alone the Witch glided 1.2 m after A; see [`Sampling::for_frame`]).
 #[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
 pub struct Sampling {
     #[serde(rename = "ddim_steps")]
@@ -94,6 +96,10 @@ pub struct Sampling {
     pub noise_scale: f32,
     #[serde(default)]
     pub idle_cfg_scale: Option<f32>,
+    #[serde(default)]
+    pub idle_brake_cfg_scale: Option<f32>,
+    #[serde(default)]
+    pub idle_brake_frames: u32,
 }
 
 fn yes() -> bool {
@@ -113,6 +119,8 @@ impl Sampling {
             guide_idle: true,
             noise_scale: 1.0,
             idle_cfg_scale: None,
+            idle_brake_cfg_scale: None,
+            idle_brake_frames: 0,
         }
     }
 
@@ -148,6 +156,37 @@ impl Sampling {
         (idle.cfg_scale != self.cfg_scale).then_some(idle)
     }
 
+    /// The sampling a braking Idle frame runs (guided at `idle_brake_cfg_scale` against
+    /// the null action), where this sampler guides and brakes; else None.
+    pub fn brake(&self) -> Option<Sampling> {
+        match self.idle_brake_cfg_scale {
+            Some(scale) if self.cfg_scale != 1.0 && self.idle_brake_frames > 0 => Some(Sampling {
+                cfg_scale: scale,
+                guide_idle: true,
+                idle_cfg_scale: None,
+                idle_brake_cfg_scale: None,
+                idle_brake_frames: 0,
+                ..*self
+            }),
+            _ => None,
+        }
+    }
+
+    /// The sampling the frame under `action` runs in a live loop, `after_key` being what
+    /// [`idle_run`] gives for it: the first `idle_brake_frames` Idle frames after a key
+    /// brake ([`Sampling::brake`]), the others as [`Sampling::for_action`]. (The
+    /// trainer's `diffusion.frame_idle_scales`.)
+    pub fn for_frame(&self, action: Action, after_key: Option<u32>) -> Sampling {
+        match (self.brake(), after_key) {
+            (Some(brake), Some(n))
+                if action == Action::Idle && n >= 1 && n <= self.idle_brake_frames =>
+            {
+                brake
+            }
+            _ => self.for_action(action),
+        }
+    }
+
     /// Whether this sampling fits a schedule of `schedule_steps` steps.
     pub fn check(&self, schedule_steps: usize) -> Result<(), String> {
         if self.steps == 0 || self.steps > schedule_steps {
@@ -161,6 +200,11 @@ impl Sampling {
             Err(format!(
                 "Idle CFG scale {} is not a number",
                 self.idle_cfg_scale.unwrap_or_default()
+            ))
+        } else if self.idle_brake_cfg_scale.is_some_and(|s| !s.is_finite()) {
+            Err(format!(
+                "Idle braking CFG scale {} is not a number",
+                self.idle_brake_cfg_scale.unwrap_or_default()
             ))
         } else if !(self.noise_scale.is_finite() && self.noise_scale > 0.0) {
             Err(format!(
@@ -181,6 +225,16 @@ impl Sampling {
         } else {
             null
         }
+    }
+}
+
+/// The Idle frames since the last key, this one counted, for a frame under `action` after
+/// a frame with `previous` (None before any key: a standing start never brakes; a key
+/// gives Some(0)).
+pub fn idle_run(previous: Option<u32>, action: Action) -> Option<u32> {
+    match action {
+        Action::Idle => previous.map(|n| n.saturating_add(1)),
+        _ => Some(0),
     }
 }
 
@@ -348,6 +402,64 @@ mod tests {
             ..own
         };
         assert!(bad.check(1000).unwrap_err().contains("Idle CFG scale"));
+    }
+
+    #[test]
+    fn the_first_idle_frames_after_a_key_brake() {
+        let brakes = Sampling {
+            guide_idle: false,
+            idle_cfg_scale: Some(1.5),
+            idle_brake_cfg_scale: Some(2.0),
+            idle_brake_frames: 2,
+            ..Sampling::new(10, 4.7)
+        };
+        // The trainer's test_the_first_idle_frames_after_a_key_brake: two Idle frames
+        // before any key (not braked), W, three Idle (two braked), S, one Idle.
+        use Action::{Backward as S, Forward as W, Idle as I};
+        let mut run = None;
+        let scales: Vec<f32> = [I, I, W, I, I, I, S, I]
+            .iter()
+            .map(|&a| {
+                run = idle_run(run, a);
+                brakes.for_frame(a, run).cfg_scale
+            })
+            .collect();
+        assert_eq!(scales, [1.5, 1.5, 4.7, 2.0, 2.0, 1.5, 4.7, 2.0]);
+        // A braking frame is guided against the null action at the braking scale.
+        let brake = brakes.brake().unwrap();
+        assert_eq!(brake.cfg_scale, 2.0);
+        assert_eq!(brake.partner(Action::Idle.id() as usize, 5), 5);
+        // No braking without the setting, with no frames, or in an unguided sampler.
+        for none in [
+            Sampling {
+                idle_brake_cfg_scale: None,
+                ..brakes
+            },
+            Sampling {
+                idle_brake_frames: 0,
+                ..brakes
+            },
+            Sampling {
+                cfg_scale: 1.0,
+                ..brakes
+            },
+        ] {
+            assert_eq!(none.brake(), None);
+            assert_eq!(none.for_frame(I, Some(1)), none.for_action(I));
+        }
+        let parsed: Sampling = serde_json::from_str(
+            r#"{"ddim_steps": 10, "cfg_scale": 4.7, "idle_brake_cfg_scale": 2.0, "idle_brake_frames": 10}"#,
+        )
+        .unwrap();
+        assert_eq!(
+            (parsed.idle_brake_cfg_scale, parsed.idle_brake_frames),
+            (Some(2.0), 10)
+        );
+        let bad = Sampling {
+            idle_brake_cfg_scale: Some(f32::INFINITY),
+            ..brakes
+        };
+        assert!(bad.check(1000).unwrap_err().contains("braking"));
     }
 
     #[test]

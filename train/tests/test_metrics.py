@@ -260,6 +260,9 @@ def test_the_cfg_probe_measures_segments_and_prefers_the_right_heading():
     wrong[0]["distance_m"] = 1.5
     error, heads = score(wrong, got)
     assert abs(error - 0.5) < 1e-6 and not heads
+    glide = [dict(s) for s in got]
+    glide[2]["distance_m"] = 0.3  # slid on 0.3 m after the release
+    assert score(glide, got) == (0.3, True)
 
 
 def test_report_names_the_pose_stride_in_words():

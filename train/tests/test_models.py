@@ -2,7 +2,8 @@
 
 import torch
 
-from unica_train.diffusion import Schedule, ddim_step, guided_eps, idle_scale, sample_next, sampler_options, step_scales
+from unica_train.diffusion import (Schedule, brake_options, ddim_step, frame_idle_scales, guided_eps, idle_scale, sample_next,
+                                   sampler_options, step_scales)
 from unica_train.unet import UNet, UNetConfig, conv_and_linear_flops, parameter_count
 from unica_train.vae import PositionVae, VaeConfig
 
@@ -143,6 +144,20 @@ def test_an_unguided_idle_takes_the_conditional_prediction_and_the_noise_scales(
     assert sampler_options({"ddim_steps": 10, "cfg_scale": 4.0}) == {"guide_idle": True, "noise_scale": 1.0, "idle_cfg_scale": None}
     assert sampler_options({"guide_idle": False, "noise_scale": 0.5, "idle_cfg_scale": 1.5}) == {
         "guide_idle": False, "noise_scale": 0.5, "idle_cfg_scale": 1.5}
+
+
+def test_the_first_idle_frames_after_a_key_brake():
+    # Ids: Idle 0, W 1, S 2. Two Idle frames before any key (a standing start: not
+    # braked), W, three Idle (two braked), S, one Idle (braked).
+    actions = [0, 0, 1, 0, 0, 0, 2, 0]
+    assert frame_idle_scales(actions, 1.5, 2.0, 2) == [1.5, 1.5, 1.5, 2.0, 2.0, 1.5, 1.5, 2.0]
+    # No braking: every frame at the Idle scale (None: the sampler's own rule).
+    assert frame_idle_scales(actions, None) == [None] * 8
+    assert frame_idle_scales(actions, 1.5, 2.0, 0) == [1.5] * 8
+    # The manifest's settings, and none in an older bundle.
+    assert brake_options({"idle_brake_cfg_scale": 2, "idle_brake_frames": 10}) == {
+        "idle_brake_cfg_scale": 2.0, "idle_brake_frames": 10}
+    assert brake_options({}) == {"idle_brake_cfg_scale": None, "idle_brake_frames": 0}
 
 
 def test_vae_loss_falls_on_an_overfit_batch():

@@ -1,12 +1,13 @@
 """Chooses the sampler's CFG scale by measurement (issue #17): rolls the bundle out on a
 key script at each scale (the PyTorch reference of the live loop, 10 DDIM steps, PCA
 clean-up) and compares each key segment's heading and distance with the teacher's on
-the same keys; the scale with the smallest summed distance error, among those whose
-every moving segment heads within 30° of the teacher's, is the best.
+the same keys; the scale with the smallest summed distance error (every segment's, the
+distance glided under Idle too), among those whose every moving segment heads within 30°
+of the teacher's, is the best.
 
     python -m unica_train.cfg_probe --bundle B --data DATA --teacher RENDER/manifest.json \\
         [--keys "30W 30S 30A 20I"] [--scales 1,2,3,4,5,6] [--guided-steps all,5] \\
-        [--guide-idle yes|no] [--noise-scale S] [--idle-scale S] [--seeds 0,1] [--write]
+        [--guide-idle yes|no] [--noise-scale S] [--idle-scale S] [--brake S:N] [--seeds 0,1] [--write]
 
 `--teacher` is `unica render --teacher CHARACTER --keys K --size 16 --views 1`'s
 manifest; `--write` sets the bundle's `sampler.cfg_scale` to the best scale (and its
@@ -19,8 +20,9 @@ interval is reported, not written. Session 17 measured that the keys are lost wi
 Each line also gives the evaluation's motion numbers for the run (`eval.motion`, as
 `unica eval` scores them): every turn's frames, the stop after every release (frames
 until the root stays below 0.05 m/s, and the distance), and the worst key's speed error;
-`--noise-scale` and `--idle-scale` take comma-separated lists and `--seeds` several seeds,
-so one call measures a grid. The best is chosen as before, by the distance error summed
+`--noise-scale`, `--idle-scale` and `--brake` (the first N Idle frames after a key guided
+at S, `diffusion.frame_idle_scales`; `none` for no braking) take comma-separated lists and
+`--seeds` several seeds, so one call measures a grid. The best is chosen as before, by the distance error summed
 over the seeds."""
 
 from __future__ import annotations
@@ -45,14 +47,14 @@ def segments(path: list[list[float]], keys: str) -> list[dict]:
 
 
 def score(model: list[dict], teacher: list[dict]) -> tuple[float, bool]:
-    """(summed distance error in m over the moving segments, every moving heading within
-    HEADING_LIMIT of the teacher's; a segment that barely moved has no heading and is
-    off)."""
+    """(summed distance error in m over every segment, Idle's too: a glide after a
+    release counts (session 22); every moving heading within HEADING_LIMIT of the
+    teacher's; a moving segment that barely moved has no heading and is off)."""
     error, heads = 0.0, True
     for m, t in zip(model, teacher):
+        error += abs(m["distance_m"] - t["distance_m"])
         if m["key"] == "I":
             continue
-        error += abs(m["distance_m"] - t["distance_m"])
         if m["heading_deg"] is None or t["heading_deg"] is None:
             heads = False
             continue
@@ -76,8 +78,28 @@ def floats(text: str | None) -> list[float]:
 
 
 def idle_label(options: dict, idle: float | None) -> str:
-    """How Idle frames are guided: "CFG 1.5", "guided" (as the keys) or "unguided"."""
-    return f"CFG {idle:g}" if idle is not None else "guided" if options["guide_idle"] else "unguided"
+    """How Idle frames are guided: "CFG 1.5", "guided" (as the keys) or "unguided", with
+    the braking after a key where set (", braked at CFG 2 for 10")."""
+    text = f"CFG {idle:g}" if idle is not None else "guided" if options["guide_idle"] else "unguided"
+    brake = options.get("idle_brake_cfg_scale")
+    return text + ("" if brake is None else f", braked at CFG {brake:g} for {options.get('idle_brake_frames', 0)}")
+
+
+def brakes(text: str | None, default: dict) -> list[dict]:
+    """`--brake` "2:10,none" -> the braking settings to try (default: the bundle's)."""
+    if not text:
+        return [default]
+    out = []
+    for item in text.split(","):
+        if item.strip() == "none":
+            out.append({"idle_brake_cfg_scale": None, "idle_brake_frames": 0})
+            continue
+        scale, _, frames = item.partition(":")
+        try:
+            out.append({"idle_brake_cfg_scale": float(scale), "idle_brake_frames": int(frames)})
+        except ValueError:
+            raise SystemExit(f"--brake {item!r}: expected SCALE:FRAMES (2.0:10) or none") from None
+    return out
 
 
 def motion_numbers(path: list[list[float]], teacher: list[list[float]], keys: str) -> dict:
@@ -115,6 +137,8 @@ def main(argv=None):
     parser.add_argument("--guide-idle", choices=("yes", "no"), help="guide Idle frames too (default: the bundle's sampler)")
     parser.add_argument("--noise-scale", help="the starting noise's scale, comma-separated to try several (default: the bundle's sampler)")
     parser.add_argument("--idle-scale", help="Idle frames' CFG scale, comma-separated to try several (default: the bundle's sampler)")
+    parser.add_argument("--brake", help="SCALE:FRAMES, the first FRAMES Idle frames after a key at CFG SCALE, or none; "
+                                        "comma-separated to try several (default: the bundle's sampler)")
     parser.add_argument("--seeds", default="0", help="comma-separated seeds; each setting runs every one")
     parser.add_argument("--write", action="store_true", help="set the bundle's sampler.cfg_scale to the best scale")
     args = parser.parse_args(argv)
@@ -131,16 +155,17 @@ def main(argv=None):
         options["guide_idle"] = args.guide_idle == "yes"
     noise_scales = floats(args.noise_scale) or [options["noise_scale"]]
     idle_scales = floats(args.idle_scale) or [options.get("idle_cfg_scale")]
+    brake_list = brakes(args.brake, av.brake_options)
     seeds = [int(s) for s in args.seeds.split(",")]
-    print(f"sampler: {steps} DDIM steps, Idle {idle_label(options, options.get('idle_cfg_scale'))}, "
+    print(f"sampler: {steps} DDIM steps, Idle {idle_label({**options, **av.brake_options}, options.get('idle_cfg_scale'))}, "
           f"noise scale {options['noise_scale']:g}")
     results = []
     intervals = [None if g == "all" else int(g) for g in args.guided_steps.split(",")]
     for guided in intervals:
         for noise in noise_scales:
-            for idle in idle_scales:
+            for idle, brake in [(i, b) for i in idle_scales for b in brake_list]:
                 for scale in [float(s) for s in args.scales.split(",")]:
-                    setting = dict(options, noise_scale=noise, idle_cfg_scale=idle)
+                    setting = dict(options, noise_scale=noise, idle_cfg_scale=idle, **brake)
                     runs, error, heads = [], 0.0, True
                     for seed in seeds:
                         run = av.rollout(args.keys, {"steps": steps, "cfg_scale": scale, "pca": True,
@@ -154,11 +179,11 @@ def main(argv=None):
                               + line(model) + f"  distance error {seed_error:.2f} m, headings {'ok' if seed_heads else 'off'}"
                               + "\n    " + motion_line(moved), flush=True)
                     results.append({"cfg_scale": scale, "guided_steps": guided, "noise_scale": noise,
-                                    "idle_cfg_scale": idle, "runs": runs, "distance_error_m": error, "headings_ok": heads})
+                                    "idle_cfg_scale": idle, **brake, "runs": runs, "distance_error_m": error, "headings_ok": heads})
     ok = [r for r in results if r["headings_ok"]] or results
     best = min(ok, key=lambda r: r["distance_error_m"])
     print(f"best: {label(best['cfg_scale'], best['guided_steps'], steps)}, noise {best['noise_scale']:g}, "
-          f"Idle {idle_label(options, best['idle_cfg_scale'])}")
+          f"Idle {idle_label({**options, **best}, best['idle_cfg_scale'])}")
     if args.write and best["guided_steps"] is not None and best["guided_steps"] < steps:
         raise SystemExit(f"{args.bundle}: not written: the engine guides every DDIM step, and the best here guides "
                          f"only {best['guided_steps']} of {steps}")
@@ -169,6 +194,11 @@ def main(argv=None):
         manifest["sampler"].update(options, noise_scale=best["noise_scale"])
         if best["idle_cfg_scale"] is not None:
             manifest["sampler"]["idle_cfg_scale"] = best["idle_cfg_scale"]
+        for key in ("idle_brake_cfg_scale", "idle_brake_frames"):
+            manifest["sampler"].pop(key, None)
+        if best["idle_brake_cfg_scale"] is not None:
+            manifest["sampler"]["idle_brake_cfg_scale"] = best["idle_brake_cfg_scale"]
+            manifest["sampler"]["idle_brake_frames"] = best["idle_brake_frames"]
         manifest["sampler"]["cfg_probe"] = {"keys": args.keys, "teacher": teacher, "results": results}
         path.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
         print(f"set {path}'s sampler to {label(best['cfg_scale'], best['guided_steps'], steps)}")

@@ -9,7 +9,10 @@ action's average motion pushed a standing avatar backwards: she crept), and
 `noise_scale` draws the starting noise at that temperature (less jitter at rest). Since
 session 20 `idle_cfg_scale`, where set, is the guidance scale of Idle samples in guided
 steps instead (1.5 for the Witch: unguided she glided on for 20 frames once the window
-was re-encoded, guided at 4.5 she stopped in two frames and then crept)."""
+was re-encoded, guided at 4.5 she stopped in two frames and then crept). Since session
+22 the live loop also brakes: the first `idle_brake_frames` Idle frames after a key are
+guided at `idle_brake_cfg_scale` (`frame_idle_scales`; the Witch at 1.5 glided 1.2 m
+after A and never stopped, braked at 2.0 for 10 frames she stops as the teacher does)."""
 
 from __future__ import annotations
 
@@ -121,3 +124,29 @@ def sampler_options(sampler: dict) -> dict:
     idle = sampler.get("idle_cfg_scale")
     return {"guide_idle": bool(sampler.get("guide_idle", True)), "noise_scale": float(sampler.get("noise_scale", 1.0)),
             "idle_cfg_scale": None if idle is None else float(idle)}
+
+
+def brake_options(sampler: dict) -> dict:
+    """The live loop's braking settings of a bundle manifest's `sampler` entry (none in
+    older bundles): the first `idle_brake_frames` Idle frames after a key are guided at
+    `idle_brake_cfg_scale`."""
+    brake = sampler.get("idle_brake_cfg_scale")
+    return {"idle_brake_cfg_scale": None if brake is None else float(brake),
+            "idle_brake_frames": int(sampler.get("idle_brake_frames", 0))}
+
+
+def frame_idle_scales(actions: list[int], idle_cfg_scale: float | None, idle_brake_cfg_scale: float | None = None,
+                      idle_brake_frames: int = 0) -> list[float | None]:
+    """The Idle guidance scale (`sample_next`'s `idle_cfg_scale`) each frame of a key
+    sequence samples with: `idle_brake_cfg_scale` for the first `idle_brake_frames` Idle
+    frames after a key, else `idle_cfg_scale`. Idle before the first key (a standing
+    start) is not braked. The engine's `Sampling::for_frame`."""
+    out, since = [], None  # Idle frames since the last key; None before any key
+    for a in actions:
+        if a != IDLE:
+            since = 0
+        elif since is not None:
+            since += 1
+        braking = a == IDLE and idle_brake_cfg_scale is not None and since is not None and since <= idle_brake_frames
+        out.append(idle_brake_cfg_scale if braking else idle_cfg_scale)
+    return out

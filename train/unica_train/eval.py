@@ -45,7 +45,7 @@ import torch
 from . import bundle as bundle_io
 from . import metrics, pca, recentre, splats
 from .dataset import ANCHOR, BakedDataset
-from .diffusion import Schedule, sample_next, sampler_options
+from .diffusion import Schedule, brake_options, frame_idle_scales, sample_next, sampler_options
 from .refiner import Frames, features, from_bundle, refined
 from .train import parse_keys
 
@@ -81,6 +81,7 @@ class Avatar:
         self.scale = self.manifest["normalisation"]["scale"]
         self.latent_scale = self.manifest["latent_scale"]
         self.sampler_options = sampler_options(self.manifest["sampler"])  # guide_idle, noise_scale, idle_cfg_scale
+        self.brake_options = brake_options(self.manifest["sampler"])  # the live loop's braking after a key
         self.schedule = Schedule()
         self.pca_mean, self.pca_basis = self.extra["pca.mean"], self.extra["pca.basis"]
         self.colors = self.extra.get("map.colors", self.ds.pixel_colors())
@@ -125,7 +126,7 @@ class Avatar:
             self.vae, self.unet, self.schedule, self.latent_scale, self.extra["context.latents"], keys,
             setting["steps"], setting["cfg_scale"], seed, self.pixels, self.waist, self.scale, "reencode",
             frames=frames, on_frame=keep, guided_steps=setting.get("guided_steps"),
-            **{k: setting.get(k, v) for k, v in self.sampler_options.items()})
+            **{k: setting.get(k, v) for k, v in {**self.sampler_options, **self.brake_options}.items()})
         out["unit"] = torch.stack(drawn)
         out["ms_per_frame"] = (time.time() - started) * 1e3 / max(1, len(drawn))
         return out
@@ -147,13 +148,16 @@ def held_out_frames(frames: Frames, count: int) -> tuple[list[int], list[tuple[i
 def teacher_forced(av: Avatar, clip: int, f: int, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
     """(generated, truth) world points [N, 3] of frame `f` of `clip`: the generated frame
     from its three ground-truth context frames and the true action (bundle's sampler,
-    PCA-cleaned), and the frame itself."""
+    braked as the live loop would be after the clip's keys so far; PCA-cleaned), and the
+    frame itself."""
     world = av.ds.positions(clip, list(range(f - 3, f + 1)))  # 3 context frames + the truth
     unit, root = av.ds.normalise(world, anchor=ANCHOR)
     context = av.vae.encoder(av.ds.to_maps(unit[:3]))[0] * av.latent_scale
-    action = int(av.ds.clips[clip]["actions"][f - 1])
-    z = sample_next(av.unet, av.schedule, context[None], torch.tensor([action]), av.manifest["sampler"]["ddim_steps"],
-                    av.manifest["sampler"]["cfg_scale"], generator=gen, **av.sampler_options)
+    actions = [int(a) for a in av.ds.clips[clip]["actions"][:f]]
+    options = dict(av.sampler_options)
+    options["idle_cfg_scale"] = frame_idle_scales(actions, options["idle_cfg_scale"], **av.brake_options)[-1]
+    z = sample_next(av.unet, av.schedule, context[None], torch.tensor([actions[-1]]), av.manifest["sampler"]["ddim_steps"],
+                    av.manifest["sampler"]["cfg_scale"], generator=gen, **options)
     new = recentre.decode_points(av.vae, z, av.latent_scale, av.pixels)[0]
     return (av.clean(new) - 0.5) / av.scale + root, world[3]
 
@@ -566,7 +570,7 @@ def evaluate(args) -> dict:
     roots = [f["root"] for f in json.loads(args.teacher.read_text())["frames"]]
     teacher = roots[:1] + roots
     defaults = {"steps": av.manifest["sampler"]["ddim_steps"], "cfg_scale": av.manifest["sampler"]["cfg_scale"], "pca": True,
-                **av.sampler_options}
+                **av.sampler_options, **av.brake_options}
     keys = args.keys or ("20W 20S 20A 20D 20I" if quick else KEYS)
     frames = sum(int(t[:-1]) for t in keys.split())
     began = time.time()

@@ -34,7 +34,7 @@ from pathlib import Path
 import torch
 
 from . import bundle as bundle_io
-from .diffusion import Schedule, sample_next, sampler_options
+from .diffusion import Schedule, brake_options, frame_idle_scales, sample_next, sampler_options
 from .train import parse_keys
 
 MAP_SIZE = 128
@@ -152,7 +152,8 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
             frames: int | None = None, basis: torch.Tensor | None = None, window: torch.Tensor | None = None,
             start_root: torch.Tensor | None = None, diagnose: bool = False, log_every: int = 0,
             on_frame=None, guided_steps: int | None = None, guide_idle: bool = True, noise_scale: float = 1.0,
-            idle_cfg_scale: float | None = None) -> dict:
+            idle_cfg_scale: float | None = None, idle_brake_cfg_scale: float | None = None,
+            idle_brake_frames: int = 0) -> dict:
     """The live loop of train.py's `Run.rollout` from the clean context latents [3, C, h, w]
     (scaled), recentring each frame either by re-encoding the translated window
     ("reencode", the reference) or by the latent shift context − Σ δ_k J_k ("latent", no
@@ -164,7 +165,9 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
     With `diagnose` the window is also tracked in the other modes and every frame records
     the relative RMS gap between the carried context and the re-encoded window (the
     re-encoding is measured, never fed back). `on_frame(i, points, shift)` sees each new
-    frame's normalised points [N, 3] (its root at 0.5 + shift)."""
+    frame's normalised points [N, 3] (its root at 0.5 + shift). Idle frames are guided at
+    `idle_cfg_scale`, the first `idle_brake_frames` after a key at `idle_brake_cfg_scale`
+    (`diffusion.frame_idle_scales`)."""
     if shift_mode not in MODES:
         raise ValueError(f"shift_mode {shift_mode!r}: expected one of {MODES}")
     if shift_mode == "latent" and basis is None:
@@ -184,10 +187,11 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
     path, points, shifts, gaps = [world_root.tolist()], [], [], []
     gen = torch.Generator().manual_seed(seed)
     started = time.time()
+    idle_scales = frame_idle_scales(actions, idle_cfg_scale, idle_brake_cfg_scale, idle_brake_frames)
     for i, a in enumerate(actions):
         z = sample_next(unet, schedule, context[None], torch.tensor([a]), steps, cfg_scale, generator=gen,
                         guided_steps=guided_steps, guide_idle=guide_idle, noise_scale=noise_scale,
-                        idle_cfg_scale=idle_cfg_scale)
+                        idle_cfg_scale=idle_scales[i])
         # [N, 3], NaN to the cube's centre and clamped into it, as the engine does
         new = decode_points(vae, z, scale, pixels)[0].nan_to_num(0.5).clamp(0.0, 1.0)
         shift = root(new, waist) - 0.5
@@ -421,7 +425,7 @@ def main(argv=None):
         started = time.time()
         out = rollout(vae, unet, schedule, scale, extra["context.latents"], args.keys, steps, cfg_scale, args.seed,
                       pixels, waist, norm, mode, frames=args.frames, basis=basis, diagnose=args.diagnose, log_every=50,
-                      **sampler_options(manifest["sampler"]))
+                      **sampler_options(manifest["sampler"]), **brake_options(manifest["sampler"]))
         out["seconds"] = round(time.time() - started, 1)
         out["basis"] = args.basis if mode == "latent" else None
         path = args.out / f"rollout_{mode}.json"

@@ -177,8 +177,10 @@ def _masked_section(results: dict, data: str) -> list[str]:
 
 def _idle_text(d: dict) -> str:
     """How Idle frames are guided, for the sampler line ('' where as the keys)."""
+    brake = d.get("idle_brake_cfg_scale")
+    braking = f", the first {d.get('idle_brake_frames', 0)} after a key at CFG {brake:g}" if brake is not None else ""
     if d.get("idle_cfg_scale") is not None:
-        return f" (Idle frames at CFG {d['idle_cfg_scale']:g})"
+        return f" (Idle frames at CFG {d['idle_cfg_scale']:g}{braking})"
     return "" if d.get("guide_idle", True) else " (Idle frames unguided)"
 
 
