@@ -182,8 +182,9 @@ fn worst(a: &[Vec3], b: &[Vec3]) -> f32 {
 fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
     // Four frames (W, D, Idle, Idle) each without guidance, with guidance, with guidance
     // but Idle unguided and the noise scaled, with Idle guided at its own scale, and
-    // braking the first Idle frame after a key at a third scale (two DDIM steps: the
-    // plan's structure is the same for any count). Tolerance: 2e-5 m (0.02 mm) on world points and 2e-5 m on the root;
+    // braking the first Idle frame after a key at a third scale, beside Idle at its own
+    // scale and beside unguided Idle (two DDIM steps: the plan's structure is the same
+    // for any count). Tolerance: 2e-5 m (0.02 mm) on world points and 2e-5 m on the root;
     // both sides run the same f32 kernels (the encoder of the slid maps included) and
     // differ only in summation order and fused multiply-adds of the PCA, the slide and
     // the world placement (measured ≈ 1e-6 m).
@@ -202,12 +203,18 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
         idle_brake_frames: 1,
         ..idle_scaled
     };
+    // Braking beside unguided Idle: the braking frame pairs Idle with the null action.
+    let braking_unguided = Sampling {
+        idle_cfg_scale: None,
+        ..braking
+    };
     for sampling in [
         Sampling::new(2, 1.0),
         Sampling::new(2, 2.0),
         unguided_idle,
         idle_scaled,
         braking,
+        braking_unguided,
     ] {
         let cfg_scale = sampling.cfg_scale;
         let mut engine = Engine::new(&gpu, &witch_bundle(), &options(sampling, 7)).unwrap();

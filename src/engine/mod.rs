@@ -161,9 +161,7 @@ impl Plans {
             return keys;
         }
         match (&self.brake, &self.idle) {
-            (Some(brake), _) if keys.sampling.for_frame(action, after_key) == brake.sampling => {
-                brake
-            }
+            (Some(brake), _) if keys.sampling.brakes(after_key) => brake,
             (_, Some(idle)) => idle,
             _ => keys,
         }

@@ -177,14 +177,16 @@ impl Sampling {
     /// brake ([`Sampling::brake`]), the others as [`Sampling::for_action`]. (The
     /// trainer's `diffusion.frame_idle_scales`.)
     pub fn for_frame(&self, action: Action, after_key: Option<u32>) -> Sampling {
-        match (self.brake(), after_key) {
-            (Some(brake), Some(n))
-                if action == Action::Idle && n >= 1 && n <= self.idle_brake_frames =>
-            {
-                brake
-            }
+        match self.brake() {
+            Some(brake) if action == Action::Idle && self.brakes(after_key) => brake,
             _ => self.for_action(action),
         }
+    }
+
+    /// Whether an Idle frame `after_key` Idle frames after a key (this one counted,
+    /// [`idle_run`]) is among the first `idle_brake_frames`.
+    pub fn brakes(&self, after_key: Option<u32>) -> bool {
+        after_key.is_some_and(|n| n >= 1 && n <= self.idle_brake_frames)
     }
 
     /// Whether this sampling fits a schedule of `schedule_steps` steps.

@@ -298,3 +298,26 @@ def test_the_cfg_probe_gives_the_evaluations_turns_stop_and_speed():
         slow[i][2] = 0.072 * 20
     assert abs(motion_numbers(slow, teacher, "20W 20A 10I")["speed_error_pct"] - 10.0) < 1e-3
     assert "stops after A 2/2 (0.05 m)" in motion_line(got)
+
+
+def test_the_report_and_the_probe_name_the_braking():
+    import pytest
+
+    from unica_train.cfg_probe import brakes
+    from unica_train.report import _idle_text
+
+    base = {"cfg_scale": 4.7, "guide_idle": False, "idle_cfg_scale": 1.5}
+    braked = dict(base, idle_brake_cfg_scale=2.0, idle_brake_frames=10)
+    assert _idle_text(base) == " (Idle frames at CFG 1.5)"
+    assert _idle_text(braked) == " (Idle frames at CFG 1.5, the first 10 after a key at CFG 2)"
+    assert _idle_text(dict(braked, idle_cfg_scale=None)) == " (Idle frames unguided, the first 10 after a key at CFG 2)"
+    assert _idle_text(dict(braked, idle_cfg_scale=None, guide_idle=True)) == (
+        " (Idle frames as the keys, the first 10 after a key at CFG 2)")
+    assert _idle_text(dict(braked, cfg_scale=1)) == ""
+    assert _idle_text({"cfg_scale": 4.0}) == ""
+    default = {"idle_brake_cfg_scale": None, "idle_brake_frames": 0}
+    assert brakes(None, default) == [default]
+    assert brakes("2:10,none", default) == [{"idle_brake_cfg_scale": 2.0, "idle_brake_frames": 10}, default]
+    for bad in ("2", "2:0", "2:-1", "nan:10", "inf:3", "x:3"):
+        with pytest.raises(SystemExit):
+            brakes(bad, default)

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 import torch
@@ -96,9 +97,12 @@ def brakes(text: str | None, default: dict) -> list[dict]:
             continue
         scale, _, frames = item.partition(":")
         try:
-            out.append({"idle_brake_cfg_scale": float(scale), "idle_brake_frames": int(frames)})
+            brake = {"idle_brake_cfg_scale": float(scale), "idle_brake_frames": int(frames)}
         except ValueError:
-            raise SystemExit(f"--brake {item!r}: expected SCALE:FRAMES (2.0:10) or none") from None
+            brake = None
+        if brake is None or not math.isfinite(brake["idle_brake_cfg_scale"]) or brake["idle_brake_frames"] < 1:
+            raise SystemExit(f"--brake {item!r}: expected SCALE:FRAMES (2.0:10: a finite scale, at least 1 frame) or none")
+        out.append(brake)
     return out
 
 

@@ -148,8 +148,8 @@ def held_out_frames(frames: Frames, count: int) -> tuple[list[int], list[tuple[i
 def teacher_forced(av: Avatar, clip: int, f: int, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
     """(generated, truth) world points [N, 3] of frame `f` of `clip`: the generated frame
     from its three ground-truth context frames and the true action (bundle's sampler,
-    braked as the live loop would be after the clip's keys so far; PCA-cleaned), and the
-    frame itself."""
+    braked as the live loop would be after the clip's keys so far: baked clips start at
+    rest; PCA-cleaned), and the frame itself."""
     world = av.ds.positions(clip, list(range(f - 3, f + 1)))  # 3 context frames + the truth
     unit, root = av.ds.normalise(world, anchor=ANCHOR)
     context = av.vae.encoder(av.ds.to_maps(unit[:3]))[0] * av.latent_scale

@@ -31,7 +31,7 @@ from safetensors.torch import load_file, save_file
 
 from . import bundle as bundle_io
 from . import pca
-from .diffusion import Schedule, sample_next, sampler_options
+from .diffusion import Schedule, brake_options, frame_idle_scales, sample_next, sampler_options
 from .report import every
 from .train import Run, TrainConfig
 
@@ -63,6 +63,7 @@ class Fit:
         self.scale = self.manifest["latent_scale"]
         self.sampler = self.manifest["sampler"]
         self.sampler_options = sampler_options(self.sampler)  # guide_idle, noise_scale, idle_cfg_scale
+        self.brake_options = brake_options(self.sampler)  # the live loop's braking after a key
         self.run = Run(data, out, TrainConfig(held_out_clips=held_out), torch.device("cpu"))
         if not self.run.test_groups or not self.run.train_groups:
             raise SystemExit(f"{data}: held-out clips {held_out} leave no training or no held-out frames")
@@ -89,16 +90,20 @@ class Fit:
     @torch.no_grad()
     def generated(self, groups: list[int], seed: int, label: str) -> tuple[torch.Tensor, torch.Tensor]:
         """The UNet's teacher-forced latents [n, d] (unscaled) of each group's 4th frame
-        and that frame's true coefficients."""
+        (braked as the live loop would be after the clip's keys so far; baked clips start
+        at rest) and that frame's true coefficients."""
         gen = torch.Generator().manual_seed(seed)
         schedule, z, c = Schedule(), [], []
         started = time.time()
         for k, i in enumerate(groups):
             maps = self.run.group_maps(i)
             context = self.vae.encoder(maps[:3])[0] * self.scale
-            action = torch.tensor([self.run.groups[i].action])
-            new = sample_next(self.unet, schedule, context[None], action, self.sampler["ddim_steps"], self.sampler["cfg_scale"],
-                              generator=gen, **self.sampler_options)
+            g = self.run.groups[i]
+            history = [int(a) for a in self.run.ds.clips[g.clip]["actions"][: g.start + 3]]
+            options = dict(self.sampler_options)
+            options["idle_cfg_scale"] = frame_idle_scales(history, options["idle_cfg_scale"], **self.brake_options)[-1]
+            new = sample_next(self.unet, schedule, context[None], torch.tensor([g.action]), self.sampler["ddim_steps"],
+                              self.sampler["cfg_scale"], generator=gen, **options)
             z.append((new / self.scale).flatten(1))
             c.append(self.coefficients(maps[3:]))
             if (k + 1) % 100 == 0 or k + 1 == len(groups):

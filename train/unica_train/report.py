@@ -177,11 +177,16 @@ def _masked_section(results: dict, data: str) -> list[str]:
 
 def _idle_text(d: dict) -> str:
     """How Idle frames are guided, for the sampler line ('' where as the keys)."""
-    brake = d.get("idle_brake_cfg_scale")
-    braking = f", the first {d.get('idle_brake_frames', 0)} after a key at CFG {brake:g}" if brake is not None else ""
+    if d.get("cfg_scale") == 1:
+        return ""  # an unguided sampler: Idle frames too
+    brake, frames = d.get("idle_brake_cfg_scale"), d.get("idle_brake_frames", 0)
+    brakes = brake is not None and frames > 0
+    braking = f", the first {frames} after a key at CFG {brake:g}" if brakes else ""
     if d.get("idle_cfg_scale") is not None:
         return f" (Idle frames at CFG {d['idle_cfg_scale']:g}{braking})"
-    return "" if d.get("guide_idle", True) else " (Idle frames unguided)"
+    if not d.get("guide_idle", True):
+        return f" (Idle frames unguided{braking})"
+    return f" (Idle frames as the keys{braking})" if braking else ""
 
 
 def write_report(out: Path, results: dict, sheet: list, masked_sheet: list | None = None) -> None:
