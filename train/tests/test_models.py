@@ -2,8 +2,8 @@
 
 import torch
 
-from unica_train.diffusion import (Schedule, brake_options, ddim_step, frame_idle_scales, guided_eps, idle_scale, sample_next,
-                                   sampler_options, step_scales)
+from unica_train.diffusion import (Schedule, brake_options, ddim_step, frame_idle_scales, frame_options, guided_eps, idle_scale,
+                                   sample_next, sampler_options, step_scales)
 from unica_train.unet import UNet, UNetConfig, conv_and_linear_flops, parameter_count
 from unica_train.vae import PositionVae, VaeConfig
 
@@ -158,6 +158,12 @@ def test_the_first_idle_frames_after_a_key_brake():
     assert brake_options({"idle_brake_cfg_scale": 2, "idle_brake_frames": 10}) == {
         "idle_brake_cfg_scale": 2.0, "idle_brake_frames": 10}
     assert brake_options({}) == {"idle_brake_cfg_scale": None, "idle_brake_frames": 0}
+    # A teacher-forced frame's options: the last frame of its clip's keys so far.
+    options = {"guide_idle": False, "noise_scale": 0.25, "idle_cfg_scale": 1.5}
+    brake = {"idle_brake_cfg_scale": 2.0, "idle_brake_frames": 2}
+    assert frame_options(options, brake, [1, 0]) == dict(options, idle_cfg_scale=2.0)
+    assert frame_options(options, brake, [1, 0, 0, 0]) == options
+    assert frame_options(options, brake, [0, 0]) == options
 
 
 def test_vae_loss_falls_on_an_overfit_batch():

@@ -22,8 +22,8 @@ Each line also gives the evaluation's motion numbers for the run (`eval.motion`,
 until the root stays below 0.05 m/s, and the distance), and the worst key's speed error;
 `--noise-scale`, `--idle-scale` and `--brake` (the first N Idle frames after a key guided
 at S, `diffusion.frame_idle_scales`; `none` for no braking) take comma-separated lists and
-`--seeds` several seeds, so one call measures a grid. The best is chosen as before, by the distance error summed
-over the seeds."""
+`--seeds` several seeds, so one call measures a grid. The best is chosen as before, by
+the distance error summed over the seeds."""
 
 from __future__ import annotations
 

@@ -150,3 +150,11 @@ def frame_idle_scales(actions: list[int], idle_cfg_scale: float | None, idle_bra
         braking = a == IDLE and idle_brake_cfg_scale is not None and since is not None and since <= idle_brake_frames
         out.append(idle_brake_cfg_scale if braking else idle_cfg_scale)
     return out
+
+
+def frame_options(options: dict, brake: dict, history: list[int]) -> dict:
+    """`sample_next`'s keyword arguments (`sampler_options`) for the last frame of a key
+    sequence `history` that starts at rest, its Idle scale braked as the live loop would
+    (`frame_idle_scales` with `brake_options`): a teacher-forced frame sampled as the
+    engine would sample it after the same keys."""
+    return dict(options, idle_cfg_scale=frame_idle_scales(history, options["idle_cfg_scale"], **brake)[-1])

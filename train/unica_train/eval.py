@@ -45,7 +45,7 @@ import torch
 from . import bundle as bundle_io
 from . import metrics, pca, recentre, splats
 from .dataset import ANCHOR, BakedDataset
-from .diffusion import Schedule, brake_options, frame_idle_scales, sample_next, sampler_options
+from .diffusion import Schedule, brake_options, frame_options, sample_next, sampler_options
 from .refiner import Frames, features, from_bundle, refined
 from .train import parse_keys
 
@@ -154,10 +154,9 @@ def teacher_forced(av: Avatar, clip: int, f: int, gen: torch.Generator) -> tuple
     unit, root = av.ds.normalise(world, anchor=ANCHOR)
     context = av.vae.encoder(av.ds.to_maps(unit[:3]))[0] * av.latent_scale
     actions = [int(a) for a in av.ds.clips[clip]["actions"][:f]]
-    options = dict(av.sampler_options)
-    options["idle_cfg_scale"] = frame_idle_scales(actions, options["idle_cfg_scale"], **av.brake_options)[-1]
     z = sample_next(av.unet, av.schedule, context[None], torch.tensor([actions[-1]]), av.manifest["sampler"]["ddim_steps"],
-                    av.manifest["sampler"]["cfg_scale"], generator=gen, **options)
+                    av.manifest["sampler"]["cfg_scale"], generator=gen,
+                    **frame_options(av.sampler_options, av.brake_options, actions))
     new = recentre.decode_points(av.vae, z, av.latent_scale, av.pixels)[0]
     return (av.clean(new) - 0.5) / av.scale + root, world[3]
 

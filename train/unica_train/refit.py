@@ -31,7 +31,7 @@ from safetensors.torch import load_file, save_file
 
 from . import bundle as bundle_io
 from . import pca
-from .diffusion import Schedule, brake_options, frame_idle_scales, sample_next, sampler_options
+from .diffusion import Schedule, brake_options, frame_options, sample_next, sampler_options
 from .report import every
 from .train import Run, TrainConfig
 
@@ -100,10 +100,9 @@ class Fit:
             context = self.vae.encoder(maps[:3])[0] * self.scale
             g = self.run.groups[i]
             history = [int(a) for a in self.run.ds.clips[g.clip]["actions"][: g.start + 3]]
-            options = dict(self.sampler_options)
-            options["idle_cfg_scale"] = frame_idle_scales(history, options["idle_cfg_scale"], **self.brake_options)[-1]
             new = sample_next(self.unet, schedule, context[None], torch.tensor([g.action]), self.sampler["ddim_steps"],
-                              self.sampler["cfg_scale"], generator=gen, **options)
+                              self.sampler["cfg_scale"], generator=gen,
+                              **frame_options(self.sampler_options, self.brake_options, history))
             z.append((new / self.scale).flatten(1))
             c.append(self.coefficients(maps[3:]))
             if (k + 1) % 100 == 0 or k + 1 == len(groups):
