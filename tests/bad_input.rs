@@ -449,6 +449,38 @@ fn render_refuses_a_bundle_with_a_nan_weight_or_a_huge_step_count() {
     assert_one_line_error(&app, &["manifest.json", "diffusion.steps"]);
 }
 
+#[test]
+fn render_refuses_a_refiner_whose_pixel_residuals_are_not_the_maps() {
+    let dir = tempfile::tempdir().unwrap();
+    let bundle = dir.path().join("bundle");
+    std::fs::create_dir(&bundle).unwrap();
+    for file in ["manifest.json", "weights.safetensors"] {
+        std::fs::copy(witch_bundle().join(file), bundle.join(file)).unwrap();
+    }
+    let manifest = bundle.join("manifest.json");
+    let mut json: Value =
+        serde_json::from_str(&std::fs::read_to_string(&manifest).unwrap()).unwrap();
+    json["refiner"]["pixel_residuals"] = json!(17);
+    std::fs::write(&manifest, serde_json::to_vec(&json).unwrap()).unwrap();
+    let out = dir.path().join("out");
+    let args = [
+        "render",
+        "--bundle",
+        bundle.to_str().unwrap(),
+        "--keys",
+        "1I",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    assert_one_line_error(
+        &unica(&args),
+        &[
+            "weights.safetensors",
+            "the refiner's pixel_residuals (17) are not the map's 4414 foreground pixels",
+        ],
+    );
+}
+
 // ---------- PLY ----------
 
 use unica::splat::ply::{Splat, decode, encode};

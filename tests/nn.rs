@@ -719,7 +719,14 @@ fn points(f: &Fixture, name: &str) -> Vec<glam::Vec3> {
 #[test]
 fn the_refiner_matches_pytorch() {
     // 300 points in 18 patches of 16 and a tail of 12, pooled by 4 into 75 (4 patches
-    // and a tail of 11): serialisation, patch attention, pooling and unpooling.
+    // and a tail of 11): serialisation, patch attention, pooling and unpooling; then the
+    // same network with a random residual per point added (`refiner_pixel`).
+    for (fixture, pixel_residuals) in [("refiner", 0), ("refiner_pixel", 300)] {
+        refiner_matches(fixture, pixel_residuals);
+    }
+}
+
+fn refiner_matches(fixture: &str, pixel_residuals: usize) {
     let cfg = RefinerConfig {
         channels: [16, 32],
         depths: [1, 1],
@@ -728,9 +735,10 @@ fn the_refiner_matches_pytorch() {
         patch: 16,
         stride: 4,
         mean_bound: 0.004,
+        pixel_residuals,
     };
     for (precision, kernels) in variants() {
-        let mut f = Fixture::open("refiner", precision);
+        let mut f = Fixture::open(fixture, precision);
         let unit = points(&f, "io.in.unit");
         let features = f.input("io.in.features");
         let (mut r, w) = f.recorder();

@@ -99,6 +99,20 @@ impl Bundle {
         } else {
             None
         };
+        if let Some(rows) = manifest
+            .refiner
+            .as_ref()
+            .map(|cfg| cfg.pixel_residuals)
+            .filter(|&rows| rows != 0 && rows != pixels.len())
+        {
+            return Err(LoadError::Manifest {
+                path: file.path().display().to_string(),
+                problem: format!(
+                    "the refiner's pixel_residuals ({rows}) are not the map's {} foreground pixels",
+                    pixels.len()
+                ),
+            });
+        }
         let refiner = manifest
             .refiner
             .as_ref()

@@ -29,6 +29,10 @@ pub struct RefinerConfig {
     pub stride: usize,
     /// Bound of the mean offsets in normalised units.
     pub mean_bound: f32,
+    /// Rows of the learned residual per map pixel added to the network's output (the
+    /// map's foreground pixel count; 0, the default: none).
+    #[serde(default)]
+    pub pixel_residuals: usize,
 }
 
 impl RefinerConfig {
@@ -195,6 +199,8 @@ pub struct Refiner {
     decoder: Vec<Block>,
     norm: LayerNorm,
     head: Linear,
+    /// [pixel_residuals, 14]: each map pixel's own residuals.
+    pixel: Option<Tensor>,
 }
 
 impl Refiner {
@@ -215,6 +221,10 @@ impl Refiner {
             decoder: blocks("decoder", cfg.decoder_depth, c0, cfg.heads[0])?,
             norm: LayerNorm::load(&w.at("norm"), c0)?,
             head: Linear::load(&w.at("head"), c0, RESIDUALS)?,
+            pixel: match cfg.pixel_residuals {
+                0 => None,
+                rows => Some(w.tensor("pixel", &[rows, RESIDUALS])?),
+            },
             cfg: cfg.clone(),
         })
     }
@@ -287,6 +297,16 @@ impl Refiner {
             block += 1;
         }
         let normed = self.norm.forward(r, &x)?;
-        self.head.forward(r, &normed, false)
+        let out = self.head.forward(r, &normed, false)?;
+        match &self.pixel {
+            None => Ok(out),
+            Some(pixel) => {
+                assert_eq!(
+                    pixel.shape, out.shape,
+                    "the refiner's pixel residuals against its points"
+                );
+                r.add(&out, pixel, super::Broadcast::Trailing)
+            }
+        }
     }
 }

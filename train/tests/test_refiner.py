@@ -102,6 +102,48 @@ def test_a_refiner_starts_from_another_bundles_refiner_with_the_same_config(tmp_
         R.init_from_bundle(R.Refiner(R.RefinerConfig(patch=32)), tmp_path)
 
 
+def test_per_pixel_residuals_add_each_points_own_row_and_start_at_zero_from_a_bundle(tmp_path):
+    import json
+
+    import pytest
+    from safetensors.torch import save_file
+
+    from unica_train import bundle as B
+
+    gen = torch.Generator().manual_seed(1)
+    unit = torch.rand(40, 3, generator=gen)
+    feats = torch.randn(40, R.FEATURES, generator=gen)
+    plain = R.Refiner(R.RefinerConfig(patch=16))
+    with torch.no_grad():
+        for p in plain.parameters():
+            p.add_(0.1 * torch.randn(p.shape, generator=gen))
+    table = R.Refiner(R.RefinerConfig(patch=16, pixel_residuals=40))
+    table.load_state_dict(plain.state_dict() | {"pixel": torch.arange(40 * R.OUTPUTS, dtype=torch.float32).reshape(40, R.OUTPUTS)})
+    with torch.no_grad():
+        # Row i of the table is added to point i's residuals, nothing else changes.
+        assert torch.allclose(table(feats, unit) - plain(feats, unit), table.pixel, atol=1e-4)
+        with pytest.raises(ValueError, match="40 rows for 39 points"):
+            table(feats[:39], unit[:39])
+    # The flops count its add.
+    assert R.flops(table.cfg, 40) == R.flops(plain.cfg, 40) + 40 * R.OUTPUTS
+    # Started from a bundle without a table, the network is the bundle's and the table zero.
+    save_file({"pca.mean": torch.zeros(3)}, str(tmp_path / "weights.safetensors"))
+    (tmp_path / "manifest.json").write_text(json.dumps({"avatar": "test"}))
+    R.add_to_bundle(tmp_path, plain)
+    started = R.Refiner(R.RefinerConfig(patch=16, pixel_residuals=40))
+    R.init_from_bundle(started, tmp_path)
+    assert torch.equal(started.pixel, torch.zeros(40, R.OUTPUTS))
+    with torch.no_grad():
+        assert torch.allclose(started(feats, unit), plain(feats, unit))
+    # A bundle with a table of another size is refused.
+    R.add_to_bundle(tmp_path, table)
+    with pytest.raises(B.BundleError, match="refiner config"):
+        R.init_from_bundle(R.Refiner(R.RefinerConfig(patch=16, pixel_residuals=41)), tmp_path)
+    again = R.Refiner(R.RefinerConfig(patch=16, pixel_residuals=40))
+    R.init_from_bundle(again, tmp_path)
+    assert torch.equal(again.pixel, table.pixel)
+
+
 def test_held_out_frames_are_spread_over_the_held_out_clips_and_none_is_an_error():
     from types import SimpleNamespace
 

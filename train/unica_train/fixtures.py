@@ -94,6 +94,8 @@ def build() -> dict[str, dict[str, torch.Tensor]]:
     unit, feats = rand(300, 3).sigmoid(), rand(300, 11)
     module_file("refiner", Refiner(TINY_REFINER), {"features": feats, "unit": unit}, lambda m, features, unit: m(features, unit))
     files["base_splats"], files["witch_refiner"] = witch_splats()
+    pixel_refiner = Refiner(RefinerConfig(**(TINY_REFINER.to_dict() | {"pixel_residuals": 300})))
+    module_file("refiner_pixel", pixel_refiner, {"features": feats, "unit": unit}, lambda m, features, unit: m(features, unit))
     out = {name: {k: v.float().contiguous() for k, v in tensors.items()} for name, tensors in files.items()}
     out["vae_pca_decoder"] = pca_decoder()
     return out

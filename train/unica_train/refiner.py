@@ -112,6 +112,11 @@ class RefinerConfig:
     stride: int = 4
     # Bound of the mean offsets in normalised units (the Witch: 0.004 ≈ 11 mm).
     mean_bound: float = 0.004
+    # Rows of a learned residual per map pixel, added to the network's output (the map's
+    # foreground pixel count; 0: none). The map's pixels are fixed surface points, so
+    # this holds what each point needs in every pose (its colour, size and opacity
+    # against the teacher's); the network predicts what changes with the pose (#17).
+    pixel_residuals: int = 0
 
     def to_dict(self):
         return asdict(self)
@@ -183,6 +188,7 @@ class Refiner(nn.Module):
         self.head = nn.Linear(c0, OUTPUTS)
         nn.init.zeros_(self.head.weight)
         nn.init.zeros_(self.head.bias)
+        self.pixel = nn.Parameter(torch.zeros(cfg.pixel_residuals, OUTPUTS)) if cfg.pixel_residuals else None
 
     def forward(self, features: torch.Tensor, unit: torch.Tensor) -> torch.Tensor:
         """features [N, 11], unit positions [N, 3] -> raw residuals [N, 14]."""
@@ -205,7 +211,12 @@ class Refiner(nn.Module):
         for b in self.decoder:
             x = b(x, fine[block % 4], cfg.patch)
             block += 1
-        return self.head(self.norm(x))
+        out = self.head(self.norm(x))
+        if self.pixel is None:
+            return out
+        if self.pixel.shape[0] != out.shape[0]:
+            raise ValueError(f"the refiner's pixel residuals have {self.pixel.shape[0]} rows for {out.shape[0]} points")
+        return out + self.pixel
 
 
 def parameter_count(model: nn.Module) -> int:
@@ -223,7 +234,7 @@ def flops(cfg: RefinerConfig, points: int) -> int:
     total = 2 * points * FEATURES * c0 + cfg.depths[0] * block(points, c0)
     total += 2 * coarse * c0 * c1 + cfg.depths[1] * block(coarse, c1) + 2 * coarse * c1 * c0
     total += cfg.decoder_depth * block(points, c0) + 2 * points * c0 * OUTPUTS
-    return total
+    return total + (points * OUTPUTS if cfg.pixel_residuals else 0)
 
 
 # ---- inputs and outputs ---------------------------------------------------------------
@@ -256,6 +267,8 @@ class RefinerTrainConfig:
     model: dict = field(default_factory=lambda: RefinerConfig().to_dict())
     steps: int = 1500
     lr: float = 2e-3
+    # Learning rate of the per-pixel residuals (when the model has them).
+    pixel_lr: float = 1e-2
     views_per_step: int = 2
     image_size: int = 128
     ssim_weight: float = 0.2
@@ -411,7 +424,13 @@ def train(args) -> dict:
     train_keys = [k for k in frames.keys if k[0] not in cfg.held_out_clips]
     test_keys = held_out_keys(frames, cfg)
     model = Refiner(RefinerConfig(**cfg.model))
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    network = [p for name, p in model.named_parameters() if name != "pixel"]
+    groups = [{"params": network, "lr": cfg.lr}]
+    if model.pixel is not None:
+        if model.cfg.pixel_residuals != len(frames.ds.pixels):
+            raise ValueError(f"{args.config}: pixel_residuals {model.cfg.pixel_residuals} is not the map's {len(frames.ds.pixels)} foreground pixels")
+        groups.append({"params": [model.pixel], "lr": cfg.pixel_lr})
+    opt = torch.optim.Adam(groups)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.steps)
     start = 0
     ckpt = out / "refiner_checkpoint.pt"
@@ -508,12 +527,21 @@ def from_bundle(manifest: dict, tensors: dict[str, torch.Tensor]) -> Refiner | N
 
 def init_from_bundle(model: Refiner, directory: Path) -> None:
     """Starts `model` from the refiner in another bundle (fine-tuning it for a new VAE or
-    splat level); the bundle's refiner config must be the model's."""
+    splat level, or adding per-pixel residuals, which then start at zero); the bundle's
+    refiner config must be the model's but for `pixel_residuals`."""
     manifest = json.loads((Path(directory) / "manifest.json").read_text())
-    if manifest.get("refiner") != model.cfg.to_dict():
-        raise bundle_io.BundleError(f"{directory}: its refiner config {manifest.get('refiner')} is not this run's {model.cfg.to_dict()}")
-    model.load_state_dict(state_from(load_file(str(Path(directory) / "weights.safetensors"))))
-    print(f"started from the refiner in {directory}", flush=True)
+    theirs = dict(manifest.get("refiner") or {})
+    ours = model.cfg.to_dict()
+    adding = theirs.get("pixel_residuals", 0) == 0 and ours["pixel_residuals"] > 0
+    if adding:
+        theirs["pixel_residuals"] = ours["pixel_residuals"]
+    if not theirs or RefinerConfig(**theirs).to_dict() != ours:
+        raise bundle_io.BundleError(f"{directory}: its refiner config {manifest.get('refiner')} is not this run's {ours}")
+    state = state_from(load_file(str(Path(directory) / "weights.safetensors")))
+    if adding:
+        state["pixel"] = torch.zeros_like(model.pixel)
+    model.load_state_dict(state)
+    print(f"started from the refiner in {directory}" + (" (per-pixel residuals from zero)" if adding else ""), flush=True)
 
 
 def add_to_bundle(directory: Path, model: Refiner) -> None:
