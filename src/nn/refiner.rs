@@ -297,15 +297,16 @@ impl Refiner {
             block += 1;
         }
         let normed = self.norm.forward(r, &x)?;
-        let out = self.head.forward(r, &normed, false)?;
         match &self.pixel {
-            None => Ok(out),
+            None => self.head.forward(r, &normed, false),
+            // Each point's own residuals ride in the head's epilogue (no extra dispatch).
             Some(pixel) => {
                 assert_eq!(
-                    pixel.shape, out.shape,
+                    pixel.shape,
+                    [normed.shape[0], RESIDUALS],
                     "the refiner's pixel residuals against its points"
                 );
-                r.add(&out, pixel, super::Broadcast::Trailing)
+                self.head.forward_plus(r, &normed, false, pixel)
             }
         }
     }

@@ -30,6 +30,8 @@ def test_make_quick_writes_a_bundle_that_loads_and_continues_where_it_stopped(tm
     vae, unet, extra, manifest = bundle.load(out / "bundle")
     assert manifest["avatar"] == "Witch" and "refiner" in manifest, sorted(manifest)
     assert any(name.startswith("refiner.") for name in extra), sorted(extra)[:10]
+    # The refiner has its learned residual per map pixel by default (the engine loaded it for the eval).
+    assert manifest["refiner"]["pixel_residuals"] == len(extra["map.pixels"]) == extra["refiner.pixel"].shape[0]
     assert (out / "eval" / "report.md").is_file()
     state = json.loads((out / "make.json").read_text())
     assert state["done"] == ["bake", "geometry", "refiner", "eval"]

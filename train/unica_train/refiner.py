@@ -267,7 +267,9 @@ class RefinerTrainConfig:
     model: dict = field(default_factory=lambda: RefinerConfig().to_dict())
     steps: int = 1500
     lr: float = 2e-3
-    # Learning rate of the per-pixel residuals (when the model has them).
+    # Give the model a learned residual per map pixel (`pixel_residuals`, sized to the
+    # dataset's map) when its config does not set one; learned at `pixel_lr`.
+    pixel_table: bool = True
     pixel_lr: float = 1e-2
     views_per_step: int = 2
     image_size: int = 128
@@ -423,12 +425,15 @@ def train(args) -> dict:
     frames = Frames(args.data, args.bundle, cfg.image_size)
     train_keys = [k for k in frames.keys if k[0] not in cfg.held_out_clips]
     test_keys = held_out_keys(frames, cfg)
-    model = Refiner(RefinerConfig(**cfg.model))
+    model_cfg = RefinerConfig(**cfg.model)
+    if cfg.pixel_table and model_cfg.pixel_residuals == 0:
+        model_cfg.pixel_residuals = len(frames.ds.pixels)
+    if model_cfg.pixel_residuals not in (0, len(frames.ds.pixels)):
+        raise ValueError(f"{args.config}: pixel_residuals {model_cfg.pixel_residuals} is not the map's {len(frames.ds.pixels)} foreground pixels")
+    model = Refiner(model_cfg)
     network = [p for name, p in model.named_parameters() if name != "pixel"]
     groups = [{"params": network, "lr": cfg.lr}]
     if model.pixel is not None:
-        if model.cfg.pixel_residuals != len(frames.ds.pixels):
-            raise ValueError(f"{args.config}: pixel_residuals {model.cfg.pixel_residuals} is not the map's {len(frames.ds.pixels)} foreground pixels")
         groups.append({"params": [model.pixel], "lr": cfg.pixel_lr})
     opt = torch.optim.Adam(groups)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.steps)
