@@ -408,14 +408,42 @@ fn bundle_manifests_with_impossible_values_are_refused() {
     }
 }
 
-#[test]
-fn render_refuses_a_bundle_with_a_nan_weight_or_a_huge_step_count() {
-    let dir = tempfile::tempdir().unwrap();
-    let bundle = dir.path().join("bundle");
+/// A copy of the shipped Witch bundle in `dir/bundle`.
+fn witch_bundle_copy(dir: &Path) -> PathBuf {
+    let bundle = dir.join("bundle");
     std::fs::create_dir(&bundle).unwrap();
     for file in ["manifest.json", "weights.safetensors"] {
         std::fs::copy(witch_bundle().join(file), bundle.join(file)).unwrap();
     }
+    bundle
+}
+
+/// Rewrites `bundle`'s manifest.json after `edit`.
+fn edit_manifest(bundle: &Path, edit: impl FnOnce(&mut Value)) {
+    let manifest = bundle.join("manifest.json");
+    let mut json: Value =
+        serde_json::from_str(&std::fs::read_to_string(&manifest).unwrap()).unwrap();
+    edit(&mut json);
+    std::fs::write(&manifest, serde_json::to_vec(&json).unwrap()).unwrap();
+}
+
+/// `unica render --bundle BUNDLE --keys 1I --out OUT`.
+fn render_bundle(bundle: &Path, out: &Path) -> Output {
+    unica(&[
+        "render",
+        "--bundle",
+        bundle.to_str().unwrap(),
+        "--keys",
+        "1I",
+        "--out",
+        out.to_str().unwrap(),
+    ])
+}
+
+#[test]
+fn render_refuses_a_bundle_with_a_nan_weight_or_a_huge_step_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let bundle = witch_bundle_copy(dir.path());
     patch_tensor(
         &bundle.join("weights.safetensors"),
         "pca.mean",
@@ -423,28 +451,20 @@ fn render_refuses_a_bundle_with_a_nan_weight_or_a_huge_step_count() {
         f32::NAN.to_le_bytes(),
     );
     let out = dir.path().join("out");
-    let args = [
-        "render",
-        "--bundle",
-        bundle.to_str().unwrap(),
-        "--keys",
-        "1I",
-        "--out",
-        out.to_str().unwrap(),
-    ];
     assert_one_line_error(
-        &unica(&args),
+        &render_bundle(&bundle, &out),
         &[
             "weights.safetensors",
             "tensor 'pca.mean' holds NaN at index 7",
         ],
     );
-    let manifest = bundle.join("manifest.json");
-    let text = std::fs::read_to_string(&manifest).unwrap();
-    let mut json: Value = serde_json::from_str(&text).unwrap();
-    json["diffusion"]["steps"] = json!(1_000_000_000_000_000u64);
-    std::fs::write(&manifest, serde_json::to_vec(&json).unwrap()).unwrap();
-    assert_one_line_error(&unica(&args), &["manifest.json", "diffusion.steps"]);
+    edit_manifest(&bundle, |j| {
+        j["diffusion"]["steps"] = json!(1_000_000_000_000_000u64)
+    });
+    assert_one_line_error(
+        &render_bundle(&bundle, &out),
+        &["manifest.json", "diffusion.steps"],
+    );
     let app = unica(&["--bundle", bundle.to_str().unwrap(), "--exit-after", "1"]);
     assert_one_line_error(&app, &["manifest.json", "diffusion.steps"]);
 }
@@ -452,28 +472,10 @@ fn render_refuses_a_bundle_with_a_nan_weight_or_a_huge_step_count() {
 #[test]
 fn render_refuses_a_refiner_whose_pixel_residuals_are_not_the_maps() {
     let dir = tempfile::tempdir().unwrap();
-    let bundle = dir.path().join("bundle");
-    std::fs::create_dir(&bundle).unwrap();
-    for file in ["manifest.json", "weights.safetensors"] {
-        std::fs::copy(witch_bundle().join(file), bundle.join(file)).unwrap();
-    }
-    let manifest = bundle.join("manifest.json");
-    let mut json: Value =
-        serde_json::from_str(&std::fs::read_to_string(&manifest).unwrap()).unwrap();
-    json["refiner"]["pixel_residuals"] = json!(17);
-    std::fs::write(&manifest, serde_json::to_vec(&json).unwrap()).unwrap();
-    let out = dir.path().join("out");
-    let args = [
-        "render",
-        "--bundle",
-        bundle.to_str().unwrap(),
-        "--keys",
-        "1I",
-        "--out",
-        out.to_str().unwrap(),
-    ];
+    let bundle = witch_bundle_copy(dir.path());
+    edit_manifest(&bundle, |j| j["refiner"]["pixel_residuals"] = json!(17));
     assert_one_line_error(
-        &unica(&args),
+        &render_bundle(&bundle, &dir.path().join("out")),
         &[
             "weights.safetensors",
             "the refiner's pixel_residuals (17) are not the map's 4414 foreground pixels",
