@@ -281,6 +281,11 @@ class RefinerTrainConfig:
     # Weight of an L1 between the drawn alpha and the render's: keeps the body opaque
     # where the teacher is (issue #17: a see-through avatar).
     alpha_weight: float = 0.0
+    # Fraction of steps whose input is the bundle's own generated frame instead of the
+    # VAE's reconstruction: the UNet's next frame from the three ground-truth frames before
+    # it and the true action, sampled as `unica eval` does (fresh noise each time; 0.25 s),
+    # so the refiner learns to draw what the live loop makes, model error included.
+    generated_fraction: float = 0.0
     held_out_clips: list = field(default_factory=lambda: [4, 13])
     eval_frames: int = 24
     checkpoint_every: int = 100
@@ -330,9 +335,14 @@ class Frames:
         return (self.unit[key] - 0.5) / self.scale + self.root[key]
 
     def inputs(self, key):
-        """(base splats in world space, features, unit positions)."""
-        unit = self.unit[key]
-        world = self.world(key)
+        """(base splats in world space, features, unit positions) of the frame's
+        reconstruction."""
+        return self.inputs_at(self.world(key))
+
+    def inputs_at(self, world: torch.Tensor):
+        """(base splats, features, unit positions) of world points [N, 3], root-centred
+        on their own waist as the engine does."""
+        unit = (world - self.ds.root(world)) * self.scale + 0.5
         base, normals = splats.base_splats(world, self.colors, self.nbrs)
         median = splats.median_spacing(world, self.nbrs)
         return base, features(unit, base, normals, median), unit
@@ -413,6 +423,20 @@ def drawn_level(frames: Frames, cfg: RefinerTrainConfig) -> splats.Level | None:
     return splats.Level(frames.ds.pixels, frames.colors, cfg.splat_level) if cfg.splat_level != 128 else None
 
 
+def frame_generator(bundle: Path, data: Path, cfg: RefinerTrainConfig):
+    """When the config trains on generated frames: a function (clip, f, generator) -> the
+    bundle's generated world points [N, 3] of that frame, made as `unica eval` makes its
+    teacher-forced frames; else None."""
+    if not 0 <= cfg.generated_fraction <= 1:
+        raise ValueError(f"generated_fraction {cfg.generated_fraction} is not in [0, 1]")
+    if cfg.generated_fraction == 0:
+        return None
+    from .eval import Avatar, teacher_forced  # eval draws with this module's refiner
+
+    avatar = Avatar(bundle, data, cfg.splat_level)
+    return lambda clip, f, gen: teacher_forced(avatar, clip, f, gen)[0]
+
+
 def train(args) -> dict:
     cfg = train_config(args.config)
     if args.steps is not None:
@@ -455,11 +479,15 @@ def train(args) -> dict:
             init_from_bundle(model, args.init)
     bound = model.cfg.mean_bound / frames.scale
     level = drawn_level(frames, cfg)
+    generate = frame_generator(args.bundle, args.data, cfg)
     began = time.time()
     for step in range(start, cfg.steps):
         key = train_keys[int(torch.randint(len(train_keys), (1,), generator=gen))]
-        base, feats, unit = frames.inputs(key)
-        drawn = refined(base, model(feats, unit), bound, level, frames.world(key))
+        world = frames.world(key)
+        if generate is not None and key[1] >= 3 and torch.rand(1, generator=gen).item() < cfg.generated_fraction:
+            world = generate(key[0], key[1], gen)
+        base, feats, unit = frames.inputs_at(world)
+        drawn = refined(base, model(feats, unit), bound, level, world)
         views = frames.views[key]
         chosen = torch.randperm(len(views), generator=gen)[: cfg.views_per_step]
         loss_l1, loss_ssim, loss_alpha = 0.0, 0.0, 0.0
