@@ -156,17 +156,20 @@ def test_held_out_frames_are_spread_over_the_held_out_clips_and_none_is_an_error
         R.held_out_keys(frames, R.RefinerTrainConfig(held_out_clips=[7]))
 
 
-def test_generated_inputs_are_the_bundles_teacher_forced_next_frames(quick_dataset_dir):
+def test_generated_inputs_are_the_bundles_teacher_forced_next_frames(quick_dataset_dir, tmp_path):
+    import json
     from pathlib import Path
 
     import pytest
 
     from unica_train.dataset import BakedDataset
 
+    config = tmp_path / "refiner.json"
+    config.write_text(json.dumps({"generated_fraction": 1.5}))
+    with pytest.raises(ValueError, match=r"refiner.json: generated_fraction 1.5 is not in \[0, 1\]"):
+        R.train_config(config)
     bundle = Path(__file__).resolve().parents[2] / "assets" / "witch" / "bundle"
     assert R.frame_generator(bundle, quick_dataset_dir, R.RefinerTrainConfig()) is None
-    with pytest.raises(ValueError, match=r"generated_fraction 1.5 is not in \[0, 1\]"):
-        R.frame_generator(bundle, quick_dataset_dir, R.RefinerTrainConfig(generated_fraction=1.5))
     generate = R.frame_generator(bundle, quick_dataset_dir, R.RefinerTrainConfig(generated_fraction=0.5))
     ds = BakedDataset(quick_dataset_dir)
     clip = next(c for c, meta in enumerate(ds.clips) if len(meta["actions"]) > 12 and bool(meta["actions"][:12].all()))

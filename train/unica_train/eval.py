@@ -70,6 +70,7 @@ KEY_HEADINGS = {1: 0.0, 2: 180.0, 3: 90.0, 4: -90.0}
 # 12 frames cost about a minute.
 MASKED_FRAMES = 12
 
+
 class Avatar:
     """The bundle's models, the dataset, and what the loop and the splats need."""
 

@@ -407,7 +407,10 @@ def evaluate(model: Refiner, frames: Frames, keys: list, level: splats.Level | N
 
 def train_config(path: Path | None) -> RefinerTrainConfig:
     """The run's config: the JSON at `path` over the defaults."""
-    return RefinerTrainConfig(**json.loads(path.read_text())) if path else RefinerTrainConfig()
+    cfg = RefinerTrainConfig(**json.loads(path.read_text())) if path else RefinerTrainConfig()
+    if not 0 <= cfg.generated_fraction <= 1:
+        raise ValueError(f"{path}: generated_fraction {cfg.generated_fraction} is not in [0, 1]")
+    return cfg
 
 
 def held_out_keys(frames: Frames, cfg: RefinerTrainConfig) -> list:
@@ -427,8 +430,6 @@ def frame_generator(bundle: Path, data: Path, cfg: RefinerTrainConfig):
     """When the config trains on generated frames: a function (clip, f, generator) -> the
     bundle's generated world points [N, 3] of that frame, made as `unica eval` makes its
     teacher-forced frames; else None."""
-    if not 0 <= cfg.generated_fraction <= 1:
-        raise ValueError(f"generated_fraction {cfg.generated_fraction} is not in [0, 1]")
     if cfg.generated_fraction == 0:
         return None
     from .eval import Avatar, teacher_forced  # eval draws with this module's refiner
