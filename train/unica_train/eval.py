@@ -46,7 +46,7 @@ from . import bundle as bundle_io
 from . import metrics, pca, recentre, splats
 from .dataset import ANCHOR, BakedDataset
 from .diffusion import Schedule, brake_options, frame_options, sample_next, sampler_options
-from .refiner import Frames, features, from_bundle, refined
+from .refiner import Frames, frame_inputs, from_bundle, refined
 from .train import parse_keys
 
 KEYS = "60W 60S 60A 60D 30I"
@@ -110,13 +110,10 @@ class Avatar:
     @torch.no_grad()
     def draw(self, world: torch.Tensor, refine: bool) -> splats.Splats:
         """Splats of world points [N, 3] at the evaluation level, refined or not."""
-        root = world[self.waist].mean(0)
-        unit = (world - root) * self.scale + 0.5
         if not refine or self.refiner is None:
             return self.level.splats(world)[0]
-        base, normals = splats.base_splats(world, self.colors, self.nbrs)
-        median = splats.median_spacing(world, self.nbrs)
-        residuals = self.refiner(features(unit, base, normals, median), unit)
+        _, feats, unit = frame_inputs(world, self.waist, self.scale, self.colors, self.nbrs)
+        residuals = self.refiner(feats, unit)
         return refined(None, residuals, self.refiner.cfg.mean_bound / self.scale, self.level, world)
 
     @torch.no_grad()

@@ -292,6 +292,16 @@ class RefinerTrainConfig:
     seed: int = 0
 
 
+def frame_inputs(world: torch.Tensor, waist: torch.Tensor, scale: float, colors: torch.Tensor, nbrs: torch.Tensor):
+    """What the refiner sees of a frame's world points [N, 3]: (base splats in world
+    space, features, unit positions root-centred on their own waist points, as the engine
+    does)."""
+    unit = (world - world[waist].mean(0)) * scale + 0.5
+    base, normals = splats.base_splats(world, colors, nbrs)
+    median = splats.median_spacing(world, nbrs)
+    return base, features(unit, base, normals, median), unit
+
+
 class Frames:
     """Rendered dataset frames as the refiner sees them at run time: the VAE's
     reconstruction of the ground-truth map, PCA-cleaned, in world space, with the
@@ -340,12 +350,8 @@ class Frames:
         return self.inputs_at(self.world(key))
 
     def inputs_at(self, world: torch.Tensor):
-        """(base splats, features, unit positions) of world points [N, 3], root-centred
-        on their own waist as the engine does."""
-        unit = (world - self.ds.root(world)) * self.scale + 0.5
-        base, normals = splats.base_splats(world, self.colors, self.nbrs)
-        median = splats.median_spacing(world, self.nbrs)
-        return base, features(unit, base, normals, median), unit
+        """(base splats, features, unit positions) of world points [N, 3]."""
+        return frame_inputs(world, self.ds.waist, self.scale, self.colors, self.nbrs)
 
     def target(self, view: dict) -> tuple[splats.Camera, torch.Tensor]:
         """The view's camera at `size` and its render (linear RGB premultiplied, alpha)."""
