@@ -142,6 +142,46 @@ def test_init_continues_a_bundle_keeping_its_vae_and_refiner(quick_dataset_dir, 
     assert 0 < max(moved) < 0.1
 
 
+def test_unet_only_replaces_just_the_unet_and_a_time_budget_shortens_its_schedule(quick_dataset_dir, tmp_path, capsys):
+    from unica_train.fixtures import TINY_REFINER
+    from unica_train.refiner import Refiner, add_to_bundle
+
+    config = tmp_path / "tiny.json"
+    config.write_text(json.dumps(dict(TINY, unet_steps=2, stage2_steps=0)))
+    first = tmp_path / "first"
+    main(["--data", str(quick_dataset_dir), "--out", str(first), "--config", str(config)])
+    add_to_bundle(first / "bundle", Refiner(TINY_REFINER))
+    manifest = json.loads((first / "bundle" / "manifest.json").read_text())
+    manifest["sampler"]["idle_cfg_scale"] = 1.5  # a setting the trainer never writes
+    (first / "bundle" / "manifest.json").write_text(json.dumps(manifest))
+    vae0, unet0, extra0, manifest0 = bundle.load(first / "bundle")
+    # 1,000 steps cannot fit in 0.01 minutes: after 30 steps the schedule is cut, stage 2 in proportion.
+    budget = tmp_path / "budget.json"
+    budget.write_text(json.dumps(dict(TINY, unet_steps=800, stage2_steps=200, checkpoint_every=1000, unet_minutes=0.01)))
+    second = tmp_path / "second"
+    capsys.readouterr()
+    main(["--data", str(quick_dataset_dir), "--out", str(second), "--config", str(budget),
+          "--init", str(first / "bundle"), "--unet-only"])
+    log = capsys.readouterr().out
+    schedule = json.loads((second / "unet_schedule.json").read_text())
+    assert 30 <= schedule["unet_steps"] + schedule["stage2_steps"] < 1000, schedule
+    assert schedule["unet_steps"] == round(800 * (schedule["unet_steps"] + schedule["stage2_steps"]) / 1000)
+    assert "steps fit in 0.01 min" in log and "pca" not in log.lower().split("unet: the bundle")[-1]
+    vae1, unet1, extra1, manifest1 = bundle.load(second / "bundle")
+    assert manifest1["sampler"] == manifest0["sampler"] and manifest1["latent_scale"] == manifest0["latent_scale"]
+    assert manifest1["pca"] == manifest0["pca"] and manifest1["refiner"] == manifest0["refiner"]
+    assert set(extra1) == set(extra0) and all(torch.equal(v, extra1[k]) for k, v in extra0.items())
+    assert all(torch.equal(v, vae1.state_dict()[k]) for k, v in vae0.state_dict().items())
+    moved = [(unet1.state_dict()[k] - v).abs().max().item() for k, v in unet0.state_dict().items() if v.is_floating_point()]
+    assert max(moved) > 0
+    metrics = json.loads((second / "metrics.json").read_text())
+    assert set(metrics["denoise_mse_before"]) == {"t100", "t500", "t900"} and metrics["denoise_mse"] != metrics["denoise_mse_before"]
+    assert metrics["unet_schedule"] == schedule and manifest1["metrics"]["denoise_mse"] == metrics["denoise_mse"]
+    assert not (second / "rollout.json").exists()
+    with pytest.raises(SystemExit):
+        main(["--data", str(quick_dataset_dir), "--out", str(tmp_path / "x"), "--unet-only"])
+
+
 def test_ridge_recovers_an_exact_linear_map():
     from unica_train.refit import ridge
 

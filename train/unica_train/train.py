@@ -9,7 +9,13 @@ the evaluation numbers, the bundle, losses.csv and curves.png. Runs on CUDA (bf1
 autocast) when present, else on the CPU; checkpoints after every stage and every
 `checkpoint_every` steps so `--resume` continues where a run stopped. `--init BUNDLE`
 continues a shipped bundle: its VAE (and its splat refiner, which was fit to that VAE) are
-kept as they are, and its UNet is trained further on the config's schedule."""
+kept as they are, and its UNet is trained further on the config's schedule. With
+`--unet-only` as well, the run writes the --init bundle again with only its UNet replaced
+(its sampler settings, PCA, decoder head and refiner kept; the held-out denoising errors
+before and after in metrics.json) and skips the PCA, evaluation and rollout. A config's
+`unet_minutes` fits the UNet's schedule to a time budget (a borrowed GPU): after 30
+steps the two stages are shortened in proportion to what fits at the measured pace, and
+`unet_schedule.json` records the steps run."""
 
 from __future__ import annotations
 
@@ -65,6 +71,9 @@ class TrainConfig:
     ddim_steps: int = 10
     cfg_scale: float = 1.0
     checkpoint_every: int = 500
+    # > 0: shorten the UNet's two stages, in proportion, to what fits in this many minutes
+    # at the pace of its first 30 steps (unet_schedule.json records the steps run).
+    unet_minutes: float = 0.0
     seed: int = 0
 
 
@@ -238,6 +247,7 @@ class Run:
         opt = torch.optim.AdamW(unet.parameters(), lr=cfg.unet_lr)
         schedule = Schedule()
         step = self.restore("unet", resume, {"unet": unet, "ema": ema, "opt": opt})
+        steps1, steps2 = self.unet_schedule(resume)
         if step == 0 and self.init is not None:
             # The bundle holds the EMA weights; both copies start from them.
             unet.load_state_dict(self.init[1].state_dict())
@@ -248,10 +258,18 @@ class Run:
         frozen_actions = None
         steady = [i for i in self.train_groups if not self.groups[i].after_switch]
         after = [i for i in self.train_groups if self.groups[i].after_switch]
-        total = cfg.unet_steps + cfg.stage2_steps
-        start = time.time()
+        total = steps1 + steps2
+        start, first, paced = time.time(), step, None
         while step < total:
-            stage2 = step >= cfg.unet_steps
+            if cfg.unet_minutes > 0 and step == first + 10:
+                paced = time.time()
+            if paced is not None and step == first + 30 and not (self.out / "unet_schedule.json").exists():
+                steps1, steps2 = self.fit_schedule(step, (time.time() - paced) / 20, time.time() - start, steps1, steps2)
+                total = steps1 + steps2
+                if step >= total:
+                    self.save("unet", step, {"unet": unet, "ema": ema, "opt": opt})
+                    break
+            stage2 = step >= steps1
             if stage2 and frozen_actions is None:
                 frozen_actions = unet.action.weight.detach().clone()
             if stage2:
@@ -302,6 +320,32 @@ class Run:
                 self.save("unet", step, {"unet": unet, "ema": ema, "opt": opt})
         return ema.eval(), schedule
 
+    def unet_schedule(self, resume: bool) -> tuple[int, int]:
+        """The UNet's (stage-1, stage-2) steps: the config's, or those a time budget fitted
+        (unet_schedule.json) when a run is resumed."""
+        path = self.out / "unet_schedule.json"
+        if resume and path.exists():
+            saved = json.loads(path.read_text())
+            return saved["unet_steps"], saved["stage2_steps"]
+        path.unlink(missing_ok=True)
+        return self.cfg.unet_steps, self.cfg.stage2_steps
+
+    def fit_schedule(self, step: int, pace: float, spent: float, steps1: int, steps2: int) -> tuple[int, int]:
+        """Both stages shortened in proportion so that the run ends within `unet_minutes`
+        at `pace` seconds a step (never lengthened)."""
+        total = steps1 + steps2
+        fits = step + max(int((self.cfg.unet_minutes * 60 - spent) / pace), 0)
+        if fits < total:
+            steps1 = round(steps1 * fits / total)
+            steps2 = fits - steps1
+        record = {"unet_steps": steps1, "stage2_steps": steps2, "seconds_per_step": pace,
+                  "unet_minutes": self.cfg.unet_minutes, "config_steps": [self.cfg.unet_steps, self.cfg.stage2_steps]}
+        if self.rank == 0:
+            (self.out / "unet_schedule.json").write_text(json.dumps(record, indent=2) + "\n")
+            print(f"unet: {pace:.3f} s a step; {steps1} + {steps2} steps fit in {self.cfg.unet_minutes:g} min "
+                  f"(config {self.cfg.unet_steps} + {self.cfg.stage2_steps})", flush=True)
+        return steps1, steps2
+
     # -- checkpoints -----------------------------------------------------------------
     def save(self, name: str, step: int, parts: dict):
         if self.rank != 0:
@@ -346,22 +390,30 @@ class Run:
         return sum(errors) / len(errors)
 
     @torch.no_grad()
-    def evaluate(self, vae, unet, schedule, latents, scale, basis, mean) -> dict:
-        fg = self.ds.pixels
-        # One-step denoising error of the target frame at three noise levels.
+    def denoise_errors(self, unet, schedule, latents, scale, seed: int = 0) -> dict:
+        """One-step denoising error of the held-out groups' target frame (clean context)
+        at three noise levels, on the UNet's device, the same noise for every UNet."""
+        gen = torch.Generator().manual_seed(seed)
+        device = next(unet.parameters()).device
         denoise = {}
         for level in (100, 500, 900):
             mses = []
             for start in range(0, len(self.test_groups), 64):
                 chosen = self.test_groups[start:start + 64]
                 x0 = latents[chosen] * scale
-                noise = torch.randn(x0.shape, generator=self.gen)
+                noise = torch.randn(x0.shape, generator=gen)
                 t = torch.tensor([[-1, -1, -1, level]] * len(chosen))
                 xt = schedule.add_noise(x0, noise, t)
                 action = torch.tensor([self.groups[i].action for i in chosen])
-                eps = unet(xt, t.clamp(min=0), action)
+                eps = unet(xt.to(device), t.clamp(min=0).to(device), action.to(device)).cpu()
                 mses.append(((eps[:, -1] - noise[:, -1]) ** 2).mean().item())
             denoise[f"t{level}"] = sum(mses) / len(mses)
+        return denoise
+
+    @torch.no_grad()
+    def evaluate(self, vae, unet, schedule, latents, scale, basis, mean) -> dict:
+        fg = self.ds.pixels
+        denoise = self.denoise_errors(unet, schedule, latents, scale)
         # PCA: how much of a held-out frame the basis keeps, in millimetres.
         held = torch.cat([self.world[c] for c in self.cfg.held_out_clips])
         unit = ((held - self.ds.root(held)[:, None]) * self.ds.scale + 0.5).flatten(1)
@@ -403,6 +455,35 @@ class Run:
         return {"keys": cfg.rollout_keys, "frames": len(keys), "root_path": path, "sampled_points": points}
 
 
+def write_curves(log_path: Path, png: Path):
+    """The loss of every stage against its step, from losses.csv."""
+    series: dict[str, list] = {}
+    if not log_path.exists():
+        return  # no step was logged (a run cut to its first 30 steps)
+    with log_path.open() as f:
+        for row in csv.DictReader(f):
+            if row["name"] == "loss":
+                series.setdefault(f"{row['stage']} loss", []).append((int(row["step"]), float(row["value"])))
+    curves(png, series)
+
+
+def write_unet_only(out: Path, run: Run, init: tuple, unet, schedule, latents, scale: float, before: dict, device, started: float):
+    """OUT/bundle: the --init bundle with only its UNet replaced; metrics.json with the
+    held-out denoising errors of the UNet before and after; curves.png."""
+    after = run.denoise_errors(unet, schedule, latents, scale)
+    vae0, _, extra0, manifest0 = init
+    record = {"device": str(device), "minutes": (time.time() - started) / 60, "denoise_mse_before": before, "denoise_mse": after}
+    schedule_path = out / "unet_schedule.json"
+    if schedule_path.exists():
+        record["unet_schedule"] = json.loads(schedule_path.read_text())
+    (out / "metrics.json").write_text(json.dumps(record, indent=2) + "\n")
+    manifest = {k: v for k, v in manifest0.items() if k not in ("format", "version", "vae", "unet", "tensors")}
+    manifest["metrics"] = {**manifest0.get("metrics", {}), "denoise_mse": after, "unet_only": record}
+    bundle.save(out / "bundle", vae0.cpu(), unet.cpu(), extra0, manifest)
+    write_curves(run.log_path, out / "curves.png")
+    print(json.dumps(record, indent=2), flush=True)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", required=True, type=Path, help="dataset folder written by `unica bake`")
@@ -411,7 +492,11 @@ def main(argv=None):
     parser.add_argument("--resume", action="store_true", help="continue from the run folder's checkpoints")
     parser.add_argument("--device", default="auto", help="auto, cpu or cuda")
     parser.add_argument("--init", type=Path, help="a bundle to continue: its VAE and refiner are kept, its UNet trained further")
+    parser.add_argument("--unet-only", action="store_true",
+                        help="with --init: write the --init bundle with only its UNet replaced (no PCA, evaluation or rollout)")
     args = parser.parse_args(argv)
+    if args.unet_only and not args.init:
+        parser.error("--unet-only continues a bundle: give it --init BUNDLE")
     init = bundle.load(args.init) if args.init else None
 
     cfg = TrainConfig(**(json.loads(args.config.read_text()) if args.config else {}))
@@ -423,11 +508,29 @@ def main(argv=None):
     if rank == 0:
         (args.out / "config.json").write_text(json.dumps(asdict(cfg), indent=2) + "\n")
     torch.manual_seed(cfg.seed)  # the same initial weights on every rank
+    if device.type == "cuda":
+        # Full fp32 where no autocast is asked for: the encoder's latents are the UNet's
+        # targets and the engine computes them in fp32.
+        torch.backends.cuda.matmul.allow_tf32 = False
+        torch.backends.cudnn.allow_tf32 = False
     run = Run(args.data, args.out, cfg, device, rank, world, init)
     started = time.time()
     vae = run.train_vae(args.resume)
     latents, scale = run.encode_groups(vae)
+    if args.unet_only:
+        # The bundle's context latents and the engine use its scale; the one measured
+        # again differs only by rounding.
+        if rank == 0:
+            print(f"unet: the bundle's latent scale {init[3]['latent_scale']:.5f} (measured again {scale:.5f})", flush=True)
+        scale = float(init[3]["latent_scale"])
+        before = run.denoise_errors(init[1].to(device).eval(), Schedule(), latents, scale) if rank == 0 else None
     unet, schedule = run.train_unet(latents, scale, args.resume)
+    if args.unet_only:
+        if world > 1:
+            torch.distributed.destroy_process_group()
+        if rank == 0:
+            write_unet_only(args.out, run, init, unet, schedule, latents, scale, before, device, started)
+        return
     if world > 1:
         sums = [None] * world
         torch.distributed.all_gather_object(sums, (checksum(vae), checksum(unet)))
@@ -497,12 +600,7 @@ def main(argv=None):
             **carried_manifest,
         },
     )
-    series: dict[str, list] = {}
-    with run.log_path.open() as f:
-        for row in csv.DictReader(f):
-            if row["name"] in ("loss",):
-                series.setdefault(f"{row['stage']} {row['name']}", []).append((int(row["step"]), float(row["value"])))
-    curves(args.out / "curves.png", series)
+    write_curves(run.log_path, args.out / "curves.png")
     print(json.dumps(metrics, indent=2))
 
 
