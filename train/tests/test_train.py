@@ -115,15 +115,22 @@ def test_two_process_data_parallel_training_stays_in_sync(quick_dataset_dir, tmp
     bundle.load(out / "bundle")
 
 
-def test_init_continues_a_bundle_keeping_its_vae_and_refiner(quick_dataset_dir, tmp_path, capsys):
+def trained_bundle_with_refiner(data, tmp_path):
+    """A tiny run's bundle (2 UNet steps) with a tiny refiner added: (its run folder, the
+    config it was trained with)."""
     from unica_train.fixtures import TINY_REFINER
     from unica_train.refiner import Refiner, add_to_bundle
 
     config = tmp_path / "tiny.json"
     config.write_text(json.dumps(dict(TINY, unet_steps=2, stage2_steps=0)))
     first = tmp_path / "first"
-    main(["--data", str(quick_dataset_dir), "--out", str(first), "--config", str(config)])
+    main(["--data", str(data), "--out", str(first), "--config", str(config)])
     add_to_bundle(first / "bundle", Refiner(TINY_REFINER))
+    return first, config
+
+
+def test_init_continues_a_bundle_keeping_its_vae_and_refiner(quick_dataset_dir, tmp_path, capsys):
+    first, config = trained_bundle_with_refiner(quick_dataset_dir, tmp_path)
     vae0, unet0, extra0, manifest0 = bundle.load(first / "bundle")
     capsys.readouterr()
     second = tmp_path / "second"
@@ -143,14 +150,7 @@ def test_init_continues_a_bundle_keeping_its_vae_and_refiner(quick_dataset_dir, 
 
 
 def test_unet_only_replaces_just_the_unet_and_a_time_budget_shortens_its_schedule(quick_dataset_dir, tmp_path, capsys):
-    from unica_train.fixtures import TINY_REFINER
-    from unica_train.refiner import Refiner, add_to_bundle
-
-    config = tmp_path / "tiny.json"
-    config.write_text(json.dumps(dict(TINY, unet_steps=2, stage2_steps=0)))
-    first = tmp_path / "first"
-    main(["--data", str(quick_dataset_dir), "--out", str(first), "--config", str(config)])
-    add_to_bundle(first / "bundle", Refiner(TINY_REFINER))
+    first, _ = trained_bundle_with_refiner(quick_dataset_dir, tmp_path)
     manifest = json.loads((first / "bundle" / "manifest.json").read_text())
     manifest["sampler"]["idle_cfg_scale"] = 1.5  # a setting the trainer never writes
     (first / "bundle" / "manifest.json").write_text(json.dumps(manifest))
