@@ -296,6 +296,12 @@ struct BakeArgs {
     /// animations ship in separate files
     #[arg(long, value_name = "FILE", num_args = 1..)]
     clips: Vec<PathBuf>,
+    /// Instead of the table, bake every key change from or to Forward N times, the change
+    /// moved 3 frames later each time (3 s of the first key, 2 s of the second): extra
+    /// training data for turning and stopping at every phase of the stride (`python -m
+    /// unica_train.train --extra-data DIR`; 5·N clips, 30 with N = 6)
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    switch_phases: usize,
 }
 
 /// How the neural avatar's splats are made.
@@ -470,6 +476,12 @@ struct EvalArgs {
     /// 40A 30I 40D 30I"; with --quick "20W 20I 20S 20I 20A 20I 20D 20I"]
     #[arg(long, value_name = "SCRIPT")]
     stops_keys: Option<String>,
+    /// The key script whose turns are pressed at many phases of the stride (every key held
+    /// a different number of frames), run from each of --motion-seeds seeds; summary.json's
+    /// phase_turn180_frames and phase_turn90_frames are its slowest turns [default: "45W
+    /// 40S 41W 42A 43W 44D 45S 46A 47D 48W 49S 30I"; with --quick "20W 21S 22A 23D 20I"]
+    #[arg(long, value_name = "SCRIPT")]
+    turns_keys: Option<String>,
 }
 
 /// Parses the process arguments and runs the command.
@@ -723,6 +735,7 @@ fn bake(args: BakeArgs) -> anyhow::Result<()> {
         quick: args.quick,
         preview: args.preview,
         no_renders: args.no_renders,
+        switch_phases: args.switch_phases,
     };
     let start = std::time::Instant::now();
     let manifest =
@@ -932,6 +945,10 @@ const EVAL_KEYS_QUICK: &str = "20W 20S 20A 20D 20I";
 /// the same as the trainer's `eval.STOPS_KEYS` and `STOPS_KEYS_QUICK`.
 const EVAL_STOPS_KEYS: &str = "40W 30I 40S 30I 40A 30I 40D 30I";
 const EVAL_STOPS_KEYS_QUICK: &str = "20W 20I 20S 20I 20A 20I 20D 20I";
+/// The turns scripts (`unica eval --turns-keys`): turns pressed at many phases of the
+/// stride; the same as the trainer's `eval.TURNS_KEYS` and `TURNS_KEYS_QUICK`.
+const EVAL_TURNS_KEYS: &str = "45W 40S 41W 42A 43W 44D 45S 46A 47D 48W 49S 30I";
+const EVAL_TURNS_KEYS_QUICK: &str = "20W 21S 22A 23D 20I";
 
 /// Drives the teacher on the evaluation's key script (geometry only), then runs the
 /// trainer's evaluation (`python3 -m unica_train.eval`, or $UNICA_PYTHON) on it.
@@ -968,9 +985,20 @@ fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         (None, false) => EVAL_STOPS_KEYS,
     };
     let stops_keys = KeyScript::parse(stops_script).context("--stops-keys")?;
+    let turns_script = match (&args.turns_keys, args.quick) {
+        (Some(keys), _) => keys.as_str(),
+        (None, true) => EVAL_TURNS_KEYS_QUICK,
+        (None, false) => EVAL_TURNS_KEYS,
+    };
+    let turns_keys = KeyScript::parse(turns_script).context("--turns-keys")?;
     let teacher = args.out.join("teacher.json");
     let stops_teacher = args.out.join("teacher_stops.json");
-    for (keys, path) in [(&keys, &teacher), (&stops_keys, &stops_teacher)] {
+    let turns_teacher = args.out.join("teacher_turns.json");
+    for (keys, path) in [
+        (&keys, &teacher),
+        (&stops_keys, &stops_teacher),
+        (&turns_keys, &turns_teacher),
+    ] {
         let roots = crate::headless::teacher_roots(&character, &clips, keys)?;
         let frames: Vec<_> = roots
             .iter()
@@ -1020,6 +1048,9 @@ fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         .args(["--stops-keys", stops_script])
         .arg("--stops-teacher")
         .arg(&stops_teacher)
+        .args(["--turns-keys", turns_script])
+        .arg("--turns-teacher")
+        .arg(&turns_teacher)
         .arg("--out")
         .arg(&args.out)
         .args(["--seed", &args.seed.to_string()]);

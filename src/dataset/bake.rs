@@ -37,6 +37,8 @@ pub struct BakeOptions {
     pub preview: bool,
     /// Skip the ground-truth RGB renders (which need a GPU adapter, lavapipe will do).
     pub no_renders: bool,
+    /// Where nonzero, bake [`switch_plan`] with this many phases instead of the table.
+    pub switch_phases: usize,
 }
 
 /// Ground-truth renders: size, every how many frames, and the rest-pose cameras.
@@ -48,6 +50,32 @@ const LIGHT: Vec3 = crate::render::scene::CHARACTER_LIGHT;
 
 /// One clip of the plan: (first action, second action, frames of each).
 type Planned = (Action, Action, usize, usize);
+
+/// Frames between the key changes of successive [`switch_plan`] clips of one pair.
+pub const PHASE_STEP: usize = 3;
+
+/// Extra training data for key changes at every gait phase (session 26: the table changes
+/// key at 3, 4 or 5 s, so each transition is seen at one phase of the stride, and a model
+/// trained long on it turned only from those phases: pressed elsewhere, the Witch ran on
+/// for up to 16 frames before turning). Each change from or to Forward — the others are
+/// its quarter turns, which the trainer's `quarter_turns` supplies — `phases` times, the
+/// key changed at 3 s + k·[`PHASE_STEP`] frames (k = 1..=phases), then 2 s of the second.
+pub fn switch_plan(phases: usize) -> Vec<Planned> {
+    use Action::{Backward, Forward, Idle, Left, Right};
+    let pairs = [
+        (Forward, Backward),
+        (Forward, Left),
+        (Forward, Right),
+        (Forward, Idle),
+        (Idle, Forward),
+    ];
+    let first = 3 * FRAME_RATE as usize;
+    let second = 2 * FRAME_RATE as usize;
+    pairs
+        .iter()
+        .flat_map(|&(a, b)| (1..=phases).map(move |k| (a, b, first + k * PHASE_STEP, second)))
+        .collect()
+}
 
 /// The transition table: a standing start, then all 20 ordered pairs of distinct actions.
 pub fn plan(quick: bool) -> Vec<Planned> {
@@ -95,7 +123,11 @@ pub fn bake(
         let gpu = GpuContext::headless(&GpuOptions::from_env())?;
         Some(GroundTruth::new(gpu, out, &start)?)
     };
-    let plan = plan(options.quick);
+    let plan = if options.switch_phases > 0 {
+        switch_plan(options.switch_phases)
+    } else {
+        plan(options.quick)
+    };
     let total: usize = plan.iter().map(|(_, _, a, b)| a + b).sum();
     let mut done = 0;
     let mut clips = Vec::new();
@@ -405,4 +437,23 @@ fn contact_sheet(
         }
     }
     sheet
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn switch_plan_moves_each_key_change_through_a_stride() {
+        let clips = switch_plan(4);
+        assert_eq!(clips.len(), 5 * 4);
+        for pair in clips.chunks(4) {
+            let (a, b) = (pair[0].0, pair[0].1);
+            assert!(a != b && (a == Action::Forward || b == Action::Forward));
+            let switches: Vec<usize> = pair.iter().map(|c| c.2).collect();
+            assert_eq!(switches, vec![93, 96, 99, 102]);
+            assert!(pair.iter().all(|c| (c.0, c.1, c.3) == (a, b, 60)));
+        }
+        assert!(switch_plan(0).is_empty());
+    }
 }

@@ -67,6 +67,15 @@ def test_unica_eval_quick_writes_a_report_with_finite_numbers(tmp_path):
     assert "from 2 seeds" in (out / "report.md").read_text()
     # The stops script releases every movement key: four stops, then the main script's.
     assert [st["after"] for st in masked["motion_by_seed"][1]["stops"]] == ["W", "S", "A", "D", "D"]
+    # The turns script, pressed at other phases, from every seed; its slowest turns in the summary.
+    for r in masked["motion_by_seed"]:
+        assert r["turns_keys"] == "20W 21S 22A 23D 20I"
+        assert [(t["turn"], t["frame"]) for t in r["phase_turns"]] == [("W→S (180°)", 20), ("S→A (90°)", 41),
+                                                                        ("A→D (180°)", 63)]
+    phase = [t for r in masked["motion_by_seed"] for t in r["phase_turns"]]
+    assert (summary["phase_turn180_frames"], summary["teacher_phase_turn180_frames"]) == _turn(phase, 180)
+    assert (summary["phase_turn90_frames"], summary["teacher_phase_turn90_frames"]) == _turn(phase, 90)
+    assert "Turns pressed at many phases" in (out / "report.md").read_text()
 
 
 class _Clips:
@@ -115,6 +124,27 @@ def test_the_summary_takes_the_slowest_turn_of_each_kind_against_the_teacher():
     assert _turn(turns + [{"turn": "D→A (180°)", "generated": None, "teacher": 14}], 180) == (None, 14)
     assert _turn([{"turn": "W→S (180°)", "generated": 20, "teacher": 20},
                   {"turn": "A→D (180°)", "generated": 16, "teacher": 10}], 180) == (16, 10)
+
+
+def test_every_turn_counts_a_repeated_turn_each_time():
+    from unica_train.eval import every_turn
+
+    # W for 4 frames, S for 6, W for 6 at 0.1 m a frame; the path reverses at once, the
+    # teacher a frame later each time.
+    actions = [1] * 4 + [2] * 6 + [1] * 6
+
+    def path(lag):
+        out, z = [[0.0, 1.0, 0.0]], 0.0
+        for i, a in enumerate(actions):
+            switch = max((j for j in range(i + 1) if j == 0 or actions[j] != actions[j - 1]))
+            step = 0.1 if (a == 1) == (i - switch >= lag or switch == 0) else -0.1
+            z += step
+            out.append([0.0, 1.0, z])
+        return torch.tensor(out)
+
+    got = every_turn(path(0), path(1), actions)
+    assert [(t["turn"], t["frame"]) for t in got] == [("W→S (180°)", 4), ("S→W (180°)", 10)]
+    assert [(t["generated"], t["teacher"]) for t in got] == [(1, 2), (1, 2)]
 
 
 def test_every_release_gets_its_own_stop():

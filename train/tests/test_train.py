@@ -262,3 +262,31 @@ def test_quarter_turns_encode_every_training_group_turned_and_turn_its_action(qu
     unet, _ = run.train_unet(latents, scale, False)
     assert all(torch.isfinite(p).all() for p in unet.parameters())
     assert [quarter_turn_action(a) for a in range(5)] == [0, 3, 4, 2, 1]
+
+
+def test_extra_data_joins_the_training_clips_after_the_main_ones(quick_dataset_dir, tmp_path):
+    import shutil
+
+    from safetensors.torch import load_file, save_file
+
+    from unica_train.dataset import DatasetError
+    from unica_train.train import Run, TrainConfig
+
+    more = tmp_path / "more"
+    shutil.copytree(quick_dataset_dir, more)
+    cfg = TrainConfig(**TINY)
+    (tmp_path / "checkpoints").mkdir()
+    alone = Run(quick_dataset_dir, tmp_path, cfg, torch.device("cpu"))
+    both = Run(quick_dataset_dir, tmp_path, cfg, torch.device("cpu"), extra=[more])
+    n = len(alone.ds.clips)
+    assert len(both.ds.clips) == 2 * n and len(both.groups) == 2 * len(alone.groups)
+    # The held-out clips are the main dataset's; every extra group trains.
+    assert both.test_groups == alone.test_groups
+    assert len(both.train_groups) == len(alone.train_groups) + len(alone.groups)
+    torch.testing.assert_close(both.world[n + 1], alone.world[1])
+    # Another character's clips are refused, naming the file.
+    ref = load_file(str(more / "reference.safetensors"))
+    ref["bind_positions"] = ref["bind_positions"] * 1.1
+    save_file(ref, str(more / "reference.safetensors"))
+    with pytest.raises(DatasetError, match=r"more/reference.safetensors: its bind differ"):
+        Run(quick_dataset_dir, tmp_path, cfg, torch.device("cpu"), extra=[more])

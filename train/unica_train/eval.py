@@ -61,6 +61,11 @@ HELD_OUT_CLIPS = (4, 13)
 # The stops script: a release after every movement key (`--stops-keys`).
 STOPS_KEYS = "40W 30I 40S 30I 40A 30I 40D 30I"
 STOPS_KEYS_QUICK = "20W 20I 20S 20I 20A 20I 20D 20I"
+# Turns pressed at many phases of the stride (session 26: a model can turn on time from the
+# phase the evaluation's script happens to press at and run on for 16 frames from
+# another): every key held a different number of frames, 4 turns of 180° and 6 of 90°.
+TURNS_KEYS = "45W 40S 41W 42A 43W 44D 45S 46A 47D 48W 49S 30I"
+TURNS_KEYS_QUICK = "20W 21S 22A 23D 20I"
 # Headings of the keys (W +Z, S -Z, A +X, D -X), degrees.
 KEY_HEADINGS = {1: 0.0, 2: 180.0, 3: 90.0, 4: -90.0}
 
@@ -476,6 +481,15 @@ def stops(path: torch.Tensor, teacher: torch.Tensor, actions: list[int]) -> list
     return out
 
 
+def every_turn(path: torch.Tensor, teacher: torch.Tensor, actions: list[int]) -> list[dict]:
+    """Each change between movement keys of `actions` (the same change may come several
+    times): its label, the first frame under the new key and the frames the path and the
+    teacher's take to turn (`metrics.turn_frames`)."""
+    return [{"turn": label, "frame": switch, "generated": metrics.turn_frames(path, switch + 1, target),
+             "teacher": metrics.turn_frames(teacher, switch + 1, target)}
+            for label, switch, target in turn_points(actions)]
+
+
 def _turn(turns: list, degrees: int) -> tuple:
     """(generated, teacher) frames of the script's slowest turn of `degrees` against the
     teacher's (a turn that never completes, None, is the slowest); (None, None) if the
@@ -539,6 +553,14 @@ def summary(results: dict) -> dict:
         "image_size": m["teacher_forced"]["size"],
         "free_running_path": m["free_running_path"],
     }
+    phase = [t for r in by_seed for t in r.get("phase_turns", [])]
+    if phase:
+        # The slowest of the turns pressed at many phases of the stride, over every seed.
+        for degrees in (180, 90):
+            generated, teacher = _turn(phase, degrees)
+            out[f"phase_turn{degrees}_frames"] = generated
+            out[f"teacher_phase_turn{degrees}_frames"] = teacher
+        out["turns_keys"] = by_seed[0]["turns_keys"]
     # A stop or a turn that never completes is null.
     return out
 
@@ -619,11 +641,21 @@ def evaluate(args) -> dict:
     if args.stops_teacher is not None:
         stop_roots = [f["root"] for f in json.loads(args.stops_teacher.read_text())["frames"]]
         stop_teacher = torch.tensor(stop_roots[:1] + stop_roots)
+    turns_keys = args.turns_keys or (TURNS_KEYS_QUICK if quick else TURNS_KEYS)
+    turns_teacher = None
+    if args.turns_teacher is not None:
+        turn_roots = [f["root"] for f in json.loads(args.turns_teacher.read_text())["frames"]]
+        turns_teacher = torch.tensor(turn_roots[:1] + turn_roots)
     print(f"motion over seeds {seeds} … ({time.time() - began:.0f} s)", flush=True)
     masked["motion_by_seed"] = []
     for seed in seeds:
         r = run if seed == args.seed else av.rollout(keys, defaults, seed)
         row = {"seed": seed, **motion(torch.tensor(r["root_path"]), torch.tensor(teacher), parse_keys(keys, r["frames"]), settle)}
+        if turns_teacher is not None:
+            t_run = av.rollout(turns_keys, defaults, seed)
+            row["turns_keys"] = turns_keys
+            row["phase_turns"] = every_turn(torch.tensor(t_run["root_path"]), turns_teacher,
+                                            parse_keys(turns_keys, t_run["frames"]))
         if stop_teacher is not None:
             s_run = av.rollout(stop_keys, defaults, seed)
             row["stops_keys"] = stop_keys
@@ -676,6 +708,10 @@ def main(argv=None):
                         "(default 3; quick: 2)")
     parser.add_argument("--stops-keys", help=f"key script with a release after every movement key (default {STOPS_KEYS}; "
                         f"quick: {STOPS_KEYS_QUICK}); its teacher path is --stops-teacher")
+    parser.add_argument("--turns-keys", help=f"key script with turns pressed at many phases of the stride (default "
+                        f"{TURNS_KEYS}; quick: {TURNS_KEYS_QUICK}); its teacher path is --turns-teacher")
+    parser.add_argument("--turns-teacher", type=Path,
+                        help="the teacher's path on --turns-keys (`unica eval` writes it); without it no phase turns are measured")
     parser.add_argument("--stops-teacher", type=Path,
                         help="manifest.json of `unica render --teacher` on --stops-keys (without it: only the main script's stop)")
     parser.add_argument("--long-frames", type=int, help="frames of the long (drift) run (default: the script 10 times; quick: twice)")

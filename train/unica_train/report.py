@@ -170,6 +170,17 @@ def _masked_section(results: dict, data: str) -> list[str]:
                 lines.append(f"| {r['seed']} | {cells} |")
         lines += ["", "(the teacher's in brackets; a stop is the frames until the root stays below 0.05 m/s, never where it "
                   "is still moving when the next key is pressed, and the distance travelled after the release)"]
+        phase = [r for r in by_seed if r.get("phase_turns")]
+        if phase:
+            turns = phase[0]["phase_turns"]
+            lines += ["", f"Turns pressed at many phases of the stride: `{phase[0]['turns_keys']}` (every key held a different "
+                      "number of frames; summary.json's `phase_turn180_frames` and `phase_turn90_frames` are the slowest "
+                      "against the teacher's, over every seed):", "",
+                      "| seed | " + " | ".join(f"{t['turn']} at {t['frame']}" for t in turns) + " |",
+                      "| --- |" + " --- |" * len(turns)]
+            for r in phase:
+                lines.append(f"| {r['seed']} | " + " | ".join(f"{_fmt(t['generated'], 0)} ({_fmt(t['teacher'], 0)})"
+                                                              for t in r["phase_turns"]) + " |")
     lines += ["", f"The dataset is rebuilt with `unica bake <the character> --out {data}` (the character file is in "
               "the dataset's manifest).", ""]
     return lines

@@ -1,6 +1,7 @@
 """Trains the geometry model on a baked dataset and writes the bundle:
 
     python -m unica_train.train --data DATA --out OUT [--config CONFIG.json] [--resume] [--init BUNDLE]
+        [--extra-data MORE] [--unet-only]
 
 Stages: the VAE; latents of every 4-frame group; UNet stage 1 (steady locomotion) and
 stage 2 (frames just after a key change oversampled, action embeddings frozen), with
@@ -15,7 +16,8 @@ kept as they are, and its UNet is trained further on the config's schedule. With
 before and after in metrics.json) and skips the PCA, evaluation and rollout. A config's
 `unet_minutes` fits the UNet's schedule to a time budget (a borrowed GPU): after 30
 steps the two stages are shortened in proportion to what fits at the measured pace, and
-`unet_schedule.json` records the steps run."""
+`unet_schedule.json` records the steps run. `--extra-data` adds the clips of another
+dataset of the same character (`unica bake --switch-phases`) to the training clips."""
 
 from __future__ import annotations
 
@@ -32,7 +34,7 @@ from pathlib import Path
 import torch
 
 from . import bundle, pca
-from .dataset import ANCHOR, BakedDataset, quarter_turn, quarter_turn_action
+from .dataset import ANCHOR, BakedDataset, DatasetError, quarter_turn, quarter_turn_action
 from .diffusion import Schedule, sample_next
 from .plot import curves
 from .unet import NULL_ACTION, UNet, UNetConfig, conv_and_linear_flops, parameter_count
@@ -105,13 +107,27 @@ def checksum(module: torch.nn.Module) -> float:
     return float(sum(p.detach().double().sum() for p in module.parameters()))
 
 
+def extra_clips(main: BakedDataset, more: BakedDataset) -> list[dict]:
+    """The clips of `more` (`unica bake --switch-phases`), to train on after `main`'s
+    (so the held-out clip numbers keep meaning the same clips; normalised with `main`'s
+    scale). Both must be baked from the same character: the same reference surface."""
+    where = more.dir / "reference.safetensors"
+    for name in ("bind", "pixels", "pixel_triangles", "barycentrics", "waist"):
+        a, b = getattr(main, name), getattr(more, name)
+        if a.shape != b.shape or not torch.equal(a, b):
+            raise DatasetError(f"{where}: its {name} differ from {main.dir}'s: not baked from the same character")
+    return more.clips
+
+
 class Run:
     def __init__(self, data: Path, out: Path, cfg: TrainConfig, device: torch.device, rank: int = 0, world: int = 1,
-                 init: tuple | None = None):
+                 init: tuple | None = None, extra: list[Path] = ()):
         self.cfg, self.out, self.device = cfg, out, device
         self.init = init  # (vae, unet, extra, manifest) of a bundle to continue, or None
         self.rank, self.ranks = rank, world
         self.ds = BakedDataset(data)
+        for folder in extra:
+            self.ds.clips += extra_clips(self.ds, BakedDataset(folder))
         t0 = time.time()
         self.world = [self.ds.positions(c, list(range(clip["actions"].shape[0]))) for c, clip in enumerate(self.ds.clips)]
         print(f"materialised {sum(w.shape[0] for w in self.world)} frames in {time.time() - t0:.1f} s", flush=True)
@@ -492,14 +508,18 @@ def main(argv=None):
     parser.add_argument("--resume", action="store_true", help="continue from the run folder's checkpoints")
     parser.add_argument("--device", default="auto", help="auto, cpu or cuda")
     parser.add_argument("--init", type=Path, help="a bundle to continue: its VAE and refiner are kept, its UNet trained further")
+    parser.add_argument("--extra-data", type=Path, action="append", default=[],
+                        help="more clips to train on (`unica bake --switch-phases N`), never held out; repeatable")
     parser.add_argument("--unet-only", action="store_true",
                         help="with --init: write the --init bundle with only its UNet replaced (no PCA, evaluation or rollout)")
     args = parser.parse_args(argv)
     if args.unet_only and not args.init:
         parser.error("--unet-only continues a bundle: give it --init BUNDLE")
-    init = bundle.load(args.init) if args.init else None
-
-    cfg = TrainConfig(**(json.loads(args.config.read_text()) if args.config else {}))
+    try:
+        init = bundle.load(args.init) if args.init else None
+        cfg = TrainConfig(**(json.loads(args.config.read_text()) if args.config else {}))
+    except (bundle.BundleError, OSError, ValueError, TypeError) as e:
+        raise SystemExit(f"unica_train.train: {e}") from None
     rank, world = distributed()
     device = torch.device("cuda" if args.device == "auto" and torch.cuda.is_available() else ("cpu" if args.device == "auto" else args.device))
     if device.type == "cuda" and world > 1:
@@ -513,7 +533,10 @@ def main(argv=None):
         # targets and the engine computes them in fp32.
         torch.backends.cuda.matmul.allow_tf32 = False
         torch.backends.cudnn.allow_tf32 = False
-    run = Run(args.data, args.out, cfg, device, rank, world, init)
+    try:
+        run = Run(args.data, args.out, cfg, device, rank, world, init, args.extra_data)
+    except DatasetError as e:
+        raise SystemExit(f"unica_train.train: {e}") from None
     started = time.time()
     vae = run.train_vae(args.resume)
     latents, scale = run.encode_groups(vae)
