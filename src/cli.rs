@@ -950,6 +950,20 @@ const EVAL_STOPS_KEYS_QUICK: &str = "20W 20I 20S 20I 20A 20I 20D 20I";
 const EVAL_TURNS_KEYS: &str = "45W 40S 41W 42A 43W 44D 45S 46A 47D 48W 49S 30I";
 const EVAL_TURNS_KEYS_QUICK: &str = "20W 21S 22A 23D 20I";
 
+/// The key script given, else the default (`quick`: the short one).
+fn eval_script<'a>(
+    given: &'a Option<String>,
+    quick: bool,
+    full: &'a str,
+    short: &'a str,
+) -> &'a str {
+    match (given, quick) {
+        (Some(keys), _) => keys,
+        (None, true) => short,
+        (None, false) => full,
+    }
+}
+
 /// Drives the teacher on the evaluation's key script (geometry only), then runs the
 /// trainer's evaluation (`python3 -m unica_train.eval`, or $UNICA_PYTHON) on it.
 fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
@@ -968,28 +982,26 @@ fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         );
     }
     std::fs::create_dir_all(&args.out).with_context(|| args.out.display().to_string())?;
-    let script = match (&args.keys, args.quick) {
-        (Some(keys), _) => keys.as_str(),
-        (None, true) => EVAL_KEYS_QUICK,
-        (None, false) => EVAL_KEYS,
-    };
+    let script = eval_script(&args.keys, args.quick, EVAL_KEYS, EVAL_KEYS_QUICK);
     let keys = KeyScript::parse(script).context("--keys")?;
     let clips: Vec<PathBuf> = if args.clips.is_empty() {
         manifest.clip_files.iter().map(PathBuf::from).collect()
     } else {
         args.clips
     };
-    let stops_script = match (&args.stops_keys, args.quick) {
-        (Some(keys), _) => keys.as_str(),
-        (None, true) => EVAL_STOPS_KEYS_QUICK,
-        (None, false) => EVAL_STOPS_KEYS,
-    };
+    let stops_script = eval_script(
+        &args.stops_keys,
+        args.quick,
+        EVAL_STOPS_KEYS,
+        EVAL_STOPS_KEYS_QUICK,
+    );
     let stops_keys = KeyScript::parse(stops_script).context("--stops-keys")?;
-    let turns_script = match (&args.turns_keys, args.quick) {
-        (Some(keys), _) => keys.as_str(),
-        (None, true) => EVAL_TURNS_KEYS_QUICK,
-        (None, false) => EVAL_TURNS_KEYS,
-    };
+    let turns_script = eval_script(
+        &args.turns_keys,
+        args.quick,
+        EVAL_TURNS_KEYS,
+        EVAL_TURNS_KEYS_QUICK,
+    );
     let turns_keys = KeyScript::parse(turns_script).context("--turns-keys")?;
     let teacher = args.out.join("teacher.json");
     let stops_teacher = args.out.join("teacher_stops.json");

@@ -133,16 +133,12 @@ def test_every_turn_counts_a_repeated_turn_each_time():
     # teacher a frame later each time.
     actions = [1] * 4 + [2] * 6 + [1] * 6
 
-    def path(lag):
-        out, z = [[0.0, 1.0, 0.0]], 0.0
-        for i, a in enumerate(actions):
-            switch = max((j for j in range(i + 1) if j == 0 or actions[j] != actions[j - 1]))
-            step = 0.1 if (a == 1) == (i - switch >= lag or switch == 0) else -0.1
-            z += step
-            out.append([0.0, 1.0, z])
-        return torch.tensor(out)
+    def path(steps):
+        return torch.tensor([[0.0, 1.0, z] for z in [0.0] + torch.tensor(steps).cumsum(0).tolist()])
 
-    got = every_turn(path(0), path(1), actions)
+    at_once = [0.1] * 4 + [-0.1] * 6 + [0.1] * 6
+    a_frame_later = [0.1] * 5 + [-0.1] * 6 + [0.1] * 5
+    got = every_turn(path(at_once), path(a_frame_later), actions)
     assert [(t["turn"], t["frame"]) for t in got] == [("W→S (180°)", 4), ("S→W (180°)", 10)]
     assert [(t["generated"], t["teacher"]) for t in got] == [(1, 2), (1, 2)]
 

@@ -292,13 +292,7 @@ def against_teacher(path: torch.Tensor, teacher: torch.Tensor, actions: list[int
                                   metrics.segment_summary(teacher, actions[: len(teacher) - 1], FRAME_RATE, settle)):
         segments.append({"key": NAMES[gen_seg["action"]], "speed": gen_seg["speed"], "heading": gen_seg["heading"],
                          "teacher_speed": teach_seg["speed"], "teacher_heading": teach_seg["heading"]})
-    turns = {}
-    for label, switch, target in turn_points(actions):
-        # actions[i] moves path[i] to path[i + 1]: the first frame under the new key is
-        # path[switch + 1] (until session 20 this passed `switch`, which counted every
-        # turn, the teacher's too, one frame long).
-        turns[label] = {"generated": metrics.turn_frames(path, switch + 1, target),
-                        "teacher": metrics.turn_frames(teacher, switch + 1, target)}
+    turns = {t["turn"]: {"generated": t["generated"], "teacher": t["teacher"]} for t in every_turn(path, teacher, actions)}
     return segments, turns
 
 
@@ -337,16 +331,23 @@ def read_ply_points(path: Path) -> torch.Tensor:
     return torch.from_numpy(values.copy()).reshape(-1, 3)
 
 
+def root_path(manifest: Path) -> list:
+    """The world root path of a `unica render` manifest ([frames + 1][3]). The manifest has
+    the root after each frame's step; its start (standing, the first step barely moves) is
+    taken as its first root."""
+    roots = [f["root"] for f in json.loads(manifest.read_text())["frames"]]
+    return roots[:1] + roots
+
+
 def engine_rollout(av: Avatar, folder: Path) -> dict:
     """The engine's free-running rollout written by `unica render --bundle --points`: the
     world root path (the start repeated first, as the teacher's) and every frame's points."""
-    manifest = json.loads((folder / "manifest.json").read_text())
-    roots = [f["root"] for f in manifest["frames"]]
-    points = [read_ply_points(folder / f"frame_{i:05d}.ply") for i in range(len(roots))]
+    path = root_path(folder / "manifest.json")
+    points = [read_ply_points(folder / f"frame_{i:05d}.ply") for i in range(len(path) - 1)]
     if any(p.shape[0] != av.pixels.shape[0] for p in points):
         raise ValueError(f"{folder}: its frames do not have the bundle's {av.pixels.shape[0]} points")
     world = torch.stack(points)
-    return {"root_path": roots[:1] + roots, "centred": world - av.ds.root(world)[:, None], "frames": len(roots)}
+    return {"root_path": path, "centred": world - av.ds.root(world)[:, None], "frames": len(points)}
 
 
 def centred_rollout(av: Avatar, run: dict) -> dict:
@@ -484,7 +485,9 @@ def stops(path: torch.Tensor, teacher: torch.Tensor, actions: list[int]) -> list
 def every_turn(path: torch.Tensor, teacher: torch.Tensor, actions: list[int]) -> list[dict]:
     """Each change between movement keys of `actions` (the same change may come several
     times): its label, the first frame under the new key and the frames the path and the
-    teacher's take to turn (`metrics.turn_frames`)."""
+    teacher's take to turn (`metrics.turn_frames`). actions[i] moves path[i] to
+    path[i + 1]: the first frame under the new key is path[switch + 1] (until session 20
+    `switch` was passed, which counted every turn, the teacher's too, one frame long)."""
     return [{"turn": label, "frame": switch, "generated": metrics.turn_frames(path, switch + 1, target),
              "teacher": metrics.turn_frames(teacher, switch + 1, target)}
             for label, switch, target in turn_points(actions)]
@@ -589,10 +592,7 @@ def evaluate(args) -> dict:
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     av = Avatar(args.bundle, args.data, args.level)
-    # The teacher's manifest has the root after each frame's step; its start (standing,
-    # the first step barely moves) is taken as its first root.
-    roots = [f["root"] for f in json.loads(args.teacher.read_text())["frames"]]
-    teacher = roots[:1] + roots
+    teacher = root_path(args.teacher)
     defaults = {"steps": av.manifest["sampler"]["ddim_steps"], "cfg_scale": av.manifest["sampler"]["cfg_scale"], "pca": True,
                 **av.sampler_options, **av.brake_options}
     keys = args.keys or ("20W 20S 20A 20D 20I" if quick else KEYS)
@@ -637,15 +637,9 @@ def evaluate(args) -> dict:
     # A stop after every movement key: the stops script, each release followed by Idle.
     seeds = [args.seed + k for k in range(max(1, args.motion_seeds or (2 if quick else 3)))]
     stop_keys = args.stops_keys or (STOPS_KEYS_QUICK if quick else STOPS_KEYS)
-    stop_teacher = None
-    if args.stops_teacher is not None:
-        stop_roots = [f["root"] for f in json.loads(args.stops_teacher.read_text())["frames"]]
-        stop_teacher = torch.tensor(stop_roots[:1] + stop_roots)
+    stop_teacher = None if args.stops_teacher is None else torch.tensor(root_path(args.stops_teacher))
     turns_keys = args.turns_keys or (TURNS_KEYS_QUICK if quick else TURNS_KEYS)
-    turns_teacher = None
-    if args.turns_teacher is not None:
-        turn_roots = [f["root"] for f in json.loads(args.turns_teacher.read_text())["frames"]]
-        turns_teacher = torch.tensor(turn_roots[:1] + turn_roots)
+    turns_teacher = None if args.turns_teacher is None else torch.tensor(root_path(args.turns_teacher))
     print(f"motion over seeds {seeds} … ({time.time() - began:.0f} s)", flush=True)
     masked["motion_by_seed"] = []
     for seed in seeds:
