@@ -401,6 +401,10 @@ fn bundle_manifests_with_impossible_values_are_refused() {
             |j| j["version"] = json!("1"),
             "bundle version \"1\" is not a whole number",
         ),
+        (
+            |j| j["root_motion"] = json!("sideways"),
+            "unknown variant `sideways`",
+        ),
     ];
     for (edit, needle) in cases {
         let err = manifest_error(edit);

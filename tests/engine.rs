@@ -12,6 +12,7 @@ use unica::engine::kernels::{self, FrameState, PostParams};
 use unica::engine::{Engine, EngineOptions, pca};
 use unica::gpu::kernel::{Grid, PipelineCache, Precision};
 use unica::gpu::{GpuContext, GpuOptions, readback};
+use unica::nn::bundle::RootMotion;
 use unica::nn::sampler::{Sampling, idle_run};
 use unica::nn::{Bundle, Recorder, Tensor};
 use unica::random::Rng;
@@ -19,6 +20,23 @@ use unica::splat::ply::Splat;
 
 fn witch_bundle() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle")
+}
+
+/// A copy of the shipped bundle whose manifest says `root_motion: decoded` (the weights
+/// linked or copied).
+fn decoded_bundle(dir: &Path) -> PathBuf {
+    let from = witch_bundle();
+    let to = dir.join("bundle");
+    std::fs::create_dir_all(&to).unwrap();
+    let weights = to.join("weights.safetensors");
+    if std::fs::hard_link(from.join("weights.safetensors"), &weights).is_err() {
+        std::fs::copy(from.join("weights.safetensors"), &weights).unwrap();
+    }
+    let text = std::fs::read_to_string(from.join("manifest.json")).unwrap();
+    let mut manifest: serde_json::Value = serde_json::from_str(&text).unwrap();
+    manifest["root_motion"] = "decoded".into();
+    std::fs::write(to.join("manifest.json"), manifest.to_string()).unwrap();
+    to
 }
 
 fn gpu() -> GpuContext {
@@ -92,6 +110,7 @@ fn reference_frame(
     action: Action,
     sampling: Sampling,
     root: Vec3,
+    root_motion: RootMotion,
 ) -> Reference {
     let mut pipelines = PipelineCache::default();
     let mut r = Recorder::new(gpu, &mut pipelines, Precision::F32);
@@ -126,11 +145,38 @@ fn reference_frame(
     let centre =
         bundle.waist.iter().map(|&w| unit[w as usize]).sum::<Vec3>() / bundle.waist.len() as f32;
     let shift = centre - Vec3::splat(0.5);
+    // The root motion: the shift, or the root minus the root of the context's last
+    // latent decoded (its values cut out here on the host).
+    let motion = match root_motion {
+        RootMotion::Centre => shift,
+        RootMotion::Decoded => {
+            let len = context.len() / (cfg.frames - 1);
+            let last = &context[context.len() - len..];
+            let mut r = Recorder::new(gpu, &mut pipelines, Precision::F32);
+            let z = r
+                .upload("last", &[1, cfg.latent, side, side], last)
+                .unwrap();
+            let map = bundle.decode(&mut r, &z).unwrap();
+            r.submit();
+            let map = map.read(gpu).unwrap();
+            let kept = |x: f32| if x.is_nan() { 0.5 } else { x.clamp(0.0, 1.0) };
+            let from = bundle
+                .waist
+                .iter()
+                .map(|&w| {
+                    let p = bundle.pixels[w as usize] as usize;
+                    Vec3::from_array([0, 1, 2].map(|k| kept(map[k * plane + p])))
+                })
+                .sum::<Vec3>()
+                / bundle.waist.len() as f32;
+            centre - from
+        }
+    };
     let scale = bundle.manifest.normalisation.scale;
     let drawn = pca::project_points(&unit, shift, &bundle.pca_mean, &bundle.pca_basis);
     let points = drawn
         .iter()
-        .map(|&p| (p - Vec3::splat(0.5)) / scale + root)
+        .map(|&p| (p - shift + motion - Vec3::splat(0.5)) / scale + root)
         .collect();
     // The slide: frames 1.. of the window then the new frame's clamped points, all moved
     // by -shift, background 0; then encoded and scaled.
@@ -165,7 +211,7 @@ fn reference_frame(
         points,
         context,
         maps: next,
-        root: root + shift / scale,
+        root: root + motion / scale,
         clamped,
     }
 }
@@ -184,7 +230,8 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
     // but Idle unguided and the noise scaled, with Idle guided at its own scale, and
     // braking the first Idle frame after a key at a third scale, beside Idle at its own
     // scale and beside unguided Idle (two DDIM steps: the plan's structure is the same
-    // for any count). Tolerance: 2e-5 m (0.02 mm) on world points and 2e-5 m on the root;
+    // for any count); then two of them with the root motion measured from the decoded
+    // last context latent. Tolerance: 2e-5 m (0.02 mm) on world points and 2e-5 m on the root;
     // both sides run the same f32 kernels (the encoder of the slid maps included) and
     // differ only in summation order and fused multiply-adds of the PCA, the slide and
     // the world placement (measured ≈ 1e-6 m).
@@ -208,16 +255,25 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
         idle_cfg_scale: None,
         ..braking
     };
-    for sampling in [
-        Sampling::new(2, 1.0),
-        Sampling::new(2, 2.0),
-        unguided_idle,
-        idle_scaled,
-        braking,
-        braking_unguided,
+    // The root motion measured from the last context latent decoded (`root_motion:
+    // decoded` in a copy of the bundle's manifest) with the guided and the braking
+    // sampler.
+    let dir = tempfile::tempdir().unwrap();
+    let decoded = decoded_bundle(dir.path());
+    let centre = |s| (s, witch_bundle(), RootMotion::Centre);
+    for (sampling, bundle, root_motion) in [
+        centre(Sampling::new(2, 1.0)),
+        centre(Sampling::new(2, 2.0)),
+        centre(unguided_idle),
+        centre(idle_scaled),
+        centre(braking),
+        centre(braking_unguided),
+        (Sampling::new(2, 2.0), decoded.clone(), RootMotion::Decoded),
+        (braking, decoded.clone(), RootMotion::Decoded),
     ] {
         let cfg_scale = sampling.cfg_scale;
-        let mut engine = Engine::new(&gpu, &witch_bundle(), &options(sampling, 7)).unwrap();
+        let mut engine = Engine::new(&gpu, &bundle, &options(sampling, 7)).unwrap();
+        assert_eq!(engine.bundle.manifest.root_motion, root_motion);
         let mut context = engine.bundle.context.read(&gpu).unwrap();
         let mut maps = start_maps(&gpu, &engine.bundle);
         let mut root = engine.root();
@@ -240,11 +296,12 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
                 action,
                 sampling.for_frame(action, after_key),
                 root,
+                root_motion,
             );
             let error = worst(&frame.points, &reference.points);
             assert!(
                 error < 2e-5,
-                "cfg {cfg_scale} {action:?} {after_key:?}: points differ by {error} m"
+                "cfg {cfg_scale} {root_motion:?} {action:?} {after_key:?}: points differ by {error} m"
             );
             assert!(
                 frame.root.distance(reference.root) < 2e-5,
@@ -261,10 +318,12 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
 #[test]
 fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
     // A 2×2 "map" (plane 4) with 3 foreground pixels; pixel 3's values include NaN,
-    // -1 and 2 (three clamps); the waist is points 0 and 1.
+    // -1 and 2 (three clamps); the waist is points 0 and 1 (pixels 0 and 2): root
+    // (0.3, 0.6, 0.2), shift root - 0.5. The reference map's waist pixels hold x 0.25
+    // and 0.45, y 0.55 and 0.65, z 1.5 (kept as 1) and 0.1: root (0.35, 0.6, 0.55). The
+    // motion is the shift, or with the decoded reference root - (0.35, 0.6, 0.55); the
+    // reference's values are never counted as clamps.
     let gpu = gpu();
-    let mut pipelines = PipelineCache::default();
-    let mut r = Recorder::new(&gpu, &mut pipelines, Precision::F32);
     let nan = f32::NAN;
     #[rustfmt::skip]
     let map = [
@@ -272,59 +331,87 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
         0.5, 0.0, 0.7, -1.0,  // y
         0.1, 0.0, 0.3, 2.0,   // z
     ];
+    #[rustfmt::skip]
+    let reference = [
+        0.25, 9.0, 0.45, nan,
+        0.55, 9.0, 0.65, 0.0,
+        1.5, 9.0, 0.1, 0.0,
+    ];
     let map = Tensor::upload(&gpu, "map", &[1, 3, 2, 2], &map, Precision::F32).unwrap();
+    let reference =
+        Tensor::upload(&gpu, "reference", &[1, 3, 2, 2], &reference, Precision::F32).unwrap();
     let u32s = |v: &[u32]| {
         gpu.storage_buffer_init("ids", bytemuck::cast_slice(v), wgpu::BufferUsages::empty())
             .unwrap()
     };
     let (pixels, waist) = (u32s(&[0, 2, 3]), u32s(&[0, 1]));
-    let unit = gpu
-        .storage_buffer("unit", 36, wgpu::BufferUsages::COPY_SRC)
-        .unwrap();
-    let start = FrameState {
-        root: [0.0; 4],
-        shift: [0.0; 4],
-        clamped: 0,
-        clamped_total: 5,
-        frames: 0,
-        reserved: 0,
-    };
-    let state = state_buffer(&gpu, &start);
-    let params = PostParams {
-        points: 3,
-        plane: 4,
-        waist: 2,
-        components: 0,
-        scale: 1.0,
-        frames: 1,
-        reserved0: 0,
-        reserved1: 0,
-    };
-    r.dispatch(
-        &kernels::FRAME_UNIT,
-        &params,
-        &[&map.buffer, &pixels, &waist, &unit, &state],
-        Grid { x: 1, y: 1 },
-    );
-    r.submit();
-    let unit: Vec<f32> =
-        bytemuck::pod_collect_to_vec(&readback::buffer(&gpu, &unit, "unit").unwrap());
-    assert_eq!(unit, [0.2, 0.5, 0.1, 0.4, 0.7, 0.3, 0.5, 0.0, 1.0]);
-    let state: FrameState =
-        bytemuck::pod_read_unaligned(&readback::buffer(&gpu, &state, "state").unwrap());
-    assert_eq!((state.clamped, state.clamped_total), (3, 8));
-    let want = [0.3 - 0.5, 0.6 - 0.5, 0.2 - 0.5];
-    for (got, want) in state.shift.iter().zip(want) {
-        assert!((got - want).abs() < 1e-6, "{:?}", state.shift);
+    let shift = [0.3 - 0.5, 0.6 - 0.5, 0.2 - 0.5];
+    for (decoded_reference, motion) in [(0, shift), (1, [0.3 - 0.35, 0.0, 0.2 - 0.55])] {
+        let mut pipelines = PipelineCache::default();
+        let mut r = Recorder::new(&gpu, &mut pipelines, Precision::F32);
+        let unit = gpu
+            .storage_buffer("unit", 36, wgpu::BufferUsages::COPY_SRC)
+            .unwrap();
+        let start = FrameState {
+            root: [0.0; 4],
+            shift: [0.0; 4],
+            motion: [0.0; 4],
+            clamped: 0,
+            clamped_total: 5,
+            frames: 0,
+            reserved: 0,
+        };
+        let state = state_buffer(&gpu, &start);
+        let params = PostParams {
+            points: 3,
+            plane: 4,
+            waist: 2,
+            components: 0,
+            scale: 1.0,
+            frames: 1,
+            decoded_reference,
+            reserved1: 0,
+        };
+        r.dispatch(
+            &kernels::FRAME_UNIT,
+            &params,
+            &[
+                &map.buffer,
+                &pixels,
+                &waist,
+                &unit,
+                &state,
+                &reference.buffer,
+            ],
+            Grid { x: 1, y: 1 },
+        );
+        r.submit();
+        let unit: Vec<f32> =
+            bytemuck::pod_collect_to_vec(&readback::buffer(&gpu, &unit, "unit").unwrap());
+        assert_eq!(unit, [0.2, 0.5, 0.1, 0.4, 0.7, 0.3, 0.5, 0.0, 1.0]);
+        let state: FrameState =
+            bytemuck::pod_read_unaligned(&readback::buffer(&gpu, &state, "state").unwrap());
+        assert_eq!((state.clamped, state.clamped_total), (3, 8));
+        for (got, want) in state.shift.iter().zip(shift) {
+            assert!((got - want).abs() < 1e-6, "{:?}", state.shift);
+        }
+        for (got, want) in state.motion.iter().zip(motion) {
+            assert!(
+                (got - want).abs() < 1e-6,
+                "reference {decoded_reference}: {:?}",
+                state.motion
+            );
+        }
     }
 }
 
 #[test]
 fn the_slide_kernel_slides_the_maps_recentres_them_and_moves_the_root() {
     // A window of 2 frames of 2×2 maps (plane 4) with foreground pixels 0, 2 and 3 (pixel 1
-    // is background, 0 in the maps); shift (0.1, -0.2, 0.05), scale 2. Frame 0 of the
-    // result is frame 1 moved by -shift, frame 1 the new points moved by -shift, the
-    // background 0 everywhere; the root moves by shift / scale and the frame is counted.
+    // is background, 0 in the maps); shift (0.1, -0.2, 0.05), motion (0.02, 0.04, -0.06),
+    // scale 2. Frame 0 of the result is frame 1 moved by -shift, frame 1 the new points
+    // moved by -shift, the background 0 everywhere; the root moves by motion / scale and
+    // the frame is counted.
     let gpu = gpu();
     let mut pipelines = PipelineCache::default();
     let mut r = Recorder::new(&gpu, &mut pipelines, Precision::F32);
@@ -350,6 +437,7 @@ fn the_slide_kernel_slides_the_maps_recentres_them_and_moves_the_root() {
     let start = FrameState {
         root: [1.0, 2.0, 3.0, 0.0],
         shift: [0.1, -0.2, 0.05, 0.0],
+        motion: [0.02, 0.04, -0.06, 0.0],
         clamped: 0,
         clamped_total: 0,
         frames: 4,
@@ -363,7 +451,7 @@ fn the_slide_kernel_slides_the_maps_recentres_them_and_moves_the_root() {
         components: 0,
         scale: 2.0,
         frames: 2,
-        reserved0: 0,
+        decoded_reference: 0,
         reserved1: 0,
     };
     r.dispatch(
@@ -388,7 +476,8 @@ fn the_slide_kernel_slides_the_maps_recentres_them_and_moves_the_root() {
     }
     let state: FrameState =
         bytemuck::pod_read_unaligned(&readback::buffer(&gpu, &state, "state").unwrap());
-    let root = [1.05, 1.9, 3.025];
+    // The root moves by the motion / scale (the slide is the shift).
+    let root = [1.01, 2.02, 2.97];
     for (g, w) in state.root.iter().zip(root) {
         assert!((g - w).abs() < 1e-6, "{:?}", state.root);
     }
@@ -522,10 +611,10 @@ fn a_dispatch_with_the_wrong_bindings_is_caught_when_recorded() {
             components: 0,
             scale: 1.0,
             frames: 1,
-            reserved0: 0,
+            decoded_reference: 0,
             reserved1: 0,
         };
-        // frame_unit binds five buffers after its parameters; four are given.
+        // frame_unit binds six buffers after its parameters; four are given.
         r.dispatch(
             &kernels::FRAME_UNIT,
             &params,
@@ -539,7 +628,7 @@ fn a_dispatch_with_the_wrong_bindings_is_caught_when_recorded() {
         .cloned()
         .unwrap_or_default();
     assert!(
-        text.contains("engine/frame_unit.wgsl") && text.contains("declares 6"),
+        text.contains("engine/frame_unit.wgsl") && text.contains("declares 7"),
         "{text}"
     );
 }

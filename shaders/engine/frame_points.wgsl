@@ -23,7 +23,8 @@ fn main(invocation: Invocation) {
     let axes = (vec4<u32>(q) + vec4<u32>(0u, 1u, 2u, 3u)) % 3u;
     let shift = vec4<f32>(state.shift[axes.x], state.shift[axes.y], state.shift[axes.z], state.shift[axes.w]);
     let root = vec4<f32>(state.root[axes.x], state.root[axes.y], state.root[axes.z], state.root[axes.w]);
-    var v = texel(unit, q);
+    let motion = vec4<f32>(state.motion[axes.x], state.motion[axes.y], state.motion[axes.z], state.motion[axes.w]);
+    var v = texel(unit, q) - shift;
     if p.components > 0u {
         var o = texel(mean, q);
         let whole = p.components / 4u;
@@ -38,9 +39,9 @@ fn main(invocation: Invocation) {
         for (var k = 4u * whole; k < p.components; k++) {
             o += texel(coefficients, k / 4u)[k % 4u] * texel(basis, k * quads + q);
         }
-        v = o + shift;
+        v = o;
     }
-    let out = (v - 0.5) / p.scale + root;
+    let out = (v + motion - 0.5) / p.scale + root;
     for (var c = 0u; c < 4u; c++) {
         if 4u * q + c < d {
             points[4u * q + c] = out[c];

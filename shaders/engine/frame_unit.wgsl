@@ -1,6 +1,8 @@
 // A decoded map's foreground pixels as normalised points: NaN becomes the cube's centre
 // and the rest is clamped into [0, 1] (both counted); the root shift is the mean of the
-// waist points minus 0.5. One workgroup; every thread clamps a strided share.
+// waist points minus 0.5. The root motion is the same shift, or with a decoded reference
+// (`p.decoded_reference`) the root minus the root of `reference` (the last context latent
+// decoded, kept the same way). One workgroup; every thread clamps a strided share.
 
 @group(0) @binding(0) var<uniform> p: PostParams;
 @group(0) @binding(1) var<storage, read> map: array<Elem>;
@@ -8,6 +10,7 @@
 @group(0) @binding(3) var<storage, read> waist: array<u32>;
 @group(0) @binding(4) var<storage, read_write> unit: array<f32>;
 @group(0) @binding(5) var<storage, read_write> state: FrameState;
+@group(0) @binding(6) var<storage, read> reference: array<Elem>;
 
 var<workgroup> clamped: atomic<u32>;
 
@@ -27,6 +30,24 @@ fn value(point: u32, axis: u32) -> f32 {
     return f32(map[axis * p.plane + pixels[point]]);
 }
 
+// The mean of the kept waist points of `map` (from_map) or of `reference`.
+fn waist_root(from_map: bool) -> vec3<f32> {
+    var root = vec3<f32>(0.0);
+    for (var w = 0u; w < p.waist; w++) {
+        let q = pixels[waist[w]];
+        for (var k = 0u; k < 3u; k++) {
+            var x = 0.0;
+            if from_map {
+                x = f32(map[k * p.plane + q]);
+            } else {
+                x = f32(reference[k * p.plane + q]);
+            }
+            root[k] += kept(x);
+        }
+    }
+    return root / f32(p.waist);
+}
+
 @compute @workgroup_size(256)
 fn main(@builtin(local_invocation_index) lane: u32) {
     if lane == 0u {
@@ -44,13 +65,13 @@ fn main(@builtin(local_invocation_index) lane: u32) {
     atomicAdd(&clamped, count);
     workgroupBarrier();
     if lane == 0u {
-        var root = vec3<f32>(0.0);
-        for (var w = 0u; w < p.waist; w++) {
-            let q = waist[w];
-            root += vec3<f32>(kept(value(q, 0u)), kept(value(q, 1u)), kept(value(q, 2u)));
-        }
-        root /= f32(p.waist);
+        let root = waist_root(true);
         state.shift = vec4<f32>(root - vec3<f32>(0.5), 0.0);
+        var origin = vec3<f32>(0.5);
+        if p.decoded_reference != 0u {
+            origin = waist_root(false);
+        }
+        state.motion = vec4<f32>(root - origin, 0.0);
         let n = atomicLoad(&clamped);
         state.clamped = n;
         state.clamped_total += n;

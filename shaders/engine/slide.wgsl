@@ -1,7 +1,7 @@
 // The window's slide after a generated frame, as position maps: frames 1 and 2 of the
 // window's maps then the new frame's clamped points, every foreground value moved by
 // -shift, background 0 (the engine encodes the result into the next context latents).
-// Thread 0 also moves the world root by shift / scale and counts the frame.
+// Thread 0 also moves the world root by the root motion / scale and counts the frame.
 
 @group(0) @binding(0) var<uniform> p: PostParams;
 @group(0) @binding(1) var<storage, read> maps: array<Elem>;
@@ -32,7 +32,7 @@ fn main(invocation: Invocation) {
     }
     next[i] = Elem(v);
     if i == 0u {
-        state.root = vec4<f32>(state.root.xyz + shift.xyz / p.scale, 0.0);
+        state.root = vec4<f32>(state.root.xyz + state.motion.xyz / p.scale, 0.0);
         state.frames += 1u;
     }
 }

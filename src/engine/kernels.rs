@@ -1,5 +1,5 @@
 //! The engine's own kernels, which keep a generated frame on the GPU after the decode:
-//! clamping and the root shift (`frame_unit`), the PCA projection (`pca_coefficients`,
+//! clamping, the root shift and the root motion (`frame_unit`), the PCA projection (`pca_coefficients`,
 //! `frame_points`) and the window's slide as maps with the world root's update (`slide`;
 //! the engine then encodes the slid maps). Their
 //! parameter structs are declared once here for Rust and WGSL (`gpu_struct!`); the WGSL
@@ -28,7 +28,9 @@ gpu_struct! {
         pub scale: f32,
         /// Context frames in the window (F-1).
         pub frames: u32,
-        pub reserved0: u32,
+        /// 1: the root motion is measured from the `reference` map's root
+        /// (`RootMotion::Decoded`); 0: from 0.5 (`RootMotion::Centre`).
+        pub decoded_reference: u32,
         pub reserved1: u32,
     }
 }
@@ -38,8 +40,11 @@ gpu_struct! {
     pub struct FrameState {
         /// The world root before the latest frame (xyz, metres).
         pub root: [f32; 4],
-        /// The latest frame's root shift (xyz, normalised units).
+        /// The latest frame's root shift (xyz, normalised units): the window's slide.
         pub shift: [f32; 4],
+        /// The latest frame's root motion (xyz, normalised units): the shift, or with a
+        /// decoded reference the root minus the reference map's root.
+        pub motion: [f32; 4],
         /// Map values clamped into [0, 1] (or NaN replaced) in the latest frame.
         pub clamped: u32,
         /// The same since the start.

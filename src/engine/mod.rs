@@ -2,10 +2,11 @@
 //! UNet + DDIM with CFG → decode → clamping and the new frame's root shift → PCA cleans
 //! what is drawn (never fed back) → world-space points, while the window of maps slides,
 //! is recentred on the new root and is encoded into the next context latents, and the
-//! world root accumulates. All of it is one captured
+//! world root accumulates the root motion (the shift, or where the bundle says
+//! `root_motion: decoded` the new root minus the last context latent's, decoded too). All of it is one captured
 //! [`Plan`] made at load (and again when the sampling or PCA setting changes): a generated
 //! frame writes its noise and action ids, submits the plan and creates nothing. The only
-//! readback is the 48-byte [`FrameState`] (world root, shift, clamp counts), mapped
+//! readback is the 64-byte [`FrameState`] (world root, shift, motion, clamp counts), mapped
 //! asynchronously and picked up by [`Engine::poll`]. Beside a window
 //! (`EngineOptions::split`) the plan is submitted part by part (context pass, each step,
 //! decode), each part waited for on the caller's thread, so the window's own submissions
@@ -33,6 +34,7 @@ use crate::gpu::kernel::{PipelineCache, Precision};
 use crate::gpu::plan::StageProfile;
 use crate::gpu::texels::Texels;
 use crate::gpu::{Bound, GpuContext, GpuError, readback};
+use crate::nn::bundle::RootMotion;
 use crate::nn::ops::{Indices, Plan};
 use crate::nn::refiner::{Order, Orders};
 use crate::nn::sampler::{Sampling, idle_run};
@@ -509,8 +511,16 @@ impl Engine {
         r.boundary();
         r.stage("vae-decode");
         let map = bundle.decode(&mut r, &latent)?;
-        r.stage("geometry");
         let cfg = &bundle.unet.cfg;
+        // The root motion's reference: the last context latent decoded (or, measured
+        // from the centre, the map itself, bound and unread).
+        let decoded_reference = bundle.manifest.root_motion == RootMotion::Decoded;
+        let reference = if decoded_reference {
+            Some(bundle.decode_frame(&mut r, &live.context, cfg.frames - 2)?)
+        } else {
+            None
+        };
+        r.stage("geometry");
         let points = bundle.pixels.len();
         let params = PostParams {
             points: points as u32,
@@ -519,7 +529,7 @@ impl Engine {
             components: if self.pca { live.components as u32 } else { 0 },
             scale: bundle.manifest.normalisation.scale,
             frames: (cfg.frames - 1) as u32,
-            reserved0: 0,
+            decoded_reference: u32::from(decoded_reference),
             reserved1: 0,
         };
         let one = crate::gpu::kernel::Grid { x: 1, y: 1 };
@@ -532,6 +542,7 @@ impl Engine {
                 &live.waist,
                 &live.unit,
                 &live.state,
+                &reference.as_ref().unwrap_or(&map).buffer,
             ],
             one,
         );
@@ -800,6 +811,7 @@ fn initial_state(root: Vec3) -> FrameState {
     FrameState {
         root: [root.x, root.y, root.z, 0.0],
         shift: [0.0; 4],
+        motion: [0.0; 4],
         clamped: 0,
         clamped_total: 0,
         frames: 0,

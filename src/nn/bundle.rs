@@ -44,6 +44,23 @@ pub struct Manifest {
     /// The splat refiner's config; bundles without one draw base splats only.
     #[serde(default)]
     pub refiner: Option<RefinerConfig>,
+    /// What a live frame's root motion is measured from (older bundles: the centre).
+    #[serde(default)]
+    pub root_motion: RootMotion,
+}
+
+/// What the live loop measures a new frame's root motion from. The window puts the last
+/// context frame's root at 0.5, so `Centre` moves the world root by root(new) − 0.5.
+/// `Decoded` moves it by root(new) − root(the last context latent decoded): a bias of
+/// the decoder's root common to both frames cancels (session 27: under Idle that bias
+/// was a creep of 1.7-4 mm a frame that kept the root above 0.05 m/s). The window is
+/// recentred on root(new) either way.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RootMotion {
+    #[default]
+    Centre,
+    Decoded,
 }
 
 /// Group normalisation (DESIGN §4): normalised = (world - root) · scale + 0.5.
@@ -199,6 +216,22 @@ impl Bundle {
     /// Records the decoding of UNet latents [N, C, h, w] into position maps.
     pub fn decode(&self, r: &mut Recorder, z: &Tensor) -> Result<Tensor, GpuError> {
         let unscaled = r.axpby(1.0 / self.manifest.latent_scale, z, 0, 0.0, z, 0, &z.shape)?;
+        self.decoder.forward(r, &unscaled)
+    }
+
+    /// Records the decoding of latent `frame` of a window [.., F, C, h, w] into one
+    /// position map [1, 3, S, S].
+    pub fn decode_frame(
+        &self,
+        r: &mut Recorder,
+        window: &Tensor,
+        frame: usize,
+    ) -> Result<Tensor, GpuError> {
+        let dims = &window.shape[window.shape.len() - 3..];
+        let shape = [1, dims[0], dims[1], dims[2]];
+        let len: usize = dims.iter().product();
+        let s = 1.0 / self.manifest.latent_scale;
+        let unscaled = r.axpby(s, window, frame * len, 0.0, window, frame * len, &shape)?;
         self.decoder.forward(r, &unscaled)
     }
 }

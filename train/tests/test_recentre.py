@@ -1,7 +1,9 @@
 """Latent recentring (unica_train.recentre): the shift basis is exact for an affine encoder
 and first-order exact for the VAE's encoder; the rollout's "reencode" mode is train.py's
-reference loop and its "latent" mode never calls the encoder."""
+reference loop and its "latent" mode never calls the encoder; the root motion measured
+from the decoded last context latent cancels a root bias both frames share."""
 
+import pytest
 import torch
 
 from unica_train import recentre
@@ -95,3 +97,26 @@ def test_latent_mode_never_encodes():
     assert calls == [] and len(out["root_path"]) == 4 and len(out["shifts"]) == 3
     recentre.rollout(vae, unet, schedule, 1.0, context, "2W", 2, 1.0, 0, pixels, waist, 0.35, "reencode")
     assert len(calls) == 2  # the reference re-encodes every frame
+
+
+def test_decoded_root_motion_cancels_a_bias_the_two_frames_share(monkeypatch):
+    # A UNet that gives back the context's last latent: every new frame decodes to the
+    # same map as that latent. Measured from the centre the world root moves by that
+    # map's root - 0.5 every frame; measured from the decoded last latent it stays put,
+    # and the drawn points are the frame root-centred at the world root either way.
+    vae, unet, schedule = tiny_models()
+    pixels, waist, g = layout()
+    monkeypatch.setattr(recentre, "sample_next", lambda unet, schedule, context, *a, **k: context[:, -1])
+    context = torch.randn(3, 4, 16, 16, generator=g)
+    new = recentre.decode_points(vae, context[-1:], 1.0, pixels)[0].clamp(0.0, 1.0)
+    bias = recentre.root(new, waist) - 0.5
+    assert float(bias.abs().max()) > 1e-3
+    runs = {mode: recentre.rollout(vae, unet, schedule, 1.0, context, "3W", 2, 1.0, 0, pixels, waist, 0.5, "none",
+                                   root_motion=mode) for mode in ("centre", "decoded")}
+    centre, decoded = (torch.tensor(runs[m]["root_path"]) for m in ("centre", "decoded"))
+    assert torch.allclose(centre[3] - centre[0], 3 * bias / 0.5, atol=1e-5)
+    assert torch.allclose(decoded, torch.zeros(4, 3), atol=1e-6)
+    drawn = torch.tensor(runs["decoded"]["sampled_points"][0])
+    assert torch.allclose(drawn, (new - recentre.root(new, waist)) / 0.5, atol=1e-5)
+    with pytest.raises(ValueError, match="root_motion"):
+        recentre.rollout(vae, unet, schedule, 1.0, context, "1W", 2, 1.0, 0, pixels, waist, 0.5, "none", root_motion="x")

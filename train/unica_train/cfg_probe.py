@@ -143,6 +143,8 @@ def main(argv=None):
     parser.add_argument("--idle-scale", help="Idle frames' CFG scale, comma-separated to try several (default: the bundle's sampler)")
     parser.add_argument("--brake", help="SCALE:FRAMES, the first FRAMES Idle frames after a key at CFG SCALE, or none; "
                                         "comma-separated to try several (default: the bundle's sampler)")
+    parser.add_argument("--root-motion", choices=("centre", "decoded"),
+                        help="what a frame's root motion is measured from (recentre.rollout; default: the bundle's)")
     parser.add_argument("--seeds", default="0", help="comma-separated seeds; each setting runs every one")
     parser.add_argument("--write", action="store_true", help="set the bundle's sampler.cfg_scale to the best scale")
     args = parser.parse_args(argv)
@@ -173,7 +175,7 @@ def main(argv=None):
                     runs, error, heads = [], 0.0, True
                     for seed in seeds:
                         run = av.rollout(args.keys, {"steps": steps, "cfg_scale": scale, "pca": True,
-                                                     "guided_steps": guided, **setting}, seed)
+                                                     "guided_steps": guided, "root_motion": args.root_motion or av.root_motion, **setting}, seed)
                         model = segments(run["root_path"], args.keys)
                         seed_error, seed_heads = score(model, teacher)
                         moved = motion_numbers(run["root_path"], roots, args.keys)
@@ -203,6 +205,8 @@ def main(argv=None):
         if best["idle_brake_cfg_scale"] is not None:
             manifest["sampler"]["idle_brake_cfg_scale"] = best["idle_brake_cfg_scale"]
             manifest["sampler"]["idle_brake_frames"] = best["idle_brake_frames"]
+        if args.root_motion:
+            manifest["root_motion"] = args.root_motion
         manifest["sampler"]["cfg_probe"] = {"keys": args.keys, "teacher": teacher, "results": results}
         path.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
         print(f"set {path}'s sampler to {label(best['cfg_scale'], best['guided_steps'], steps)}")

@@ -93,6 +93,8 @@ class Avatar:
         self.latent_scale = self.manifest["latent_scale"]
         self.sampler_options = sampler_options(self.manifest["sampler"])  # guide_idle, noise_scale, idle_cfg_scale
         self.brake_options = brake_options(self.manifest["sampler"])  # the live loop's braking after a key
+        # what a frame's root motion is measured from (recentre.rollout; older bundles: "centre")
+        self.root_motion = self.manifest.get("root_motion", "centre")
         self.schedule = Schedule()
         self.pca_mean, self.pca_basis = self.extra["pca.mean"], self.extra["pca.basis"]
         self.colors = self.extra.get("map.colors", self.ds.pixel_colors())
@@ -134,6 +136,7 @@ class Avatar:
             self.vae, self.unet, self.schedule, self.latent_scale, self.extra["context.latents"], keys,
             setting["steps"], setting["cfg_scale"], seed, self.pixels, self.waist, self.scale, "reencode",
             frames=frames, on_frame=keep, guided_steps=setting.get("guided_steps"),
+            root_motion=setting.get("root_motion", self.root_motion),
             **{k: setting.get(k, v) for k, v in {**self.sampler_options, **self.brake_options}.items()})
         out["unit"] = torch.stack(drawn)
         out["ms_per_frame"] = (time.time() - started) * 1e3 / max(1, len(drawn))

@@ -39,6 +39,7 @@ from .train import parse_keys
 
 MAP_SIZE = 128
 MODES = ("reencode", "latent", "none")
+ROOT_MOTIONS = ("centre", "decoded")
 
 
 # -- maps from the bundle's layout tensors ------------------------------------------
@@ -153,7 +154,7 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
             start_root: torch.Tensor | None = None, diagnose: bool = False, log_every: int = 0,
             on_frame=None, guided_steps: int | None = None, guide_idle: bool = True, noise_scale: float = 1.0,
             idle_cfg_scale: float | None = None, idle_brake_cfg_scale: float | None = None,
-            idle_brake_frames: int = 0) -> dict:
+            idle_brake_frames: int = 0, root_motion: str = "centre") -> dict:
     """The live loop of train.py's `Run.rollout` from the clean context latents [3, C, h, w]
     (scaled), recentring each frame either by re-encoding the translated window
     ("reencode", the reference) or by the latent shift context − Σ δ_k J_k ("latent", no
@@ -167,7 +168,13 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
     re-encoding is measured, never fed back). `on_frame(i, points, shift)` sees each new
     frame's normalised points [N, 3] (its root at 0.5 + shift). Idle frames are guided at
     `idle_cfg_scale`, the first `idle_brake_frames` after a key at `idle_brake_cfg_scale`
-    (`diffusion.frame_idle_scales`)."""
+    (`diffusion.frame_idle_scales`).
+
+    `root_motion` says what a new frame's root shift is measured from: "centre" (0.5, where
+    the window's last frame was put) or "decoded" (the root of the context's last latent
+    decoded, so that a bias of the decoder's root common to both frames cancels)."""
+    if root_motion not in ROOT_MOTIONS:
+        raise ValueError(f"root_motion {root_motion!r}: expected one of {ROOT_MOTIONS}")
     if shift_mode not in MODES:
         raise ValueError(f"shift_mode {shift_mode!r}: expected one of {MODES}")
     if shift_mode == "latent" and basis is None:
@@ -194,10 +201,16 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
                         idle_cfg_scale=idle_scales[i])
         # [N, 3], NaN to the cube's centre and clamped into it, as the engine does
         new = decode_points(vae, z, scale, pixels)[0].nan_to_num(0.5).clamp(0.0, 1.0)
+        # the slide puts the new frame's root at 0.5 in the window; the motion moves the world
         shift = root(new, waist) - 0.5
+        if root_motion == "decoded":
+            last = decode_points(vae, context[-1:], scale, pixels)[0].nan_to_num(0.5).clamp(0.0, 1.0)
+            motion = root(new, waist) - root(last, waist)
+        else:
+            motion = shift
         if on_frame is not None:
             on_frame(i, new, shift)
-        world_root = world_root + shift / norm_scale
+        world_root = world_root + motion / norm_scale
         if track:
             window = torch.cat([window[1:], new[None]]) - shift
         if shift_mode == "reencode":
@@ -210,9 +223,9 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
             ref = encode(to_maps(window, pixels))
             gaps.append([round(float(((context[j] - ref[j]).pow(2).mean() / ref[j].var()).sqrt()), 5) for j in range(3)])
         path.append(world_root.tolist())
-        shifts.append([round(float(s), 6) for s in shift])
+        shifts.append([round(float(s), 6) for s in motion])
         if i % 30 == 0:
-            points.append(((new - 0.5) / norm_scale + world_root - shift / norm_scale).tolist())
+            points.append(((new - 0.5 - shift) / norm_scale + world_root).tolist())
         if log_every and (i + 1) % log_every == 0:
             print(f"{shift_mode}: frame {i + 1}/{len(actions)} {time.time() - started:.0f} s", flush=True)
     out = {"keys": text, "frames": len(actions), "root_path": path, "sampled_points": points,
