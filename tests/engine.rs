@@ -22,11 +22,11 @@ fn witch_bundle() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle")
 }
 
-/// A copy of the shipped bundle whose manifest says `root_motion: decoded` (the weights
-/// linked or copied).
-fn decoded_bundle(dir: &Path) -> PathBuf {
+/// A copy of the shipped bundle whose manifest says `root_motion: motion` (the weights
+/// linked or copied), in `dir/motion`.
+fn bundle_with_root_motion(dir: &Path, motion: &str) -> PathBuf {
     let from = witch_bundle();
-    let to = dir.join("bundle");
+    let to = dir.join(motion);
     std::fs::create_dir_all(&to).unwrap();
     let weights = to.join("weights.safetensors");
     if std::fs::hard_link(from.join("weights.safetensors"), &weights).is_err() {
@@ -34,7 +34,7 @@ fn decoded_bundle(dir: &Path) -> PathBuf {
     }
     let text = std::fs::read_to_string(from.join("manifest.json")).unwrap();
     let mut manifest: serde_json::Value = serde_json::from_str(&text).unwrap();
-    manifest["root_motion"] = "decoded".into();
+    manifest["root_motion"] = motion.into();
     std::fs::write(to.join("manifest.json"), manifest.to_string()).unwrap();
     to
 }
@@ -255,12 +255,13 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
         idle_cfg_scale: None,
         ..braking
     };
-    // The root motion measured from the last context latent decoded (`root_motion:
-    // decoded` in a copy of the bundle's manifest) with the guided and the braking
-    // sampler.
+    // The root motion measured from the centre and, with the guided and the braking
+    // sampler, from the last context latent decoded (copies of the bundle whose
+    // manifests say `root_motion: centre` and `decoded`).
     let dir = tempfile::tempdir().unwrap();
-    let decoded = decoded_bundle(dir.path());
-    let centre = |s| (s, witch_bundle(), RootMotion::Centre);
+    let decoded = bundle_with_root_motion(dir.path(), "decoded");
+    let centred = bundle_with_root_motion(dir.path(), "centre");
+    let centre = |s| (s, centred.clone(), RootMotion::Centre);
     for (sampling, bundle, root_motion) in [
         centre(Sampling::new(2, 1.0)),
         centre(Sampling::new(2, 2.0)),
