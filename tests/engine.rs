@@ -354,13 +354,8 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
             .storage_buffer("unit", 36, wgpu::BufferUsages::COPY_SRC)
             .unwrap();
         let start = FrameState {
-            root: [0.0; 4],
-            shift: [0.0; 4],
-            motion: [0.0; 4],
-            clamped: 0,
             clamped_total: 5,
-            frames: 0,
-            reserved: 0,
+            ..bytemuck::Zeroable::zeroed()
         };
         let state = state_buffer(&gpu, &start);
         let params = PostParams {
@@ -439,10 +434,8 @@ fn the_slide_kernel_slides_the_maps_recentres_them_and_moves_the_root() {
         root: [1.0, 2.0, 3.0, 0.0],
         shift: [0.1, -0.2, 0.05, 0.0],
         motion: [0.02, 0.04, -0.06, 0.0],
-        clamped: 0,
-        clamped_total: 0,
         frames: 4,
-        reserved: 0,
+        ..bytemuck::Zeroable::zeroed()
     };
     let state = state_buffer(&gpu, &start);
     let params = PostParams {

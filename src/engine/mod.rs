@@ -810,12 +810,7 @@ impl Engine {
 fn initial_state(root: Vec3) -> FrameState {
     FrameState {
         root: [root.x, root.y, root.z, 0.0],
-        shift: [0.0; 4],
-        motion: [0.0; 4],
-        clamped: 0,
-        clamped_total: 0,
-        frames: 0,
-        reserved: 0,
+        ..bytemuck::Zeroable::zeroed()
     }
 }
 

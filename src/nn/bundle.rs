@@ -215,8 +215,7 @@ impl Bundle {
 
     /// Records the decoding of UNet latents [N, C, h, w] into position maps.
     pub fn decode(&self, r: &mut Recorder, z: &Tensor) -> Result<Tensor, GpuError> {
-        let unscaled = r.axpby(1.0 / self.manifest.latent_scale, z, 0, 0.0, z, 0, &z.shape)?;
-        self.decoder.forward(r, &unscaled)
+        self.decode_at(r, z, 0, &z.shape)
     }
 
     /// Records the decoding of latent `frame` of a window [.., F, C, h, w] into one
@@ -228,10 +227,20 @@ impl Bundle {
         frame: usize,
     ) -> Result<Tensor, GpuError> {
         let dims = &window.shape[window.shape.len() - 3..];
-        let shape = [1, dims[0], dims[1], dims[2]];
         let len: usize = dims.iter().product();
+        self.decode_at(r, window, frame * len, &[1, dims[0], dims[1], dims[2]])
+    }
+
+    /// The latents of `shape` read from `z` at value `offset`, unscaled and decoded.
+    fn decode_at(
+        &self,
+        r: &mut Recorder,
+        z: &Tensor,
+        offset: usize,
+        shape: &[usize],
+    ) -> Result<Tensor, GpuError> {
         let s = 1.0 / self.manifest.latent_scale;
-        let unscaled = r.axpby(s, window, frame * len, 0.0, window, frame * len, &shape)?;
+        let unscaled = r.axpby(s, z, offset, 0.0, z, offset, shape)?;
         self.decoder.forward(r, &unscaled)
     }
 }

@@ -163,6 +163,7 @@ def main(argv=None):
     idle_scales = floats(args.idle_scale) or [options.get("idle_cfg_scale")]
     brake_list = brakes(args.brake, av.brake_options)
     seeds = [int(s) for s in args.seeds.split(",")]
+    root_motion = args.root_motion or av.root_motion
     print(f"sampler: {steps} DDIM steps, Idle {idle_label({**options, **av.brake_options}, options.get('idle_cfg_scale'))}, "
           f"noise scale {options['noise_scale']:g}")
     results = []
@@ -175,7 +176,7 @@ def main(argv=None):
                     runs, error, heads = [], 0.0, True
                     for seed in seeds:
                         run = av.rollout(args.keys, {"steps": steps, "cfg_scale": scale, "pca": True,
-                                                     "guided_steps": guided, "root_motion": args.root_motion or av.root_motion, **setting}, seed)
+                                                     "guided_steps": guided, "root_motion": root_motion, **setting}, seed)
                         model = segments(run["root_path"], args.keys)
                         seed_error, seed_heads = score(model, teacher)
                         moved = motion_numbers(run["root_path"], roots, args.keys)
