@@ -49,6 +49,35 @@ impl Action {
             .into_iter()
             .find(|a| a.letter() == c.to_ascii_uppercase())
     }
+
+    /// The keys move along fixed world directions (src/avatar/locomotion.rs: W +Z, A +X,
+    /// S -Z, D -X): a movement key's direction as quarter turns about +Y from W's, the
+    /// way the trainer's `dataset.quarter_turn` turns (+Z to +X); None for Idle.
+    pub fn quarter(self) -> Option<u32> {
+        match self {
+            Action::Idle => None,
+            Action::Forward => Some(0),
+            Action::Left => Some(1),
+            Action::Backward => Some(2),
+            Action::Right => Some(3),
+        }
+    }
+
+    /// The action of a frame turned `quarters` quarter turns about +Y (the trainer's
+    /// `dataset.quarter_turn_action`): one turn takes W to A, A to S, S to D, D to W;
+    /// Idle stays Idle.
+    pub fn turned(self, quarters: u32) -> Action {
+        const BY_QUARTER: [Action; 4] = [
+            Action::Forward,
+            Action::Left,
+            Action::Backward,
+            Action::Right,
+        ];
+        match self.quarter() {
+            None => self,
+            Some(q) => BY_QUARTER[((q + quarters) % 4) as usize],
+        }
+    }
 }
 
 impl fmt::Display for Action {
@@ -230,6 +259,22 @@ mod tests {
             assert_eq!(Action::from_letter(a.letter()), Some(a));
         }
         assert_eq!(Action::ALL.map(Action::id), [0, 1, 2, 3, 4]);
+    }
+
+    #[test]
+    fn quarter_turns_move_the_keys_as_the_trainer_does() {
+        // dataset.QUARTER_TURN_ACTION = (0, 3, 4, 2, 1): one turn takes ids 1..4 to 3, 4, 2, 1.
+        let once = Action::ALL.map(|a| a.turned(1).id());
+        assert_eq!(once, [0, 3, 4, 2, 1]);
+        for a in Action::ALL {
+            assert_eq!(a.turned(4), a);
+            assert_eq!(a.turned(3).turned(1), a);
+            // Turning a key back by its own quarter gives W.
+            if let Some(q) = a.quarter() {
+                assert_eq!(a.turned(4 - q), Action::Forward);
+            }
+        }
+        assert_eq!(Action::Idle.quarter(), None);
     }
 
     #[test]

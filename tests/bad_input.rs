@@ -405,6 +405,7 @@ fn bundle_manifests_with_impossible_values_are_refused() {
             |j| j["root_motion"] = json!("sideways"),
             "unknown variant `sideways`",
         ),
+        (|j| j["heading"] = json!("north"), "unknown variant `north`"),
     ];
     for (edit, needle) in cases {
         let err = manifest_error(edit);

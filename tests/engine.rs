@@ -8,11 +8,11 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 use unica::action::Action;
-use unica::engine::kernels::{self, FrameState, PostParams};
+use unica::engine::kernels::{self, FrameState, HeadingTurns, PostParams};
 use unica::engine::{Engine, EngineOptions, pca};
 use unica::gpu::kernel::{Grid, PipelineCache, Precision};
 use unica::gpu::{GpuContext, GpuOptions, readback};
-use unica::nn::bundle::RootMotion;
+use unica::nn::bundle::{Heading, RootMotion};
 use unica::nn::sampler::{Sampling, idle_run};
 use unica::nn::{Bundle, Recorder, Tensor};
 use unica::random::Rng;
@@ -22,11 +22,11 @@ fn witch_bundle() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle")
 }
 
-/// A copy of the shipped bundle whose manifest says `root_motion: motion` (the weights
-/// linked or copied), in `dir/motion`.
-fn bundle_with_root_motion(dir: &Path, motion: &str) -> PathBuf {
+/// A copy of the shipped bundle whose manifest says `root_motion: motion` and `heading:
+/// heading` (the weights linked or copied), in `dir/motion-heading`.
+fn bundle_with(dir: &Path, motion: &str, heading: &str) -> PathBuf {
     let from = witch_bundle();
-    let to = dir.join(motion);
+    let to = dir.join(format!("{motion}-{heading}"));
     std::fs::create_dir_all(&to).unwrap();
     let weights = to.join("weights.safetensors");
     if std::fs::hard_link(from.join("weights.safetensors"), &weights).is_err() {
@@ -35,6 +35,7 @@ fn bundle_with_root_motion(dir: &Path, motion: &str) -> PathBuf {
     let text = std::fs::read_to_string(from.join("manifest.json")).unwrap();
     let mut manifest: serde_json::Value = serde_json::from_str(&text).unwrap();
     manifest["root_motion"] = motion.into();
+    manifest["heading"] = heading.into();
     std::fs::write(to.join("manifest.json"), manifest.to_string()).unwrap();
     to
 }
@@ -91,21 +92,53 @@ fn start_maps(gpu: &GpuContext, bundle: &Bundle) -> Vec<f32> {
 /// One engine frame's result on the host.
 struct Reference {
     points: Vec<Vec3>,
-    /// The next context latents and the window's maps they encode.
-    context: Vec<f32>,
+    /// The window's maps after the slide.
     maps: Vec<f32>,
     root: Vec3,
     clamped: usize,
 }
 
-/// The loop of one engine frame on the host: `context` [1, F-1, C, h, w] values, the
-/// window's `maps` [F-1, 3, S, S] and the world root before the frame.
+/// A normalised point turned `turns` quarter turns about the vertical through the
+/// centre, one turn (x, z) -> (z, -x) about (0.5, 0.5) at a time (the trainer's
+/// `dataset.quarter_turn`).
+fn turn(v: Vec3, turns: u32) -> Vec3 {
+    let mut out = v;
+    for _ in 0..turns % 4 {
+        out = Vec3::new(out.z, out.y, 1.0 - out.x);
+    }
+    out
+}
+
+/// The window's `maps` [F, 3, S, S] with every foreground point turned `turns`, the
+/// background 0.
+fn turn_maps(bundle: &Bundle, maps: &[f32], turns: u32) -> Vec<f32> {
+    let plane = bundle.manifest.map_size * bundle.manifest.map_size;
+    let mut out = vec![0.0; maps.len()];
+    for (f, frame) in maps.chunks(3 * plane).enumerate() {
+        for &p in &bundle.pixels {
+            let p = p as usize;
+            let v = turn(
+                Vec3::new(frame[p], frame[plane + p], frame[2 * plane + p]),
+                turns,
+            );
+            for k in 0..3 {
+                out[f * 3 * plane + k * plane + p] = v[k];
+            }
+        }
+    }
+    out
+}
+
+/// The loop of one engine frame on the host: the window's `maps` [F-1, 3, S, S] turned
+/// to the model's heading (`quarters` from W: turned back by them) and encoded, the
+/// frame generated under `action` turned the same way, decoded, turned back; `root` is
+/// the world root before the frame.
 #[allow(clippy::too_many_arguments)]
 fn reference_frame(
     gpu: &GpuContext,
     bundle: &Bundle,
-    context: &[f32],
     maps: &[f32],
+    quarters: u32,
     noise: &[f32],
     action: Action,
     sampling: Sampling,
@@ -113,17 +146,37 @@ fn reference_frame(
     root_motion: RootMotion,
 ) -> Reference {
     let mut pipelines = PipelineCache::default();
-    let mut r = Recorder::new(gpu, &mut pipelines, Precision::F32);
     let cfg = &bundle.unet.cfg;
     let side = 16;
+    let size = bundle.manifest.map_size;
+    let frames = cfg.frames - 1;
+    let to_model = (4 - quarters) % 4;
+    let mut r = Recorder::new(gpu, &mut pipelines, Precision::F32);
+    let turned = turn_maps(bundle, maps, to_model);
+    let input = r.upload("maps", &[frames, 3, size, size], &turned).unwrap();
+    let means = bundle.encoder.forward(&mut r, &input).unwrap();
+    r.submit();
+    let context: Vec<f32> = means
+        .read(gpu)
+        .unwrap()
+        .iter()
+        .map(|v| v * bundle.manifest.latent_scale)
+        .collect();
+    let mut r = Recorder::new(gpu, &mut pipelines, Precision::F32);
     let ctx = r
-        .upload("ctx", &[1, cfg.frames - 1, cfg.latent, side, side], context)
+        .upload("ctx", &[1, frames, cfg.latent, side, side], &context)
         .unwrap();
     let noise = r
         .upload("noise", &[1, cfg.latent, side, side], noise)
         .unwrap();
     let latent = bundle
-        .generate(&mut r, &ctx, action.id() as usize, &noise, sampling)
+        .generate(
+            &mut r,
+            &ctx,
+            action.turned(to_model).id() as usize,
+            &noise,
+            sampling,
+        )
         .unwrap();
     let map = bundle.decode(&mut r, &latent).unwrap();
     r.submit();
@@ -134,12 +187,13 @@ fn reference_frame(
         .pixels
         .iter()
         .map(|&p| {
-            Vec3::from_array([0, 1, 2].map(|k| {
+            let kept = Vec3::from_array([0, 1, 2].map(|k| {
                 let x = map[k * plane + p as usize];
                 let kept = if x.is_nan() { 0.5 } else { x.clamp(0.0, 1.0) };
                 clamped += usize::from(kept != x);
                 kept
-            }))
+            }));
+            turn(kept, quarters)
         })
         .collect();
     let centre =
@@ -165,7 +219,10 @@ fn reference_frame(
                 .iter()
                 .map(|&w| {
                     let p = bundle.pixels[w as usize] as usize;
-                    Vec3::from_array([0, 1, 2].map(|k| kept(map[k * plane + p])))
+                    turn(
+                        Vec3::from_array([0, 1, 2].map(|k| kept(map[k * plane + p]))),
+                        quarters,
+                    )
                 })
                 .sum::<Vec3>()
                 / bundle.waist.len() as f32;
@@ -179,8 +236,7 @@ fn reference_frame(
         .map(|&p| (p - shift + motion - Vec3::splat(0.5)) / scale + root)
         .collect();
     // The slide: frames 1.. of the window then the new frame's clamped points, all moved
-    // by -shift, background 0; then encoded and scaled.
-    let frames = cfg.frames - 1;
+    // by -shift, background 0 (encoded at the next frame's start).
     let per_frame = 3 * plane;
     let mut next: Vec<f32> = maps[per_frame..].to_vec();
     next.resize(frames * per_frame, 0.0);
@@ -196,20 +252,8 @@ fn reference_frame(
             *v -= shift[(i / plane) % 3];
         }
     }
-    let size = bundle.manifest.map_size;
-    let mut r = Recorder::new(gpu, &mut pipelines, Precision::F32);
-    let input = r.upload("maps", &[frames, 3, size, size], &next).unwrap();
-    let means = bundle.encoder.forward(&mut r, &input).unwrap();
-    r.submit();
-    let context = means
-        .read(gpu)
-        .unwrap()
-        .iter()
-        .map(|v| v * bundle.manifest.latent_scale)
-        .collect();
     Reference {
         points,
-        context,
         maps: next,
         root: root + motion / scale,
         clamped,
@@ -231,10 +275,12 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
     // braking the first Idle frame after a key at a third scale, beside Idle at its own
     // scale and beside unguided Idle (two DDIM steps: the plan's structure is the same
     // for any count); then two of them with the root motion measured from the decoded
-    // last context latent. Tolerance: 2e-5 m (0.02 mm) on world points and 2e-5 m on the root;
-    // both sides run the same f32 kernels (the encoder of the slid maps included) and
-    // differ only in summation order and fused multiply-adds of the PCA, the slide and
-    // the world placement (measured ≈ 1e-6 m).
+    // last context latent, and two with that and the canonical heading (the window turned
+    // by D's quarter turns from the second frame on, the action with it). Tolerance: 2e-5
+    // m (0.02 mm) on world points and 2e-5 m on the root; both sides run the same f32
+    // kernels (the encoder of the turned maps included) and differ only in summation
+    // order and fused multiply-adds of the turns, the PCA, the slide and the world
+    // placement (measured ≈ 1e-6 m).
     let gpu = gpu();
     let unguided_idle = Sampling {
         guide_idle: false,
@@ -256,43 +302,73 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
         ..braking
     };
     // The root motion measured from the centre and, with the guided and the braking
-    // sampler, from the last context latent decoded (copies of the bundle whose
-    // manifests say `root_motion: centre` and `decoded`).
+    // sampler, from the last context latent decoded, with the world's heading and the
+    // canonical one (copies of the bundle whose manifests say so).
     let dir = tempfile::tempdir().unwrap();
-    let decoded = bundle_with_root_motion(dir.path(), "decoded");
-    let centred = bundle_with_root_motion(dir.path(), "centre");
-    let centre = |s| (s, centred.clone(), RootMotion::Centre);
-    for (sampling, bundle, root_motion) in [
+    let decoded = bundle_with(dir.path(), "decoded", "world");
+    let centred = bundle_with(dir.path(), "centre", "world");
+    let canonical = bundle_with(dir.path(), "decoded", "canonical");
+    let centre = |s| (s, centred.clone(), RootMotion::Centre, Heading::World);
+    for (sampling, bundle, root_motion, heading) in [
         centre(Sampling::new(2, 1.0)),
         centre(Sampling::new(2, 2.0)),
         centre(unguided_idle),
         centre(idle_scaled),
         centre(braking),
         centre(braking_unguided),
-        (Sampling::new(2, 2.0), decoded.clone(), RootMotion::Decoded),
-        (braking, decoded.clone(), RootMotion::Decoded),
+        (
+            Sampling::new(2, 2.0),
+            decoded.clone(),
+            RootMotion::Decoded,
+            Heading::World,
+        ),
+        (
+            braking,
+            decoded.clone(),
+            RootMotion::Decoded,
+            Heading::World,
+        ),
+        (
+            Sampling::new(2, 2.0),
+            canonical.clone(),
+            RootMotion::Decoded,
+            Heading::Canonical,
+        ),
+        (
+            braking,
+            canonical.clone(),
+            RootMotion::Decoded,
+            Heading::Canonical,
+        ),
     ] {
         let cfg_scale = sampling.cfg_scale;
         let mut engine = Engine::new(&gpu, &bundle, &options(sampling, 7)).unwrap();
         assert_eq!(engine.bundle.manifest.root_motion, root_motion);
-        let mut context = engine.bundle.context.read(&gpu).unwrap();
+        assert_eq!(engine.bundle.manifest.heading, heading);
+        let latents = engine.bundle.context.read(&gpu).unwrap().len();
         let mut maps = start_maps(&gpu, &engine.bundle);
+        let mut quarters = 0;
         let mut root = engine.root();
         let mut noise = Rng::new(7);
         let mut after_key = None;
         for action in [Action::Forward, Action::Right, Action::Idle, Action::Idle] {
             let frame = engine.step(action).unwrap();
             after_key = idle_run(after_key, action);
+            if heading == Heading::Canonical
+                && let Some(q) = action.quarter()
+            {
+                quarters = q;
+            }
             let n: Vec<f32> = noise
-                .gaussian(context.len() / 3)
+                .gaussian(latents / 3)
                 .iter()
                 .map(|v| v * sampling.noise_scale)
                 .collect();
             let reference = reference_frame(
                 &gpu,
                 &engine.bundle,
-                &context,
                 &maps,
+                quarters,
                 &n,
                 action,
                 sampling.for_frame(action, after_key),
@@ -302,7 +378,7 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
             let error = worst(&frame.points, &reference.points);
             assert!(
                 error < 2e-5,
-                "cfg {cfg_scale} {root_motion:?} {action:?} {after_key:?}: points differ by {error} m"
+                "cfg {cfg_scale} {root_motion:?} {heading:?} {action:?} {after_key:?}: points differ by {error} m"
             );
             assert!(
                 frame.root.distance(reference.root) < 2e-5,
@@ -311,7 +387,7 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
                 reference.root
             );
             assert_eq!(frame.clamped, reference.clamped);
-            (context, maps, root) = (reference.context, reference.maps, reference.root);
+            (maps, root) = (reference.maps, reference.root);
         }
     }
 }
@@ -323,7 +399,9 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
     // (0.3, 0.6, 0.2), shift root - 0.5. The reference map's waist pixels hold x 0.25
     // and 0.45, y 0.55 and 0.65, z 1.5 (kept as 1) and 0.1: root (0.35, 0.6, 0.55). The
     // motion is the shift, or with the decoded reference root - (0.35, 0.6, 0.55); the
-    // reference's values are never counted as clamps.
+    // reference's values are never counted as clamps. Turned to the world by one quarter
+    // turn, (x, y, z) -> (z, y, 1 - x): the points (0.1, 0.5, 0.8), (0.3, 0.7, 0.6),
+    // (1, 0, 0.5), the root (0.2, 0.6, 0.7), the reference's root (0.55, 0.6, 0.65).
     let gpu = gpu();
     let nan = f32::NAN;
     #[rustfmt::skip]
@@ -347,7 +425,26 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
     };
     let (pixels, waist) = (u32s(&[0, 2, 3]), u32s(&[0, 1]));
     let shift = [0.3 - 0.5, 0.6 - 0.5, 0.2 - 0.5];
-    for (decoded_reference, motion) in [(0, shift), (1, [0.3 - 0.35, 0.0, 0.2 - 0.55])] {
+    let kept = [0.2, 0.5, 0.1, 0.4, 0.7, 0.3, 0.5, 0.0, 1.0];
+    let turned_shift = [0.2 - 0.5, 0.6 - 0.5, 0.7 - 0.5];
+    let turned = [0.1, 0.5, 0.8, 0.3, 0.7, 0.6, 1.0, 0.0, 0.5];
+    for (to_world, decoded_reference, want_unit, want_shift, motion) in [
+        (0, 0, kept, shift, shift),
+        (0, 1, kept, shift, [0.3 - 0.35, 0.0, 0.2 - 0.55]),
+        (1, 0, turned, turned_shift, turned_shift),
+        (1, 1, turned, turned_shift, [0.2 - 0.55, 0.0, 0.7 - 0.65]),
+    ] {
+        let heading = gpu
+            .storage_buffer_init(
+                "heading",
+                bytemuck::bytes_of(&HeadingTurns {
+                    to_world,
+                    to_model: 7, // never read here
+                    ..bytemuck::Zeroable::zeroed()
+                }),
+                wgpu::BufferUsages::empty(),
+            )
+            .unwrap();
         let mut pipelines = PipelineCache::default();
         let mut r = Recorder::new(&gpu, &mut pipelines, Precision::F32);
         let unit = gpu
@@ -378,25 +475,108 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
                 &unit,
                 &state,
                 &reference.buffer,
+                &heading,
             ],
             Grid { x: 1, y: 1 },
         );
         r.submit();
         let unit: Vec<f32> =
             bytemuck::pod_collect_to_vec(&readback::buffer(&gpu, &unit, "unit").unwrap());
-        assert_eq!(unit, [0.2, 0.5, 0.1, 0.4, 0.7, 0.3, 0.5, 0.0, 1.0]);
+        for (got, want) in unit.iter().zip(want_unit) {
+            assert!((got - want).abs() < 1e-6, "turns {to_world}: {unit:?}");
+        }
         let state: FrameState =
             bytemuck::pod_read_unaligned(&readback::buffer(&gpu, &state, "state").unwrap());
         assert_eq!((state.clamped, state.clamped_total), (3, 8));
-        for (got, want) in state.shift.iter().zip(shift) {
-            assert!((got - want).abs() < 1e-6, "{:?}", state.shift);
+        for (got, want) in state.shift.iter().zip(want_shift) {
+            assert!(
+                (got - want).abs() < 1e-6,
+                "turns {to_world}: {:?}",
+                state.shift
+            );
         }
         for (got, want) in state.motion.iter().zip(motion) {
             assert!(
                 (got - want).abs() < 1e-6,
-                "reference {decoded_reference}: {:?}",
+                "turns {to_world}, reference {decoded_reference}: {:?}",
                 state.motion
             );
+        }
+    }
+}
+
+#[test]
+fn the_turn_kernel_turns_each_frames_foreground_and_zeroes_the_background() {
+    // Two frames of 2×2 maps (plane 4), foreground pixels 0, 2 and 3; pixel 1 holds 9 in
+    // the input and must come out 0. One quarter turn takes (x, y, z) to (z, y, 1 - x),
+    // three to (1 - z, y, x); frame 1 is the centre (0.5, 0.5, 0.5), which no turn moves.
+    let gpu = gpu();
+    #[rustfmt::skip]
+    let maps = [
+        0.1, 9.0, 0.2, 0.3,  0.4, 9.0, 0.5, 0.6,  0.7, 9.0, 0.8, 0.9,
+        0.5, 9.0, 0.5, 0.5,  0.5, 9.0, 0.5, 0.5,  0.5, 9.0, 0.5, 0.5,
+    ];
+    #[rustfmt::skip]
+    let once = [
+        0.7, 0.0, 0.8, 0.9,  0.4, 0.0, 0.5, 0.6,  0.9, 0.0, 0.8, 0.7,
+        0.5, 0.0, 0.5, 0.5,  0.5, 0.0, 0.5, 0.5,  0.5, 0.0, 0.5, 0.5,
+    ];
+    #[rustfmt::skip]
+    let thrice = [
+        0.3, 0.0, 0.2, 0.1,  0.4, 0.0, 0.5, 0.6,  0.1, 0.0, 0.2, 0.3,
+        0.5, 0.0, 0.5, 0.5,  0.5, 0.0, 0.5, 0.5,  0.5, 0.0, 0.5, 0.5,
+    ];
+    let maps = Tensor::upload(&gpu, "maps", &[2, 3, 2, 2], &maps, Precision::F32).unwrap();
+    let point_of = [0, u32::MAX, 1, 2];
+    let point_of = gpu
+        .storage_buffer_init(
+            "point_of",
+            bytemuck::cast_slice(&point_of),
+            wgpu::BufferUsages::empty(),
+        )
+        .unwrap();
+    for (to_model, want) in [(1, once), (3, thrice), (0, once.map(|_| f32::NAN))] {
+        let mut pipelines = PipelineCache::default();
+        let mut r = Recorder::new(&gpu, &mut pipelines, Precision::F32);
+        let out = Tensor::empty(&gpu, "out", &[2, 3, 2, 2], Precision::F32).unwrap();
+        let heading = gpu
+            .storage_buffer_init(
+                "heading",
+                bytemuck::bytes_of(&HeadingTurns {
+                    to_model,
+                    to_world: 5, // never read here
+                    ..bytemuck::Zeroable::zeroed()
+                }),
+                wgpu::BufferUsages::empty(),
+            )
+            .unwrap();
+        let params = PostParams {
+            plane: 4,
+            frames: 2,
+            ..bytemuck::Zeroable::zeroed()
+        };
+        r.dispatch(
+            &kernels::TURN,
+            &params,
+            &[&maps.buffer, &point_of, &heading, &out.buffer],
+            Grid { x: 1, y: 1 },
+        );
+        r.submit();
+        let got = out.read(&gpu).unwrap();
+        // No turn: the input with the background zeroed.
+        let want = if to_model == 0 {
+            let mut same = maps.read(&gpu).unwrap();
+            for (i, v) in same.iter_mut().enumerate() {
+                if i % 4 == 1 {
+                    *v = 0.0;
+                }
+            }
+            same
+        } else {
+            want.to_vec()
+        };
+        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+            assert!((g - w).abs() < 1e-6, "turns {to_model}, value {i}: {got:?}");
         }
     }
 }
@@ -608,7 +788,7 @@ fn a_dispatch_with_the_wrong_bindings_is_caught_when_recorded() {
             decoded_reference: 0,
             reserved1: 0,
         };
-        // frame_unit binds six buffers after its parameters; four are given.
+        // frame_unit binds seven buffers after its parameters; four are given.
         r.dispatch(
             &kernels::FRAME_UNIT,
             &params,
@@ -622,7 +802,7 @@ fn a_dispatch_with_the_wrong_bindings_is_caught_when_recorded() {
         .cloned()
         .unwrap_or_default();
     assert!(
-        text.contains("engine/frame_unit.wgsl") && text.contains("declares 7"),
+        text.contains("engine/frame_unit.wgsl") && text.contains("declares 8"),
         "{text}"
     );
 }

@@ -2,7 +2,9 @@
 // and the rest is clamped into [0, 1] (both counted); the root shift is the mean of the
 // waist points minus 0.5. The root motion is the same shift, or with a decoded reference
 // (`p.decoded_reference`) the root minus the root of `reference` (the last context latent
-// decoded, kept the same way). One workgroup; every thread clamps a strided share.
+// decoded, kept the same way). The model's frame is turned back to the world's
+// (`heading.to_world` quarter turns, `quarter_turn`): the points, the root and the
+// reference's root. One workgroup; every thread clamps a strided share of the points.
 
 @group(0) @binding(0) var<uniform> p: PostParams;
 @group(0) @binding(1) var<storage, read> map: array<Elem>;
@@ -11,6 +13,7 @@
 @group(0) @binding(4) var<storage, read_write> unit: array<f32>;
 @group(0) @binding(5) var<storage, read_write> state: FrameState;
 @group(0) @binding(6) var<storage, read> reference: array<Elem>;
+@group(0) @binding(7) var<storage, read> heading: HeadingTurns;
 
 var<workgroup> clamped: atomic<u32>;
 
@@ -30,7 +33,8 @@ fn value(point: u32, axis: u32) -> f32 {
     return f32(map[axis * p.plane + pixels[point]]);
 }
 
-// The mean of the kept waist points of `map` (from_map) or of `reference`.
+// The mean of the kept waist points of `map` (from_map) or of `reference`, turned to the
+// world's frame.
 fn waist_root(from_map: bool) -> vec3<f32> {
     var root = vec3<f32>(0.0);
     for (var w = 0u; w < p.waist; w++) {
@@ -45,7 +49,7 @@ fn waist_root(from_map: bool) -> vec3<f32> {
             root[k] += kept(x);
         }
     }
-    return root / f32(p.waist);
+    return quarter_turn(root / f32(p.waist), heading.to_world);
 }
 
 @compute @workgroup_size(256)
@@ -55,12 +59,19 @@ fn main(@builtin(local_invocation_index) lane: u32) {
     }
     workgroupBarrier();
     var count = 0u;
-    for (var i = lane; i < 3u * p.points; i += 256u) {
-        let x = value(i / 3u, i % 3u);
-        if is_nan(x) || x < 0.0 || x > 1.0 {
-            count += 1u;
+    for (var point = lane; point < p.points; point += 256u) {
+        var v = vec3<f32>(0.0);
+        for (var k = 0u; k < 3u; k++) {
+            let x = value(point, k);
+            if is_nan(x) || x < 0.0 || x > 1.0 {
+                count += 1u;
+            }
+            v[k] = kept(x);
         }
-        unit[i] = kept(x);
+        v = quarter_turn(v, heading.to_world);
+        for (var k = 0u; k < 3u; k++) {
+            unit[3u * point + k] = v[k];
+        }
     }
     atomicAdd(&clamped, count);
     workgroupBarrier();

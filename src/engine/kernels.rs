@@ -1,14 +1,15 @@
 //! The engine's own kernels, which keep a generated frame on the GPU after the decode:
 //! clamping, the root shift and the root motion (`frame_unit`), the PCA projection (`pca_coefficients`,
 //! `frame_points`) and the window's slide as maps with the world root's update (`slide`;
-//! the engine then encodes the slid maps). Their
+//! the engine encodes them at the next frame's start, turned to the model's heading by
+//! `turn`). Their
 //! parameter structs are declared once here for Rust and WGSL (`gpu_struct!`); the WGSL
 //! is in `shaders/engine/`. CPU references of the same arithmetic are in this module's
 //! tests and in `tests/engine.rs`.
 
-use crate::gpu::shaders::Shader;
+use crate::gpu::shaders::{Shader, Snippet};
 use crate::gpu_struct;
-use crate::wgsl_shader;
+use crate::{wgsl_shader, wgsl_snippet};
 
 /// Threads of the one workgroup of `frame_unit.wgsl` (`@workgroup_size` there).
 pub const UNIT_THREADS: u32 = 256;
@@ -55,12 +56,45 @@ gpu_struct! {
     }
 }
 
-pub const FRAME_UNIT: Shader =
-    wgsl_shader!("engine/frame_unit.wgsl", [PostParams, FrameState], elem);
+gpu_struct! {
+    /// The quarter turns about the vertical between the world's frame and the model's
+    /// (`nn::bundle::Heading`), written by the CPU before each frame: the window is turned
+    /// `to_model` before it is encoded, the new frame `to_world` after it is decoded
+    /// (`to_model + to_world` is 0 mod 4).
+    pub struct HeadingTurns {
+        pub to_model: u32,
+        pub to_world: u32,
+        pub reserved0: u32,
+        pub reserved1: u32,
+    }
+}
+
+impl HeadingTurns {
+    /// The turns for a heading of `quarters` quarter turns from +Z.
+    pub fn new(quarters: u32) -> Self {
+        Self {
+            to_model: (4 - quarters % 4) % 4,
+            to_world: quarters % 4,
+            ..bytemuck::Zeroable::zeroed()
+        }
+    }
+}
+
+const QUARTER_TURN: Snippet = wgsl_snippet!("engine/quarter_turn.wgsl");
+
+pub const FRAME_UNIT: Shader = wgsl_shader!(
+    "engine/frame_unit.wgsl",
+    [PostParams, FrameState, HeadingTurns],
+    elem
+)
+.with_snippets(&[QUARTER_TURN]);
+pub const TURN: Shader = wgsl_shader!("engine/turn.wgsl", [PostParams, HeadingTurns], elem)
+    .with_uints(&[("BACKGROUND", super::recentre::BACKGROUND)])
+    .with_snippets(&[QUARTER_TURN]);
 pub const PCA_COEFFICIENTS: Shader = wgsl_shader!("engine/pca_coefficients.wgsl", [PostParams, FrameState], f16: false, subgroups: false);
 pub const FRAME_POINTS: Shader = wgsl_shader!("engine/frame_points.wgsl", [PostParams, FrameState], f16: false, subgroups: false);
 pub const SLIDE: Shader = wgsl_shader!("engine/slide.wgsl", [PostParams, FrameState], elem)
     .with_uints(&[("BACKGROUND", super::recentre::BACKGROUND)]);
 
 /// Every shader of the engine stage.
-pub const ALL: &[Shader] = &[FRAME_UNIT, PCA_COEFFICIENTS, FRAME_POINTS, SLIDE];
+pub const ALL: &[Shader] = &[FRAME_UNIT, PCA_COEFFICIENTS, FRAME_POINTS, SLIDE, TURN];

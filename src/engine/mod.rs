@@ -1,9 +1,11 @@
-//! The live neural avatar (DESIGN §6): a ring of three context latents on the GPU → the
-//! UNet + DDIM with CFG → decode → clamping and the new frame's root shift → PCA cleans
-//! what is drawn (never fed back) → world-space points, while the window of maps slides,
-//! is recentred on the new root and is encoded into the next context latents, and the
-//! world root accumulates the root motion (the shift, or where the bundle says
-//! `root_motion: decoded` the new root minus the last context latent's, decoded too). All of it is one captured
+//! The live neural avatar (DESIGN §6): the window of three context maps, turned to the
+//! model's heading (the bundle's `heading`: the last movement key's direction turned to
+//! W's, or not turned) and encoded into context latents → the UNet + DDIM with CFG →
+//! decode → turned back, clamped, the new frame's root shift → PCA cleans what is drawn
+//! (never fed back) → world-space points, while the window of maps slides and is
+//! recentred on the new root, and the world root accumulates the root motion (the shift,
+//! or where the bundle says `root_motion: decoded` the new root minus the last context
+//! latent's, decoded too). All of it is one captured
 //! [`Plan`] made at load (and again when the sampling or PCA setting changes): a generated
 //! frame writes its noise and action ids, submits the plan and creates nothing. The only
 //! readback is the 64-byte [`FrameState`] (world root, shift, motion, clamp counts), mapped
@@ -34,7 +36,7 @@ use crate::gpu::kernel::{PipelineCache, Precision};
 use crate::gpu::plan::StageProfile;
 use crate::gpu::texels::Texels;
 use crate::gpu::{Bound, GpuContext, GpuError, readback};
-use crate::nn::bundle::RootMotion;
+use crate::nn::bundle::{Heading, RootMotion};
 use crate::nn::ops::{Indices, Plan};
 use crate::nn::refiner::{Order, Orders};
 use crate::nn::sampler::{Sampling, idle_run};
@@ -43,7 +45,7 @@ use crate::random::Rng;
 use crate::splat::frame::SplatFrame;
 use crate::splat::ply::Splat;
 use crate::splat::raster::GpuSplat;
-use kernels::{FrameState, PostParams};
+use kernels::{FrameState, HeadingTurns, PostParams};
 use recentre::Start;
 
 /// How the engine runs.
@@ -98,14 +100,17 @@ pub struct Frame {
 
 /// The loop's buffers, made once at load.
 struct Live {
-    /// [1, F-1, C, h, w]: the window of clean context latents (the engine's own copy),
-    /// the encoding of `maps` after the first frame.
+    /// [1, F-1, C, h, w]: the window of clean context latents, the encoding of `maps`
+    /// turned to the model's heading at the start of each frame.
     context: Tensor,
-    /// [F-1, 3, S, S]: the window's frames as maps (background 0), normalised so the
-    /// last frame's root is at 0.5.
+    /// [F-1, 3, S, S]: the window's frames as maps (background 0) in the world's frame,
+    /// normalised so the last frame's root is at 0.5.
     maps: Tensor,
-    /// The slid maps, copied into `maps` before they are encoded.
+    /// Scratch maps: `maps` turned to the model's heading (encoded), then the slid maps
+    /// (copied into `maps`).
     next_maps: Tensor,
+    /// The frame's [`HeadingTurns`], written before each frame.
+    heading: wgpu::Buffer,
     /// [S²]: each pixel's foreground point, or `recentre::BACKGROUND`.
     point_of: wgpu::Buffer,
     /// [1, C, h, w]: the frame's starting noise, written before each frame.
@@ -191,6 +196,9 @@ pub struct Engine {
     /// Idle frames since the last key, the latest frame counted (`sampler::idle_run`;
     /// None before any key).
     after_key: Option<u32>,
+    /// The model's heading: the last movement key's quarter turns from W
+    /// (`Action::quarter`) where the bundle's heading is canonical, else 0.
+    heading: u32,
     /// The frame's splats (when asked for) and whether they use the refiner.
     splats: Option<SplatFrame>,
     refine: bool,
@@ -264,6 +272,7 @@ impl Engine {
             live,
             plans: Plans::default(),
             after_key: None,
+            heading: 0,
             splats: None,
             refine: options.refine,
             pacer: None,
@@ -505,23 +514,9 @@ impl Engine {
         if self.split {
             r.steps().limit_parts(SPLIT_STEPS);
         }
-        let actions = r.indices("engine.actions", &vec![0; if guided { 2 } else { 1 }])?;
-        let latent =
-            bundle.generate_with(&mut r, &live.context, &actions, &live.noise, sampling)?;
-        r.boundary();
-        r.stage("vae-decode");
-        let map = bundle.decode(&mut r, &latent)?;
         let cfg = &bundle.unet.cfg;
-        // The root motion's reference: the last context latent decoded (or, measured
-        // from the centre, the map itself, bound and unread).
-        let decoded_reference = bundle.manifest.root_motion == RootMotion::Decoded;
-        let reference = if decoded_reference {
-            Some(bundle.decode_frame(&mut r, &live.context, cfg.frames - 2)?)
-        } else {
-            None
-        };
-        r.stage("geometry");
         let points = bundle.pixels.len();
+        let decoded_reference = bundle.manifest.root_motion == RootMotion::Decoded;
         let params = PostParams {
             points: points as u32,
             plane: (bundle.manifest.map_size * bundle.manifest.map_size) as u32,
@@ -532,6 +527,43 @@ impl Engine {
             decoded_reference: u32::from(decoded_reference),
             reserved1: 0,
         };
+        // The context: the window's maps turned to the model's heading, encoded, scaled.
+        r.stage("vae-encode");
+        let grid = r.grid(live.maps.len());
+        r.dispatch(
+            &kernels::TURN,
+            &params,
+            &[
+                &live.maps.buffer,
+                &live.point_of,
+                &live.heading,
+                &live.next_maps.buffer,
+            ],
+            grid,
+        );
+        let means = bundle.encoder.forward(&mut r, &live.next_maps)?;
+        let scale = bundle.manifest.latent_scale;
+        let scaled = r.axpby(scale, &means, 0, 0.0, &means, 0, &means.shape)?;
+        r.copy(
+            &scaled.buffer,
+            &live.context.buffer,
+            live.context.buffer.size(),
+        );
+        r.boundary();
+        let actions = r.indices("engine.actions", &vec![0; if guided { 2 } else { 1 }])?;
+        let latent =
+            bundle.generate_with(&mut r, &live.context, &actions, &live.noise, sampling)?;
+        r.boundary();
+        r.stage("vae-decode");
+        let map = bundle.decode(&mut r, &latent)?;
+        // The root motion's reference: the last context latent decoded (or, measured
+        // from the centre, the map itself, bound and unread).
+        let reference = if decoded_reference {
+            Some(bundle.decode_frame(&mut r, &live.context, cfg.frames - 2)?)
+        } else {
+            None
+        };
+        r.stage("geometry");
         let one = crate::gpu::kernel::Grid { x: 1, y: 1 };
         r.dispatch(
             &kernels::FRAME_UNIT,
@@ -543,6 +575,7 @@ impl Engine {
                 &live.unit,
                 &live.state,
                 &reference.as_ref().unwrap_or(&map).buffer,
+                &live.heading,
             ],
             one,
         );
@@ -638,15 +671,6 @@ impl Engine {
             &live.maps.buffer,
             live.maps.buffer.size(),
         );
-        r.stage("vae-encode");
-        let means = bundle.encoder.forward(&mut r, &live.maps)?;
-        let scale = bundle.manifest.latent_scale;
-        let scaled = r.axpby(scale, &means, 0, 0.0, &means, 0, &means.shape)?;
-        r.copy(
-            &scaled.buffer,
-            &live.context.buffer,
-            live.context.buffer.size(),
-        );
         Ok(FramePlan {
             plan: r.finish(),
             actions,
@@ -673,13 +697,24 @@ impl Engine {
         bytes.resize(live.noise.buffer.size() as usize, 0);
         self.gpu.queue.write_buffer(&live.noise.buffer, 0, &bytes);
         self.after_key = idle_run(self.after_key, action);
+        if self.bundle.manifest.heading == Heading::Canonical
+            && let Some(quarters) = action.quarter()
+        {
+            self.heading = quarters;
+        }
+        let turns = HeadingTurns::new(self.heading);
+        self.gpu
+            .queue
+            .write_buffer(&live.heading, 0, bytemuck::bytes_of(&turns));
+        // The model sees the action turned with the window.
+        let model_action = action.turned(turns.to_model);
         let plan = self.plans.get(action, self.after_key);
         let ids = if plan.guided {
             let null = self.bundle.unet.cfg.null_action();
-            let partner = plan.sampling.partner(action.id() as usize, null);
-            vec![action.id(), partner as u32]
+            let partner = plan.sampling.partner(model_action.id() as usize, null);
+            vec![model_action.id(), partner as u32]
         } else {
-            vec![action.id()]
+            vec![model_action.id()]
         };
         plan.actions.write(&self.gpu, &ids);
         let slot = self.slots.iter().position(|s| !s.busy);
@@ -826,15 +861,6 @@ impl Live {
         let side = bundle.manifest.map_size / 8;
         let shape = [1, cfg.frames - 1, cfg.latent, side, side];
         let context = Tensor::empty(gpu, "engine.context", &shape, precision)?;
-        let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        encoder.copy_buffer_to_buffer(
-            &bundle.context.buffer,
-            0,
-            &context.buffer,
-            0,
-            context.buffer.size(),
-        );
-        gpu.submit([encoder.finish()]);
         let u32s = |label: &str, values: &[u32]| {
             gpu.storage_buffer_init(
                 label,
@@ -851,6 +877,11 @@ impl Live {
             maps: Tensor::upload(gpu, "engine.maps", &map_shape, &start.maps, precision)?,
             next_maps: Tensor::empty(gpu, "engine.next_maps", &map_shape, precision)?,
             point_of: u32s("engine.point_of", &start.point_of)?,
+            heading: gpu.storage_buffer_init(
+                "engine.heading",
+                bytemuck::bytes_of(&HeadingTurns::new(0)),
+                wgpu::BufferUsages::empty(),
+            )?,
             noise: Tensor::empty(gpu, "engine.noise", &[1, cfg.latent, side, side], precision)?,
             context,
             pixels: u32s("engine.pixels", &bundle.pixels)?,

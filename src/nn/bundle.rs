@@ -47,6 +47,9 @@ pub struct Manifest {
     /// What a live frame's root motion is measured from (older bundles: the centre).
     #[serde(default)]
     pub root_motion: RootMotion,
+    /// Which way the live loop shows the model its window (older bundles: as it is).
+    #[serde(default)]
+    pub heading: Heading,
 }
 
 /// What the live loop measures a new frame's root motion from. The window puts the last
@@ -61,6 +64,22 @@ pub enum RootMotion {
     #[default]
     Centre,
     Decoded,
+}
+
+/// Which way the live loop turns the window before the model sees it. `World`: as it
+/// is. `Canonical`: turned about the vertical by the quarter turns that take the last
+/// movement key's direction to W's (+Z), the key turned with it (W for any held key; the
+/// trainer's `dataset.quarter_turn`, the symmetry the UNet is trained with since session
+/// 18), and the new frame turned back. The model then always walks, stops and starts
+/// facing +Z, the direction it does best: session 28 measured the Witch creeping 0.07-0.08
+/// m/s after A on two of three seeds when shown the world as it is, and stopping within
+/// 10-11 frames after every key turned.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Heading {
+    #[default]
+    World,
+    Canonical,
 }
 
 /// Group normalisation (DESIGN §4): normalised = (world - root) · scale + 0.5.

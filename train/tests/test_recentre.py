@@ -1,7 +1,8 @@
 """Latent recentring (unica_train.recentre): the shift basis is exact for an affine encoder
 and first-order exact for the VAE's encoder; the rollout's "reencode" mode is train.py's
 reference loop and its "latent" mode never calls the encoder; the root motion measured
-from the decoded last context latent cancels a root bias both frames share."""
+from the decoded last context latent cancels a root bias both frames share; the canonical
+heading turns the window and the keys to W's direction."""
 
 import pytest
 import torch
@@ -120,3 +121,57 @@ def test_decoded_root_motion_cancels_a_bias_the_two_frames_share(monkeypatch):
     assert torch.allclose(drawn, (new - recentre.root(new, waist)) / 0.5, atol=1e-5)
     with pytest.raises(ValueError, match="root_motion"):
         recentre.rollout(vae, unet, schedule, 1.0, context, "1W", 2, 1.0, 0, pixels, waist, 0.5, "none", root_motion="x")
+
+
+def test_turn_unit_turns_about_the_centre_as_the_dataset_does():
+    # One quarter turn takes (x, y, z) to (z, y, 1 - x) about x = z = 0.5 (+Z to +X, the
+    # engine's quarter_turn.wgsl known answer); four turns or none leave a point alone.
+    p = torch.tensor([[0.2, 0.5, 0.1], [0.5, 0.3, 0.5]])
+    assert torch.allclose(recentre.turn_unit(p, 1), torch.tensor([[0.1, 0.5, 0.8], [0.5, 0.3, 0.5]]))
+    assert torch.allclose(recentre.turn_unit(p, 3), torch.tensor([[0.9, 0.5, 0.2], [0.5, 0.3, 0.5]]))
+    assert torch.equal(recentre.turn_unit(p, 0), p)
+    assert torch.allclose(recentre.turn_unit(p, 4), p)
+    assert torch.allclose(recentre.turn_unit(recentre.turn_unit(p, 1), 3), p)
+
+
+def test_heading_quarters_follow_the_last_movement_key():
+    W, S, A, D = 1, 2, 3, 4
+    assert recentre.heading_quarters([W, A, 0, 0], "canonical") == 1
+    assert recentre.heading_quarters([W, S], "canonical") == 2
+    assert recentre.heading_quarters([A, D, 0], "canonical") == 3
+    assert recentre.heading_quarters([0, 0], "canonical") == 0
+    assert recentre.heading_quarters([A, D], "world") == 0
+
+
+def test_the_canonical_heading_shows_the_model_w_and_the_window_turned(monkeypatch):
+    # A sampler that records what it is given and returns the context's last latent.
+    # With the canonical heading every held key reaches the model as W (Idle stays
+    # Idle), and the context it gets under A is the window turned three quarter turns
+    # (A's one turned back) and encoded; with the world's heading the keys pass as they
+    # are and the first context is the window encoded as it is.
+    vae, unet, schedule = tiny_models()
+    pixels, waist, g = layout()
+    seen = []
+
+    def fake(unet, schedule, context, action, *a, **k):
+        seen.append((int(action[0]), context[0].clone()))
+        return context[:, -1]
+
+    monkeypatch.setattr(recentre, "sample_next", fake)
+    context = torch.randn(3, 4, 16, 16, generator=g)
+    window = 0.3 + 0.4 * torch.rand(3, pixels.shape[0], 3, generator=g)
+    encode = recentre.encoder_fn(vae, 1.0)
+    for heading, want in (("canonical", [1, 1, 0, 1, 1]), ("world", [3, 3, 0, 2, 4])):
+        seen.clear()
+        recentre.rollout(vae, unet, schedule, 1.0, context, "1A 1A 1I 1S 1D", 2, 1.0, 0, pixels, waist, 0.5,
+                         "reencode", window=window, heading=heading)
+        assert [a for a, _ in seen] == want, heading
+        turns = 3 if heading == "canonical" else 0
+        first = encode(recentre.to_maps(recentre.turn_unit(window, turns), pixels))
+        assert torch.allclose(seen[0][1], first, atol=1e-5), heading
+    with pytest.raises(ValueError, match="heading"):
+        recentre.rollout(vae, unet, schedule, 1.0, context, "1W", 2, 1.0, 0, pixels, waist, 0.5, "latent",
+                         basis=context, heading="canonical")
+    with pytest.raises(ValueError, match="heading"):
+        recentre.rollout(vae, unet, schedule, 1.0, context, "1W", 2, 1.0, 0, pixels, waist, 0.5, "reencode",
+                         heading="sideways")

@@ -145,6 +145,8 @@ def main(argv=None):
                                         "comma-separated to try several (default: the bundle's sampler)")
     parser.add_argument("--root-motion", choices=("centre", "decoded"),
                         help="what a frame's root motion is measured from (recentre.rollout; default: the bundle's)")
+    parser.add_argument("--heading", choices=("world", "canonical"),
+                        help="which way the model sees its window (recentre.rollout; default: the bundle's)")
     parser.add_argument("--seeds", default="0", help="comma-separated seeds; each setting runs every one")
     parser.add_argument("--write", action="store_true", help="set the bundle's sampler.cfg_scale to the best scale")
     args = parser.parse_args(argv)
@@ -164,6 +166,7 @@ def main(argv=None):
     brake_list = brakes(args.brake, av.brake_options)
     seeds = [int(s) for s in args.seeds.split(",")]
     root_motion = args.root_motion or av.root_motion
+    heading = args.heading or av.heading
     print(f"sampler: {steps} DDIM steps, Idle {idle_label({**options, **av.brake_options}, options.get('idle_cfg_scale'))}, "
           f"noise scale {options['noise_scale']:g}")
     results = []
@@ -176,7 +179,7 @@ def main(argv=None):
                     runs, error, heads = [], 0.0, True
                     for seed in seeds:
                         run = av.rollout(args.keys, {"steps": steps, "cfg_scale": scale, "pca": True,
-                                                     "guided_steps": guided, "root_motion": root_motion, **setting}, seed)
+                                                     "guided_steps": guided, "root_motion": root_motion, "heading": heading, **setting}, seed)
                         model = segments(run["root_path"], args.keys)
                         seed_error, seed_heads = score(model, teacher)
                         moved = motion_numbers(run["root_path"], roots, args.keys)
@@ -208,6 +211,8 @@ def main(argv=None):
             manifest["sampler"]["idle_brake_frames"] = best["idle_brake_frames"]
         if args.root_motion:
             manifest["root_motion"] = args.root_motion
+        if args.heading:
+            manifest["heading"] = args.heading
         manifest["sampler"]["cfg_probe"] = {"keys": args.keys, "teacher": teacher, "results": results}
         path.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
         print(f"set {path}'s sampler to {label(best['cfg_scale'], best['guided_steps'], steps)}")

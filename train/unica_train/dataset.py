@@ -43,6 +43,15 @@ def quarter_turn_action(action: int, turns: int = 1) -> int:
     return action
 
 
+def action_quarter(action: int) -> int | None:
+    """A movement key's direction as quarter turns (`quarter_turn`) from W's: W 0, A 1,
+    S 2, D 3; None for Idle (the engine's `Action::quarter`)."""
+    for q in range(4):
+        if quarter_turn_action(1, q) == action:
+            return q
+    return None
+
+
 class DatasetError(ValueError):
     """A dataset that cannot be used; the message names the file and the problem."""
 

@@ -44,7 +44,7 @@ import torch
 
 from . import bundle as bundle_io
 from . import metrics, pca, recentre, splats
-from .dataset import ANCHOR, BakedDataset
+from .dataset import ANCHOR, BakedDataset, quarter_turn_action
 from .diffusion import Schedule, brake_options, frame_options, sample_next, sampler_options
 from .refiner import Frames, frame_inputs, from_bundle, refined
 from .train import parse_keys
@@ -95,6 +95,8 @@ class Avatar:
         self.brake_options = brake_options(self.manifest["sampler"])  # the live loop's braking after a key
         # what a frame's root motion is measured from (recentre.rollout; older bundles: "centre")
         self.root_motion = self.manifest.get("root_motion", "centre")
+        # which way the model sees its window (recentre.rollout; older bundles: "world")
+        self.heading = self.manifest.get("heading", "world")
         self.schedule = Schedule()
         self.pca_mean, self.pca_basis = self.extra["pca.mean"], self.extra["pca.basis"]
         self.colors = self.extra.get("map.colors", self.ds.pixel_colors())
@@ -137,6 +139,7 @@ class Avatar:
             setting["steps"], setting["cfg_scale"], seed, self.pixels, self.waist, self.scale, "reencode",
             frames=frames, on_frame=keep, guided_steps=setting.get("guided_steps"),
             root_motion=setting.get("root_motion", self.root_motion),
+            heading=setting.get("heading", self.heading),
             **{k: setting.get(k, v) for k, v in {**self.sampler_options, **self.brake_options}.items()})
         out["unit"] = torch.stack(drawn)
         out["ms_per_frame"] = (time.time() - started) * 1e3 / max(1, len(drawn))
@@ -158,17 +161,22 @@ def held_out_frames(frames: Frames, count: int) -> tuple[list[int], list[tuple[i
 @torch.no_grad()
 def teacher_forced(av: Avatar, clip: int, f: int, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
     """(generated, truth) world points [N, 3] of frame `f` of `clip`: the generated frame
-    from its three ground-truth context frames and the true action (bundle's sampler,
+    from its three ground-truth context frames and the true action (bundle's sampler, the
+    window and the action turned to the model's heading and the frame turned back,
     braked as the live loop would be after the clip's keys so far: baked clips start at
     rest; PCA-cleaned), and the frame itself."""
     world = av.ds.positions(clip, list(range(f - 3, f + 1)))  # 3 context frames + the truth
     unit, root = av.ds.normalise(world, anchor=ANCHOR)
-    context = av.vae.encoder(av.ds.to_maps(unit[:3]))[0] * av.latent_scale
     actions = [int(a) for a in av.ds.clips[clip]["actions"][:f]]
-    z = sample_next(av.unet, av.schedule, context[None], torch.tensor([actions[-1]]), av.manifest["sampler"]["ddim_steps"],
+    # turned to the model's heading as the live loop would be (recentre.rollout's heading)
+    quarters = recentre.heading_quarters(actions, av.heading)
+    to_model = (4 - quarters) % 4
+    context = av.vae.encoder(av.ds.to_maps(recentre.turn_unit(unit[:3], to_model)))[0] * av.latent_scale
+    action = quarter_turn_action(actions[-1], to_model)
+    z = sample_next(av.unet, av.schedule, context[None], torch.tensor([action]), av.manifest["sampler"]["ddim_steps"],
                     av.manifest["sampler"]["cfg_scale"], generator=gen,
                     **frame_options(av.sampler_options, av.brake_options, actions))
-    new = recentre.decode_points(av.vae, z, av.latent_scale, av.pixels)[0]
+    new = recentre.turn_unit(recentre.decode_points(av.vae, z, av.latent_scale, av.pixels)[0], quarters)
     return (av.clean(new) - 0.5) / av.scale + root, world[3]
 
 

@@ -35,11 +35,13 @@ import torch
 
 from . import bundle as bundle_io
 from .diffusion import Schedule, brake_options, frame_idle_scales, sample_next, sampler_options
+from .dataset import action_quarter, quarter_turn, quarter_turn_action
 from .train import parse_keys
 
 MAP_SIZE = 128
 MODES = ("reencode", "latent", "none")
 ROOT_MOTIONS = ("centre", "decoded")
+HEADINGS = ("world", "canonical")
 
 
 # -- maps from the bundle's layout tensors ------------------------------------------
@@ -55,6 +57,23 @@ def to_maps(unit: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
 def from_maps(maps: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
     """Maps [..., 3, 128, 128] -> foreground values [..., N, 3]."""
     return maps.flatten(-2)[..., pixels.long()].movedim(-2, -1)
+
+
+def turn_unit(points: torch.Tensor, turns: int) -> torch.Tensor:
+    """Normalised points [..., 3] turned `turns` quarter turns (`dataset.quarter_turn`)
+    about the vertical through the cube's centre (x = z = 0.5); the engine's
+    `quarter_turn.wgsl`."""
+    if turns % 4 == 0:
+        return points
+    centre = torch.tensor([0.5, 0.0, 0.5], dtype=points.dtype)
+    return quarter_turn(points - centre, turns) + centre
+
+
+def heading_quarters(actions: list[int], heading: str) -> int:
+    """The model's heading after `actions` (`rollout`'s `heading`): the last movement
+    key's quarter turns from W where it is "canonical" (0 before any key), else 0."""
+    keys = [a for a in actions if a != 0]
+    return action_quarter(keys[-1]) if heading == "canonical" and keys else 0
 
 
 def root(points: torch.Tensor, waist: torch.Tensor) -> torch.Tensor:
@@ -154,7 +173,7 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
             start_root: torch.Tensor | None = None, diagnose: bool = False, log_every: int = 0,
             on_frame=None, guided_steps: int | None = None, guide_idle: bool = True, noise_scale: float = 1.0,
             idle_cfg_scale: float | None = None, idle_brake_cfg_scale: float | None = None,
-            idle_brake_frames: int = 0, root_motion: str = "centre") -> dict:
+            idle_brake_frames: int = 0, root_motion: str = "centre", heading: str = "world") -> dict:
     """The live loop of train.py's `Run.rollout` from the clean context latents [3, C, h, w]
     (scaled), recentring each frame either by re-encoding the translated window
     ("reencode", the reference) or by the latent shift context − Σ δ_k J_k ("latent", no
@@ -172,11 +191,22 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
 
     `root_motion` says what a new frame's root shift is measured from: "centre" (0.5, where
     the window's last frame was put) or "decoded" (the root of the context's last latent
-    decoded, so that a bias of the decoder's root common to both frames cancels)."""
+    decoded, so that a bias of the decoder's root common to both frames cancels).
+
+    `heading` "canonical" (mode "reencode" only) shows the model its window turned by the
+    quarter turns that take the last movement key's direction to W's, the action turned
+    with it, and turns the new frame back (the engine's `Heading::Canonical`); "world"
+    shows it as it is. In mode "reencode" every frame's context is the window encoded at
+    the frame's start (the first frame's too: the given `context` then only makes the
+    default window)."""
     if root_motion not in ROOT_MOTIONS:
         raise ValueError(f"root_motion {root_motion!r}: expected one of {ROOT_MOTIONS}")
     if shift_mode not in MODES:
         raise ValueError(f"shift_mode {shift_mode!r}: expected one of {MODES}")
+    if heading not in HEADINGS:
+        raise ValueError(f"heading {heading!r}: expected one of {HEADINGS}")
+    if heading != "world" and shift_mode != "reencode":
+        raise ValueError(f"heading {heading!r} needs shift_mode 'reencode' (the window is turned before it is encoded)")
     if shift_mode == "latent" and basis is None:
         raise ValueError("shift_mode 'latent' needs the shift basis")
     if isinstance(keys, str):
@@ -195,16 +225,23 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
     gen = torch.Generator().manual_seed(seed)
     started = time.time()
     idle_scales = frame_idle_scales(actions, idle_cfg_scale, idle_brake_cfg_scale, idle_brake_frames)
+    quarters = 0  # the model's heading: the last movement key's quarter turns from W
     for i, a in enumerate(actions):
-        z = sample_next(unet, schedule, context[None], torch.tensor([a]), steps, cfg_scale, generator=gen,
+        if heading == "canonical" and a != 0:
+            quarters = action_quarter(a)
+        to_model = (4 - quarters) % 4
+        if shift_mode == "reencode":
+            context = encode(to_maps(turn_unit(window, to_model), pixels))
+        model_action = quarter_turn_action(a, to_model)
+        z = sample_next(unet, schedule, context[None], torch.tensor([model_action]), steps, cfg_scale, generator=gen,
                         guided_steps=guided_steps, guide_idle=guide_idle, noise_scale=noise_scale,
                         idle_cfg_scale=idle_scales[i])
         # [N, 3], NaN to the cube's centre and clamped into it, as the engine does
-        new = decode_points(vae, z, scale, pixels)[0].nan_to_num(0.5).clamp(0.0, 1.0)
+        new = turn_unit(decode_points(vae, z, scale, pixels)[0].nan_to_num(0.5).clamp(0.0, 1.0), quarters)
         # the slide puts the new frame's root at 0.5 in the window; the motion moves the world
         shift = root(new, waist) - 0.5
         if root_motion == "decoded":
-            last = decode_points(vae, context[-1:], scale, pixels)[0].nan_to_num(0.5).clamp(0.0, 1.0)
+            last = turn_unit(decode_points(vae, context[-1:], scale, pixels)[0].nan_to_num(0.5).clamp(0.0, 1.0), quarters)
             motion = root(new, waist) - root(last, waist)
         else:
             motion = shift
@@ -214,13 +251,15 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
         if track:
             window = torch.cat([window[1:], new[None]]) - shift
         if shift_mode == "reencode":
-            context = encode(to_maps(window, pixels))
+            pass  # encoded at the next frame's start
         elif shift_mode == "latent":
             context = apply_shift(torch.cat([context[1:], z]), shift, basis)
         else:
             context = torch.cat([context[1:], z])
         if diagnose:
             ref = encode(to_maps(window, pixels))
+            if shift_mode == "reencode":
+                context = ref  # the context the next frame starts from
             gaps.append([round(float(((context[j] - ref[j]).pow(2).mean() / ref[j].var()).sqrt()), 5) for j in range(3)])
         path.append(world_root.tolist())
         shifts.append([round(float(s), 6) for s in motion])

@@ -1,0 +1,26 @@
+// The window's maps as the model sees them: every foreground point of each frame turned
+// `heading.to_model` quarter turns about the vertical through the centre
+// (`quarter_turn`), background 0 (the engine then encodes them into the context latents).
+
+@group(0) @binding(0) var<uniform> p: PostParams;
+@group(0) @binding(1) var<storage, read> maps: array<Elem>;
+@group(0) @binding(2) var<storage, read> point_of: array<u32>;
+@group(0) @binding(3) var<storage, read> heading: HeadingTurns;
+@group(0) @binding(4) var<storage, read_write> out: array<Elem>;
+
+@compute @workgroup_size(WORKGROUP)
+fn main(invocation: Invocation) {
+    let i = linear_index(invocation);
+    let per_frame = 3u * p.plane;
+    if i >= p.frames * per_frame {
+        return;
+    }
+    let pixel = i % p.plane;
+    var v = 0.0;
+    if point_of[pixel] != BACKGROUND {
+        let at = (i / per_frame) * per_frame + pixel;
+        let point = vec3<f32>(f32(maps[at]), f32(maps[at + p.plane]), f32(maps[at + 2u * p.plane]));
+        v = quarter_turn(point, heading.to_model)[(i / p.plane) % 3u];
+    }
+    out[i] = Elem(v);
+}
