@@ -22,11 +22,11 @@ fn witch_bundle() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle")
 }
 
-/// A copy of the shipped bundle whose manifest says `root_motion: motion` and `heading:
-/// heading` (the weights linked or copied), in `dir/motion-heading`.
-fn bundle_with(dir: &Path, motion: &str, heading: &str) -> PathBuf {
+/// A copy of the shipped bundle whose manifest says `root_motion: motion`, `heading:
+/// heading` and `grounded` (the weights linked or copied), in `dir/motion-heading-grounded`.
+fn bundle_with(dir: &Path, motion: &str, heading: &str, grounded: bool) -> PathBuf {
     let from = witch_bundle();
-    let to = dir.join(format!("{motion}-{heading}"));
+    let to = dir.join(format!("{motion}-{heading}-{grounded}"));
     std::fs::create_dir_all(&to).unwrap();
     let weights = to.join("weights.safetensors");
     if std::fs::hard_link(from.join("weights.safetensors"), &weights).is_err() {
@@ -36,6 +36,7 @@ fn bundle_with(dir: &Path, motion: &str, heading: &str) -> PathBuf {
     let mut manifest: serde_json::Value = serde_json::from_str(&text).unwrap();
     manifest["root_motion"] = motion.into();
     manifest["heading"] = heading.into();
+    manifest["grounded"] = grounded.into();
     std::fs::write(to.join("manifest.json"), manifest.to_string()).unwrap();
     to
 }
@@ -230,6 +231,12 @@ fn reference_frame(
         }
     };
     let scale = bundle.manifest.normalisation.scale;
+    // Grounded: the height that puts the lowest kept point on the floor, y = 0.
+    let mut motion = motion;
+    if bundle.manifest.grounded {
+        let lowest = unit.iter().map(|p| p.y).fold(f32::INFINITY, f32::min);
+        motion.y = centre.y - lowest - scale * root.y;
+    }
     let drawn = pca::project_points(&unit, shift, &bundle.pca_mean, &bundle.pca_basis);
     let points = drawn
         .iter()
@@ -275,8 +282,9 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
     // braking the first Idle frame after a key at a third scale, beside Idle at its own
     // scale and beside unguided Idle (two DDIM steps: the plan's structure is the same
     // for any count); then two of them with the root motion measured from the decoded
-    // last context latent, and two with that and the canonical heading (the window turned
-    // by D's quarter turns from the second frame on, the action with it). Tolerance: 2e-5
+    // last context latent, two with that and the canonical heading (the window turned
+    // by D's quarter turns from the second frame on, the action with it), and one also
+    // grounded (the root's height puts the lowest point on the floor). Tolerance: 2e-5
     // m (0.02 mm) on world points and 2e-5 m on the root; both sides run the same f32
     // kernels (the encoder of the turned maps included) and differ only in summation
     // order and fused multiply-adds of the turns, the PCA, the slide and the world
@@ -305,9 +313,10 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
     // sampler, from the last context latent decoded, with the world's heading and the
     // canonical one (copies of the bundle whose manifests say so).
     let dir = tempfile::tempdir().unwrap();
-    let decoded = bundle_with(dir.path(), "decoded", "world");
-    let centred = bundle_with(dir.path(), "centre", "world");
-    let canonical = bundle_with(dir.path(), "decoded", "canonical");
+    let decoded = bundle_with(dir.path(), "decoded", "world", false);
+    let centred = bundle_with(dir.path(), "centre", "world", false);
+    let canonical = bundle_with(dir.path(), "decoded", "canonical", false);
+    let grounded = bundle_with(dir.path(), "decoded", "canonical", true);
     let centre = |s| (s, centred.clone(), RootMotion::Centre, Heading::World);
     for (sampling, bundle, root_motion, heading) in [
         centre(Sampling::new(2, 1.0)),
@@ -337,6 +346,12 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
         (
             braking,
             canonical.clone(),
+            RootMotion::Decoded,
+            Heading::Canonical,
+        ),
+        (
+            braking,
+            grounded.clone(),
             RootMotion::Decoded,
             Heading::Canonical,
         ),
@@ -402,6 +417,8 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
     // reference's values are never counted as clamps. Turned to the world by one quarter
     // turn, (x, y, z) -> (z, y, 1 - x): the points (0.1, 0.5, 0.8), (0.3, 0.7, 0.6),
     // (1, 0, 0.5), the root (0.2, 0.6, 0.7), the reference's root (0.55, 0.6, 0.65).
+    // Grounded, with the world root before the frame at height 0.25 (scale 1), the
+    // motion's height puts the lowest kept point (y 0) on the floor: 0.6 - 0 - 0.25.
     let gpu = gpu();
     let nan = f32::NAN;
     #[rustfmt::skip]
@@ -428,11 +445,21 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
     let kept = [0.2, 0.5, 0.1, 0.4, 0.7, 0.3, 0.5, 0.0, 1.0];
     let turned_shift = [0.2 - 0.5, 0.6 - 0.5, 0.7 - 0.5];
     let turned = [0.1, 0.5, 0.8, 0.3, 0.7, 0.6, 1.0, 0.0, 0.5];
-    for (to_world, decoded_reference, want_unit, want_shift, motion) in [
-        (0, 0, kept, shift, shift),
-        (0, 1, kept, shift, [0.3 - 0.35, 0.0, 0.2 - 0.55]),
-        (1, 0, turned, turned_shift, turned_shift),
-        (1, 1, turned, turned_shift, [0.2 - 0.55, 0.0, 0.7 - 0.65]),
+    let grounded_y = 0.6 - 0.0 - 0.25;
+    for (to_world, decoded_reference, grounded, want_unit, want_shift, motion) in [
+        (0, 0, 0, kept, shift, shift),
+        (0, 1, 0, kept, shift, [0.3 - 0.35, 0.0, 0.2 - 0.55]),
+        (1, 0, 0, turned, turned_shift, turned_shift),
+        (1, 1, 0, turned, turned_shift, [0.2 - 0.55, 0.0, 0.7 - 0.65]),
+        (0, 0, 1, kept, shift, [shift[0], grounded_y, shift[2]]),
+        (
+            1,
+            1,
+            1,
+            turned,
+            turned_shift,
+            [0.2 - 0.55, grounded_y, 0.7 - 0.65],
+        ),
     ] {
         let heading = gpu
             .storage_buffer_init(
@@ -451,6 +478,7 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
             .storage_buffer("unit", 36, wgpu::BufferUsages::COPY_SRC)
             .unwrap();
         let start = FrameState {
+            root: [0.0, 0.25, 0.0, 0.0],
             clamped_total: 5,
             ..bytemuck::Zeroable::zeroed()
         };
@@ -463,7 +491,7 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
             scale: 1.0,
             frames: 1,
             decoded_reference,
-            reserved1: 0,
+            grounded,
         };
         r.dispatch(
             &kernels::FRAME_UNIT,
@@ -498,7 +526,7 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
         for (got, want) in state.motion.iter().zip(motion) {
             assert!(
                 (got - want).abs() < 1e-6,
-                "turns {to_world}, reference {decoded_reference}: {:?}",
+                "turns {to_world}, reference {decoded_reference}, grounded {grounded}: {:?}",
                 state.motion
             );
         }
@@ -626,7 +654,7 @@ fn the_slide_kernel_slides_the_maps_recentres_them_and_moves_the_root() {
         scale: 2.0,
         frames: 2,
         decoded_reference: 0,
-        reserved1: 0,
+        grounded: 0,
     };
     r.dispatch(
         &kernels::SLIDE,
@@ -786,7 +814,7 @@ fn a_dispatch_with_the_wrong_bindings_is_caught_when_recorded() {
             scale: 1.0,
             frames: 1,
             decoded_reference: 0,
-            reserved1: 0,
+            grounded: 0,
         };
         // frame_unit binds seven buffers after its parameters; four are given.
         r.dispatch(

@@ -4,7 +4,10 @@
 // (`p.decoded_reference`) the root minus the root of `reference` (the last context latent
 // decoded, kept the same way). The model's frame is turned back to the world's
 // (`heading.to_world` quarter turns, `quarter_turn`): the points, the root and the
-// reference's root. One workgroup; every thread clamps a strided share of the points.
+// reference's root. Grounded (`p.grounded`), the motion's height is the one that puts the
+// frame's lowest kept point on the floor (world y = 0): the world root after the frame is
+// (root - lowest) / scale above it. One workgroup; every thread clamps a strided share of
+// the points.
 
 @group(0) @binding(0) var<uniform> p: PostParams;
 @group(0) @binding(1) var<storage, read> map: array<Elem>;
@@ -16,6 +19,8 @@
 @group(0) @binding(7) var<storage, read> heading: HeadingTurns;
 
 var<workgroup> clamped: atomic<u32>;
+// The lowest kept height, as the bits of a non-negative f32 (ordered as the values are).
+var<workgroup> lowest: atomic<u32>;
 
 // NaN from its bits: compilers may assume `x != x` is false.
 fn is_nan(x: f32) -> bool {
@@ -56,9 +61,11 @@ fn waist_root(from_map: bool) -> vec3<f32> {
 fn main(@builtin(local_invocation_index) lane: u32) {
     if lane == 0u {
         atomicStore(&clamped, 0u);
+        atomicStore(&lowest, bitcast<u32>(1.0));
     }
     workgroupBarrier();
     var count = 0u;
+    var low = 1.0;
     for (var point = lane; point < p.points; point += 256u) {
         var v = vec3<f32>(0.0);
         for (var k = 0u; k < 3u; k++) {
@@ -72,8 +79,11 @@ fn main(@builtin(local_invocation_index) lane: u32) {
         for (var k = 0u; k < 3u; k++) {
             unit[3u * point + k] = v[k];
         }
+        low = min(low, v.y);
     }
     atomicAdd(&clamped, count);
+    // (-0 as +0: its bits would order above every positive value)
+    atomicMin(&lowest, bitcast<u32>(select(low, 0.0, low <= 0.0)));
     workgroupBarrier();
     if lane == 0u {
         let root = waist_root(true);
@@ -82,7 +92,11 @@ fn main(@builtin(local_invocation_index) lane: u32) {
         if p.decoded_reference != 0u {
             origin = waist_root(false);
         }
-        state.motion = vec4<f32>(root - origin, 0.0);
+        var motion = root - origin;
+        if p.grounded != 0u {
+            motion.y = root.y - bitcast<f32>(atomicLoad(&lowest)) - p.scale * state.root.y;
+        }
+        state.motion = vec4<f32>(motion, 0.0);
         let n = atomicLoad(&clamped);
         state.clamped = n;
         state.clamped_total += n;

@@ -32,7 +32,9 @@ gpu_struct! {
         /// 1: the root motion is measured from the `reference` map's root
         /// (`RootMotion::Decoded`); 0: from 0.5 (`RootMotion::Centre`).
         pub decoded_reference: u32,
-        pub reserved1: u32,
+        /// 1: the root motion's height puts the frame's lowest point on the floor, y = 0
+        /// (`Manifest::grounded`); 0: it is the root's, like x and z.
+        pub grounded: u32,
     }
 }
 

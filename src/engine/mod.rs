@@ -525,7 +525,7 @@ impl Engine {
             scale: bundle.manifest.normalisation.scale,
             frames: (cfg.frames - 1) as u32,
             decoded_reference: u32::from(decoded_reference),
-            reserved1: 0,
+            grounded: u32::from(bundle.manifest.grounded),
         };
         // The context: the window's maps turned to the model's heading, encoded, scaled.
         r.stage("vae-encode");

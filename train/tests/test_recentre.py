@@ -2,7 +2,8 @@
 and first-order exact for the VAE's encoder; the rollout's "reencode" mode is train.py's
 reference loop and its "latent" mode never calls the encoder; the root motion measured
 from the decoded last context latent cancels a root bias both frames share; the canonical
-heading turns the window and the keys to W's direction."""
+heading turns the window and the keys to W's direction; grounded, the root's height
+stands the lowest point on the floor."""
 
 import pytest
 import torch
@@ -175,3 +176,23 @@ def test_the_canonical_heading_shows_the_model_w_and_the_window_turned(monkeypat
     with pytest.raises(ValueError, match="heading"):
         recentre.rollout(vae, unet, schedule, 1.0, context, "1W", 2, 1.0, 0, pixels, waist, 0.5, "reencode",
                          heading="sideways")
+
+
+def test_grounded_height_stands_the_lowest_point_on_the_floor(monkeypatch):
+    # The same frame every time (the sampler gives back the context's last latent):
+    # integrated, the world root's height moves by the frame's root - 0.5 each frame;
+    # grounded, it is (root - lowest point) / norm_scale after every frame, whatever came
+    # before, and the horizontal path is the integrated one.
+    vae, unet, schedule = tiny_models()
+    pixels, waist, g = layout()
+    monkeypatch.setattr(recentre, "sample_next", lambda unet, schedule, context, *a, **k: context[:, -1])
+    context = torch.randn(3, 4, 16, 16, generator=g)
+    new = recentre.decode_points(vae, context[-1:], 1.0, pixels)[0].clamp(0.0, 1.0)
+    runs = {flag: torch.tensor(recentre.rollout(vae, unet, schedule, 1.0, context, "3W", 2, 1.0, 0, pixels, waist, 0.5,
+                                                "none", grounded=flag, start_root=torch.tensor([0.0, 7.0, 0.0]))["root_path"])
+            for flag in (False, True)}
+    height = (recentre.root(new, waist)[1] - new[:, 1].min()) / 0.5
+    assert float(height) > 0.1
+    assert torch.allclose(runs[True][1:, 1], height.expand(3), atol=1e-5)
+    assert torch.allclose(runs[False][3, 1] - runs[False][0, 1], 3 * (recentre.root(new, waist)[1] - 0.5) / 0.5, atol=1e-5)
+    assert torch.allclose(runs[True][:, [0, 2]], runs[False][:, [0, 2]], atol=1e-6)

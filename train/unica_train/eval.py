@@ -97,6 +97,8 @@ class Avatar:
         self.root_motion = self.manifest.get("root_motion", "centre")
         # which way the model sees its window (recentre.rollout; older bundles: "world")
         self.heading = self.manifest.get("heading", "world")
+        # whether the root's height puts each frame's lowest point on the floor (older bundles: no)
+        self.grounded = bool(self.manifest.get("grounded", False))
         self.schedule = Schedule()
         self.pca_mean, self.pca_basis = self.extra["pca.mean"], self.extra["pca.basis"]
         self.colors = self.extra.get("map.colors", self.ds.pixel_colors())
@@ -139,7 +141,7 @@ class Avatar:
             setting["steps"], setting["cfg_scale"], seed, self.pixels, self.waist, self.scale, "reencode",
             frames=frames, on_frame=keep, guided_steps=setting.get("guided_steps"),
             root_motion=setting.get("root_motion", self.root_motion),
-            heading=setting.get("heading", self.heading),
+            heading=setting.get("heading", self.heading), grounded=setting.get("grounded", self.grounded),
             **{k: setting.get(k, v) for k, v in {**self.sampler_options, **self.brake_options}.items()})
         out["unit"] = torch.stack(drawn)
         out["ms_per_frame"] = (time.time() - started) * 1e3 / max(1, len(drawn))

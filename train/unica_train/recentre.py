@@ -173,7 +173,8 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
             start_root: torch.Tensor | None = None, diagnose: bool = False, log_every: int = 0,
             on_frame=None, guided_steps: int | None = None, guide_idle: bool = True, noise_scale: float = 1.0,
             idle_cfg_scale: float | None = None, idle_brake_cfg_scale: float | None = None,
-            idle_brake_frames: int = 0, root_motion: str = "centre", heading: str = "world") -> dict:
+            idle_brake_frames: int = 0, root_motion: str = "centre", heading: str = "world",
+            grounded: bool = False) -> dict:
     """The live loop of train.py's `Run.rollout` from the clean context latents [3, C, h, w]
     (scaled), recentring each frame either by re-encoding the translated window
     ("reencode", the reference) or by the latent shift context − Σ δ_k J_k ("latent", no
@@ -198,7 +199,11 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
     with it, and turns the new frame back (the engine's `Heading::Canonical`); "world"
     shows it as it is. In mode "reencode" every frame's context is the window encoded at
     the frame's start (the first frame's too: the given `context` then only makes the
-    default window)."""
+    default window).
+
+    `grounded` sets each frame's root motion height so that the world root ends (root −
+    lowest point) / norm_scale above the floor, y = 0 (the engine's `Manifest::grounded`):
+    the frame's lowest point stands on the floor and the height accumulates nothing."""
     if root_motion not in ROOT_MOTIONS:
         raise ValueError(f"root_motion {root_motion!r}: expected one of {ROOT_MOTIONS}")
     if shift_mode not in MODES:
@@ -245,6 +250,9 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
             motion = root(new, waist) - root(last, waist)
         else:
             motion = shift
+        if grounded:
+            motion = motion.clone()
+            motion[1] = root(new, waist)[1] - new[:, 1].min() - norm_scale * world_root[1]
         if on_frame is not None:
             on_frame(i, new, shift)
         world_root = world_root + motion / norm_scale
