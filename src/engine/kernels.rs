@@ -84,6 +84,9 @@ impl HeadingTurns {
 
 const QUARTER_TURN: Snippet = wgsl_snippet!("engine/quarter_turn.wgsl");
 
+/// The engine stage's snippets.
+pub const SNIPPETS: &[Snippet] = &[QUARTER_TURN];
+
 pub const FRAME_UNIT: Shader = wgsl_shader!(
     "engine/frame_unit.wgsl",
     [PostParams, FrameState, HeadingTurns],
