@@ -101,16 +101,23 @@ def test_latent_mode_never_encodes():
     assert len(calls) == 2  # the reference re-encodes every frame
 
 
-def test_decoded_root_motion_cancels_a_bias_the_two_frames_share(monkeypatch):
-    # A UNet that gives back the context's last latent: every new frame decodes to the
-    # same map as that latent. Measured from the centre the world root moves by that
-    # map's root - 0.5 every frame; measured from the decoded last latent it stays put,
-    # and the drawn points are the frame root-centred at the world root either way.
+def repeating_frame(monkeypatch):
+    """Tiny models, a layout and random context latents, with a sampler that gives back the
+    context's last latent: every new frame is that latent decoded (`new`, clamped)."""
     vae, unet, schedule = tiny_models()
     pixels, waist, g = layout()
     monkeypatch.setattr(recentre, "sample_next", lambda unet, schedule, context, *a, **k: context[:, -1])
     context = torch.randn(3, 4, 16, 16, generator=g)
     new = recentre.decode_points(vae, context[-1:], 1.0, pixels)[0].clamp(0.0, 1.0)
+    return vae, unet, schedule, pixels, waist, context, new
+
+
+def test_decoded_root_motion_cancels_a_bias_the_two_frames_share(monkeypatch):
+    # A UNet that gives back the context's last latent: every new frame decodes to the
+    # same map as that latent. Measured from the centre the world root moves by that
+    # map's root - 0.5 every frame; measured from the decoded last latent it stays put,
+    # and the drawn points are the frame root-centred at the world root either way.
+    vae, unet, schedule, pixels, waist, context, new = repeating_frame(monkeypatch)
     bias = recentre.root(new, waist) - 0.5
     assert float(bias.abs().max()) > 1e-3
     runs = {mode: recentre.rollout(vae, unet, schedule, 1.0, context, "3W", 2, 1.0, 0, pixels, waist, 0.5, "none",
@@ -183,11 +190,7 @@ def test_grounded_height_stands_the_lowest_point_on_the_floor(monkeypatch):
     # integrated, the world root's height moves by the frame's root - 0.5 each frame;
     # grounded, it is (root - lowest point) / norm_scale after every frame, whatever came
     # before, and the horizontal path is the integrated one.
-    vae, unet, schedule = tiny_models()
-    pixels, waist, g = layout()
-    monkeypatch.setattr(recentre, "sample_next", lambda unet, schedule, context, *a, **k: context[:, -1])
-    context = torch.randn(3, 4, 16, 16, generator=g)
-    new = recentre.decode_points(vae, context[-1:], 1.0, pixels)[0].clamp(0.0, 1.0)
+    vae, unet, schedule, pixels, waist, context, new = repeating_frame(monkeypatch)
     runs = {flag: torch.tensor(recentre.rollout(vae, unet, schedule, 1.0, context, "3W", 2, 1.0, 0, pixels, waist, 0.5,
                                                 "none", grounded=flag, start_root=torch.tensor([0.0, 7.0, 0.0]))["root_path"])
             for flag in (False, True)}
