@@ -88,6 +88,39 @@ fn ground_truth_renders_are_written_listed_and_reproducible() {
 }
 
 #[test]
+fn every_frame_is_rendered_on_request() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("all");
+    let witch = witch();
+    let args = [
+        "bake",
+        witch.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quick",
+    ];
+    let run = unica(&[&args[..], &["--render-every", "1"]].concat());
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let report = unica::dataset::validate(&out).unwrap();
+    // 50 rest cameras + 4 views of every frame of the quick clips (8, 18, 24, 26 frames).
+    assert_eq!(report.renders, 50 + 4 * (8 + 18 + 24 + 26));
+    assert!(out.join("renders/clip_002/f0013_left.png").is_file());
+    let listing: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("renders/cameras.json")).unwrap()).unwrap();
+    assert_eq!(listing["every"], 1);
+    let zero = unica(&[&args[..], &["--render-every", "0"]].concat());
+    let err = String::from_utf8_lossy(&zero.stderr);
+    assert!(
+        !zero.status.success() && err.contains("--render-every"),
+        "{err}"
+    );
+}
+
+#[test]
 fn bad_inputs_and_broken_datasets_are_named() {
     let dir = tempfile::tempdir().unwrap();
     let run = unica(&[

@@ -39,9 +39,13 @@ pub struct BakeOptions {
     pub no_renders: bool,
     /// Where nonzero, bake [`switch_plan`] with this many phases instead of the table.
     pub switch_phases: usize,
+    /// Render every this many frames [default: [`RENDER_EVERY`]]; 1 renders every pose
+    /// (the evaluation's free-running comparison then finds its nearest pose among all).
+    pub render_every: Option<usize>,
 }
 
-/// Ground-truth renders: size, every how many frames, and the rest-pose cameras.
+/// Ground-truth renders: size, every how many frames by default (training needs no
+/// more), and the rest-pose cameras.
 pub const RENDER_SIZE: u32 = 512;
 pub const RENDER_EVERY: usize = 5;
 const REST_CAMERAS: usize = 50;
@@ -117,6 +121,7 @@ pub fn bake(
         .map_err(|e| anyhow::anyhow!("{}: {e}", clips_dir.display()))?;
     write_reference(&start, &reference, &out.join("reference.safetensors"))?;
 
+    let render_every = options.render_every.unwrap_or(RENDER_EVERY).max(1);
     let mut renders = if options.no_renders {
         None
     } else {
@@ -153,7 +158,7 @@ pub fn bake(
                 skin.extend_from_slice(&m.transpose().to_cols_array()[..12]);
             }
             actions.push(action.id() as i32);
-            if let Some(renders) = renders.as_mut().filter(|_| f % RENDER_EVERY == 0) {
+            if let Some(renders) = renders.as_mut().filter(|_| f % render_every == 0) {
                 renders.frame(index, f, &mesh, &teacher)?;
             }
             if options.preview && f == frames / 2 && index % PREVIEW_EVERY == 0 {
@@ -184,7 +189,7 @@ pub fn bake(
         });
     }
     if let Some(renders) = renders {
-        renders.finish()?;
+        renders.finish(render_every)?;
     }
     // Every group inside the unit cube with a margin, whatever the proportions (the
     // Witch's motion fits at the extent's scale, which stays).
@@ -321,8 +326,9 @@ impl GroundTruth {
         Ok(())
     }
 
-    fn finish(self) -> anyhow::Result<()> {
-        let json = serde_json::json!({ "size": RENDER_SIZE, "every": RENDER_EVERY, "cameras": self.cameras });
+    fn finish(self, every: usize) -> anyhow::Result<()> {
+        let json =
+            serde_json::json!({ "size": RENDER_SIZE, "every": every, "cameras": self.cameras });
         write_atomic(
             &self.dir.join("cameras.json"),
             serde_json::to_string_pretty(&json)?.as_bytes(),

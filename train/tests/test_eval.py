@@ -22,7 +22,9 @@ def test_unica_eval_quick_writes_a_report_with_finite_numbers(tmp_path):
     assert BINARY.is_file(), f"{BINARY} is missing: run `cargo build --release` (the README's test command does)"
     assert WITCH.is_file(), f"{WITCH} is missing: the Witch ships in assets/witch/source"
     data, out = tmp_path / "data", tmp_path / "report"
-    subprocess.run([str(BINARY), "bake", str(WITCH), "--out", str(data), "--quick"], check=True, cwd=ROOT)
+    # Every frame rendered, as the free-running comparison's nearest pose needs (docs/eval).
+    subprocess.run([str(BINARY), "bake", str(WITCH), "--out", str(data), "--quick", "--render-every", "1"], check=True,
+                   cwd=ROOT)
     subprocess.run([str(BINARY), "eval", "--bundle", "assets/witch/bundle", "--data", str(data), "--out", str(out), "--quick"],
                    check=True, cwd=ROOT)
     for name in ("report.md", "results.json", "turns.png", "drift.png", "ablations.png", "contact_sheet.png"):
@@ -57,6 +59,17 @@ def test_unica_eval_quick_writes_a_report_with_finite_numbers(tmp_path):
     tf = masked["teacher_forced"]
     assert tf["ground_truth"]["black"]["psnr"] > tf["generated"]["black"]["psnr"], tf
     assert "## Masked images" in (out / "report.md").read_text()
+    # The free-running frames are matched among every dataset frame (all rendered), and the
+    # teacher's own frames, matched the same way, give the row's ceiling.
+    fr, teacher_free = masked["free_running"], masked["teacher_free_running"]
+    assert fr["render_every"] == 1 == summary["free_render_every"]
+    assert fr["rendered_poses"] == 8 + 18 + 24 + 26, fr
+    assert teacher_free["frames"] == 8 and teacher_free["images"] == 32, teacher_free
+    for key in ("teacher_free_masked_psnr_db", "teacher_free_masked_ssim"):
+        assert math.isfinite(summary[key]), (key, summary[key])
+    assert summary["teacher_free_masked_ssim"] > summary["free_masked_ssim"], summary
+    assert "the teacher's own frames" in (out / "report.md").read_text() and "--render-every 1" in \
+        (out / "report.md").read_text()
     # Motion from two seeds (quick), the first the sequence-level run's; the seeds_* keys
     # are the worst of them.
     assert [r["seed"] for r in masked["motion_by_seed"]] == [0, 1] == summary["seeds"]

@@ -317,7 +317,9 @@ class Frames:
         self.scale = ds.scale
         self.colors = ds.pixel_colors()
         self.nbrs = splats.neighbours(ds.pixels, 128)
-        cams = json.loads((Path(data) / "renders" / "cameras.json").read_text())["cameras"]
+        listing = json.loads((Path(data) / "renders" / "cameras.json").read_text())
+        cams = listing["cameras"]
+        self.every = int(listing.get("every", 1))  # every how many frames a pose is rendered
         self.views: dict[tuple[int, int], list] = {}
         for c in cams:
             if c.get("clip_frame"):
