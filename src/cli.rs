@@ -444,7 +444,9 @@ struct EvalArgs {
     /// The bundle to evaluate (e.g. assets/witch/bundle)
     #[arg(long, value_name = "DIR")]
     bundle: PathBuf,
-    /// The dataset baked from the bundle's character, with renders (`unica bake`)
+    /// The dataset baked from the bundle's character, with renders (`unica bake
+    /// --render-every 1`: each free-running frame is compared with the nearest rendered
+    /// teacher pose, so with fewer renders it is measured against a farther one)
     #[arg(long, value_name = "DIR")]
     data: PathBuf,
     /// Output folder for report.md, results.json and the plots (created)

@@ -120,7 +120,9 @@ def _masked_section(results: dict, data: str) -> list[str]:
     if tfr:
         lines.append(f"- The free-running row's ceiling: {tfr['frames']} of the teacher's own frames, each matched the "
                      "same way to the nearest rendered pose of the other clips and drawn there the same way (mean "
-                     f"Chamfer to it {tfr['nearest_chamfer_mm']:.1f} mm): what a perfect model would score.")
+                     f"Chamfer to it {tfr['nearest_chamfer_mm']:.1f} mm): what a perfect model would score (the "
+                     "table's clips share whole segments, so where every frame is rendered most teacher frames find "
+                     "their very pose in another clip and score as the ground-truth row).")
     lines += [
         "",
         "| images | PSNR black (dB) | SSIM black | PSNR white (dB) | SSIM white |",
