@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from unica_train.eval import _turn, pose_set, settle_frames, teacher_chamfer
+from unica_train.eval import _turn, held_out_frames, pose_set, settle_frames, teacher_chamfer, teacher_free_matches
 
 ROOT = Path(__file__).resolve().parents[2]
 BINARY = ROOT / "target" / "release" / "unica"
@@ -64,7 +64,7 @@ def test_unica_eval_quick_writes_a_report_with_finite_numbers(tmp_path):
     fr, teacher_free = masked["free_running"], masked["teacher_free_running"]
     assert fr["render_every"] == 1 == summary["free_render_every"]
     assert fr["rendered_poses"] == 8 + 18 + 24 + 26, fr
-    assert teacher_free["frames"] == 8 and teacher_free["images"] == 32, teacher_free
+    assert teacher_free["frames"] == fr["frames"] and teacher_free["images"] == 4 * fr["frames"], teacher_free
     for key in ("teacher_free_masked_psnr_db", "teacher_free_masked_ssim"):
         assert math.isfinite(summary[key]), (key, summary[key])
     assert summary["teacher_free_masked_ssim"] > summary["free_masked_ssim"], summary
@@ -116,6 +116,33 @@ def test_teacher_chamfer_matches_each_frame_against_the_other_clips_only():
     assert poses.shape == (10, 2, 3) and owner.tolist() == [0] * 5 + [1] * 5
     assert torch.allclose(poses[0], narrow - narrow.mean(0))
     assert teacher_chamfer(av, poses, owner, 2, 6, seed=0) == pytest.approx(100.0, rel=1e-5)
+
+
+def test_the_teacher_reference_matches_each_frame_against_the_other_clips_only():
+    # As above: against its own clip a frame would match at 0 mm, against the other at 100.
+    # Clip 0 changes key at frame 6: its frames are drawn from 6-8; clip 1 has no change.
+    narrow = torch.tensor([[-0.1, 1.0, 0.0], [0.1, 1.0, 0.0]])
+    av = SimpleNamespace(ds=_Clips([narrow, 2 * narrow - torch.tensor([0.0, 1.0, 0.0])], frames=9))
+    av.ds.clips[0]["switch"] = 6
+    keys = [(c, f) for c in (0, 1) for f in range(9)]
+    poses = torch.cat([pose_set(av, 1)[0]])
+    matches = teacher_free_matches(av, keys, poses, 8, seed=0)
+    assert sorted({c for c, *_ in matches}) == [0, 1]
+    for clip, f, frame, index, _, distance in matches:
+        assert keys[index][0] != clip and distance == pytest.approx(0.1, rel=1e-5)
+        assert f >= 6 if clip == 0 else 0 <= f < 9
+        assert torch.allclose(frame, av.ds.shapes[clip] - av.ds.shapes[clip].mean(0))
+
+
+def test_teacher_forced_frames_are_the_same_whatever_the_render_density():
+    def frames(every):
+        keys = [(c, f) for c in (4, 13) for f in range(0, 60, every)]
+        return SimpleNamespace(keys=keys, every=every, dir=Path("data/renders"))
+
+    chosen = held_out_frames(frames(5), 4)
+    assert chosen == held_out_frames(frames(1), 4) == ([4, 13], [(4, 5), (4, 30), (4, 55), (13, 25)])
+    with pytest.raises(ValueError, match="every 7th frame"):
+        held_out_frames(frames(7), 4)
 
 
 def test_speeds_settle_15_frames_only_where_every_key_is_held_40():

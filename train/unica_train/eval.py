@@ -79,9 +79,6 @@ MASKED_FRAMES = 12
 # The teacher-forced frames are chosen among every 5th frame (what `unica bake` renders by
 # default), whatever the dataset's render density.
 TEACHER_FORCED_STRIDE = 5
-# The teacher's own frames behind `teacher_free_masked_*` (the free-running comparison's
-# ceiling): as many as the free-running frames scored in quick mode.
-TEACHER_FREE_FRAMES = 24
 
 
 class Avatar:
@@ -167,6 +164,9 @@ def held_out_frames(frames: Frames, count: int) -> tuple[list[int], list[tuple[i
     clips = {k[0] for k in frames.keys}
     held_out = [c for c in HELD_OUT_CLIPS if c in clips] or [max(clips)]
     held = [k for k in frames.keys if k[0] in held_out and k[1] >= 3 and k[1] % TEACHER_FORCED_STRIDE == 0]
+    if TEACHER_FORCED_STRIDE % frames.every or not held:
+        raise ValueError(f"{frames.dir}: every {frames.every}th frame is rendered, so not every {TEACHER_FORCED_STRIDE}th "
+                         "held-out frame the teacher-forced score is made of: bake the dataset with --render-every 1 or 5")
     return held_out, held[:: max(1, len(held) // count)][:count]
 
 
@@ -358,7 +358,10 @@ def root_path(manifest: Path) -> list:
     """The world root path of a `unica render` manifest ([frames + 1][3]). The manifest has
     the root after each frame's step; its start (standing, the first step barely moves) is
     taken as its first root."""
-    roots = [f["root"] for f in json.loads(manifest.read_text())["frames"]]
+    try:
+        roots = [f["root"] for f in json.loads(manifest.read_text())["frames"]]
+    except (ValueError, KeyError, TypeError) as e:
+        raise ValueError(f"{manifest}: not a `unica render` manifest with each frame's root ({e})") from None
     return roots[:1] + roots
 
 
@@ -443,6 +446,16 @@ def rendered_poses(av: Avatar, frames: Frames) -> tuple[list, torch.Tensor, torc
     return keys, torch.cat(roots), torch.cat(poses)
 
 
+def _draw_and_score(av: Avatar, frames: Frames, scores: "Masked", centred: torch.Tensor, theta: float,
+                    root: torch.Tensor, key: tuple[int, int]):
+    """Root-centred points turned by `theta` and stood at `root`, drawn as refined splats
+    and scored against every render of the dataset frame `key`."""
+    drawn = av.draw(metrics.rotate_y(centred, theta) + root, True)
+    for view in frames.views[key]:
+        cam, want = frames.target(view)
+        scores.add(_rgba(drawn, cam), want)
+
+
 @torch.no_grad()
 def masked_free_running(av: Avatar, frames: Frames, run: dict, every: int) -> dict:
     """(b): every `every`-th frame of the engine's free-running rollout, root-centred,
@@ -455,41 +468,48 @@ def masked_free_running(av: Avatar, frames: Frames, run: dict, every: int) -> di
         centred = run["centred"][i]
         distance, index, theta = metrics.nearest_aligned_pose(centred, poses)
         chamfers.append(distance * 1000)
-        placed = metrics.rotate_y(centred, theta) + roots[index]
-        drawn = av.draw(placed, True)
-        for view in frames.views[keys[index]]:
-            cam, want = frames.target(view)
-            scores.add(_rgba(drawn, cam), want)
+        _draw_and_score(av, frames, scores, centred, theta, roots[index], keys[index])
     return {"every": every, "frames": len(chamfers), "rendered_poses": len(keys), "render_every": frames.every,
             "nearest_chamfer_mm": sum(chamfers) / max(len(chamfers), 1), **scores.means()}
 
 
-@torch.no_grad()
-def teacher_free_running(av: Avatar, frames: Frames, count: int, seed: int) -> dict:
-    """The free-running comparison's ceiling (what a perfect model would score): `count`
-    of the teacher's own frames, each matched as a generated frame is to the nearest
-    rendered pose, of the other clips only (its own frame is rendered where every frame
-    is), drawn in its place as refined splats and scored against its render. With every
-    5th frame rendered most frames are 2-3 frames of the stride from the nearest, and even
-    the teacher scores ~0.83 SSIM (session 29); with every frame rendered the clips' shared
-    segments hold the same poses and it scores as the ground-truth row."""
-    keys, roots, poses = rendered_poses(av, frames)
+def teacher_free_matches(av, keys: list, poses: torch.Tensor, count: int, seed: int) -> list[tuple]:
+    """`count` of the teacher's own frames, from the clips in a seeded random order, each
+    after its clip's key change (the clip's only key where it has none), with the nearest
+    of the rendered `poses` (of dataset frames `keys`) among the other clips' only, as
+    (clip, frame, root-centred points, index into keys, yaw, Chamfer in metres)."""
     owner = torch.tensor([k[0] for k in keys])
     gen = torch.Generator().manual_seed(seed)
-    clips = [c for c in range(len(av.ds.clips)) if (owner != c).any()]
-    scores, chamfers = Masked(), []
+    clips = [c for c in torch.randperm(len(av.ds.clips), generator=gen).tolist() if (owner != c).any()]
+    out = []
     for k in range(count):
         c = clips[k % len(clips)]
-        f = int(torch.randint(av.ds.clips[c]["actions"].shape[0], (1,), generator=gen))
+        n = av.ds.clips[c]["actions"].shape[0]
+        first = av.ds.clips[c].get("switch", 0)
+        first = first if first < n else 0
+        f = first + int(torch.randint(n - first, (1,), generator=gen))
         frame = centred_frames(av, c, [f])[1][0]
         others = (owner != c).nonzero()[:, 0]
         distance, i, theta = metrics.nearest_aligned_pose(frame, poses[others])
-        index = int(others[i])
+        out.append((c, f, frame, int(others[i]), theta, distance))
+    return out
+
+
+@torch.no_grad()
+def teacher_free_running(av: Avatar, frames: Frames, count: int, seed: int) -> dict:
+    """The free-running comparison's teacher reference: `count` of the teacher's own frames
+    (`teacher_free_matches`: each matched as a generated frame is to the nearest rendered
+    pose, of the other clips only, since its own frame is rendered where every frame is),
+    drawn in that pose's place as refined splats and scored against the pose's renders.
+    With every 5th frame rendered most frames are 2-3 frames of the stride from the
+    nearest, and even the teacher scores ~0.83 SSIM (session 29); with every frame
+    rendered the clips' shared segments and repeated strides hold the same poses and it
+    scores as the ground-truth row."""
+    keys, roots, poses = rendered_poses(av, frames)
+    scores, chamfers = Masked(), []
+    for _, _, frame, index, theta, distance in teacher_free_matches(av, keys, poses, count, seed):
         chamfers.append(distance * 1000)
-        drawn = av.draw(metrics.rotate_y(frame, theta) + roots[index], True)
-        for view in frames.views[keys[index]]:
-            cam, want = frames.target(view)
-            scores.add(_rgba(drawn, cam), want)
+        _draw_and_score(av, frames, scores, frame, theta, roots[index], keys[index])
     return {"frames": count, "nearest_chamfer_mm": sum(chamfers) / max(len(chamfers), 1), **scores.means()}
 
 
@@ -572,7 +592,6 @@ def summary(results: dict) -> dict:
     """summary.json: the headline numbers of issue #17, with the teacher's where one exists
     (`teacher_<key>`) and the dataset against itself for the Fréchet stand-in."""
     m, mo, long = results["masked"], results["masked"]["motion"], results["long_run"]
-    forced, free = m["teacher_forced"]["generated"]["black"], m["free_running"]["black"]
     turn180, turn90 = _turn(mo["turns"], 180), _turn(mo["turns"], 90)
     by_seed = m["motion_by_seed"]
     all_stops = [st for r in by_seed for st in r["stops"]]  # every release of every seed
@@ -580,17 +599,11 @@ def summary(results: dict) -> dict:
         "vae_mm": results["vae_mm"],
         "chamfer_mm": m["chamfer_mm"],
         "teacher_chamfer_mm": m["teacher_chamfer_mm"],
-        "masked_psnr_db": forced["psnr"],
-        "masked_ssim": forced["ssim"],
-        "masked_psnr_db_white": m["teacher_forced"]["generated"]["white"]["psnr"],
-        "masked_ssim_white": m["teacher_forced"]["generated"]["white"]["ssim"],
-        "free_masked_psnr_db": free["psnr"],
-        "free_masked_ssim": free["ssim"],
-        "free_masked_psnr_db_white": m["free_running"]["white"]["psnr"],
-        "free_masked_ssim_white": m["free_running"]["white"]["ssim"],
+        **{f"masked_{k}": v for k, v in _scores(m["teacher_forced"]["generated"]).items()},
+        **{f"free_masked_{k}": v for k, v in _scores(m["free_running"]).items()},
         **({f"teacher_free_masked_{k}": v for k, v in _scores(m["teacher_free_running"]).items()}
            if "teacher_free_running" in m else {}),
-        "free_render_every": m["free_running"].get("render_every", 5),
+        "free_render_every": m["free_running"].get("render_every", 5),  # results before session 29: every 5th
         "stop_frames": mo["stop_frames"],
         "teacher_stop_frames": mo["teacher_stop_frames"],
         "stop_distance_m": mo["stop_distance_m"],
@@ -688,7 +701,7 @@ def evaluate(args) -> dict:
     print(f"masked images, free-running ({masked['free_running_path']}) … ({time.time() - began:.0f} s)", flush=True)
     masked["free_running"] = masked_free_running(av, big, free, 10)
     print(f"masked images, the teacher's own frames against the other clips … ({time.time() - began:.0f} s)", flush=True)
-    masked["teacher_free_running"] = teacher_free_running(av, big, 8 if quick else TEACHER_FREE_FRAMES, args.seed)
+    masked["teacher_free_running"] = teacher_free_running(av, big, masked["free_running"]["frames"], args.seed)
     masked["chamfer_every"] = 5 if quick else 2
     masked["chamfer_mm"] = aligned_chamfer(av, free, poses, masked["chamfer_every"])
     masked["teacher_chamfer_mm"] = teacher_chamfer(av, poses, owner, POSE_STRIDE, 12 if quick else 24, args.seed)
@@ -775,7 +788,10 @@ def main(argv=None):
     parser.add_argument("--engine", type=Path, help="the engine's free-running rollout on the key script (`unica render --bundle B "
                         "--keys K --points`; `unica eval` writes it); without it the PyTorch rollout stands in")
     args = parser.parse_args(argv)
-    results = evaluate(args)
+    try:
+        results = evaluate(args)
+    except (bundle_io.BundleError, OSError, ValueError) as e:
+        raise SystemExit(f"unica_train.eval: {e}") from None
     print(f"wrote {args.out / 'report.md'} ({results['minutes']:.1f} min)")
 
 

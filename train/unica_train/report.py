@@ -92,6 +92,11 @@ def _fmt(v, digits=1):
     return "—" if v is None else f"{v:.{digits}f}"
 
 
+# What `unica bake` renders without --render-every (results written before session 29
+# have no `render_every`: they were all made so).
+DEFAULT_RENDER_EVERY = 5
+
+
 def _masked_section(results: dict, data: str) -> list[str]:
     """The issue #17 numbers (summary.json) as a section of the report."""
     from .eval import summary
@@ -112,17 +117,18 @@ def _masked_section(results: dict, data: str) -> list[str]:
         "action. The ground-truth row draws the teacher's own geometry the same way (appearance alone).",
         f"- Free-running: the rollout of `{results['keys']}` through {path}; every {fr['every']}th frame "
         f"({fr['frames']} frames) is compared with the nearest of the dataset's {fr['rendered_poses']} rendered "
-        f"teacher poses ({_render_density(fr.get('render_every', 5))}; both root-centred, the frame turned to the "
+        f"teacher poses ({_render_density(fr.get('render_every', DEFAULT_RENDER_EVERY))}; both root-centred, the frame turned to the "
         "pose's best yaw, found by Chamfer), drawn in that pose's place and seen from its cameras (mean Chamfer to it "
         f"{fr['nearest_chamfer_mm']:.1f} mm).",
     ]
     tfr = m.get("teacher_free_running")
     if tfr:
-        lines.append(f"- The free-running row's ceiling: {tfr['frames']} of the teacher's own frames, each matched the "
-                     "same way to the nearest rendered pose of the other clips and drawn there the same way (mean "
-                     f"Chamfer to it {tfr['nearest_chamfer_mm']:.1f} mm): what a perfect model would score (the "
-                     "table's clips share whole segments, so where every frame is rendered most teacher frames find "
-                     "their very pose in another clip and score as the ground-truth row).")
+        lines.append(f"- The free-running row's teacher reference: {tfr['frames']} of the teacher's own frames (after "
+                     "their clips' key change), each matched the same way to the nearest rendered pose of the other "
+                     f"clips and drawn there the same way (mean Chamfer to it {tfr['nearest_chamfer_mm']:.1f} mm). The "
+                     "table's clips share whole segments and repeat the same strides, so where every frame is rendered "
+                     "most teacher frames find their very pose in another clip and score as the ground-truth row; "
+                     "where only some are, it shows what the render set's gaps cost.")
     lines += [
         "",
         "| images | PSNR black (dB) | SSIM black | PSNR white (dB) | SSIM white |",
@@ -194,8 +200,8 @@ def _masked_section(results: dict, data: str) -> list[str]:
             for r in phase:
                 lines.append(f"| {r['seed']} | " + " | ".join(f"{_fmt(t['generated'], 0)} ({_fmt(t['teacher'], 0)})"
                                                               for t in r["phase_turns"]) + " |")
-    render_every = fr.get("render_every", 5)
-    option = "" if render_every == 5 else f" --render-every {render_every}"
+    render_every = fr.get("render_every", DEFAULT_RENDER_EVERY)
+    option = "" if render_every == DEFAULT_RENDER_EVERY else f" --render-every {render_every}"
     lines += ["", f"The dataset is rebuilt with `unica bake <the character> --out {data}{option}` (the character file "
               "is in the dataset's manifest).", ""]
     return lines
