@@ -60,7 +60,7 @@ def test_unica_eval_quick_writes_a_report_with_finite_numbers(tmp_path):
     assert tf["ground_truth"]["black"]["psnr"] > tf["generated"]["black"]["psnr"], tf
     assert "## Masked images" in (out / "report.md").read_text()
     # The free-running frames are matched among every dataset frame (all rendered), and the
-    # teacher's own frames, matched the same way, give the row's ceiling.
+    # teacher's own frames, matched the same way, give the row's reference.
     fr, teacher_free = masked["free_running"], masked["teacher_free_running"]
     assert fr["render_every"] == 1 == summary["free_render_every"]
     assert fr["rendered_poses"] == 8 + 18 + 24 + 26, fr
@@ -125,7 +125,7 @@ def test_the_teacher_reference_matches_each_frame_against_the_other_clips_only()
     av = SimpleNamespace(ds=_Clips([narrow, 2 * narrow - torch.tensor([0.0, 1.0, 0.0])], frames=9))
     av.ds.clips[0]["switch"] = 6
     keys = [(c, f) for c in (0, 1) for f in range(9)]
-    poses = torch.cat([pose_set(av, 1)[0]])
+    poses = pose_set(av, 1)[0]
     matches = teacher_free_matches(av, keys, poses, 8, seed=0)
     assert sorted({c for c, *_ in matches}) == [0, 1]
     for clip, f, frame, index, _, distance in matches:

@@ -30,7 +30,7 @@ engine does since session 20), run in PyTorch because a 2-core CPU runs it there
    dataset (root-centred, turned to its best yaw, found by Chamfer), drawn from that
    pose's cameras — every pose is rendered where the dataset was baked with
    `--render-every 1`, as the issue's "nearest teacher pose in the dataset" asks; and
-   the teacher's own frames matched and drawn the same way, its ceiling. Also from the
+   the teacher's own frames matched and drawn the same way, its reference. Also from the
    engine's rollout: Chamfer, speeds, turns and the stop after the keys are released.
 6. report.md, results.json, summary.json and PNG plots in OUT."""
 
@@ -79,6 +79,9 @@ MASKED_FRAMES = 12
 # The teacher-forced frames are chosen among every 5th frame (what `unica bake` renders by
 # default), whatever the dataset's render density.
 TEACHER_FORCED_STRIDE = 5
+# What `unica bake` renders without --render-every (results written before session 29
+# have no `render_every`: they were all made so).
+DEFAULT_RENDER_EVERY = 5
 
 
 class Avatar:
@@ -283,8 +286,16 @@ def teacher_chamfer(av: Avatar, poses: torch.Tensor, owner: torch.Tensor, stride
         f = min(int(torch.randint(max(n // stride, 1), (1,), generator=gen)) * stride + stride // 2, n - 1)
         world = av.ds.positions(c, [f])
         frame = (world - av.ds.root(world)[:, None])[0]
-        out.append(metrics.nearest_aligned_pose(frame, poses[owner != c])[0] * 1000)
+        out.append(nearest_of_other_clips(frame, c, poses, owner)[0] * 1000)
     return sum(out) / len(out)
+
+
+def nearest_of_other_clips(frame: torch.Tensor, clip: int, poses: torch.Tensor, owner: torch.Tensor) -> tuple:
+    """`metrics.nearest_aligned_pose` of a teacher frame of `clip` among the poses of the
+    other clips only (`owner`: each pose's clip): (Chamfer, index into `poses`, yaw)."""
+    others = (owner != clip).nonzero()[:, 0]
+    distance, i, theta = metrics.nearest_aligned_pose(frame, poses[others])
+    return distance, int(others[i]), theta
 
 
 def dataset_frechet(per_clip: list[torch.Tensor]) -> float:
@@ -457,11 +468,11 @@ def _draw_and_score(av: Avatar, frames: Frames, scores: "Masked", centred: torch
 
 
 @torch.no_grad()
-def masked_free_running(av: Avatar, frames: Frames, run: dict, every: int) -> dict:
+def masked_free_running(av: Avatar, frames: Frames, rendered: tuple, run: dict, every: int) -> dict:
     """(b): every `every`-th frame of the engine's free-running rollout, root-centred,
-    against the nearest rendered teacher pose (turned to its best yaw), drawn into that
-    pose's place and seen from its cameras."""
-    keys, roots, poses = rendered_poses(av, frames)
+    against the nearest rendered teacher pose (`rendered`: `rendered_poses`; turned to its
+    best yaw), drawn into that pose's place and seen from its cameras."""
+    keys, roots, poses = rendered
     scores = Masked()
     chamfers = []
     for i in range(every - 1, run["frames"], every):
@@ -489,14 +500,13 @@ def teacher_free_matches(av, keys: list, poses: torch.Tensor, count: int, seed: 
         first = first if first < n else 0
         f = first + int(torch.randint(n - first, (1,), generator=gen))
         frame = centred_frames(av, c, [f])[1][0]
-        others = (owner != c).nonzero()[:, 0]
-        distance, i, theta = metrics.nearest_aligned_pose(frame, poses[others])
-        out.append((c, f, frame, int(others[i]), theta, distance))
+        distance, index, theta = nearest_of_other_clips(frame, c, poses, owner)
+        out.append((c, f, frame, index, theta, distance))
     return out
 
 
 @torch.no_grad()
-def teacher_free_running(av: Avatar, frames: Frames, count: int, seed: int) -> dict:
+def teacher_free_running(av: Avatar, frames: Frames, rendered: tuple, count: int, seed: int) -> dict:
     """The free-running comparison's teacher reference: `count` of the teacher's own frames
     (`teacher_free_matches`: each matched as a generated frame is to the nearest rendered
     pose, of the other clips only, since its own frame is rendered where every frame is),
@@ -505,7 +515,7 @@ def teacher_free_running(av: Avatar, frames: Frames, count: int, seed: int) -> d
     nearest, and even the teacher scores ~0.83 SSIM (session 29); with every frame
     rendered the clips' shared segments and repeated strides hold the same poses and it
     scores as the ground-truth row."""
-    keys, roots, poses = rendered_poses(av, frames)
+    keys, roots, poses = rendered
     scores, chamfers = Masked(), []
     for _, _, frame, index, theta, distance in teacher_free_matches(av, keys, poses, count, seed):
         chamfers.append(distance * 1000)
@@ -603,7 +613,7 @@ def summary(results: dict) -> dict:
         **{f"free_masked_{k}": v for k, v in _scores(m["free_running"]).items()},
         **({f"teacher_free_masked_{k}": v for k, v in _scores(m["teacher_free_running"]).items()}
            if "teacher_free_running" in m else {}),
-        "free_render_every": m["free_running"].get("render_every", 5),  # results before session 29: every 5th
+        "free_render_every": m["free_running"].get("render_every", DEFAULT_RENDER_EVERY),
         "stop_frames": mo["stop_frames"],
         "teacher_stop_frames": mo["teacher_stop_frames"],
         "stop_distance_m": mo["stop_distance_m"],
@@ -699,9 +709,10 @@ def evaluate(args) -> dict:
     else:
         free, masked["free_running_path"] = centred_rollout(av, run), "pytorch"
     print(f"masked images, free-running ({masked['free_running_path']}) … ({time.time() - began:.0f} s)", flush=True)
-    masked["free_running"] = masked_free_running(av, big, free, 10)
+    rendered = rendered_poses(av, big)
+    masked["free_running"] = masked_free_running(av, big, rendered, free, 10)
     print(f"masked images, the teacher's own frames against the other clips … ({time.time() - began:.0f} s)", flush=True)
-    masked["teacher_free_running"] = teacher_free_running(av, big, masked["free_running"]["frames"], args.seed)
+    masked["teacher_free_running"] = teacher_free_running(av, big, rendered, masked["free_running"]["frames"], args.seed)
     masked["chamfer_every"] = 5 if quick else 2
     masked["chamfer_mm"] = aligned_chamfer(av, free, poses, masked["chamfer_every"])
     masked["teacher_chamfer_mm"] = teacher_chamfer(av, poses, owner, POSE_STRIDE, 12 if quick else 24, args.seed)

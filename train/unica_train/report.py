@@ -92,14 +92,9 @@ def _fmt(v, digits=1):
     return "—" if v is None else f"{v:.{digits}f}"
 
 
-# What `unica bake` renders without --render-every (results written before session 29
-# have no `render_every`: they were all made so).
-DEFAULT_RENDER_EVERY = 5
-
-
 def _masked_section(results: dict, data: str) -> list[str]:
     """The issue #17 numbers (summary.json) as a section of the report."""
-    from .eval import summary
+    from .eval import DEFAULT_RENDER_EVERY, summary
 
     m, sm = results["masked"], summary(results)
     tf, fr = m["teacher_forced"], m["free_running"]
