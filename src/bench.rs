@@ -634,6 +634,16 @@ fn stage_lines(engine: &mut crate::engine::Engine, out: &mut impl Write) -> anyh
     Ok(())
 }
 
+/// The sampler in words: "one pass (distilled)" or "10 DDIM steps, CFG 3.5".
+pub fn describe(s: Sampling) -> String {
+    match s.kind {
+        crate::nn::sampler::SamplerKind::OnePass => "one UNet pass (distilled student)".into(),
+        crate::nn::sampler::SamplerKind::Ddim => {
+            format!("{} DDIM steps, CFG {}", s.steps, s.cfg_scale)
+        }
+    }
+}
+
 /// `unica bench --live N`: N generated frames after a warm-up frame, made as the app
 /// makes them — key → the engine's frame plan (model, clamping, PCA, splats at `level`
 /// into the rasterizer's buffer) — with the GPU layer's counts per frame. cpu_ms is the
@@ -659,10 +669,9 @@ pub fn live(
     let (dispatches, flops) = engine.plan_counts(Action::Forward);
     writeln!(
         out,
-        "live: {} DDIM steps, CFG {}, splat level {level} ({} splats, refiner {}); frame plan: \
+        "live: {}, splat level {level} ({} splats, refiner {}); frame plan: \
          {dispatches} dispatches, {} copies, {:.2} GFLOP",
-        sampling.steps,
-        sampling.cfg_scale,
+        describe(sampling),
         engine.splats().map_or(0, |(_, n)| n),
         if engine.refine() { "on" } else { "off" },
         engine.plan_copies(),
@@ -729,8 +738,10 @@ pub fn live(
     };
     writeln!(
         out,
-        "per generated frame: dispatches={} submissions={} readbacks={} readback_bytes={} \
-         buffers_created={} bind_groups_created={} cpu_ms={:.2} wall_ms={:.1} fps={:.2}",
+        "per generated frame: unet_passes={} dispatches={} submissions={} readbacks={} \
+         readback_bytes={} buffers_created={} bind_groups_created={} cpu_ms={:.2} wall_ms={:.1} \
+         fps={:.2}",
+        sampling.unet_passes(),
         per(c.dispatches),
         per(c.submissions),
         per(c.readbacks),

@@ -58,17 +58,26 @@ pub struct Cli {
     #[arg(long, value_name = "SCRIPT")]
     keys: Option<String>,
 
-    /// Render this many frames, then exit (for tests and scripted captures)
-    #[arg(long, value_name = "N")]
+    /// Render this many window frames, then exit (for tests and scripted captures; the
+    /// window then redraws continuously so that the count advances)
+    #[arg(long, value_name = "N", conflicts_with = "exit_after_seconds")]
     exit_after: Option<u64>,
 
-    /// DDIM steps of the neural avatar per generated frame [default: the bundle's]; fewer
-    /// is faster and coarser (the HUD changes it live)
+    /// Close after this many seconds, whatever was drawn, and print the final line with
+    /// generated_fps=, window_fps= and input_latency_ms= (the window draws only when
+    /// something changes, as in normal use)
+    #[arg(long, value_name = "SECONDS")]
+    exit_after_seconds: Option<f64>,
+
+    /// The neural avatar's teacher sampler with this many DDIM steps per generated frame
+    /// [default: the bundle's sampler: its distilled one pass where it has one]; the HUD
+    /// changes it live
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..=1000))]
     steps: Option<u64>,
 
-    /// Save a PNG of the whole window when exiting (needs --exit-after)
-    #[arg(long, value_name = "PNG", requires = "exit_after")]
+    /// Save a PNG of the whole window when exiting (needs --exit-after or
+    /// --exit-after-seconds)
+    #[arg(long, value_name = "PNG")]
     screenshot: Option<PathBuf>,
 
     /// Folder that recordings (F9) go to [default: recordings/session-<unix time>]
@@ -221,12 +230,15 @@ struct BenchArgs {
     /// Also time a trained bundle (e.g. assets/witch/bundle)
     #[arg(long, value_name = "DIR")]
     bundle: Option<PathBuf>,
-    /// DDIM steps per generated frame
-    #[arg(long, default_value_t = 10)]
-    steps: usize,
-    /// Classifier-free guidance scale (1 = no guidance, batch 1; else batch 2)
-    #[arg(long, default_value_t = 2.0)]
-    cfg_scale: f32,
+    /// DDIM steps per generated frame [default: 10 for the model tables; for --live and
+    /// --soak the bundle's own sampler: its distilled one pass where it has one]. Given
+    /// with --live or --soak, the bundle's teacher runs that many DDIM steps
+    #[arg(long)]
+    steps: Option<usize>,
+    /// Classifier-free guidance scale (1 = no guidance, batch 1; else batch 2) [default:
+    /// 2 for the model tables; the bundle's for --live and --soak]
+    #[arg(long)]
+    cfg_scale: Option<f32>,
     /// Timed runs per row, after one warm-up
     #[arg(long, default_value_t = 3)]
     repeat: usize,
@@ -525,21 +537,20 @@ pub fn run() -> anyhow::Result<()> {
 
 fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
     use crate::gpu::kernel::Precision;
-    let sampling = crate::nn::sampler::Sampling::new(args.steps, args.cfg_scale);
+    let sampling =
+        crate::nn::sampler::Sampling::new(args.steps.unwrap_or(10), args.cfg_scale.unwrap_or(2.0));
     // The random-weight models use the 1000-step schedule; a bundle is checked on load.
     sampling.check(1000).map_err(anyhow::Error::msg)?;
     if args.repeat == 0 {
         bail!("--repeat must be at least 1");
     }
     let gpu = GpuContext::headless(gpu_options)?;
-    // The live rows run as the app does: the bundle's Idle guidance and noise scale, with
-    // --steps and --cfg-scale.
+    // The live rows run as the app does: the bundle's sampler (its one pass where it has
+    // one), or its teacher with --steps and --cfg-scale, with its Idle guidance and noise
+    // scale.
     let bundled = |dir: &Path| -> anyhow::Result<crate::nn::sampler::Sampling> {
-        Ok(crate::nn::sampler::Sampling {
-            steps: args.steps,
-            cfg_scale: args.cfg_scale,
-            ..crate::nn::bundle::read_manifest(&dir.join("manifest.json"))?.sampler
-        })
+        let manifest = crate::nn::bundle::read_manifest(&dir.join("manifest.json"))?;
+        Ok(manifest.sampler.chosen(args.steps, args.cfg_scale))
     };
     if let (Some(frames), Some(dir)) = (args.soak, &args.bundle) {
         let sampling = bundled(dir)?;
@@ -794,12 +805,7 @@ fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         },
         (None, Some(dir)) => {
             let manifest = crate::nn::bundle::read_manifest(&dir.join("manifest.json"))?;
-            let defaults = manifest.sampler;
-            let sampling = crate::nn::sampler::Sampling {
-                steps: args.steps.unwrap_or(defaults.steps),
-                cfg_scale: args.cfg_scale.unwrap_or(defaults.cfg_scale),
-                ..defaults
-            };
+            let sampling = manifest.sampler.chosen(args.steps, args.cfg_scale);
             sampling
                 .check(manifest.diffusion.steps)
                 .map_err(anyhow::Error::msg)?;
@@ -886,10 +892,7 @@ fn export(args: ExportArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     let manifest = crate::nn::bundle::read_manifest(&args.bundle.join("manifest.json"))?;
     let options = crate::engine::EngineOptions {
         seed: args.seed,
-        sampling: Some(crate::nn::sampler::Sampling {
-            steps: args.steps.unwrap_or(manifest.sampler.steps),
-            ..manifest.sampler
-        }),
+        sampling: Some(manifest.sampler.chosen(args.steps, None)),
         ..Default::default()
     };
     let level = args
@@ -940,6 +943,7 @@ fn view(args: ViewArgs, gpu: GpuOptions) -> anyhow::Result<()> {
         splats: Some(args.file),
         splat_up: args.up,
         exit_after: args.exit_after,
+        exit_after_seconds: None,
         screenshot: args.screenshot,
         record_fps: crate::app::recorder::DEFAULT_FPS,
         gpu,
@@ -1040,7 +1044,7 @@ fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
             dir: args.bundle.clone(),
             options: crate::engine::EngineOptions {
                 seed: args.seed,
-                sampling: Some(manifest.sampler),
+                sampling: Some(manifest.sampler.live()),
                 pca: true,
                 ..Default::default()
             },
@@ -1115,6 +1119,15 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
     if cli.exit_after == Some(0) {
         bail!("--exit-after must be at least 1");
     }
+    if let Some(s) = cli
+        .exit_after_seconds
+        .filter(|s| !(s.is_finite() && *s > 0.0))
+    {
+        bail!("--exit-after-seconds {s}: a positive number of seconds is needed");
+    }
+    if cli.screenshot.is_some() && cli.exit_after.is_none() && cli.exit_after_seconds.is_none() {
+        bail!("--screenshot needs --exit-after N or --exit-after-seconds S (when to take it)");
+    }
     let record_dir = cli.record_dir.unwrap_or_else(|| {
         let secs = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
@@ -1130,6 +1143,7 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
         clips: cli.clips,
         keys,
         exit_after: cli.exit_after,
+        exit_after_seconds: cli.exit_after_seconds,
         steps: cli.steps.map(|s| s as usize),
         screenshot: cli.screenshot,
         record_dir,

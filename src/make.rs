@@ -1,6 +1,7 @@
 //! `unica make`: from a character file to a neural avatar bundle in one command. It runs
-//! the four stages a person would run by hand — bake the teacher's dataset, train the
-//! geometry model, train the splat refiner, evaluate — each as its own process with its
+//! the five stages a person would run by hand — bake the teacher's dataset, train the
+//! geometry model, train the splat refiner, distil the sampler into a one-pass student,
+//! evaluate — each as its own process with its
 //! own progress bar, and records in `OUT/make.json` what it was asked and which stages
 //! finished, so a second run with the same arguments continues where the first stopped
 //! (the trainers resume from their checkpoints). The bundle the app opens is `OUT/bundle`.
@@ -12,10 +13,11 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 
 /// The stages in order, with what each one writes under OUT.
-pub const STAGES: [(&str, &str); 4] = [
+pub const STAGES: [(&str, &str); 5] = [
     ("bake", "data/"),
     ("geometry", "geometry/ (VAE + UNet run; bundle/ from it)"),
     ("refiner", "refiner/ (adds the refiner to bundle/)"),
+    ("distil", "distil/ (adds the one-pass student to bundle/)"),
     ("eval", "eval/report.md"),
 ];
 
@@ -24,6 +26,35 @@ pub const STAGES: [(&str, &str); 4] = [
 const FULL_GEOMETRY: &str = include_str!("../train/configs/witch_cpu.json");
 /// The shipped Witch's refiner steps (about 50 minutes on a 2-core CPU).
 const FULL_REFINER_STEPS: u32 = 3000;
+
+/// The distillation of the shipped Witch's sampler (docs/experiments/distillation.md):
+/// 1,536 frames sampled by the teacher and 400 student steps, about 35 minutes on a
+/// 2-core CPU.
+const FULL_DISTIL: [&str; 8] = [
+    "--frames",
+    "1536",
+    "--steps",
+    "400",
+    "--batch",
+    "16",
+    "--held-out-frames",
+    "128",
+];
+/// `--quick`: a handful of frames and steps (the quick dataset holds clip 2 out).
+const QUICK_DISTIL: [&str; 12] = [
+    "--frames",
+    "16",
+    "--steps",
+    "4",
+    "--batch",
+    "2",
+    "--held-out-frames",
+    "8",
+    "--held-out-clips",
+    "2",
+    "--checkpoint-every",
+    "2",
+];
 
 /// `--quick`: a tiny model and a few steps of each stage on the quick dataset (4 clips;
 /// clip 2 held out), minutes in all: it proves the pipeline, not the avatar.
@@ -68,7 +99,7 @@ pub struct MakeArgs {
     #[arg(long, value_name = "FILE", num_args = 1..)]
     pub clips: Vec<PathBuf>,
     /// Stop after this stage (a later run with the same arguments goes on from there)
-    #[arg(long, value_name = "STAGE", value_parser = ["bake", "geometry", "refiner", "eval"])]
+    #[arg(long, value_name = "STAGE", value_parser = ["bake", "geometry", "refiner", "distil", "eval"])]
     pub until: Option<String>,
 }
 
@@ -119,10 +150,11 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
     }
     check_trainer(python)?;
     let started = Instant::now();
-    let (data, geometry, refiner, bundle, eval) = (
+    let (data, geometry, refiner, distil, bundle, eval) = (
         args.out.join("data"),
         args.out.join("geometry"),
         args.out.join("refiner"),
+        args.out.join("distil"),
         args.out.join("bundle"),
         args.out.join("eval"),
     );
@@ -179,6 +211,11 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
                 // The refiner is added to a copy of the geometry bundle, so a rerun of
                 // this stage starts from the same geometry.
                 copy_dir(&geometry.join("bundle"), &bundle)?;
+                // A student distilled from an earlier bundle would not match this one.
+                if distil.exists() {
+                    std::fs::remove_dir_all(&distil)
+                        .with_context(|| distil.display().to_string())?;
+                }
                 let mut command = trainer(python, "unica_train.refiner");
                 command
                     .arg("--bundle")
@@ -199,6 +236,28 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
                     command.arg("--resume");
                 }
                 run(command, "the refiner trainer")?;
+            }
+            "distil" => {
+                // The student is distilled from the refiner stage's bundle and written
+                // into a copy of it, which then replaces OUT/bundle whole.
+                let mut command = trainer(python, "unica_train.distil");
+                command
+                    .arg("--bundle")
+                    .arg(&bundle)
+                    .arg("--data")
+                    .arg(&data)
+                    .arg("--out")
+                    .arg(&distil)
+                    .args(if args.quick {
+                        &QUICK_DISTIL[..]
+                    } else {
+                        &FULL_DISTIL[..]
+                    });
+                if distil.is_dir() {
+                    command.arg("--resume");
+                }
+                run(command, "the distillation")?;
+                copy_dir(&distil.join("bundle"), &bundle)?;
             }
             "eval" => {
                 let mut command = Command::new(exe);
@@ -308,7 +367,10 @@ fn run(mut command: Command, what: &str) -> anyhow::Result<()> {
 /// Replaces `to` with a copy of the files of `from` (a flat bundle folder).
 fn copy_dir(from: &Path, to: &Path) -> anyhow::Result<()> {
     if !from.join("manifest.json").is_file() {
-        bail!("{}: the geometry stage wrote no bundle", from.display());
+        bail!(
+            "{}: the stage before wrote no bundle (no manifest.json)",
+            from.display()
+        );
     }
     if to.exists() {
         std::fs::remove_dir_all(to).with_context(|| to.display().to_string())?;

@@ -147,6 +147,12 @@ fn an_unknown_adapter_name_lists_the_available_ones() {
 fn bad_arguments_fail_before_any_window_opens() {
     assert_one_line_error(&unica(&["--keys", "30W 5Q"], &[]), "'5Q'");
     assert_one_line_error(&unica(&["--exit-after", "0"], &[]), "at least 1");
+    for bad in ["0", "NaN", "inf"] {
+        assert_one_line_error(
+            &unica(&["--exit-after-seconds", bad], &[]),
+            "positive number of seconds",
+        );
+    }
     assert_one_line_error(
         &unica(&["--bundle", "nowhere.bundle"], &[]),
         "nowhere.bundle",
@@ -175,6 +181,45 @@ fn adapters_lists_the_one_in_use() {
         2,
         "{text}"
     ); // the adapter + legend
+}
+
+#[test]
+fn bench_live_counts_the_unet_passes_of_a_frame() {
+    // The shipped bundle runs its distilled student by default: one pass a frame; its
+    // teacher at 2 DDIM steps with guidance: two passes a step.
+    let bundle = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/witch/bundle");
+    for (extra, passes, sampler) in [
+        (
+            &[][..],
+            "unet_passes=1 ",
+            "one UNet pass (distilled student)",
+        ),
+        (
+            &["--steps", "2"][..],
+            "unet_passes=4 ",
+            "2 DDIM steps, CFG 3.5",
+        ),
+    ] {
+        let mut args = vec![
+            "bench",
+            "--bundle",
+            bundle,
+            "--live",
+            "1",
+            "--splat-level",
+            "128",
+        ];
+        args.extend_from_slice(extra);
+        let out = unica(&args, &[]);
+        assert!(out.status.success(), "{}", stderr(&out));
+        let text = String::from_utf8_lossy(&out.stdout);
+        let line = text
+            .lines()
+            .find(|l| l.starts_with("per generated frame:"))
+            .unwrap_or_else(|| panic!("no per-frame line: {text}"));
+        assert!(line.contains(passes), "{line}");
+        assert!(text.contains(&format!("live: {sampler},")), "{text}");
+    }
 }
 
 #[test]

@@ -591,17 +591,29 @@ fn witch_bundle() -> std::path::PathBuf {
 
 #[test]
 fn the_shipped_witch_bundle_generates_and_decodes_what_pytorch_does() {
-    // Trained weights, the bundle's sampler (10 DDIM steps, its guidance; Idle sampled
-    // as its manifest says), then the decoder: values are latents of size ~3 and map
-    // coordinates in [0, 1]. Forward and Idle.
-    for (name, precision) in ["witch_frame", "witch_idle_frame"]
-        .into_iter()
-        .flat_map(|name| precisions().into_iter().map(move |p| (name, p)))
+    // Trained weights, the bundle's teacher sampler (10 DDIM steps, its guidance; Idle
+    // sampled as its manifest says) and its distilled student's one pass, then the
+    // decoder: values are latents of size ~3 and map coordinates in [0, 1]. Forward and
+    // Idle.
+    for (name, precision) in [
+        "witch_frame",
+        "witch_idle_frame",
+        "witch_one_pass_frame",
+        "witch_one_pass_idle_frame",
+    ]
+    .into_iter()
+    .flat_map(|name| precisions().into_iter().map(move |p| (name, p)))
     {
         let mut f = Fixture::open(name, precision);
         let (noise, a) = (f.input("io.in.noise"), action(&f));
         let bundle = Bundle::load(&witch_bundle(), &f.gpu, precision).unwrap();
-        let sampling = bundle.manifest.sampler;
+        let teacher = bundle.manifest.sampler;
+        let sampling = if name.contains("one_pass") {
+            assert_eq!(bundle.live_sampling().unet_passes(), 1, "{name}");
+            bundle.live_sampling()
+        } else {
+            teacher.ddim(teacher.steps)
+        };
         let mut r = Recorder::new(&f.gpu, &mut f.pipelines, precision);
         let context = bundle.context.reshaped(&[1, 3, 4, 16, 16]);
         let z = bundle

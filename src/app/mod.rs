@@ -8,7 +8,7 @@ pub mod viewport;
 
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use eframe::egui;
 
@@ -16,6 +16,7 @@ use crate::action::{Action, HeldKeys, KeyScript};
 use crate::avatar::locomotion::FRAME_RATE;
 use crate::gpu::timing::StageTiming;
 use crate::gpu::{self, GpuContext, GpuOptions};
+use crate::nn::sampler::SamplerKind;
 use crate::render::OrbitCamera;
 use recorder::Recorder;
 use shown::Shown;
@@ -37,8 +38,11 @@ pub struct AppOptions {
     pub clips: Vec<PathBuf>,
     /// Drive the action from this script instead of the keyboard.
     pub keys: Option<KeyScript>,
-    /// Render this many frames, then exit.
+    /// Render this many frames, then exit (the window then redraws continuously, so
+    /// that the count advances).
     pub exit_after: Option<u64>,
+    /// Close after this many seconds, whatever was drawn (the window yields as usual).
+    pub exit_after_seconds: Option<f64>,
     /// The neural avatar's DDIM steps (`None`: the bundle's); the HUD changes them live.
     pub steps: Option<usize>,
     /// Save a screenshot of the window when exiting after `exit_after` frames.
@@ -104,7 +108,12 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
                 state.device.clone(),
                 state.queue.clone(),
             );
-            Ok(Box::new(UnicaApp::new(gpu, options, app_outcome)))
+            Ok(Box::new(UnicaApp::new(
+                gpu,
+                cc.egui_ctx.clone(),
+                options,
+                app_outcome,
+            )))
         }),
     )
     .map_err(|e| anyhow::anyhow!("could not open the window: {e}"))?;
@@ -123,7 +132,6 @@ struct UnicaApp {
     action: Action,
     frame: u64,
     last_frame: Instant,
-    frame_ms: f64,
     timings: Vec<StageTiming>,
     recording: Option<(Recorder, Instant)>,
     /// Teacher frames owed to the clock (interactive pacing).
@@ -134,9 +142,19 @@ struct UnicaApp {
     message: Option<String>,
     show_help: bool,
     screenshot_requested: bool,
-    /// When the first generated frame arrived, and the window frame then: the window's
-    /// rate while the model runs (printed by `--exit-after`).
-    model_started: Option<(Instant, u64)>,
+    /// When the first generated frame arrived, and the window frame and the generated
+    /// frame count then: the rates while the model runs (printed on the final line).
+    model_started: Option<(Instant, u64, u64)>,
+    /// The window's context, for the model's worker to wake it with a new frame.
+    ctx: egui::Context,
+    /// When the window opened (`--exit-after-seconds`).
+    opened: Instant,
+    /// Input to drawn frame, ms: one per frame that took a key press, a click, a drag or
+    /// a wheel turn, from the frame's start until its viewport work has run on the GPU.
+    latencies: Arc<Mutex<Vec<f64>>>,
+    /// The HUD's counters, refreshed at most twice a second: when, window frames then,
+    /// and the values shown.
+    hud: HudCounters,
     /// Where the screenshot callback leaves its result for the exit path.
     outcome: Arc<Mutex<Option<anyhow::Error>>>,
     /// A scripted run failed: close the window (the error is in `outcome`).
@@ -146,6 +164,7 @@ struct UnicaApp {
 impl UnicaApp {
     fn new(
         gpu: GpuContext,
+        ctx: egui::Context,
         options: AppOptions,
         outcome: Arc<Mutex<Option<anyhow::Error>>>,
     ) -> Self {
@@ -156,11 +175,14 @@ impl UnicaApp {
             (None, Some(dir)) => Shown::neural(
                 &gpu,
                 &viewport.renderer,
-                dir,
                 character,
                 &options.clips,
-                options.steps,
-                options.keys.clone(),
+                neural::Start {
+                    dir: dir.clone(),
+                    steps: options.steps,
+                    script: options.keys.clone(),
+                    wake: wake(&ctx),
+                },
             ),
             (None, None) => Shown::load(&gpu, &viewport.renderer, character, &options.clips),
         };
@@ -183,7 +205,6 @@ impl UnicaApp {
             action: Action::Idle,
             frame: 0,
             last_frame: Instant::now(),
-            frame_ms: 0.0,
             timings: Vec::new(),
             recording: None,
             step_clock: 0.0,
@@ -192,6 +213,10 @@ impl UnicaApp {
             show_help: false,
             screenshot_requested: false,
             model_started: None,
+            ctx,
+            opened: Instant::now(),
+            latencies: Arc::default(),
+            hud: HudCounters::default(),
             outcome,
             closing: false,
         };
@@ -208,11 +233,14 @@ impl UnicaApp {
             Shown::neural(
                 &self.gpu,
                 renderer,
-                &path,
                 None,
                 &[],
-                self.options.steps,
-                self.options.keys.clone(),
+                neural::Start {
+                    dir: path.clone(),
+                    steps: self.options.steps,
+                    script: self.options.keys.clone(),
+                    wake: wake(&self.ctx),
+                },
             )
         } else {
             Shown::load(&self.gpu, renderer, Some(&path), &[])
@@ -445,17 +473,27 @@ impl UnicaApp {
             ));
         }
         ui.separator();
-        let fps = if self.frame_ms > 0.0 {
-            1000.0 / self.frame_ms
-        } else {
-            0.0
-        };
-        ui.label(format!("{fps:.1} fps   {:.2} ms/frame", self.frame_ms));
-        for t in &self.timings {
+        ui.label(format!(
+            "Window: {:.1} frames/s, drawn only when something changes",
+            self.hud.window_fps
+        ));
+        for t in &self.hud.timings {
             ui.label(format!("{}: {:.3} ms ({})", t.name, t.ms, t.clock));
         }
+        ui.add(
+            egui::Slider::new(&mut self.viewport.resolution_scale, 0.25..=1.0)
+                .text("3D resolution scale"),
+        );
         ui.separator();
         ui.label(format!("Adapter: {}", self.gpu.adapter_label()));
+        let cpu = self.gpu.adapter.get_info().device_type == wgpu::DeviceType::Cpu;
+        ui.label(format!(
+            "Defaults for {}: the bundle's sampler (one pass where distilled), splat level {}, \
+             3D resolution scale {}",
+            if cpu { "a CPU driver" } else { "a GPU" },
+            crate::engine::appearance::default_level(&self.gpu),
+            viewport::default_resolution_scale(&self.gpu)
+        ));
         let caps = self.gpu.caps;
         ui.label(format!(
             "f16: {}  subgroups: {}  timestamps: {}",
@@ -511,10 +549,73 @@ impl UnicaApp {
         }
     }
 
-    /// Whether the session is scripted (`--keys` or `--exit-after`): a failure then
-    /// ends it with a non-zero exit.
+    /// Whether the session is scripted (`--keys`, `--exit-after` or
+    /// `--exit-after-seconds`): a failure then ends it with a non-zero exit.
     fn scripted(&self) -> bool {
-        self.options.keys.is_some() || self.options.exit_after.is_some()
+        self.options.keys.is_some()
+            || self.options.exit_after.is_some()
+            || self.options.exit_after_seconds.is_some()
+    }
+
+    /// The line a scripted session ends with: frames drawn, the action, and with a
+    /// neural avatar the generated and window rates while the model ran
+    /// (`generated_fps=`, `window_fps=`) and the median input latency
+    /// (`input_latency_ms=`, "none" without input).
+    fn final_line(&self) -> String {
+        let generated = self
+            .shown
+            .neural
+            .as_ref()
+            .map(|n| {
+                let (generated_fps, window_fps) =
+                    self.model_started.map_or((0.0, 0.0), |(t, frame, first)| {
+                        let seconds = t.elapsed().as_secs_f64().max(1e-9);
+                        (
+                            n.frames.saturating_sub(first) as f64 / seconds,
+                            (self.frame - frame) as f64 / seconds,
+                        )
+                    });
+                format!(
+                    "; {} generated frames; {generated_fps:.2} generated per second; the window \
+                     ran at {window_fps:.1} fps while the model ran; generated_fps={generated_fps:.3} \
+                     window_fps={window_fps:.2}",
+                    n.frames
+                )
+            })
+            .unwrap_or_default();
+        let latency = median(&self.latencies.lock().expect("latency lock"))
+            .map_or("none".to_string(), |ms| format!("{ms:.1}"));
+        format!(
+            "unica: {} frames rendered; action {}; character {}{generated}; input_latency_ms={latency}",
+            self.frame, self.action, self.shown.name
+        )
+    }
+
+    /// The window draws again only when something will change: continuously while a
+    /// teacher alone animates or `--exit-after N` counts frames; else at a recording's
+    /// ticks, each second while the first generated frame is on its way (its note counts
+    /// up), when `--exit-after-seconds` is due, and once more after a camera move (the
+    /// splats drawn small while moving are redrawn at full size). Input and the model's
+    /// new frames (its worker wakes the window) need nothing here.
+    fn schedule_repaint(&self, ctx: &egui::Context) {
+        let teacher_alone = self.shown.neural.is_none() && self.shown.teacher.is_some();
+        if self.options.exit_after.is_some() || teacher_alone {
+            ctx.request_repaint();
+            return;
+        }
+        if self.recording.is_some() {
+            ctx.request_repaint_after(Duration::from_secs_f64(1.0 / self.options.record_fps));
+        }
+        if self.shown.first_frame_pending().is_some() {
+            ctx.request_repaint_after(Duration::from_millis(500));
+        }
+        if let Some(seconds) = self.options.exit_after_seconds {
+            let left = (seconds - self.opened.elapsed().as_secs_f64()).max(0.0);
+            ctx.request_repaint_after(Duration::from_secs_f64(left));
+        }
+        if !self.viewport.settled() {
+            ctx.request_repaint_after(Duration::from_millis(100));
+        }
     }
 
     /// Shows `problem`; a scripted session also closes and exits non-zero with it.
@@ -528,36 +629,19 @@ impl UnicaApp {
         }
     }
 
-    /// `--exit-after N`: after N frames take the screenshot (if asked) and close.
+    /// `--exit-after N` (N window frames) or `--exit-after-seconds S`: take the
+    /// screenshot (if asked), print the final line and close.
     fn scripted_exit(&mut self, ctx: &egui::Context) {
-        let Some(limit) = self.options.exit_after else {
-            return;
-        };
-        if self.frame < limit || self.screenshot_requested {
+        let frames_done = self.options.exit_after.is_some_and(|n| self.frame >= n);
+        let time_done = self
+            .options
+            .exit_after_seconds
+            .is_some_and(|s| self.opened.elapsed().as_secs_f64() >= s);
+        if !(frames_done || time_done) || self.screenshot_requested {
             return;
         }
         self.screenshot_requested = true;
-        let generated = self
-            .shown
-            .neural
-            .as_ref()
-            .map(|n| {
-                let window = self.model_started.map_or(String::new(), |(t, f)| {
-                    let seconds = t.elapsed().as_secs_f64();
-                    format!(
-                        "; {:.2} generated per second; the window ran at {:.1} fps while the \
-                         model ran",
-                        n.frames as f64 / seconds.max(1e-9),
-                        (self.frame - f) as f64 / seconds.max(1e-9)
-                    )
-                });
-                format!("; {} generated frames{window}", n.frames)
-            })
-            .unwrap_or_default();
-        println!(
-            "unica: {} frames rendered; action {}; character {}{generated}",
-            self.frame, self.action, self.shown.name
-        );
+        println!("{}", self.final_line());
         let Some(path) = self.options.screenshot.clone() else {
             ctx.send_viewport_cmd(egui::ViewportCommand::Close);
             return;
@@ -590,16 +674,18 @@ impl eframe::App for UnicaApp {
         let now = Instant::now();
         let dt = now.duration_since(self.last_frame).as_secs_f64() * 1e3;
         self.last_frame = now;
-        self.frame_ms = if self.frame == 0 {
-            dt
-        } else {
-            0.9 * self.frame_ms + 0.1 * dt
-        };
 
-        if self.model_started.is_none() && self.shown.neural.as_ref().is_some_and(|n| n.frames > 0)
-        {
-            self.model_started = Some((now, self.frame));
+        if let Some(neural) = &self.shown.neural {
+            neural.avatar.window_started();
         }
+        if let (None, Some(n)) = (
+            self.model_started,
+            self.shown.neural.as_ref().filter(|n| n.frames > 0),
+        ) {
+            self.model_started = Some((now, self.frame, n.frames));
+        }
+        self.hud.refresh(now, self.frame, &self.timings);
+        let input = ctx.input(took_input);
         self.handle_input(&ctx);
         self.action = match &self.options.keys {
             Some(script) => script.action_at(self.shown.generated_frames() as usize),
@@ -642,12 +728,31 @@ impl eframe::App for UnicaApp {
                     splats,
                     labels: &labels,
                     light: self.shown.light(),
+                    full_size: self.recording.is_some(),
                 };
                 let timings = self.viewport.show(ui, &self.gpu, &state.renderer, scene);
                 if !timings.is_empty() {
                     self.timings = timings;
                 }
+                if let Some(note) = self.first_frame_note() {
+                    ui.painter().text(
+                        ui.max_rect().center_bottom() - egui::vec2(0.0, 40.0),
+                        egui::Align2::CENTER_BOTTOM,
+                        note,
+                        egui::FontId::proportional(18.0),
+                        egui::Color32::WHITE,
+                    );
+                }
             });
+        if input {
+            // The frame that took the input is drawn once the viewport's work, queued
+            // behind any model part already submitted, has run.
+            let latencies = self.latencies.clone();
+            self.gpu.queue.on_submitted_work_done(move || {
+                let ms = now.elapsed().as_secs_f64() * 1e3;
+                latencies.lock().expect("latency lock").push(ms);
+            });
+        }
         self.record_frame();
         // The viewport's GPU work for this frame is done: the model may take its turn.
         if let Some(neural) = &self.shown.neural {
@@ -662,7 +767,7 @@ impl eframe::App for UnicaApp {
         }
         self.frame += 1;
         self.scripted_exit(&ctx);
-        ctx.request_repaint();
+        self.schedule_repaint(&ctx);
     }
 
     /// Closing the window finishes a recording in progress (manifest included).
@@ -674,6 +779,82 @@ impl eframe::App for UnicaApp {
             }
         }
     }
+}
+
+impl UnicaApp {
+    /// The note shown until the first generated frame arrives.
+    fn first_frame_note(&self) -> Option<String> {
+        let loaded = self.shown.first_frame_pending()?;
+        let seconds = self.opened.elapsed().as_secs_f64();
+        Some(if loaded {
+            format!("The first generated frame is on its way… ({seconds:.0} s)")
+        } else {
+            format!("Loading the neural avatar… ({seconds:.0} s)")
+        })
+    }
+}
+
+/// The HUD's counters, refreshed at most twice a second so that they never make the
+/// window draw on their own.
+#[derive(Default)]
+struct HudCounters {
+    at: Option<(Instant, u64)>,
+    window_fps: f64,
+    timings: Vec<StageTiming>,
+}
+
+impl HudCounters {
+    const PERIOD: Duration = Duration::from_millis(500);
+
+    fn refresh(&mut self, now: Instant, frame: u64, timings: &[StageTiming]) {
+        match self.at {
+            Some((at, _)) if now.duration_since(at) < Self::PERIOD => {}
+            Some((at, before)) => {
+                self.window_fps = (frame - before) as f64 / now.duration_since(at).as_secs_f64();
+                self.timings = timings.to_vec();
+                self.at = Some((now, frame));
+            }
+            None => self.at = Some((now, frame)),
+        }
+    }
+}
+
+/// Whether this frame took input that the picture answers: a key pressed, a pointer
+/// button, a drag or a wheel turn.
+fn took_input(i: &egui::InputState) -> bool {
+    let dragging = i.pointer.any_down() && i.pointer.delta() != egui::Vec2::ZERO;
+    dragging
+        || i.events.iter().any(|e| {
+            matches!(
+                e,
+                egui::Event::Key {
+                    pressed: true,
+                    repeat: false,
+                    ..
+                } | egui::Event::PointerButton { .. }
+                    | egui::Event::MouseWheel { .. }
+            )
+        })
+}
+
+/// The median of `values`; None when there are none.
+fn median(values: &[f64]) -> Option<f64> {
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    (!sorted.is_empty()).then(|| {
+        let mid = sorted.len() / 2;
+        if sorted.len() % 2 == 1 {
+            sorted[mid]
+        } else {
+            0.5 * (sorted[mid - 1] + sorted[mid])
+        }
+    })
+}
+
+/// A wake-up for the neural avatar's worker: a new frame makes the window draw.
+fn wake(ctx: &egui::Context) -> neural::Wake {
+    let ctx = ctx.clone();
+    Arc::new(move || ctx.request_repaint())
 }
 
 /// The key map shown in Help and the README.
@@ -741,8 +922,33 @@ fn neural_hud(ui: &mut egui::Ui, neural: &mut shown::Neural) {
         return;
     };
     let before = *settings;
-    ui.add(egui::Slider::new(&mut settings.sampling.steps, 1..=50).text("DDIM steps"));
-    ui.add(egui::Slider::new(&mut settings.sampling.cfg_scale, 0.0..=5.0).text("CFG scale"));
+    if let Some(bundled) = neural.bundled.filter(|b| b.kind == SamplerKind::OnePass) {
+        let mut one_pass = settings.sampling.kind == SamplerKind::OnePass;
+        ui.horizontal(|ui| {
+            ui.radio_value(&mut one_pass, true, "One pass (distilled)");
+            ui.radio_value(&mut one_pass, false, "Teacher (DDIM)");
+        });
+        if one_pass != (settings.sampling.kind == SamplerKind::OnePass) {
+            settings.sampling = if one_pass {
+                bundled.live()
+            } else {
+                bundled.ddim(bundled.steps)
+            };
+        }
+    }
+    ui.label(format!(
+        "{} UNet pass{} a frame",
+        settings.sampling.unet_passes(),
+        if settings.sampling.unet_passes() == 1 {
+            ""
+        } else {
+            "es"
+        }
+    ));
+    if settings.sampling.kind == SamplerKind::Ddim {
+        ui.add(egui::Slider::new(&mut settings.sampling.steps, 1..=50).text("DDIM steps"));
+        ui.add(egui::Slider::new(&mut settings.sampling.cfg_scale, 0.0..=5.0).text("CFG scale"));
+    }
     ui.checkbox(&mut settings.pca, "PCA clean-up");
     ui.checkbox(&mut settings.splats, "Splats (else the surface)");
     ui.add_enabled(

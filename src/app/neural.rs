@@ -7,7 +7,7 @@
 //! The engine submits a frame in small parts, each waited for on the worker's thread, so
 //! the window's own frames interleave with the model's work.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, TryRecvError, channel};
 use std::sync::{Arc, Mutex};
@@ -65,6 +65,9 @@ pub enum Update {
         settings: Settings,
         /// The bundle has a refiner.
         refiner: bool,
+        /// The bundle's own sampler (its manifest's): the teacher's DDIM settings, and
+        /// whether a distilled one-pass student runs by default.
+        bundled: Sampling,
     },
     /// A generated frame and the seconds since the one before.
     Frame(Box<Drawn>, f64),
@@ -72,18 +75,37 @@ pub enum Update {
 }
 
 /// The model's share of time beside the window, on a machine where the model and the
-/// window share the same cores (a CPU driver): after at least [`MODEL_SLICE`] of model
-/// work (one dispatch may run longer) the worker gives the window [`WINDOW_SHARE`] times
-/// as long and at least one drawn frame (waiting at most [`WINDOW_WAIT`]), so the window
-/// keeps its rate and the avatar updates at its own pace.
+/// window share the same cores (a CPU driver). The window draws only when something
+/// changed (app/mod.rs), so it asks for turns: after at least [`MODEL_SLICE`] of model
+/// work (one dispatch may run longer), if the window has started a frame since the last
+/// slice, the worker gives it [`WINDOW_SHARE`] times as long and waits for that frame
+/// (at most [`WINDOW_WAIT`]); otherwise the model carries on. A window that redraws
+/// unchanged pictures no longer takes the machine: measured on lavapipe, a window
+/// redrawing at 16-20 fps left the model about a twentieth of its rate alone.
 const MODEL_SLICE: Duration = Duration::from_millis(6);
 const WINDOW_SHARE: u32 = 2;
 const WINDOW_WAIT: Duration = Duration::from_millis(250);
+
+/// Wakes the window (a new generated frame is there to draw).
+pub type Wake = Arc<dyn Fn() + Send + Sync>;
+
+/// What a neural avatar starts from: its bundle folder, the teacher's DDIM steps instead
+/// of the bundle's sampler (`--steps`), a key script, and how to wake the window.
+pub struct Start {
+    pub dir: PathBuf,
+    pub steps: Option<usize>,
+    /// With a key script, generated frame `i` takes the script's action `i` (the held
+    /// action is ignored), so a scripted run is the same however fast the model runs.
+    pub script: Option<KeyScript>,
+    pub wake: Wake,
+}
 
 pub struct NeuralAvatar {
     pub dir: PathBuf,
     /// Window frames drawn, counted by [`NeuralAvatar::window_frame`].
     window_frames: Arc<AtomicU64>,
+    /// Window frames started, counted by [`NeuralAvatar::window_started`].
+    window_started: Arc<AtomicU64>,
     action: Arc<AtomicU32>,
     settings: Arc<Mutex<Option<Settings>>>,
     stop: Arc<AtomicBool>,
@@ -98,23 +120,27 @@ impl NeuralAvatar {
     /// Starts loading `dir` on a worker thread (`steps`: DDIM steps, else the bundle's).
     /// With a key `script`, generated frame `i` takes the script's action `i` (the held
     /// action is ignored), so a scripted run is the same however fast the model runs.
-    pub fn start(
-        gpu: &GpuContext,
-        dir: &Path,
-        steps: Option<usize>,
-        script: Option<KeyScript>,
-    ) -> Self {
+    pub fn start(gpu: &GpuContext, start: Start) -> Self {
+        let Start {
+            dir,
+            steps,
+            script,
+            wake,
+        } = start;
         let action = Arc::new(AtomicU32::new(Action::Idle.id()));
         let settings: Arc<Mutex<Option<Settings>>> = Arc::default();
         let stop = Arc::new(AtomicBool::new(false));
         let window_frames = Arc::new(AtomicU64::new(0));
+        let window_started = Arc::new(AtomicU64::new(0));
         let (send, updates) = channel();
         let worker = Worker {
             steps,
             script,
+            wake,
             window_frames: window_frames.clone(),
+            window_started: window_started.clone(),
             gpu: gpu.clone(),
-            dir: dir.to_path_buf(),
+            dir: dir.clone(),
             action: action.clone(),
             settings: settings.clone(),
             stop: stop.clone(),
@@ -122,15 +148,18 @@ impl NeuralAvatar {
         std::thread::Builder::new()
             .name("neural avatar".into())
             .spawn(move || {
-                let failed = |e: String| send.send(Update::Failed(e)).ok();
+                let wake = worker.wake.clone();
                 if let Err(e) = worker.run(&send) {
-                    failed(e.to_string());
+                    send.send(Update::Failed(e.to_string())).ok();
                 }
+                // A failure, or the end of the thread, is news for the window too.
+                wake();
             })
             .expect("spawning a thread");
         Self {
-            dir: dir.to_path_buf(),
+            dir,
             window_frames,
+            window_started,
             action,
             settings,
             stop,
@@ -140,7 +169,13 @@ impl NeuralAvatar {
         }
     }
 
-    /// The window is drawing a frame (the worker gives it turns between model parts).
+    /// The window starts drawing a frame: the worker gives it a turn after its current
+    /// model slice.
+    pub fn window_started(&self) {
+        self.window_started.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// The window has recorded its frame's GPU work (the turn it asked for is over).
     pub fn window_frame(&self) {
         self.window_frames.fetch_add(1, Ordering::Relaxed);
     }
@@ -203,7 +238,9 @@ impl Drop for NeuralAvatar {
 struct Worker {
     steps: Option<usize>,
     script: Option<KeyScript>,
+    wake: Wake,
     window_frames: Arc<AtomicU64>,
+    window_started: Arc<AtomicU64>,
     gpu: GpuContext,
     dir: PathBuf,
     action: Arc<AtomicU32>,
@@ -216,7 +253,7 @@ impl Worker {
         // Loading submits seconds of work on a CPU driver; let the window open and
         // configure its surface first (wgpu waits for an idle GPU to do that).
         let opened = Instant::now();
-        while self.window_frames.load(Ordering::Relaxed) < 3
+        while self.window_frames.load(Ordering::Relaxed) < 1
             && opened.elapsed() < Duration::from_secs(5)
             && !self.stop.load(Ordering::Relaxed)
         {
@@ -230,32 +267,37 @@ impl Worker {
         };
         let mut engine = Engine::new(&self.gpu, &self.dir, &options)?;
         if let Some(steps) = self.steps {
-            let sampling = Sampling {
-                steps,
-                ..engine.sampling()
-            };
+            let sampling = engine.bundle.manifest.sampler.ddim(steps);
             sampling
                 .check(engine.bundle.schedule.steps())
                 .map_err(|e| anyhow::anyhow!("--steps: {e}"))?;
             engine.set_sampling(sampling);
         }
-        let (frames, stop) = (self.window_frames.clone(), self.stop.clone());
-        let mut seen = frames.load(Ordering::Relaxed);
+        let (frames, started, stop) = (
+            self.window_frames.clone(),
+            self.window_started.clone(),
+            self.stop.clone(),
+        );
+        let mut seen = started.load(Ordering::Relaxed);
         let mut slice = Instant::now();
         engine.set_pacer(move || {
             let spent = slice.elapsed();
             if spent < MODEL_SLICE {
                 return;
             }
-            let window_turn = (spent * WINDOW_SHARE).min(WINDOW_WAIT);
-            let waited = Instant::now();
-            while (frames.load(Ordering::Relaxed) == seen || waited.elapsed() < window_turn)
-                && waited.elapsed() < WINDOW_WAIT
-                && !stop.load(Ordering::Relaxed)
-            {
-                std::thread::sleep(Duration::from_millis(1));
+            let asked = started.load(Ordering::Relaxed);
+            if asked != seen {
+                // The window started a frame since the last slice: it gets its turn.
+                let window_turn = (spent * WINDOW_SHARE).min(WINDOW_WAIT);
+                let waited = Instant::now();
+                while (frames.load(Ordering::Relaxed) < asked || waited.elapsed() < window_turn)
+                    && waited.elapsed() < WINDOW_WAIT
+                    && !stop.load(Ordering::Relaxed)
+                {
+                    std::thread::sleep(Duration::from_millis(1));
+                }
+                seen = asked;
             }
-            seen = frames.load(Ordering::Relaxed);
             slice = Instant::now();
         });
         let mut settings = Settings {
@@ -274,10 +316,12 @@ impl Worker {
             root: engine.root(),
             settings,
             refiner: engine.bundle.refiner.is_some(),
+            bundled: engine.bundle.manifest.sampler,
         };
         if send.send(ready).is_err() {
             return Ok(());
         }
+        (self.wake)();
         let period = Duration::from_secs_f64(1.0 / f64::from(FRAME_RATE));
         let mut next = Instant::now();
         let mut last = next;
@@ -321,6 +365,7 @@ impl Worker {
             if send.send(Update::Frame(Box::new(drawn), interval)).is_err() {
                 return Ok(());
             }
+            (self.wake)();
             // Never faster than the data rate; when slower, run as fast as it can.
             next += period;
             let now = Instant::now();

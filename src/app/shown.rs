@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::neural::{NeuralAvatar, Settings, Update};
+use super::neural::{NeuralAvatar, Settings, Start, Update};
 use crate::action::{Action, KeyScript};
 use crate::avatar::description::Description;
 use crate::avatar::load_character_with;
@@ -33,6 +33,9 @@ pub struct Neural {
     splats: Option<(wgpu::Buffer, usize)>,
     /// The bundle has a refiner (the HUD offers it).
     pub has_refiner: bool,
+    /// The bundle's own sampler: the teacher's DDIM settings and its kind (the HUD
+    /// switches between the one-pass student and the teacher).
+    pub bundled: Option<crate::nn::sampler::Sampling>,
     pub root: Vec3,
     pub frames: u64,
     pub clamped: usize,
@@ -62,7 +65,9 @@ impl Neural {
                     root,
                     settings,
                     refiner,
+                    bundled,
                 } => {
+                    self.bundled = Some(bundled);
                     self.mesh = surface.mesh(&standing);
                     self.splats = splats;
                     self.surface = Some((*surface, renderer.upload(gpu, &self.mesh)));
@@ -183,23 +188,28 @@ impl Shown {
     pub fn neural(
         gpu: &GpuContext,
         renderer: &SceneRenderer,
-        dir: &Path,
         character: Option<&Path>,
         clips: &[PathBuf],
-        steps: Option<usize>,
-        script: Option<KeyScript>,
+        start: Start,
     ) -> Self {
         let mut shown = Self::load(gpu, renderer, character, clips);
         shown.show_teacher = shown.teacher.is_some();
-        shown.name = format!("{} (neural)", dir.display());
+        // The teacher stands at its side from the first frame, not inside the avatar.
+        if shown.teacher.is_some() {
+            shown.offset_teacher();
+            shown.gpu_mesh.write_vertices(gpu, &shown.mesh);
+            shown.generation += 1;
+        }
+        shown.name = format!("{} (neural)", start.dir.display());
         shown.problem = Some("Loading the neural avatar…".into());
         shown.neural = Some(Neural {
-            avatar: NeuralAvatar::start(gpu, dir, steps, script),
+            avatar: NeuralAvatar::start(gpu, start),
             settings: None,
             surface: None,
             mesh: Mesh::default(),
             splats: None,
             has_refiner: false,
+            bundled: None,
             root: Vec3::ZERO,
             frames: 0,
             clamped: 0,
@@ -244,13 +254,25 @@ impl Shown {
         }
         self.mesh = teacher.mesh();
         if self.neural.is_some() {
-            self.mesh
-                .positions
-                .iter_mut()
-                .for_each(|p| *p += TEACHER_OFFSET);
+            self.offset_teacher();
         }
         self.gpu_mesh.write_vertices(gpu, &self.mesh);
         self.generation += 1;
+    }
+
+    /// Moves the teacher's mesh to its place beside the neural avatar.
+    fn offset_teacher(&mut self) {
+        self.mesh
+            .positions
+            .iter_mut()
+            .for_each(|p| *p += TEACHER_OFFSET);
+    }
+
+    /// Whether the neural avatar is still waiting for its first generated frame (loading
+    /// or generating it); None where there is no neural avatar or it stopped.
+    pub fn first_frame_pending(&self) -> Option<bool> {
+        let neural = self.neural.as_ref()?;
+        (neural.failure.is_none() && neural.frames == 0).then_some(neural.settings.is_some())
     }
 
     /// Frames generated so far: the neural avatar's, else the teacher's steps. A key
@@ -319,7 +341,7 @@ impl Shown {
     }
 
     /// Labels for the viewport when the neural avatar and its teacher are both drawn:
-    /// a world point just above each one's head and its name.
+    /// a world point just under each one's feet and its name.
     pub fn labels(&self) -> Vec<(Vec3, &'static str)> {
         let (Some(neural), Some(_)) = (&self.neural, &self.teacher) else {
             return Vec::new();
@@ -330,10 +352,10 @@ impl Shown {
         let Some((lo, hi)) = self.mesh.bounds() else {
             return Vec::new();
         };
-        let above = hi.y + 0.15;
-        let teacher = Vec3::new((lo.x + hi.x) * 0.5, above, (lo.z + hi.z) * 0.5);
-        let model = Vec3::new(neural.root.x, above, neural.root.z);
-        vec![(model, "neural (model)"), (teacher, "teacher (rig)")]
+        let under = lo.y - 0.05;
+        let teacher = Vec3::new((lo.x + hi.x) * 0.5, under, (lo.z + hi.z) * 0.5);
+        let model = Vec3::new(neural.root.x, under, neural.root.z);
+        vec![(model, "neural"), (teacher, "teacher")]
     }
 
     pub fn bounds(&self) -> (Vec3, Vec3) {

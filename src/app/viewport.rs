@@ -43,6 +43,21 @@ pub struct Viewport {
     /// changed the viewport records nothing (a CPU driver spends a window frame's time
     /// drawing it).
     drawn: Option<SceneKey>,
+    /// The 3D image's size as a share of the viewport's pixels along each axis (the
+    /// window shows it scaled up). Defaults by adapter ([`default_resolution_scale`]);
+    /// the HUD changes it; a recording draws at full size whatever it is.
+    pub resolution_scale: f32,
+}
+
+/// The 3D resolution scale a window starts with: 1 on a GPU; on a CPU driver 0.5, a
+/// quarter of the pixels, since there the viewport's draws take the cores the model
+/// needs (docs/performance.md has the measurements).
+pub fn default_resolution_scale(gpu: &GpuContext) -> f32 {
+    if gpu.adapter.get_info().device_type == wgpu::DeviceType::Cpu {
+        0.5
+    } else {
+        1.0
+    }
 }
 
 type SceneKey = (
@@ -65,6 +80,9 @@ pub struct Scene<'a> {
     pub labels: &'a [(glam::Vec3, &'a str)],
     /// Direction toward the light; `None`: a key light beside the camera.
     pub light: Option<glam::Vec3>,
+    /// Draw at the viewport's full pixel size whatever the resolution scale (a
+    /// recording is on).
+    pub full_size: bool,
 }
 
 struct Cached {
@@ -87,7 +105,14 @@ impl Viewport {
             splatting: None,
             cached: None,
             drawn: None,
+            resolution_scale: default_resolution_scale(gpu),
         }
+    }
+
+    /// Whether the last image is final: false while splats drawn small during a camera
+    /// move still wait for their full-size redraw.
+    pub fn settled(&self) -> bool {
+        self.cached.as_ref().is_none_or(|c| c.divisor == 1)
     }
 
     /// The last rendered image (what the recorder saves).
@@ -113,9 +138,15 @@ impl Viewport {
             splats,
             labels,
             light,
+            full_size,
         } = scene;
         let size = ui.available_size();
-        let ppp = ui.ctx().pixels_per_point();
+        let scale = if full_size {
+            1.0
+        } else {
+            self.resolution_scale.clamp(0.1, 1.0)
+        };
+        let ppp = ui.ctx().pixels_per_point() * scale;
         let (w, h) = (
             (size.x * ppp).round().max(1.0) as u32,
             (size.y * ppp).round().max(1.0) as u32,
@@ -243,7 +274,7 @@ impl Viewport {
             {
                 painter.text(
                     rect.min + egui::vec2(x, y),
-                    egui::Align2::CENTER_BOTTOM,
+                    egui::Align2::CENTER_TOP,
                     text,
                     egui::FontId::proportional(15.0),
                     egui::Color32::WHITE,

@@ -233,9 +233,15 @@ impl Engine {
     /// lowest point of that pose.
     pub fn new(gpu: &GpuContext, dir: &Path, options: &EngineOptions) -> Result<Self, LoadError> {
         let bundle = Bundle::load(dir, gpu, options.precision)?;
-        let sampling = options.sampling.unwrap_or(bundle.manifest.sampler);
+        let sampling = options.sampling.unwrap_or(bundle.live_sampling());
         sampling
             .check(bundle.schedule.steps())
+            .and_then(|()| {
+                bundle
+                    .unet_for(sampling)
+                    .map(|_| ())
+                    .map_err(|e| e.to_string())
+            })
             .map_err(|problem| LoadError::Manifest {
                 path: dir.display().to_string(),
                 problem,

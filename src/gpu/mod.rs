@@ -100,6 +100,9 @@ pub enum GpuError {
     Readback { label: String, reason: String },
     #[error("{what} is more than this GPU path handles: {limit}")]
     TooLarge { what: String, limit: String },
+    /// Work that cannot be recorded as asked (the message names what and why).
+    #[error("{0}")]
+    Invalid(String),
 }
 
 /// The backends to try: `WGPU_BACKEND` if set, else the native APIs (Vulkan, Metal,

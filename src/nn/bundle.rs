@@ -10,7 +10,7 @@ use serde::Deserialize;
 use super::Tensor;
 use super::ops::Recorder;
 use super::refiner::{Refiner, RefinerConfig};
-use super::sampler::{self, DiffusionConfig, Sampling, Schedule};
+use super::sampler::{self, DiffusionConfig, SamplerKind, Sampling, Schedule};
 use super::unet::{UNet, UNetConfig};
 use super::vae::{Decoder, Encoder, VaeConfig};
 use super::weights::{LoadError, Weights};
@@ -109,6 +109,9 @@ pub struct Bundle {
     pub encoder: Encoder,
     pub decoder: Decoder,
     pub unet: UNet,
+    /// The student distilled from `unet`'s sampler (`student.*`), where the manifest's
+    /// sampler kind is `one_pass`: it makes a frame in one pass.
+    pub student: Option<UNet>,
     pub schedule: Schedule,
     /// The standing start's context, [frames - 1, latent, h, w], already scaled.
     pub context: Tensor,
@@ -180,6 +183,10 @@ impl Bundle {
             encoder: Encoder::load(&w.at("vae.encoder"), vae)?,
             decoder,
             unet: UNet::load(&w.at("unet"), unet)?,
+            student: match manifest.sampler.kind {
+                SamplerKind::OnePass => Some(UNet::load(&w.at("student"), unet)?),
+                SamplerKind::Ddim => None,
+            },
             schedule: Schedule::scaled_linear(
                 manifest.diffusion.steps,
                 manifest.diffusion.beta_start,
@@ -207,7 +214,7 @@ impl Bundle {
     ) -> Result<Tensor, GpuError> {
         sampler::sample_next(
             r,
-            &self.unet,
+            self.unet_for(sampling)?,
             &self.schedule,
             context,
             &[action],
@@ -232,13 +239,32 @@ impl Bundle {
     ) -> Result<Tensor, GpuError> {
         sampler::sample_next(
             r,
-            &self.unet,
+            self.unet_for(sampling)?,
             &self.schedule,
             context,
             actions,
             noise,
             sampling,
         )
+    }
+
+    /// The sampler a live loop runs by default: the student's one pass where the bundle
+    /// has one, else the manifest's DDIM sampler.
+    pub fn live_sampling(&self) -> Sampling {
+        self.manifest.sampler.live()
+    }
+
+    /// The UNet that runs `sampling`: the student for the one-pass kind, else the
+    /// teacher. A one-pass sampling on a bundle without a student is refused.
+    pub fn unet_for(&self, sampling: Sampling) -> Result<&UNet, GpuError> {
+        match (sampling.kind, &self.student) {
+            (SamplerKind::Ddim, _) => Ok(&self.unet),
+            (SamplerKind::OnePass, Some(student)) => Ok(student),
+            (SamplerKind::OnePass, None) => Err(GpuError::Invalid(format!(
+                "{}: the one-pass sampler needs a distilled student ('student.*'), and this bundle has none",
+                self.dir.display()
+            ))),
+        }
     }
 
     /// Records the decoding of UNet latents [N, C, h, w] into position maps.

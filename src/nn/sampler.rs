@@ -100,6 +100,22 @@ pub struct Sampling {
     pub idle_brake_cfg_scale: Option<f32>,
     #[serde(default)]
     pub idle_brake_frames: u32,
+    /// Which model runs the frame: the DDIM sampler above, or the student distilled from
+    /// it (`one_pass`), which makes a frame in one conditional pass.
+    #[serde(default)]
+    pub kind: SamplerKind,
+}
+
+/// The sampler a bundle runs by default (its manifest's `sampler.kind`). `OnePass`: the
+/// student UNet (`student.*`, train/unica_train/distil.py) makes the frame in one DDIM
+/// step from t = 999, conditional only, from the same starting noise; the manifest's
+/// steps and guidance settings are the teacher's, which `--steps N` runs instead.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SamplerKind {
+    #[default]
+    Ddim,
+    OnePass,
 }
 
 fn yes() -> bool {
@@ -121,7 +137,49 @@ impl Sampling {
             idle_cfg_scale: None,
             idle_brake_cfg_scale: None,
             idle_brake_frames: 0,
+            kind: SamplerKind::Ddim,
         }
+    }
+
+    /// What a live loop runs by default: the distilled student's one conditional pass
+    /// where the kind is `OnePass`, else this DDIM sampler as it is.
+    pub fn live(&self) -> Sampling {
+        match self.kind {
+            SamplerKind::OnePass => Sampling {
+                steps: 1,
+                cfg_scale: 1.0,
+                ..*self
+            },
+            SamplerKind::Ddim => *self,
+        }
+    }
+
+    /// The teacher's DDIM sampler at `steps` steps with its own guidance settings.
+    pub fn ddim(&self, steps: usize) -> Sampling {
+        Sampling {
+            kind: SamplerKind::Ddim,
+            steps,
+            ..*self
+        }
+    }
+
+    /// The sampling a command line asks for: the live default where neither `steps` nor
+    /// `cfg_scale` is given, else the teacher's DDIM sampler with those overrides.
+    pub fn chosen(&self, steps: Option<usize>, cfg_scale: Option<f32>) -> Sampling {
+        if steps.is_none() && cfg_scale.is_none() {
+            return self.live();
+        }
+        Sampling {
+            cfg_scale: cfg_scale.unwrap_or(self.cfg_scale),
+            ..self.ddim(steps.unwrap_or(self.steps))
+        }
+    }
+
+    /// UNet target passes per generated frame: one per step, two where the step is
+    /// guided (the conditional and the null action as a batch of two). The context pass,
+    /// once a frame, is not counted.
+    pub fn unet_passes(&self) -> usize {
+        self.steps * if self.cfg_scale != 1.0 { 2 } else { 1 }
     }
 
     /// The sampling a frame under `action` runs: an Idle frame of a guided sampler at
@@ -462,6 +520,45 @@ mod tests {
             ..brakes
         };
         assert!(bad.check(1000).unwrap_err().contains("braking"));
+    }
+
+    #[test]
+    fn a_one_pass_bundle_runs_one_unguided_pass_and_its_teacher_on_request() {
+        let manifest: Sampling = serde_json::from_str(
+            r#"{"ddim_steps": 10, "cfg_scale": 3.5, "idle_cfg_scale": 1.5,
+                "idle_brake_cfg_scale": 5.0, "idle_brake_frames": 10, "kind": "one_pass"}"#,
+        )
+        .unwrap();
+        assert_eq!(manifest.kind, SamplerKind::OnePass);
+        let live = manifest.live();
+        assert_eq!(
+            (live.steps, live.cfg_scale, live.unet_passes()),
+            (1, 1.0, 1)
+        );
+        // No Idle plan, no brake: the student folded them in.
+        assert_eq!(live.idle_plan(), None);
+        assert_eq!(live.brake(), None);
+        assert_eq!(live.for_frame(Action::Idle, Some(1)), live);
+        // --steps N: the teacher's sampler with its guidance: 2 passes a step.
+        let teacher = manifest.ddim(10);
+        assert_eq!(teacher.kind, SamplerKind::Ddim);
+        assert_eq!((teacher.unet_passes(), teacher.cfg_scale), (20, 3.5));
+        assert_eq!(manifest.chosen(None, None), live);
+        assert_eq!(manifest.chosen(Some(10), None), teacher);
+        assert_eq!(manifest.chosen(None, Some(1.0)).unet_passes(), 10);
+        assert_eq!(teacher.brake().map(|b| b.cfg_scale), Some(5.0));
+        // Older manifests are DDIM and run as they are.
+        let old: Sampling = serde_json::from_str(r#"{"ddim_steps": 2, "cfg_scale": 1.0}"#).unwrap();
+        assert_eq!(
+            (old.kind, old.live(), old.unet_passes()),
+            (SamplerKind::Ddim, old, 2)
+        );
+        assert!(
+            serde_json::from_str::<Sampling>(
+                r#"{"ddim_steps": 2, "cfg_scale": 1.0, "kind": "two_pass"}"#
+            )
+            .is_err()
+        );
     }
 
     #[test]

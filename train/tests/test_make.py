@@ -25,29 +25,34 @@ def test_make_quick_writes_a_bundle_that_loads_and_continues_where_it_stopped(tm
     assert BINARY.is_file(), f"{BINARY} is missing: run `cargo build --release` (the README's test command does)"
     out = tmp_path / "made"
     log = make(out)
-    for stage in ("[1/4] bake", "[2/4] geometry", "[3/4] refiner", "[4/4] eval"):
+    for stage in ("[1/5] bake", "[2/5] geometry", "[3/5] refiner", "[4/5] distil", "[5/5] eval"):
         assert f"{stage}: done in" in log, log
     vae, unet, extra, manifest = bundle.load(out / "bundle")
+    # The distil stage gave the bundle its one-pass student, which the eval ran.
+    assert manifest["sampler"]["kind"] == "one_pass", manifest["sampler"]
+    student, steps, cfg = bundle.live_sampler(manifest, unet, extra)
+    assert student is not unet and (steps, cfg) == (1, 1.0)
+    assert "one_pass" in manifest["metrics"], sorted(manifest["metrics"])
     assert manifest["avatar"] == "Witch" and "refiner" in manifest, sorted(manifest)
     assert any(name.startswith("refiner.") for name in extra), sorted(extra)[:10]
     # The refiner has its learned residual per map pixel by default (the engine loaded it for the eval).
     assert manifest["refiner"]["pixel_residuals"] == len(extra["map.pixels"]) == extra["refiner.pixel"].shape[0]
     assert (out / "eval" / "report.md").is_file()
     state = json.loads((out / "make.json").read_text())
-    assert state["done"] == ["bake", "geometry", "refiner", "eval"]
+    assert state["done"] == ["bake", "geometry", "refiner", "distil", "eval"]
 
     # The same command again: nothing is redone.
     log = make(out)
-    assert log.count("done before, kept") == 4, log
+    assert log.count("done before, kept") == 5, log
 
     # A make cut off during its refiner: the refiner resumes from its last checkpoint
     # (the geometry trainer's resume is tested in test_train.py); --until stops there.
     state["done"] = ["bake", "geometry"]
     (out / "make.json").write_text(json.dumps(state))
     log = make(out, "--until", "refiner")
-    assert "[2/4] geometry → geometry/ (VAE + UNet run; bundle/ from it): done before, kept" in log, log
+    assert "[2/5] geometry → geometry/ (VAE + UNet run; bundle/ from it): done before, kept" in log, log
     assert "resumed at step 10" in log and "stopped after refiner (--until)" in log, log
-    assert "[4/4]" not in log, log
+    assert "[4/5]" not in log and not (out / "distil").exists(), log
     _, _, extra, manifest = bundle.load(out / "bundle")
     assert "refiner" in manifest
 

@@ -87,6 +87,29 @@ def load(directory: str | Path):
     return vae, unet, extra, manifest
 
 
+SAMPLER_KINDS = ("ddim", "one_pass")
+
+
+def live_sampler(manifest: dict, unet: UNet, extra: dict, path: str | Path = "manifest.json") -> tuple[UNet, int, float]:
+    """(model, DDIM steps, CFG scale) the live loop runs by default, as the engine's
+    `Sampling::live`: for `sampler.kind` "one_pass" the distilled student (`student.*`)
+    in one unguided step, else the UNet with the manifest's steps and scale."""
+    sampler = manifest["sampler"]
+    kind = sampler.get("kind", "ddim")
+    if kind not in SAMPLER_KINDS:
+        raise BundleError(f"{path}: sampler kind {kind!r}, expected one of {', '.join(SAMPLER_KINDS)}")
+    if kind == "ddim":
+        return unet, int(sampler["ddim_steps"]), float(sampler["cfg_scale"])
+    weights = {k[len("student."):]: v for k, v in extra.items() if k.startswith("student.")}
+    student = UNet(unet.cfg)
+    try:
+        student.load_state_dict(weights)
+    except RuntimeError as e:
+        raise BundleError(f"{path}: the one-pass sampler's student ('student.*') does not fit the UNet config: "
+                          f"{str(e).splitlines()[0]}") from None
+    return student.eval(), 1, 1.0
+
+
 def add_colors(directory: str | Path, data: str | Path) -> None:
     """Writes `map.colors` from the dataset's reference into an existing bundle."""
     from .dataset import BakedDataset

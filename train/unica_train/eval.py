@@ -92,6 +92,11 @@ class Avatar:
         self.vae, self.unet, self.extra, self.manifest = bundle_io.load(bundle_dir)
         self.vae.eval()
         self.unet.eval()
+        # the live loop's model, steps and scale (the distilled student's one pass where
+        # the bundle has one)
+        self.live_unet, self.live_steps, self.live_cfg = bundle_io.live_sampler(
+            self.manifest, self.unet, self.extra, bundle_dir / "manifest.json")
+        self.one_pass = self.live_unet is not self.unet
         self.ds = BakedDataset(data)
         self.pixels = self.extra["map.pixels"].long()
         if not torch.equal(self.pixels, self.ds.pixels):
@@ -145,7 +150,7 @@ class Avatar:
 
         started = time.time()
         out = recentre.rollout(
-            self.vae, self.unet, self.schedule, self.latent_scale, self.extra["context.latents"], keys,
+            self.vae, self.live_unet if setting.get("one_pass") else self.unet, self.schedule, self.latent_scale, self.extra["context.latents"], keys,
             setting["steps"], setting["cfg_scale"], seed, self.pixels, self.waist, self.scale, "reencode",
             frames=frames, on_frame=keep, guided_steps=setting.get("guided_steps"),
             root_motion=setting.get("root_motion", self.root_motion),
@@ -188,8 +193,8 @@ def teacher_forced(av: Avatar, clip: int, f: int, gen: torch.Generator) -> tuple
     to_model = (4 - quarters) % 4
     context = av.vae.encoder(av.ds.to_maps(recentre.turn_unit(unit[:3], to_model)))[0] * av.latent_scale
     action = quarter_turn_action(actions[-1], to_model)
-    z = sample_next(av.unet, av.schedule, context[None], torch.tensor([action]), av.manifest["sampler"]["ddim_steps"],
-                    av.manifest["sampler"]["cfg_scale"], generator=gen,
+    z = sample_next(av.live_unet, av.schedule, context[None], torch.tensor([action]), av.live_steps, av.live_cfg,
+                    generator=gen,
                     **frame_options(av.sampler_options, av.brake_options, actions))
     new = recentre.turn_unit(recentre.decode_points(av.vae, z, av.latent_scale, av.pixels)[0], quarters)
     return (av.clean(new) - 0.5) / av.scale + root, world[3]
@@ -677,8 +682,11 @@ def evaluate(args) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     av = Avatar(args.bundle, args.data, args.level)
     teacher = root_path(args.teacher)
-    defaults = {"steps": av.manifest["sampler"]["ddim_steps"], "cfg_scale": av.manifest["sampler"]["cfg_scale"], "pca": True,
-                **av.sampler_options, **av.brake_options}
+    # The live loop's sampler (the student's one pass where the bundle has one); the
+    # ablations vary the teacher's DDIM sampler.
+    teacher_sampler = {"steps": av.manifest["sampler"]["ddim_steps"], "cfg_scale": av.manifest["sampler"]["cfg_scale"],
+                       "pca": True, "one_pass": False, **av.sampler_options, **av.brake_options}
+    defaults = dict(teacher_sampler, steps=av.live_steps, cfg_scale=av.live_cfg, one_pass=av.one_pass)
     keys = args.keys or ("20W 20S 20A 20D 20I" if quick else KEYS)
     frames = sum(int(t[:-1]) for t in keys.split())
     began = time.time()
@@ -753,8 +761,8 @@ def evaluate(args) -> dict:
     ablations = []
     step_list = [1, 2] if quick else [1, 2, 4, 10, 20]
     cfg_list = [1.0] if quick else [1.0, 2.0, 3.0]
-    variants = [dict(defaults, steps=s) for s in step_list]
-    variants += [dict(defaults, cfg_scale=c) for c in cfg_list if c != defaults["cfg_scale"]]
+    variants = [dict(teacher_sampler, steps=s) for s in step_list]
+    variants += [dict(teacher_sampler, cfg_scale=c) for c in cfg_list if c != teacher_sampler["cfg_scale"]]
     variants.append(dict(defaults, pca=False))
     for v in variants:
         r = av.rollout(keys, v, args.seed)

@@ -91,6 +91,8 @@ def build() -> dict[str, dict[str, torch.Tensor]]:
     witch_noise = rand(1, 4, 16, 16)
     files["witch_frame"] = witch_frame(witch_noise)
     files["witch_idle_frame"] = witch_frame(witch_noise, action=0)
+    files["witch_one_pass_frame"] = witch_frame(witch_noise, one_pass=True)
+    files["witch_one_pass_idle_frame"] = witch_frame(witch_noise, action=0, one_pass=True)
     unit, feats = rand(300, 3).sigmoid(), rand(300, 11)
     module_file("refiner", Refiner(TINY_REFINER), {"features": feats, "unit": unit}, lambda m, features, unit: m(features, unit))
     files["base_splats"], files["witch_refiner"] = witch_splats()
@@ -119,15 +121,20 @@ def pca_decoder() -> dict[str, torch.Tensor]:
     return {"io.in.z": z, "io.out.y": y, **{k: v.contiguous() for k, v in decoder.state_dict().items()}}
 
 
-def witch_frame(noise: torch.Tensor, action: int = 1) -> dict[str, torch.Tensor]:
+def witch_frame(noise: torch.Tensor, action: int = 1, one_pass: bool = False) -> dict[str, torch.Tensor]:
     """The Witch bundle's next latent after its standing-start context under `action`
-    (Forward; Idle for Idle's own guidance scale), from `noise`, with the bundle's sampler
-    (DDIM steps, CFG scale, how Idle is guided, noise scale), and the decoded position map."""
+    (Forward; Idle for Idle's own guidance scale), from `noise`, with the bundle's teacher
+    sampler (DDIM steps, CFG scale, how Idle is guided, noise scale) or, `one_pass`, its
+    distilled student's one pass; and the decoded position map."""
     vae, unet, extra, manifest = bundle.load(WITCH_BUNDLE)
     sampler, scale = manifest["sampler"], manifest["latent_scale"]
+    model, steps, cfg = unet, sampler["ddim_steps"], sampler["cfg_scale"]
+    if one_pass:
+        model, steps, cfg = bundle.live_sampler(manifest, unet, extra)
+        assert model is not unet, f"{WITCH_BUNDLE}: the shipped bundle has no one-pass student"
     action = torch.tensor([action])
     with torch.no_grad():
-        z = sample_next(unet, Schedule(), extra["context.latents"][None], action, sampler["ddim_steps"], sampler["cfg_scale"], noise,
+        z = sample_next(model, Schedule(), extra["context.latents"][None], action, steps, cfg, noise,
                         **sampler_options(sampler))
         decoded = vae.decode(z / scale)
     return {"io.in.noise": noise, "io.in.action": action.float(), "io.out.z": z, "io.out.map": decoded}

@@ -1,0 +1,143 @@
+"""The one-pass student (unica_train.distil): its sampler is one conditional DDIM step
+from t = 999, distillation moves it toward the teacher's samples, a run resumes where it
+stopped, the bundle it writes runs the student by default, and bad inputs end in one
+line naming the file."""
+
+import json
+import os
+
+import pytest
+import torch
+
+from unica_train import bundle
+from unica_train.diffusion import Schedule, frame_idle_scales, sample_next
+from unica_train.distil import Teacher, main, one_pass, x0_prediction
+
+from test_train import trained_bundle_with_refiner
+
+QUICK = ["--held-out-clips", "2", "--frames", "16", "--held-out-frames", "8", "--batch", "4", "--checkpoint-every", "2"]
+
+
+@pytest.fixture(scope="module")
+def teacher_bundle(tmp_path_factory):
+    """A tiny trained bundle whose sampler guides, brakes and draws scaled noise as the
+    shipped one does."""
+    tmp = tmp_path_factory.mktemp("teacher")
+    from conftest import FIXTURES
+
+    first, _ = trained_bundle_with_refiner(FIXTURES / "dataset_quick", tmp)
+    vae, unet, extra, manifest = bundle.load(first / "bundle")
+    manifest["sampler"].update({"ddim_steps": 4, "cfg_scale": 3.5, "idle_cfg_scale": 1.5, "idle_brake_cfg_scale": 5.0,
+                                "idle_brake_frames": 10, "guide_idle": False, "noise_scale": 0.25})
+    # Two training steps leave the output layer near zero, where every sampler gives the
+    # same frame; a random output layer makes the 4-step guided sampler differ from one step.
+    with torch.no_grad():
+        unet.conv_out.weight.normal_(0, 0.05, generator=torch.Generator().manual_seed(0))
+    bundle.save(first / "bundle", vae, unet, extra, manifest)
+    return first / "bundle"
+
+
+def test_one_pass_is_one_conditional_ddim_step_from_the_top(teacher_bundle):
+    _, unet, _, _ = bundle.load(teacher_bundle)
+    unet.eval()
+    gen = torch.Generator().manual_seed(3)
+    context = torch.randn(3, 3, 4, 16, 16, generator=gen)
+    action = torch.tensor([0, 1, 4])
+    noise = 0.25 * torch.randn(3, 4, 16, 16, generator=gen)
+    schedule = Schedule()
+    with torch.no_grad():
+        got = one_pass(unet, schedule, context, action, noise)
+        # x0 = (x_T - sqrt(1 - a) eps) / sqrt(a) at t = 999, conditional only
+        eps = unet(torch.cat([context, noise[:, None]], 1), torch.tensor([[0, 0, 0, 999]] * 3), action)[:, -1]
+        a = schedule.alpha_bar(torch.tensor(999))
+        want = (noise - (1 - a).sqrt() * eps) / a.sqrt()
+        assert torch.allclose(got, want, atol=1e-4), (got - want).abs().max()
+        assert torch.allclose(x0_prediction(unet, schedule, context, noise, torch.full((3,), 999), action), want, atol=1e-4)
+        # t = -1 is the consistency boundary: the sample itself
+        assert torch.equal(x0_prediction(unet, schedule, context, noise, torch.full((3,), -1), action), noise)
+        assert torch.allclose(got, sample_next(unet, schedule, context, action, 1, 1.0, noise=noise), atol=1e-5)
+
+
+def test_the_pool_takes_the_live_loops_guidance_for_each_frame(teacher_bundle, quick_dataset_dir):
+    t = Teacher(teacher_bundle, quick_dataset_dir, [], [2])
+    frames = t.frames(held_out=False)
+    assert frames and all(c != 2 and f >= 3 for c, f in frames)
+    # The quick dataset's clips never stop: clip 3 gets W for 12 frames, then Idle (the
+    # scale depends on the keys only).
+    t.ds.clips[3]["actions"] = torch.tensor([1] * 12 + [0] * 14)
+    picks = [x for x in frames if x[0] == 3]
+    part = t.encode(picks)
+    scales = part["idle_scale"].tolist()
+    assert scales.count(5.0) == 10 and scales[-1] == 1.5, scales  # 10 braking frames, then at rest
+    for (clip, f), scale in zip(picks, part["idle_scale"].tolist()):
+        history = [int(a) for a in t.ds.clips[clip]["actions"][:f]]
+        want = frame_idle_scales(history, 1.5, 5.0, 10)[-1]
+        assert scale == want  # used only where the action is Idle (diffusion.guided_eps)
+    assert part["context"].shape[1:] == (3, 4, 16, 16) and part["truth"].shape[1:] == (4, 16, 16)
+
+
+def test_direct_distillation_moves_the_student_to_the_teachers_samples_and_resumes(teacher_bundle, quick_dataset_dir,
+                                                                                   tmp_path, capsys):
+    out = tmp_path / "run"
+    main(["--bundle", str(teacher_bundle), "--data", str(quick_dataset_dir), "--out", str(out), "--steps", "4",
+          "--lr", "1e-4", *QUICK])
+    first = json.loads((out / "metrics.json").read_text())["held_out"]
+    # Interrupted work resumes: the pool and the teacher's samples are kept, training goes on.
+    stamps = {p: p.stat().st_mtime_ns for p in (out / "pool").iterdir()}
+    capsys.readouterr()
+    main(["--bundle", str(teacher_bundle), "--data", str(quick_dataset_dir), "--out", str(out), "--steps", "40",
+          "--lr", "1e-4", "--resume", *QUICK])
+    log = capsys.readouterr().out
+    assert "resumed at step 4" in log and "pool [" not in log and "teacher [" not in log, log
+    assert {p: p.stat().st_mtime_ns for p in (out / "pool").iterdir()} == stamps
+    metrics = json.loads((out / "metrics.json").read_text())
+    held = metrics["held_out"]
+    # On the held-out frames the student is nearer the teacher's samples than where it
+    # started (the teacher UNet's one pass), and nearer after 40 steps than after 4.
+    assert held["student_one_pass"]["latent_rms_to_teacher"] < 0.95 * held["teacher_one_pass"]["latent_rms_to_teacher"], held
+    assert held["student_one_pass"]["latent_rms_to_teacher"] < first["student_one_pass"]["latent_rms_to_teacher"], (first, held)
+    assert held["teacher"]["latent_rms_to_teacher"] == 0
+    # The bundle: the teacher as it was, the student beside it, one pass by default.
+    vae, unet, extra, manifest = bundle.load(out / "bundle")
+    _, unet0, extra0, manifest0 = bundle.load(teacher_bundle)
+    assert all(torch.equal(v, unet.state_dict()[k]) for k, v in unet0.state_dict().items())
+    assert manifest["sampler"] == dict(manifest0["sampler"], kind="one_pass")
+    assert manifest["metrics"]["one_pass"]["method"] == "direct"
+    student, steps, cfg = bundle.live_sampler(manifest, unet, extra)
+    assert (steps, cfg) == (1, 1.0) and student is not unet
+    moved = max((student.state_dict()[k] - v).abs().max().item() for k, v in unet0.state_dict().items() if v.is_floating_point())
+    assert moved > 0
+    assert not any(p.name.endswith(".tmp") for p in out.rglob("*")), "no half-written file is left"
+
+
+def test_consistency_distillation_runs_and_writes_a_one_pass_bundle(teacher_bundle, quick_dataset_dir, tmp_path):
+    out = tmp_path / "cd"
+    main(["--bundle", str(teacher_bundle), "--data", str(quick_dataset_dir), "--out", str(out), "--method", "consistency",
+          "--steps", "2", *QUICK])
+    _, unet, extra, manifest = bundle.load(out / "bundle")
+    assert manifest["sampler"]["kind"] == "one_pass" and manifest["metrics"]["one_pass"]["method"] == "consistency"
+    assert not (out / "teacher").exists(), "consistency distillation needs no stored teacher samples"
+
+
+def test_bad_inputs_end_in_one_line_naming_the_file(teacher_bundle, quick_dataset_dir, tmp_path):
+    out = tmp_path / "busy"
+    out.mkdir()
+    (out / "something").write_text("x")
+    with pytest.raises(SystemExit) as e:
+        main(["--bundle", str(teacher_bundle), "--data", str(quick_dataset_dir), "--out", str(out), *QUICK])
+    assert str(out) in str(e.value) and "--resume" in str(e.value)
+    with pytest.raises(SystemExit) as e:
+        main(["--bundle", str(tmp_path / "nowhere"), "--data", str(quick_dataset_dir), "--out", str(tmp_path / "a"), *QUICK])
+    assert "nowhere" in str(e.value) and "\n" not in str(e.value)
+    with pytest.raises(SystemExit) as e:
+        main(["--bundle", str(teacher_bundle), "--data", str(quick_dataset_dir), "--out", str(tmp_path / "b"),
+              "--held-out-clips", "99", "--frames", "4"])
+    assert "held-out" in str(e.value) and "\n" not in str(e.value)
+    # A manifest naming an unknown sampler kind is refused by name.
+    manifest = json.loads((teacher_bundle / "manifest.json").read_text())
+    _, unet, extra, _ = bundle.load(teacher_bundle)
+    with pytest.raises(bundle.BundleError, match="two_pass"):
+        bundle.live_sampler(dict(manifest, sampler=dict(manifest["sampler"], kind="two_pass")), unet, extra)
+    with pytest.raises(bundle.BundleError, match="student"):
+        bundle.live_sampler(dict(manifest, sampler=dict(manifest["sampler"], kind="one_pass")), unet, extra)
+    assert os.path.isdir(teacher_bundle)

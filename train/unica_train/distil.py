@@ -1,0 +1,447 @@
+"""One UNet pass per frame: distils a bundle's sampler (its DDIM steps with classifier-free
+guidance and its Idle guidance rules) into a student UNet that makes a frame in one pass
+without the guidance batch:
+
+    python -m unica_train.distil --bundle BUNDLE --data DATA --out RUN [--method direct|consistency]
+        [--frames 3072] [--steps 1500] [--batch 32] [--resume] [--extra-data MORE]
+
+The student has the teacher's architecture and starts from its weights. It is run as one
+DDIM step from t = 999 to the clean sample, conditional only, from the teacher's starting
+noise (standard normal times the sampler's `noise_scale`): x0 = (x_T - √(1-ᾱ) ε̂)/√ᾱ.
+Guidance is folded in: every training frame is one the live loop could meet (three
+ground-truth context frames, turned to the model's heading, the action turned with them),
+and the teacher samples it at the guidance scale the live loop would use there (the
+keys' scale, Idle's own, or the braking scale for the first Idle frames after a key,
+`diffusion.frame_options`). The student therefore learns the braking from the context it
+sees: moving context under Idle.
+
+Methods (`--method`, compared in docs/experiments/distillation.md):
+- `direct`: knowledge distillation (Luhman & Luhman 2021). The teacher samples each pooled
+  frame once from a stored noise; the student regresses that sample from the same noise
+  in one pass (loss on the clean latent).
+- `consistency`: consistency distillation (Song et al. 2023) on the teacher's own DDIM
+  grid: a training frame is noised to a grid time t_n (t_0 = 999 starts from the
+  sampler's noise instead), one guided teacher DDIM step takes it to t_n+1, and the
+  student's clean-sample prediction at t_n is pulled to an EMA copy's at t_n+1 (the
+  clean latent itself past the last step).
+
+Steps: the frame pool (`pool/`, encoded contexts, actions, guidance scales, true next
+latents), the teacher's samples (`direct` only, `teacher/`), then training with a
+checkpoint every `--checkpoint-every` steps. Every file is written under a temporary name
+and renamed, and `--resume` continues from what is there, so a killed run loses at most
+one chunk or one checkpoint interval. The run ends with `RUN/bundle`: the teacher bundle
+with the student's weights as `student.*` and `sampler.kind = "one_pass"` (the app and
+`unica render --bundle` run it by default; `--steps N` runs the teacher), and
+`RUN/metrics.json`: the student's held-out error against the teacher's samples and the
+truth, in latent units and in mm, beside the teacher's own and its one-step DDIM."""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import csv
+import json
+import math
+import os
+import shutil
+import time
+from pathlib import Path
+
+import torch
+from safetensors.torch import load_file, save_file
+
+from . import bundle as bundle_io
+from . import recentre
+from .dataset import ANCHOR, AFTER_SWITCH, BakedDataset, DatasetError, quarter_turn_action
+from .diffusion import Schedule, brake_options, ddim_step, frame_options, guided_eps, sample_next, sampler_options
+from .train import bar, extra_clips
+
+METHODS = ("direct", "consistency")
+CHUNK = 256
+# The held-out clips of the shipped training configs (train.TrainConfig.held_out_clips).
+HELD_OUT_CLIPS = [4, 13]
+
+
+class DistilError(ValueError):
+    """A bad input to the distillation; the message names the file and the problem."""
+
+
+def write_atomic(path: Path, tensors: dict) -> None:
+    """safetensors written to a temporary name, synced, then renamed over `path`."""
+    tmp = path.with_name(path.name + ".tmp")
+    save_file({k: v.detach().contiguous().cpu() for k, v in tensors.items()}, str(tmp))
+    with open(tmp, "rb") as f:
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def one_pass(student, schedule: Schedule, context, action, noise):
+    """The student's frame: one conditional DDIM step from t = 999 to the clean sample."""
+    return sample_next(student, schedule, context, action, steps=1, cfg_scale=1.0, noise=noise)
+
+
+def x0_prediction(model, schedule: Schedule, context, x_t, t: torch.Tensor, action):
+    """The clean latent a model predicts from x_t at per-sample times t ([B]; -1 gives x_t
+    itself, the consistency boundary)."""
+    b = x_t.shape[0]
+    times = torch.cat([torch.zeros(b, 3, dtype=torch.long), t.clamp(min=0)[:, None]], 1)
+    eps = model(torch.cat([context, x_t[:, None]], 1), times, action)[:, -1]
+    a = schedule.alpha_bar(t).view(b, 1, 1, 1)
+    x0 = (x_t - (1 - a).sqrt() * eps) / a.sqrt()
+    return torch.where((t < 0).view(b, 1, 1, 1), x_t, x0)
+
+
+class Teacher:
+    """The bundle, the dataset, and the live loop's view of a training frame."""
+
+    def __init__(self, bundle_dir: Path, data: Path, extra: list[Path], held_out: list[int] = HELD_OUT_CLIPS):
+        self.bundle_dir = bundle_dir
+        self.held_out = set(held_out)
+        self.vae, self.unet, self.extra, self.manifest = bundle_io.load(bundle_dir)
+        self.vae.eval()
+        self.unet.eval()
+        self.ds = BakedDataset(data)
+        for folder in extra:
+            self.ds.clips += extra_clips(self.ds, BakedDataset(folder))
+        if not torch.equal(self.extra["map.pixels"].long(), self.ds.pixels):
+            raise DistilError(f"{data}: its position-map pixels are not the bundle's (another character or table)")
+        sampler = self.manifest["sampler"]
+        self.steps, self.cfg_scale = int(sampler["ddim_steps"]), float(sampler["cfg_scale"])
+        self.options, self.brake = sampler_options(sampler), brake_options(sampler)
+        self.heading = self.manifest.get("heading", "world")
+        self.latent_scale = float(self.manifest["latent_scale"])
+        self.schedule = Schedule()
+
+    def frames(self, held_out: bool) -> list[tuple[int, int]]:
+        """Every (clip, frame) with three frames before it, in the held-out clips or not."""
+        out = []
+        for c, clip in enumerate(self.ds.clips):
+            if (c in self.held_out) != held_out:
+                continue
+            out += [(c, f) for f in range(3, clip["actions"].shape[0])]
+        return out
+
+    def after_switch(self, clip: int, f: int) -> bool:
+        s = self.ds.clips[clip]["switch"]
+        return s <= f < s + AFTER_SWITCH
+
+    @torch.no_grad()
+    def encode(self, picks: list[tuple[int, int]]) -> dict:
+        """The live loop's view of frames (clip, f): the three context latents turned to the
+        model's heading, the action turned with them, the Idle guidance scale the loop
+        would use after the clip's keys so far (-1: the keys' scale), the true frame's
+        latent turned the same way, and the heading's quarter turns."""
+        maps, actions, idle, quarters = [], [], [], []
+        for clip, f in picks:
+            world = self.ds.positions(clip, list(range(f - 3, f + 1)))
+            unit, _ = self.ds.normalise(world, anchor=ANCHOR)
+            history = [int(a) for a in self.ds.clips[clip]["actions"][:f]]
+            q = recentre.heading_quarters(history, self.heading)
+            to_model = (4 - q) % 4
+            maps.append(self.ds.to_maps(recentre.turn_unit(unit, to_model)))
+            actions.append(quarter_turn_action(history[-1], to_model))
+            scale = frame_options(self.options, self.brake, history)["idle_cfg_scale"]
+            idle.append(-1.0 if scale is None else float(scale))
+            quarters.append(q)
+        maps = torch.stack(maps)  # [B, 4, 3, 128, 128]
+        z = self.vae.encoder(maps.flatten(0, 1))[0] * self.latent_scale
+        z = z.reshape(maps.shape[0], 4, *z.shape[1:])
+        return {"context": z[:, :3], "truth": z[:, 3], "action": torch.tensor(actions),
+                "idle_scale": torch.tensor(idle), "quarters": torch.tensor(quarters)}
+
+    @torch.no_grad()
+    def sample(self, context, action, idle_scale, noise, steps: int | None = None, cfg_scale: float | None = None):
+        """The teacher's frames, each at its own Idle scale (one batch per scale)."""
+        steps = self.steps if steps is None else steps
+        cfg = self.cfg_scale if cfg_scale is None else cfg_scale
+        out = torch.empty_like(noise)
+        for s in idle_scale.unique().tolist():
+            rows = idle_scale == s
+            opts = dict(self.options, idle_cfg_scale=None if s < 0 else s)
+            out[rows] = sample_next(self.unet, self.schedule, context[rows], action[rows], steps, cfg,
+                                    noise=noise[rows], **opts)
+        return out
+
+    def guided(self, x_t, t: int, context, action, idle_scale):
+        """The teacher's guided noise prediction at one time, each sample at its Idle scale."""
+        out = torch.empty_like(x_t)
+        b = x_t.shape[0]
+        for s in idle_scale.unique().tolist():
+            rows = idle_scale == s
+            n = int(rows.sum())
+            latents = torch.cat([context[rows], x_t[rows][:, None]], 1)
+            t_frames = torch.tensor([[0, 0, 0, t]] * n)
+            opts = dict(self.options, idle_cfg_scale=None if s < 0 else s)
+            out[rows] = guided_eps(self.unet, latents, t_frames, action[rows], self.cfg_scale, opts["guide_idle"],
+                                   opts["idle_cfg_scale"])
+        assert out.shape[0] == b
+        return out
+
+    def decode_mm(self, a, b) -> float:
+        """Mean per-point distance (mm) between the decoded frames of latents a and b."""
+        pa = recentre.decode_points(self.vae, a, self.latent_scale, self.ds.pixels)
+        pb = recentre.decode_points(self.vae, b, self.latent_scale, self.ds.pixels)
+        return float((pa - pb).norm(dim=-1).mean() / self.ds.scale * 1000)
+
+
+# -- the pool and the teacher's samples ------------------------------------------------
+def pick_frames(teacher: Teacher, count: int, seed: int, held_out: bool) -> list[tuple[int, int]]:
+    """`count` frames, half of them within AFTER_SWITCH frames after a key change (where
+    starts, stops and turns happen), the rest uniform."""
+    gen = torch.Generator().manual_seed(seed)
+    frames = teacher.frames(held_out)
+    if not frames:
+        raise DistilError(f"{teacher.ds.dir}: no {'held-out' if held_out else 'training'} clip has 4 frames")
+    after = [x for x in frames if teacher.after_switch(*x)] or frames
+    out = []
+    for i in range(count):
+        pool = after if i % 2 == 0 else frames
+        out.append(pool[int(torch.randint(len(pool), (1,), generator=gen))])
+    return out
+
+
+def build_pool(teacher: Teacher, folder: Path, count: int, seed: int, held_out: bool, label: str) -> dict:
+    """The encoded frames in chunks of CHUNK (`folder/chunk_NNNN.safetensors`), each with
+    its starting noise; chunks already there are kept (resume)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    picks = pick_frames(teacher, count, seed, held_out)
+    gen = torch.Generator().manual_seed(seed + 7)
+    started = time.time()
+    noise_scale = teacher.options["noise_scale"]
+    for k, at in enumerate(range(0, count, CHUNK)):
+        chunk = picks[at:at + CHUNK]
+        noise = noise_scale * torch.randn(len(chunk), 4, 16, 16, generator=gen)  # drawn even when kept: same noise on resume
+        path = folder / f"chunk_{k:04d}.safetensors"
+        if path.exists():
+            continue
+        part = teacher.encode(chunk)
+        part["noise"] = noise
+        part["frames"] = torch.tensor(chunk, dtype=torch.int32)
+        write_atomic(path, part)
+        done = min(at + CHUNK, count)
+        print(f"{label} {bar(done, count)} {done}/{count} {time.time() - started:.0f} s", flush=True)
+    return read_chunks(folder, (count + CHUNK - 1) // CHUNK)
+
+
+def read_chunks(folder: Path, chunks: int) -> dict:
+    parts = []
+    for k in range(chunks):
+        path = folder / f"chunk_{k:04d}.safetensors"
+        try:
+            parts.append(load_file(str(path)))
+        except Exception as e:
+            raise DistilError(f"{path}: {e}") from e
+    return {key: torch.cat([p[key] for p in parts]) for key in parts[0]}
+
+
+def teacher_samples(teacher: Teacher, pool: dict, folder: Path, label: str) -> torch.Tensor:
+    """The teacher's sample of every pooled frame from its stored noise, in chunks
+    (`folder/chunk_NNNN.safetensors`, kept on resume)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    n = pool["noise"].shape[0]
+    started, out = time.time(), []
+    for k, at in enumerate(range(0, n, CHUNK)):
+        path = folder / f"chunk_{k:04d}.safetensors"
+        rows = slice(at, min(at + CHUNK, n))
+        if not path.exists():
+            z = teacher.sample(pool["context"][rows], pool["action"][rows], pool["idle_scale"][rows], pool["noise"][rows])
+            write_atomic(path, {"sample": z})
+            print(f"{label} {bar(rows.stop, n)} {rows.stop}/{n} {time.time() - started:.0f} s", flush=True)
+        out.append(load_file(str(path))["sample"])
+    return torch.cat(out)
+
+
+# -- training --------------------------------------------------------------------------
+def train(teacher: Teacher, pool: dict, targets: torch.Tensor | None, out: Path, args) -> torch.nn.Module:
+    """Trains the student (`args.method`) with checkpoints every `args.checkpoint_every`
+    steps; returns its EMA weights."""
+    student = copy.deepcopy(teacher.unet).train()
+    ema = copy.deepcopy(teacher.unet).eval()
+    opt = torch.optim.AdamW(student.parameters(), lr=args.lr, weight_decay=0.0)
+    ckpt = out / "checkpoint.pt"
+    step = 0
+    if args.resume and ckpt.exists():
+        saved = torch.load(ckpt, weights_only=True)
+        student.load_state_dict(saved["student"])
+        ema.load_state_dict(saved["ema"])
+        opt.load_state_dict(saved["opt"])
+        step = int(saved["step"])
+        print(f"distil: resumed at step {step}", flush=True)
+    gen = torch.Generator().manual_seed(args.seed + 1000 + step)
+    log_path = out / "losses.csv"
+    if step == 0 and log_path.exists():
+        log_path.unlink()
+    n = pool["noise"].shape[0]
+    grid = teacher.schedule.ddim_timesteps(teacher.steps) + [-1]
+    noise_scale = teacher.options["noise_scale"]
+    started = time.time()
+    while step < args.steps:
+        idx = torch.randint(n, (args.batch,), generator=gen)
+        context, action = pool["context"][idx], pool["action"][idx]
+        if args.method == "direct":
+            noise = pool["noise"][idx]
+            got = x0_prediction(student, teacher.schedule, context, noise, torch.full((args.batch,), grid[0]), action)
+            loss = ((got - targets[idx]) ** 2).mean()
+        else:
+            x0, scales = pool["truth"][idx], pool["idle_scale"][idx]
+            n_at = torch.randint(teacher.steps, (args.batch,), generator=gen)
+            eps = torch.randn(x0.shape, generator=gen)
+            t_n = torch.tensor([grid[i] for i in n_at])
+            t_next = torch.tensor([grid[i + 1] for i in n_at])
+            x_t = teacher.schedule.add_noise(x0, eps, t_n)
+            start = n_at == 0
+            x_t[start] = noise_scale * eps[start]  # the sampler's own start at t_0
+            with torch.no_grad():
+                x_next = torch.empty_like(x_t)
+                for i in n_at.unique().tolist():
+                    rows = n_at == i
+                    e = teacher.guided(x_t[rows], grid[i], context[rows], action[rows], scales[rows])
+                    x_next[rows] = ddim_step(teacher.schedule, x_t[rows], e, grid[i], grid[i + 1])
+                target = x0_prediction(ema, teacher.schedule, context, x_next, t_next, action)
+            got = x0_prediction(student, teacher.schedule, context, x_t, t_n, action)
+            loss = ((got - target) ** 2).mean()
+        lr = args.lr * 0.5 * (1 + math.cos(math.pi * step / args.steps))
+        for group in opt.param_groups:
+            group["lr"] = lr
+        opt.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(student.parameters(), 1.0)
+        opt.step()
+        with torch.no_grad():
+            for pe, p in zip(ema.parameters(), student.parameters()):
+                pe.lerp_(p, 1 - args.ema)
+        step += 1
+        if step % 10 == 0 or step == args.steps:
+            new = not log_path.exists()
+            with log_path.open("a", newline="") as f:
+                w = csv.writer(f)
+                if new:
+                    w.writerow(["step", "loss", "seconds"])
+                w.writerow([step, f"{loss.item():.6g}", f"{time.time() - started:.1f}"])
+            print(f"distil {args.method} {bar(step, args.steps)} {step}/{args.steps} loss {loss.item():.5f} "
+                  f"{time.time() - started:.0f} s", flush=True)
+        if step % args.checkpoint_every == 0 or step == args.steps:
+            tmp = ckpt.with_name(ckpt.name + ".tmp")
+            torch.save({"student": student.state_dict(), "ema": ema.state_dict(), "opt": opt.state_dict(), "step": step}, tmp)
+            os.replace(tmp, ckpt)
+    return ema.eval()
+
+
+# -- evaluation and the bundle -----------------------------------------------------------
+@torch.no_grad()
+def held_out_errors(teacher: Teacher, student, held: dict, teacher_z: torch.Tensor) -> dict:
+    """The student's one pass, the teacher UNet's one pass (where the student started),
+    the teacher's sampler at one guided step and at its own steps, on the held-out frames:
+    RMS latent error and mean decoded distance (mm) to the teacher's samples and to the
+    truth."""
+    noise = held["noise"]
+    rows = {
+        "student_one_pass": one_pass(student, teacher.schedule, held["context"], held["action"], noise),
+        "teacher_one_pass": one_pass(teacher.unet, teacher.schedule, held["context"], held["action"], noise),
+        "teacher_one_step": teacher.sample(held["context"], held["action"], held["idle_scale"], noise, steps=1),
+        "teacher": teacher_z,
+    }
+    out = {}
+    for name, z in rows.items():
+        out[name] = {
+            "latent_rms_to_teacher": float(((z - teacher_z) ** 2).mean().sqrt()),
+            "mm_to_teacher": teacher.decode_mm(z, teacher_z),
+            "mm_to_truth": teacher.decode_mm(z, held["truth"]),
+        }
+    return out
+
+
+def write_bundle(teacher: Teacher, student, out: Path, record: dict) -> Path:
+    """RUN/bundle: the teacher bundle with `student.*` and `sampler.kind = "one_pass"`,
+    written beside and renamed into place whole."""
+    final, tmp = out / "bundle", out / "bundle.tmp"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    extra = {k: v for k, v in teacher.extra.items() if not k.startswith("student.")}
+    extra.update({f"student.{k}": v for k, v in student.state_dict().items()})
+    manifest = {k: v for k, v in teacher.manifest.items() if k not in ("format", "version", "vae", "unet", "tensors")}
+    manifest["sampler"] = dict(manifest["sampler"], kind="one_pass")
+    manifest["metrics"] = dict(manifest.get("metrics", {}), one_pass=record)
+    bundle_io.save(tmp, teacher.vae, teacher.unet, extra, manifest)
+    for name in ("weights.safetensors", "manifest.json"):
+        with open(tmp / name, "rb") as f:
+            os.fsync(f.fileno())
+    if final.exists():
+        old = out / "bundle.old"
+        if old.exists():
+            shutil.rmtree(old)
+        os.replace(final, old)
+        os.replace(tmp, final)
+        shutil.rmtree(old)
+    else:
+        os.replace(tmp, final)
+    return final
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--bundle", required=True, type=Path, help="the teacher bundle (its sampler is distilled)")
+    parser.add_argument("--data", required=True, type=Path, help="its dataset (`unica bake`)")
+    parser.add_argument("--out", required=True, type=Path, help="run folder (pool, teacher samples, checkpoint, bundle)")
+    parser.add_argument("--method", default="direct", choices=METHODS)
+    parser.add_argument("--frames", type=int, default=3072, help="training frames in the pool")
+    parser.add_argument("--held-out-frames", type=int, default=256, help="held-out frames scored at the end")
+    parser.add_argument("--steps", type=int, default=1500, help="student training steps")
+    parser.add_argument("--batch", type=int, default=32)
+    parser.add_argument("--lr", type=float, default=1e-4)
+    parser.add_argument("--ema", type=float, default=0.99)
+    parser.add_argument("--checkpoint-every", type=int, default=50)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+    parser.add_argument("--extra-data", type=Path, action="append", default=[], help="more clips of the same character")
+    parser.add_argument("--held-out-clips", type=int, nargs="+", default=HELD_OUT_CLIPS,
+                        help="clips scored at the end and never trained on (default: 4 13, as the geometry trainer)")
+    parser.add_argument("--resume", action="store_true", help="continue from what the run folder holds")
+    args = parser.parse_args(argv)
+    for name in ("frames", "held_out_frames", "steps", "batch", "checkpoint_every"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be at least 1")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    if args.out.exists() and any(args.out.iterdir()) and not args.resume:
+        raise SystemExit(f"unica_train.distil: {args.out} is not empty: give --resume to continue it, or another folder")
+    args.out.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(args.seed)
+    started = time.time()
+    try:
+        teacher = Teacher(args.bundle, args.data, args.extra_data, args.held_out_clips)
+        pool = build_pool(teacher, args.out / "pool", args.frames, args.seed, False, "pool")
+        held = build_pool(teacher, args.out / "held_out", args.held_out_frames, args.seed + 1, True, "held-out pool")
+        held_z = teacher_samples(teacher, held, args.out / "held_out_teacher", "teacher (held out)")
+        targets = teacher_samples(teacher, pool, args.out / "teacher", "teacher") if args.method == "direct" else None
+    except (bundle_io.BundleError, DatasetError, DistilError) as e:
+        raise SystemExit(f"unica_train.distil: {e}") from None
+    student = train(teacher, pool, targets, args.out, args)
+    record = {
+        "method": args.method,
+        "teacher_steps": teacher.steps,
+        "teacher_cfg_scale": teacher.cfg_scale,
+        "frames": args.frames,
+        "steps": args.steps,
+        "batch": args.batch,
+        "lr": args.lr,
+        "minutes": (time.time() - started) / 60,
+        "held_out": held_out_errors(teacher, student, held, held_z),
+    }
+    write_text_atomic(args.out / "metrics.json", json.dumps(record, indent=2) + "\n")
+    path = write_bundle(teacher, student, args.out, record)
+    print(json.dumps(record, indent=2), flush=True)
+    print(f"distil: wrote {path}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
