@@ -78,12 +78,12 @@ pub enum Update {
 /// window share the same cores (a CPU driver). The window draws only when something
 /// changed (app/mod.rs), so it asks for turns: after at least [`MODEL_SLICE`] of model
 /// work (one dispatch may run longer), if the window has started a frame since the last
-/// slice, the worker gives it [`WINDOW_SHARE`] times as long and waits for that frame
-/// (at most [`WINDOW_WAIT`]); otherwise the model carries on. A window that redraws
-/// unchanged pictures no longer takes the machine: measured on lavapipe, a window
-/// redrawing at 16-20 fps left the model about a twentieth of its rate alone.
+/// slice, the worker waits until the window has recorded it (at most [`WINDOW_WAIT`]),
+/// so the window's work runs before the model's next part; otherwise the model carries
+/// on. Measured on lavapipe (docs/performance.md): a window redrawing unchanged pictures
+/// at 16-20 fps left the model about a twentieth of its rate alone, and a fixed window
+/// share of twice the model's slice after each drawn frame left it 55 %.
 const MODEL_SLICE: Duration = Duration::from_millis(6);
-const WINDOW_SHARE: u32 = 2;
 const WINDOW_WAIT: Duration = Duration::from_millis(250);
 
 /// Wakes the window (a new generated frame is there to draw).
@@ -287,10 +287,10 @@ impl Worker {
             }
             let asked = started.load(Ordering::Relaxed);
             if asked != seen {
-                // The window started a frame since the last slice: it gets its turn.
-                let window_turn = (spent * WINDOW_SHARE).min(WINDOW_WAIT);
+                // The window started a frame since the last slice: the model waits until
+                // it has recorded it, so its work is queued before the model's next part.
                 let waited = Instant::now();
-                while (frames.load(Ordering::Relaxed) < asked || waited.elapsed() < window_turn)
+                while frames.load(Ordering::Relaxed) < asked
                     && waited.elapsed() < WINDOW_WAIT
                     && !stop.load(Ordering::Relaxed)
                 {
