@@ -32,7 +32,7 @@ and renamed, and `--resume` continues from what is there, so a killed run loses 
 one chunk or one checkpoint interval. The run ends with `RUN/bundle`: the teacher bundle
 with the student's weights as `student.*` and `sampler.kind = "one_pass"` (the app and
 `unica render --bundle` run it by default; `--steps N` runs the teacher), and
-`RUN/metrics.json`: the student's held-out error against the teacher's samples and the
+`RUN/curves.png` (the loss) and `RUN/metrics.json`: the student's held-out error against the teacher's samples and the
 truth, in latent units and in mm, beside the teacher's own and its one-step DDIM."""
 
 from __future__ import annotations
@@ -54,6 +54,7 @@ from . import bundle as bundle_io
 from . import recentre
 from .dataset import ANCHOR, AFTER_SWITCH, BakedDataset, DatasetError, quarter_turn_action
 from .diffusion import Schedule, brake_options, ddim_step, frame_options, guided_eps, sample_next, sampler_options
+from .plot import curves
 from .train import bar, extra_clips
 
 METHODS = ("direct", "consistency")
@@ -336,6 +337,13 @@ def train(teacher: Teacher, pool: dict, targets: torch.Tensor | None, out: Path,
     return ema.eval()
 
 
+def write_curves(out: Path, method: str) -> None:
+    """RUN/curves.png: the training loss (log scale) against the step."""
+    with (out / "losses.csv").open() as f:
+        rows = [(int(r["step"]), float(r["loss"])) for r in csv.DictReader(f)]
+    curves(out / "curves.png", {f"{method} distillation loss": rows})
+
+
 # -- evaluation and the bundle -----------------------------------------------------------
 @torch.no_grad()
 def held_out_errors(teacher: Teacher, student, held: dict, teacher_z: torch.Tensor) -> dict:
@@ -438,6 +446,7 @@ def main(argv=None):
         "held_out": held_out_errors(teacher, student, held, held_z),
     }
     write_text_atomic(args.out / "metrics.json", json.dumps(record, indent=2) + "\n")
+    write_curves(args.out, args.method)
     path = write_bundle(teacher, student, args.out, record)
     print(json.dumps(record, indent=2), flush=True)
     print(f"distil: wrote {path}", flush=True)
