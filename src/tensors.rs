@@ -1,5 +1,7 @@
 //! Named f32 and i32 tensors to and from safetensors files (datasets, bundles, fixtures);
 //! reading checks each tensor's dtype and shape and names the file and tensor when wrong.
+//! A float tensor stored as F16 (the shipped bundle's weights, to halve the clone) is
+//! read as f32: every stage computes in f32 from the widened values.
 
 use std::path::{Path, PathBuf};
 
@@ -125,11 +127,23 @@ impl TensorFile {
         dtype: Dtype,
         shape: &[Option<usize>],
     ) -> Result<(Vec<T>, Vec<usize>), TensorError> {
+        self.read_any(name, &[dtype], shape)
+            .map(|(bytes, _, found)| (bytemuck::pod_collect_to_vec(&bytes), found))
+    }
+
+    /// A tensor's raw bytes, its dtype (one of `dtypes`) and its shape.
+    fn read_any(
+        &self,
+        name: &str,
+        dtypes: &[Dtype],
+        shape: &[Option<usize>],
+    ) -> Result<(Vec<u8>, Dtype, Vec<usize>), TensorError> {
         let parsed = self.parsed()?;
         let view = parsed
             .tensor(name)
             .map_err(|_| self.fail(format!("tensor '{name}' is missing")))?;
-        if view.dtype() != dtype {
+        let dtype = dtypes[0];
+        if !dtypes.contains(&view.dtype()) {
             return Err(self.fail(format!(
                 "tensor '{name}' is {:?}, expected {dtype:?}",
                 view.dtype()
@@ -151,15 +165,24 @@ impl TensorFile {
                 want.join(", ")
             )));
         }
-        Ok((bytemuck::pod_collect_to_vec(view.data()), found.to_vec()))
+        Ok((view.data().to_vec(), view.dtype(), found.to_vec()))
     }
 
+    /// An F32 tensor, or an F16 one widened to f32.
     pub fn f32(
         &self,
         name: &str,
         shape: &[Option<usize>],
     ) -> Result<(Vec<f32>, Vec<usize>), TensorError> {
-        self.read(name, Dtype::F32, shape)
+        let (bytes, dtype, found) = self.read_any(name, &[Dtype::F32, Dtype::F16], shape)?;
+        let values = match dtype {
+            Dtype::F16 => bytemuck::pod_collect_to_vec::<u8, half::f16>(&bytes)
+                .into_iter()
+                .map(f32::from)
+                .collect(),
+            _ => bytemuck::pod_collect_to_vec(&bytes),
+        };
+        Ok((values, found))
     }
 
     pub fn i32(
@@ -207,6 +230,22 @@ mod tests {
             (vec![1.0, 2.0, 3.0, 4.0], vec![2, 2])
         );
         assert_eq!(file.i32("b", &[Some(3)]).unwrap().0, vec![7, 8, 9]);
+        // F16 is widened exactly: 1, -2, 0.5 and 65504 (the largest half) are all
+        // representable, and 0x3555 is the half nearest 1/3 (0.333251953125).
+        let halves: [u16; 5] = [0x3c00, 0xc000, 0x3800, 0x7bff, 0x3555];
+        let h = Tensor {
+            dtype: Dtype::F16,
+            shape: vec![5],
+            data: bytemuck::cast_slice(&halves).to_vec(),
+        };
+        let half_path = dir.path().join("h.safetensors");
+        write(&half_path, &[("h", h)]).unwrap();
+        let widened = TensorFile::open(&half_path)
+            .unwrap()
+            .f32("h", &[Some(5)])
+            .unwrap()
+            .0;
+        assert_eq!(widened, vec![1.0, -2.0, 0.5, 65504.0, 0.333_251_95]);
         let e = file.f32("b", &[Some(3)]).unwrap_err().to_string();
         assert!(
             e.contains("t.safetensors") && e.contains("'b' is I32"),

@@ -14,7 +14,7 @@ use unica::gpu::kernel::{Grid, PipelineCache, Precision};
 use unica::gpu::{GpuContext, GpuOptions, readback};
 use unica::nn::bundle::{Heading, RootMotion};
 use unica::nn::sampler::{Sampling, idle_run};
-use unica::nn::{Bundle, Recorder, Tensor};
+use unica::nn::{Bundle, Kernels, Recorder, Tensor};
 use unica::random::Rng;
 use unica::splat::ply::Splat;
 
@@ -712,6 +712,37 @@ fn a_generated_frame_creates_nothing_and_reads_back_one_small_state() {
         engine.finish();
         let c = gpu.counts() - before;
         assert_eq!((c.buffers, c.bind_groups), (0, 0), "{c:?}");
+    }
+}
+
+#[test]
+fn the_gpu_kernel_variant_makes_the_frames_of_the_cpu_variant() {
+    // The frame plan recorded with the GPU kernels (convolutions, linear layers,
+    // attention and PCA sums split over workgroups) against the CPU kernels, on the
+    // shipped bundle's one-pass sampler, same seed and keys, with the refined splats.
+    // Both are parity-tested layer by layer (tests/nn.rs); here the whole frame, the
+    // engine's own GPU-variant kernel (pca_coefficients_split.wgsl) included, over four
+    // frames that feed each other. They differ only in summation order; tolerance 1e-4 m
+    // (0.1 mm) on every world point.
+    let gpu = gpu();
+    let run = |kernels: Kernels| -> Vec<Vec<Vec3>> {
+        let options = EngineOptions {
+            kernels: Some(kernels),
+            splat_level: Some(256),
+            ..EngineOptions::default()
+        };
+        let mut engine = Engine::new(&gpu, &witch_bundle(), &options).unwrap();
+        assert_eq!(engine.kernels(), kernels);
+        [Action::Forward, Action::Left, Action::Forward, Action::Idle]
+            .into_iter()
+            .map(|a| engine.step(a).unwrap().points)
+            .collect()
+    };
+    let (cpu, gpu_kernels) = (run(Kernels::Cpu), run(Kernels::Gpu));
+    for (frame, (a, b)) in cpu.iter().zip(&gpu_kernels).enumerate() {
+        let error = worst(a, b);
+        println!("frame {frame}: worst {error:.2e} m");
+        assert!(error < 1e-4, "frame {frame}: {error} m");
     }
 }
 

@@ -60,8 +60,7 @@ struct Fixture {
 
 impl Fixture {
     fn open(name: &str, precision: Precision) -> Self {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join(format!("tests/fixtures/nn/{name}.safetensors"));
+        let path = repo().join(format!("tests/fixtures/nn/{name}.safetensors"));
         let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
         Self {
             file: TensorFile::open(&path).unwrap(),
@@ -158,14 +157,27 @@ fn wave(n: usize, k: f32) -> Vec<f32> {
     (0..n).map(|i| (i as f32 * k).sin()).collect()
 }
 
-/// Every value of `a` equals `b`'s bit for bit (a fused kernel against the ops it fuses).
-fn assert_same_bits(a: &[f32], b: &[f32], what: &str) {
+/// A fused kernel against the ops it fuses: in f32 storage every value of `a` equals
+/// `b`'s bit for bit; in f16 storage each differs from the other by at most one f16 step
+/// at the tensor's largest magnitude. A driver may contract a multiply and an add into
+/// one fused multiply-add in one shader and not in the other, which moves an
+/// intermediate f16 rounding by one step (a later add that cancels keeps that absolute
+/// difference on a smaller value): seen on an NVIDIA H200, up to 0.0078 on values up to
+/// 16 (docs/gpu), never on lavapipe.
+fn assert_same_bits(precision: Precision, a: &[f32], b: &[f32], what: &str) {
     assert_eq!(a.len(), b.len(), "{what}: lengths");
-    assert!(
-        a.iter().zip(b).all(|(p, q)| p.to_bits() == q.to_bits()),
-        "{what}: worst difference {}",
-        worst_difference(a, b)
-    );
+    let same = match precision {
+        Precision::F32 => a.iter().zip(b).all(|(p, q)| p.to_bits() == q.to_bits()),
+        Precision::F16 => {
+            let largest = b.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            // One f16 step at `largest`: 2^(exponent - 10), at least the subnormal step.
+            let step = 2f32
+                .powi(largest.log2().floor() as i32 - 10)
+                .max(2f32.powi(-24));
+            a.iter().zip(b).all(|(p, q)| (p - q).abs() <= step)
+        }
+    };
+    assert!(same, "{what}: worst difference {}", worst_difference(a, b));
 }
 
 fn variants() -> Vec<(Precision, Kernels)> {
@@ -279,6 +291,7 @@ fn a_residual_block_over_a_concatenation_equals_the_block_over_the_concatenated_
         r.submit();
         let what = format!("{precision:?} {kernels:?}");
         assert_same_bits(
+            precision,
             &split.read(&gpu).unwrap(),
             &whole.read(&gpu).unwrap(),
             &what,
@@ -586,7 +599,16 @@ fn a_four_step_ddim_sample_matches_pytorch() {
 }
 
 fn witch_bundle() -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle")
+    repo().join("assets/witch/bundle")
+}
+
+/// The repository whose fixtures and bundle the tests read: `UNICA_REPO` where set (a
+/// prebuilt test binary run on another machine, as scripts/gpu-bench.sh does), else the
+/// one this binary was built from.
+fn repo() -> std::path::PathBuf {
+    std::env::var_os("UNICA_REPO")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).to_path_buf())
 }
 
 #[test]
@@ -864,9 +886,11 @@ fn every_variant_of_the_group_norm_and_the_packed_convolutions_agrees_on_odd_sha
             "{kernels:?}: group norm {norm_error:.1e}, conv3x3 {conv_error:.1e}, conv1x1 {point_error:.1e}"
         );
         // The norm's statistics sum in another order (1e-5 of unit values); the
-        // convolutions sum the same terms in the same order.
+        // convolutions sum the same terms in the same order, except the GPU 3×3 one,
+        // whose threads split the input channels (sums of ~10: a few f32 steps).
+        let conv_bound = if kernels == Kernels::Gpu { 1e-5 } else { 1e-6 };
         assert!(norm_error < 1e-5, "{kernels:?} group norm: {norm_error}");
-        assert!(conv_error < 1e-6, "{kernels:?} conv3x3: {conv_error}");
+        assert!(conv_error < conv_bound, "{kernels:?} conv3x3: {conv_error}");
         assert!(point_error < 1e-6, "{kernels:?} conv1x1: {point_error}");
     }
 }
@@ -909,7 +933,7 @@ fn the_convolution_with_its_residual_equals_a_separate_add_bit_for_bit() {
         let separate = r.add(&skip, &conv, Broadcast::Leading).unwrap();
         r.submit();
         let (a, b) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
-        assert_same_bits(&a, &b, &format!("{precision:?} {kernels:?}"));
+        assert_same_bits(precision, &a, &b, &format!("{precision:?} {kernels:?}"));
         let expected = if kernels == Kernels::Simple { 3 } else { 1 };
         assert_eq!(fused_dispatches, expected, "{kernels:?}");
     }
@@ -962,7 +986,7 @@ fn attention_over_a_cached_prefix_equals_attention_over_the_concatenation_bit_fo
             .unwrap();
         r.submit();
         let (a, b) = (whole.read(&f.gpu).unwrap(), in_place.read(&f.gpu).unwrap());
-        assert_same_bits(&a, &b, &format!("{precision:?} {kernels:?}"));
+        assert_same_bits(precision, &a, &b, &format!("{precision:?} {kernels:?}"));
     }
 }
 
@@ -991,7 +1015,7 @@ fn the_permute_with_its_addends_equals_the_separate_ops_bit_for_bit() {
         r.submit();
         let (x, y) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
         let plain = sum.read(&f.gpu).unwrap();
-        assert_same_bits(&x, &y, &format!("{precision:?} {kernels:?}"));
+        assert_same_bits(precision, &x, &y, &format!("{precision:?} {kernels:?}"));
         assert!(worst_difference(&x, &plain) > 0.1, "the bias was added");
 
         // The temporal layers' tokens: permuted, plus frame positions 1..4 of a 5-row
@@ -1010,7 +1034,12 @@ fn the_permute_with_its_addends_equals_the_separate_ops_bit_for_bit() {
         r.submit();
         let (x, y) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
         assert_eq!(fused.shape, vec![2, 20, 3, 8]);
-        assert_same_bits(&x, &y, &format!("{precision:?} {kernels:?} rows"));
+        assert_same_bits(
+            precision,
+            &x,
+            &y,
+            &format!("{precision:?} {kernels:?} rows"),
+        );
     }
 }
 
@@ -1046,8 +1075,9 @@ fn the_norm_stored_as_tokens_equals_the_norm_then_the_permute_bit_for_bit() {
         assert_eq!(spatial.shape, vec![6, 20, 1, 8]);
         assert_eq!(temporal.shape, vec![2, 20, 3, 8]);
         let read = |t: &Tensor| t.read(&f.gpu).unwrap();
-        assert_same_bits(&read(&spatial), &read(&spatial_ops), &what);
+        assert_same_bits(precision, &read(&spatial), &read(&spatial_ops), &what);
         assert_same_bits(
+            precision,
             &read(&temporal),
             &read(&temporal_ops),
             &format!("{what} rows"),
@@ -1108,8 +1138,9 @@ fn the_projection_into_images_equals_the_linear_layer_then_the_permute_bit_for_b
         r.submit();
         assert_eq!(spatial.shape, vec![6, 8, 4, 5]);
         let read = |t: &Tensor| t.read(&f.gpu).unwrap();
-        assert_same_bits(&read(&spatial), &read(&spatial_ops), &what);
+        assert_same_bits(precision, &read(&spatial), &read(&spatial_ops), &what);
         assert_same_bits(
+            precision,
             &read(&temporal),
             &read(&temporal_ops),
             &format!("{what} frames"),
@@ -1165,8 +1196,13 @@ fn the_linear_layer_over_gathered_normed_rows_equals_the_separate_ops_bit_for_bi
         let plain_ops = r.linear(&x, &weight, &bias, false).unwrap();
         r.submit();
         let read = |t: &Tensor| t.read(&f.gpu).unwrap();
-        assert_same_bits(&read(&fused), &read(&separate), &what);
-        assert_same_bits(&read(&plain), &read(&plain_ops), &format!("{what} plain"));
+        assert_same_bits(precision, &read(&fused), &read(&separate), &what);
+        assert_same_bits(
+            precision,
+            &read(&plain),
+            &read(&plain_ops),
+            &format!("{what} plain"),
+        );
         assert!(
             worst_difference(&read(&fused), &read(&plain)) > 0.1,
             "{what}: the norm and the order changed the result"
@@ -1220,7 +1256,7 @@ fn the_one_frame_temporal_attention_equals_the_projection_then_the_attention_bit
             let what = format!("{precision:?} {kernels:?} {c} channels");
             assert_eq!(fused.shape, separate.shape, "{what}");
             let (x, y) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
-            assert_same_bits(&x, &y, &what);
+            assert_same_bits(precision, &x, &y, &what);
         }
     }
 }
@@ -1246,7 +1282,12 @@ fn the_linear_layer_with_its_residual_equals_a_separate_add_bit_for_bit() {
             let separate = r.add(&res, &plain, Broadcast::Trailing).unwrap();
             r.submit();
             let (a, b) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
-            assert_same_bits(&a, &b, &format!("{precision:?} {kernels:?} {rows} rows"));
+            assert_same_bits(
+                precision,
+                &a,
+                &b,
+                &format!("{precision:?} {kernels:?} {rows} rows"),
+            );
         }
     }
 }
@@ -1285,7 +1326,12 @@ fn the_upsampled_convolution_equals_upsample_then_convolution_bit_for_bit() {
             r.submit();
             assert_eq!(fused.shape, vec![2, 12, 2 * h, 2 * w]);
             let (a, b) = (fused.read(&f.gpu).unwrap(), separate.read(&f.gpu).unwrap());
-            assert_same_bits(&a, &b, &format!("{precision:?} {kernels:?} {h}x{w}"));
+            assert_same_bits(
+                precision,
+                &a,
+                &b,
+                &format!("{precision:?} {kernels:?} {h}x{w}"),
+            );
         }
     }
 }
@@ -1306,7 +1352,7 @@ fn the_action_table_gives_the_cross_attention_bit_for_bit() {
         let looked_up = r.add_action_bias(&x, &table, &ids, 1).unwrap();
         r.submit();
         let (a, b) = (full.read(&f.gpu).unwrap(), looked_up.read(&f.gpu).unwrap());
-        assert_same_bits(&a, &b, &format!("{precision:?} {kernels:?}"));
+        assert_same_bits(precision, &a, &b, &format!("{precision:?} {kernels:?}"));
     }
 }
 
@@ -1368,7 +1414,7 @@ fn the_convolution_of_a_normed_input_equals_the_norm_then_the_convolution() {
             };
             let fused = run(Kernels::Cpu, true, &mut pipelines);
             let separate = run(Kernels::Cpu, false, &mut pipelines);
-            assert_same_bits(&fused, &separate, &what);
+            assert_same_bits(precision, &fused, &separate, &what);
             // And the simple kernels (the PyTorch-tested reference), within the layer
             // tolerance.
             let simple = run(Kernels::Simple, false, &mut pipelines);

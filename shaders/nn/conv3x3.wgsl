@@ -1,13 +1,16 @@
-// 3×3 convolution, stride 1, zero padding 1 (NCHW, Elem storage, f32 sums) in register
-// tiles of 8 neighbouring output pixels of a row × 8 output channels. The weights come
+// 3×3 convolution, stride 1, zero padding 1 (NCHW, Elem storage, f32 sums), for GPUs:
+// one workgroup per register tile of 8 neighbouring output pixels of a row × 8 output
+// channels, its WORKGROUP threads splitting the input channels (thread t takes c_in t,
+// t + WORKGROUP, …) and summing their partial tiles through workgroup memory. A thread
+// per tile, summing every input channel alone, left an H200 with a few hundred threads
+// busy at the UNet's 16×16 latents: 257 µs a convolution (docs/gpu). The weights come
 // repacked at load as f32 [c_in, 3, 3, c_out rounded up to 8] (nn::ops::PackedConv), so
 // a tap's 8 channels are two vec4 loads, and the 10 input values a row of 8 outputs
-// needs are loaded once per (c_in, ky) for all 3 taps: 16 loads per 192 multiply-adds.
-// Taps outside the input add an exact zero, so each output sums the same terms in the
-// same order (bias, then c_in, ky, kx) as conv2d.wgsl. Optional bias [c_out], an
-// optional per-image addend added after the sums, and an optional residual added to the
-// result rounded to Elem (so it equals a separate add.wgsl exactly). With `upsample`, the
-// input is read upsampled ×2 (upsample_nearest.wgsl fused into the loads).
+// needs are loaded once per (c_in, ky) for all 3 taps. Taps outside the input add an
+// exact zero. The bias is added to the summed tile, then an optional per-image addend,
+// and an optional residual is added to the result rounded to Elem (so it equals a
+// separate add.wgsl exactly). With `upsample`, the input is read upsampled ×2
+// (upsample_nearest.wgsl fused into the loads).
 
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
@@ -29,23 +32,28 @@ fn column(row: u32, ix: i32) -> f32 {
     return select(0.0, f32(x[row + (seen >> p.upsample)]), inside);
 }
 
+// Each thread's partial tile: 16 vec4 (pixel j's channels 0-3 at j, 4-7 at 8 + j).
+var<workgroup> partial: array<vec4<f32>, 16u * WORKGROUP>;
+// The summed tile, one value per thread: value 4q + c is channel c of partial slot q.
+var<workgroup> total: array<f32, 64>;
+
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+    // The tile: the workgroup's linear index (the few past the end compute and store
+    // nothing, and take part in the barriers).
+    let i = invocation.group.x + invocation.group.y * invocation.groups.x;
+    let t = invocation.lane;
     let blocks = (p.c_out + 7u) / 8u;
     let tiles = (p.w_out + 7u) / 8u;
-    if i >= p.batch * blocks * p.h_out * tiles {
-        return;
-    }
+    let live = i < p.batch * blocks * p.h_out * tiles;
     let ox0 = (i % tiles) * 8u;
     let oy = (i / tiles) % p.h_out;
     let block = (i / (tiles * p.h_out)) % blocks;
     let n = i / (tiles * p.h_out * blocks);
-    let start = bias_lanes(block);
-    let lo = start.lo;
-    let hi = start.hi;
+    let lo = vec4<f32>(0.0);
+    let hi = vec4<f32>(0.0);
     // Pixel j's first four channels in aj, its second four in bj: written out, not
-    // arrays, so CPU drivers keep them in registers.
+    // arrays, so they stay in registers.
     var a0 = lo;
     var a1 = lo;
     var a2 = lo;
@@ -64,7 +72,8 @@ fn main(invocation: Invocation) {
     var b7 = hi;
     let quads = 2u * blocks;
     let left = i32(ox0) - 1;
-    for (var ci = 0u; ci < p.c_in; ci++) {
+    let c_end = select(0u, p.c_in, live);
+    for (var ci = t; ci < c_end; ci += WORKGROUP) {
         let plane = (n * p.c_in + ci) * p.h_in * p.w_in;
         for (var ky = 0u; ky < 3u; ky++) {
             let iy = i32(oy + ky) - 1;
@@ -144,12 +153,39 @@ fn main(invocation: Invocation) {
             b7 += v9 * wb2;
         }
     }
-    store(n, block, oy, ox0 + 0u, a0, b0);
-    store(n, block, oy, ox0 + 1u, a1, b1);
-    store(n, block, oy, ox0 + 2u, a2, b2);
-    store(n, block, oy, ox0 + 3u, a3, b3);
-    store(n, block, oy, ox0 + 4u, a4, b4);
-    store(n, block, oy, ox0 + 5u, a5, b5);
-    store(n, block, oy, ox0 + 6u, a6, b6);
-    store(n, block, oy, ox0 + 7u, a7, b7);
+    let slot = 16u * t;
+    partial[slot + 0u] = a0;
+    partial[slot + 1u] = a1;
+    partial[slot + 2u] = a2;
+    partial[slot + 3u] = a3;
+    partial[slot + 4u] = a4;
+    partial[slot + 5u] = a5;
+    partial[slot + 6u] = a6;
+    partial[slot + 7u] = a7;
+    partial[slot + 8u] = b0;
+    partial[slot + 9u] = b1;
+    partial[slot + 10u] = b2;
+    partial[slot + 11u] = b3;
+    partial[slot + 12u] = b4;
+    partial[slot + 13u] = b5;
+    partial[slot + 14u] = b6;
+    partial[slot + 15u] = b7;
+    workgroupBarrier();
+    // Thread t < 64 sums value t of the tile over the threads, in thread order.
+    var sum = 0.0;
+    let value = min(t, 63u);
+    for (var k = 0u; k < WORKGROUP; k++) {
+        sum += partial[16u * k + value / 4u][value % 4u];
+    }
+    if t < 64u {
+        total[t] = sum;
+    }
+    workgroupBarrier();
+    if live && t < 8u {
+        let start = bias_lanes(block);
+        let a = vec4<f32>(total[4u * t], total[4u * t + 1u], total[4u * t + 2u], total[4u * t + 3u]);
+        let q = 4u * (8u + t);
+        let b = vec4<f32>(total[q], total[q + 1u], total[q + 2u], total[q + 3u]);
+        store(n, block, oy, ox0 + t, start.lo + a, start.hi + b);
+    }
 }

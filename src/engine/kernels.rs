@@ -97,9 +97,18 @@ pub const TURN: Shader = wgsl_shader!("engine/turn.wgsl", [PostParams, HeadingTu
     .with_uints(&[("BACKGROUND", super::recentre::BACKGROUND)])
     .with_snippets(&[QUARTER_TURN]);
 pub const PCA_COEFFICIENTS: Shader = wgsl_shader!("engine/pca_coefficients.wgsl", [PostParams, FrameState], f16: false, subgroups: false);
+/// `PCA_COEFFICIENTS` for GPUs: a workgroup per component, its threads splitting the sum.
+pub const PCA_COEFFICIENTS_SPLIT: Shader = wgsl_shader!("engine/pca_coefficients_split.wgsl", [PostParams, FrameState], f16: false, subgroups: false);
 pub const FRAME_POINTS: Shader = wgsl_shader!("engine/frame_points.wgsl", [PostParams, FrameState], f16: false, subgroups: false);
 pub const SLIDE: Shader = wgsl_shader!("engine/slide.wgsl", [PostParams, FrameState], elem)
     .with_uints(&[("BACKGROUND", super::recentre::BACKGROUND)]);
 
 /// Every shader of the engine stage.
-pub const ALL: &[Shader] = &[FRAME_UNIT, PCA_COEFFICIENTS, FRAME_POINTS, SLIDE, TURN];
+pub const ALL: &[Shader] = &[
+    FRAME_UNIT,
+    PCA_COEFFICIENTS,
+    PCA_COEFFICIENTS_SPLIT,
+    FRAME_POINTS,
+    SLIDE,
+    TURN,
+];

@@ -65,6 +65,9 @@ pub struct EngineOptions {
     pub splat_level: Option<usize>,
     /// Apply the bundle's refiner to the splats (when it has one).
     pub refine: bool,
+    /// The kernel variant the frame plans record; `None`: by adapter (or
+    /// `UNICA_KERNELS`).
+    pub kernels: Option<crate::nn::Kernels>,
 }
 
 impl Default for EngineOptions {
@@ -77,6 +80,7 @@ impl Default for EngineOptions {
             split: false,
             splat_level: None,
             refine: true,
+            kernels: None,
         }
     }
 }
@@ -191,6 +195,8 @@ pub struct Engine {
     sampling: Sampling,
     pca: bool,
     split: bool,
+    /// The kernel variant the frame plans record.
+    kernels: crate::nn::Kernels,
     live: Live,
     plans: Plans,
     /// Idle frames since the last key, the latest frame counted (`sampler::idle_run`;
@@ -275,6 +281,9 @@ impl Engine {
             sampling,
             pca: options.pca,
             split: options.split,
+            kernels: options
+                .kernels
+                .unwrap_or_else(|| crate::nn::Kernels::for_adapter(gpu)),
             live,
             plans: Plans::default(),
             after_key: None,
@@ -447,9 +456,10 @@ impl Engine {
         Ok(plan.plan.profile_stages(&self.gpu))
     }
 
-    /// The kernel variant the frame plan records (by adapter, or `UNICA_KERNELS`).
+    /// The kernel variant the frame plans record (by adapter, or `UNICA_KERNELS`,
+    /// unless the options chose one).
     pub fn kernels(&self) -> crate::nn::Kernels {
-        crate::nn::Kernels::for_adapter(&self.gpu)
+        self.kernels
     }
 
     /// The compute dispatches and FLOPs of the plan the next frame under `action` runs
@@ -517,6 +527,7 @@ impl Engine {
         let bundle = &self.bundle;
         let guided = sampling.cfg_scale != 1.0;
         let mut r = Recorder::capture(&self.gpu, &mut self.pipelines, self.precision);
+        r.set_kernels(self.kernels);
         if self.split {
             r.steps().limit_parts(SPLIT_STEPS);
         }
@@ -587,9 +598,16 @@ impl Engine {
         );
         r.steps().copy_to_texels(&live.unit, &live.unit_texels);
         if self.pca {
-            let grid = r.grid(live.components);
+            // For GPUs a workgroup per component (its threads split the sum), else a
+            // thread per component.
+            let (kernel, grid) = if r.kernels() == crate::nn::Kernels::Gpu {
+                let threads = live.components * crate::gpu::kernel::WORKGROUP_SIZE as usize;
+                (&kernels::PCA_COEFFICIENTS_SPLIT, r.grid(threads))
+            } else {
+                (&kernels::PCA_COEFFICIENTS, r.grid(live.components))
+            };
             r.steps().dispatch_bound(
-                &kernels::PCA_COEFFICIENTS,
+                kernel,
                 &params,
                 &[
                     Bound::Texels(&live.unit_texels),

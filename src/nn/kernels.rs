@@ -68,6 +68,8 @@ pub const GROUP_NORM_SERIAL: Shader =
 pub const LINEAR: Shader = shader!("nn/linear.wgsl", [LinearParams], elem);
 /// The linear layer in 4 × 4 register tiles (for 4 rows or more).
 pub const LINEAR_TILED: Shader = shader!("nn/linear_tiled.wgsl", [LinearParams], elem);
+/// The linear layer for GPUs: a workgroup per 4 × 4 tile, its threads splitting the inputs.
+pub const LINEAR_SPLIT: Shader = shader!("nn/linear_split.wgsl", [LinearParams], elem);
 /// The tiled linear layer for CPU drivers: vec4 loads along the inputs.
 pub const LINEAR_CPU: Shader =
     shader!("nn/linear_cpu.wgsl", [LinearParams], elem).with_snippets(&[TEXEL_STATS]);
@@ -79,6 +81,9 @@ pub const PERMUTE: Shader = shader!("nn/permute.wgsl", [PermuteParams], elem);
 pub const CONCAT: Shader = shader!("nn/concat.wgsl", [ConcatParams], elem);
 pub const AXPBY: Shader = shader!("nn/axpby.wgsl", [AxpbyParams], elem);
 pub const ATTENTION: Shader = shader!("nn/attention.wgsl", [AttentionParams], elem)
+    .with_uints(&[("MAX_HEAD_SIZE", super::ops::MAX_HEAD_SIZE as u32)]);
+/// Attention for GPUs: a workgroup per query, its threads splitting the keys.
+pub const ATTENTION_SPLIT: Shader = shader!("nn/attention_split.wgsl", [AttentionParams], elem)
     .with_uints(&[("MAX_HEAD_SIZE", super::ops::MAX_HEAD_SIZE as u32)]);
 /// Attention for CPU drivers: heads of at most 32 values in named vec4 registers.
 pub const ATTENTION_CPU: Shader =
@@ -108,6 +113,7 @@ pub const ALL: &[Shader] = &[
     GROUP_NORM_SERIAL,
     LINEAR,
     LINEAR_TILED,
+    LINEAR_SPLIT,
     LINEAR_CPU,
     ADD,
     ADD_ACTION_BIAS,
@@ -115,6 +121,7 @@ pub const ALL: &[Shader] = &[
     CONCAT,
     AXPBY,
     ATTENTION,
+    ATTENTION_SPLIT,
     ATTENTION_CPU,
     TEMPORAL_NEXT,
     TIMESTEP_EMBEDDING,

@@ -914,6 +914,12 @@ impl<'a> Recorder<'a> {
             self.steps.dispatch_bound(kernel, params, &bound, grid);
         } else {
             assert_eq!(params.norm_groups, 0, "the GPU conv3x3 normalises no input");
+            // One workgroup per tile of 8 pixels × 8 channels (conv3x3.wgsl).
+            let tiles = params.batch as usize
+                * (params.c_out as usize).div_ceil(8)
+                * params.h_out as usize
+                * (params.w_out as usize).div_ceil(8);
+            let grid = self.grid(tiles * crate::gpu::kernel::WORKGROUP_SIZE as usize);
             let mut bound = vec![
                 Bound::Buffer(&x.buffer),
                 Bound::Buffer(&weights.packed.buffer),
@@ -1271,11 +1277,23 @@ impl<'a> Recorder<'a> {
         }
         // Without a residual its binding still exists; x stands in (unread).
         let residual = residual.unwrap_or(x);
-        // Register tiles of 4 rows × 4 outputs where there are rows to share a tile;
-        // one invocation per output otherwise (the timestep and action embeddings).
-        // Both sum in the same order; both are parity-tested (tests/nn.rs).
+        // For GPUs, a workgroup per tile of 4 rows × 4 outputs whatever the rows
+        // (linear_split.wgsl: every linear layer sums in the same order, so the action
+        // table equals the cross-attention it replaces bit for bit). Otherwise register
+        // tiles of 4 rows × 4 outputs where there are rows to share a tile, one
+        // invocation per output for fewer rows (the timestep and action embeddings):
+        // both sum in the same order. All are parity-tested (tests/nn.rs).
         let rows = x.len() / inputs;
-        if rows >= 4 && self.kernels != Kernels::Simple {
+        if self.kernels == Kernels::Gpu {
+            let tiles = rows.div_ceil(4) * outputs.div_ceil(4);
+            let grid = self.grid(tiles * crate::gpu::kernel::WORKGROUP_SIZE as usize);
+            self.launch(
+                &kernels::LINEAR_SPLIT,
+                &params,
+                &[x, weight, bias, residual, &y],
+                grid,
+            );
+        } else if rows >= 4 && self.kernels != Kernels::Simple {
             if self.kernels == Kernels::Cpu && inputs.is_multiple_of(4) {
                 self.check(&[x, weight, bias, residual]);
                 let extras = LinearExtras {
@@ -1888,6 +1906,18 @@ impl<'a> Recorder<'a> {
             ];
             self.steps
                 .dispatch_bound(&kernels::ATTENTION_CPU, &params, &bound, grid);
+        } else if self.kernels == Kernels::Gpu {
+            // One workgroup per query (attention_split.wgsl), its threads splitting the
+            // keys; a head's values are merged by its first head-size threads.
+            const { assert!(MAX_HEAD_SIZE <= crate::gpu::kernel::WORKGROUP_SIZE as usize) };
+            let queries = (params.sequences * params.heads * params.queries) as usize;
+            let grid = self.grid(queries * crate::gpu::kernel::WORKGROUP_SIZE as usize);
+            self.launch(
+                &kernels::ATTENTION_SPLIT,
+                &params,
+                &[q, prefix, kv, &y],
+                grid,
+            );
         } else {
             self.launch(&kernels::ATTENTION, &params, &[q, prefix, kv, &y], grid);
         }

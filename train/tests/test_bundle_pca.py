@@ -38,11 +38,18 @@ def test_bundle_round_trip(tmp_path):
     bundle.save(tmp_path, vae, unet, extra, {"avatar": "test", "actions": ["Idle"]})
     vae2, unet2, extra2, manifest = bundle.load(tmp_path)
     assert manifest["avatar"] == "test" and manifest["version"] == bundle.VERSION
+    # The weights and the PCA basis are stored as float16 and read back widened: each
+    # value is its nearest half; positions (pca.mean) and integers stay exact.
     for a, b in [(vae, vae2), (unet, unet2)]:
         for (k, v), (k2, v2) in zip(a.state_dict().items(), b.state_dict().items()):
-            assert k == k2 and torch.equal(v, v2)
-    assert torch.equal(extra2["pca.basis"], extra["pca.basis"])
-    assert manifest["tensors"]["unet.conv_in.weight"]["shape"] == [16, 4, 3, 3]
+            assert k == k2 and v2.dtype == torch.float32 and torch.equal(v.half().float(), v2)
+    assert torch.equal(extra2["pca.basis"], extra["pca.basis"].half().float())
+    assert torch.equal(extra2["pca.mean"], extra["pca.mean"])
+    assert torch.equal(extra2["map.pixels"], extra["map.pixels"])
+    assert manifest["tensors"]["unet.conv_in.weight"] == {"shape": [16, 4, 3, 3], "dtype": "float16"}
+    assert manifest["tensors"]["pca.mean"]["dtype"] == "float32"
+    raw = load_file(str(tmp_path / "weights.safetensors"))
+    assert raw["vae.encoder.conv_in.weight"].dtype == torch.float16 and raw["pca.mean"].dtype == torch.float32
 
 
 def test_bundle_errors_name_the_tensor(tmp_path):

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
-from safetensors.torch import load_file, save_file
+from safetensors.torch import save_file
 from torch import nn
 
 from . import bundle as bundle_io
@@ -579,7 +579,7 @@ def init_from_bundle(model: Refiner, directory: Path) -> None:
         theirs["pixel_residuals"] = ours["pixel_residuals"]
     if not theirs or RefinerConfig(**theirs).to_dict() != ours:
         raise bundle_io.BundleError(f"{directory}: its refiner config {manifest.get('refiner')} is not this run's {ours}")
-    state = state_from(load_file(str(Path(directory) / "weights.safetensors")))
+    state = state_from(bundle_io.read_weights(Path(directory) / "weights.safetensors"))
     if adding:
         state["pixel"] = torch.zeros_like(model.pixel)
     model.load_state_dict(state)
@@ -590,14 +590,12 @@ def add_to_bundle(directory: Path, model: Refiner) -> None:
     """Writes `refiner.*` and the manifest's `refiner` config into a bundle (the geometry
     models are untouched)."""
     d = Path(directory)
-    tensors = load_file(str(d / "weights.safetensors"))
+    tensors = bundle_io.read_weights(d / "weights.safetensors")
     tensors = {k: v for k, v in tensors.items() if not k.startswith("refiner.")}
     tensors.update({f"refiner.{k}": v.detach().contiguous() for k, v in model.state_dict().items()})
     manifest = json.loads((d / "manifest.json").read_text())
     manifest["refiner"] = model.cfg.to_dict()
-    manifest["tensors"] = {k: {"shape": list(v.shape), "dtype": str(v.dtype).removeprefix("torch.")} for k, v in sorted(tensors.items())}
-    save_file(tensors, str(d / "weights.safetensors"))
-    (d / "manifest.json").write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+    bundle_io.write_weights(d, tensors, manifest)
 
 
 def main(argv=None):

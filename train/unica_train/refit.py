@@ -27,7 +27,6 @@ import time
 from pathlib import Path
 
 import torch
-from safetensors.torch import load_file, save_file
 
 from . import bundle as bundle_io
 from . import pca
@@ -186,7 +185,7 @@ def _main(argv):
     print(f"held out: VAE reconstruction {report['before']['vae_reconstruction_mm']:.2f} -> "
           f"{report['after']['vae_reconstruction_mm']:.2f} mm; teacher-forced generated frames "
           f"{report['before']['generated_mm']:.2f} -> {report['after']['generated_mm']:.2f} mm", flush=True)
-    tensors = load_file(str(args.bundle / "weights.safetensors"))
+    tensors = bundle_io.read_weights(args.bundle / "weights.safetensors")
     tensors[HEAD[0]], tensors[HEAD[1]] = w.float().contiguous(), b.float().contiguous()
     manifest = json.loads((args.bundle / "manifest.json").read_text())
     manifest["metrics"]["vae_reconstruction_mm"] = report["after"]["vae_reconstruction_mm"]
@@ -195,8 +194,7 @@ def _main(argv):
     for extra in args.bundle.iterdir():
         if extra.name not in ("weights.safetensors", "manifest.json") and extra.is_file():
             shutil.copy2(extra, args.out / extra.name)
-    save_file(tensors, str(args.out / "weights.safetensors"))
-    (args.out / "manifest.json").write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+    bundle_io.write_weights(args.out, tensors, manifest)
     report["minutes"] = (time.time() - started) / 60
     (args.out / "refit.json").write_text(json.dumps(report, indent=2) + "\n")
     bundle_io.load(args.out)  # the written bundle loads and checks
