@@ -1,12 +1,17 @@
 // Group normalisation of NCHW (Elem storage, f32 statistics) with a per-channel affine and an optional fused SiLU.
 // One workgroup per (sample, group): a shared-memory reduction of the mean and variance
-// (two passes over the data, exact), then every thread writes its share.
+// (two passes over the data, exact), then every thread writes its share. With `p.tokens`
+// (F > 0) the values are stored as token rows [N, HW, F, C] instead, plus optional frame
+// positions, as group_norm_serial.wgsl stores them: the attention layers' permute, done
+// by the stores (see GroupNormParams).
 
 @group(0) @binding(0) var<uniform> p: GroupNormParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read> gamma: array<Elem>;
 @group(0) @binding(3) var<storage, read> beta: array<Elem>;
-@group(0) @binding(4) var<storage, read_write> y: array<Elem>;
+// With `p.has_rows`: frame positions added to the token rows.
+@group(0) @binding(4) var<storage, read> rows: array<Elem>;
+@group(0) @binding(5) var<storage, read_write> y: array<Elem>;
 
 var<workgroup> partial: array<f32, 64>;
 
@@ -49,12 +54,27 @@ fn main(
     }
     let inv_std = inverseSqrt(reduce(lane, squares) / f32(count) + p.eps);
     let first_channel = (id % p.groups) * per_group;
+    // Token rows: image n·F + f's pixel q is row (n·HW + q)·F + f.
+    let image = id / p.groups;
+    let frames = max(p.tokens, 1u);
+    let f = image % frames;
+    let first_row = ((image / frames) * p.hw * frames + f) * p.channels;
     for (var i = lane; i < count; i += 64u) {
         let c = first_channel + i / p.hw;
         var v = (f32(x[base + i]) - mean) * inv_std * f32(gamma[c]) + f32(beta[c]);
         if p.silu != 0u {
             v = v / (1.0 + exp(-v));
         }
-        y[base + i] = Elem(v);
+        if p.tokens == 0u {
+            y[base + i] = Elem(v);
+        } else {
+            // Rounded to Elem, then the position added and rounded again: the norm's
+            // store and the permute's add.
+            var out = f32(Elem(v));
+            if p.has_rows != 0u {
+                out += f32(rows[p.rows_offset + f * p.channels + c]);
+            }
+            y[first_row + (i % p.hw) * frames * p.channels + c] = Elem(out);
+        }
     }
 }

@@ -5,15 +5,21 @@
 // through workgroup memory. linear_tiled.wgsl's thread per tile ran each input in turn:
 // about 100 µs a layer on an H200 at the UNet's sizes (docs/gpu). The bias is added to
 // the summed tile. Rows and outputs past the end are clamped for the loads and not
-// stored.
+// stored. With `p.images` the results go into NCHW images (with an NCHW residual and an
+// optional action-table row), stored as linear_cpu.wgsl stores them: the attention
+// layers' output projection and the permute back, in one pass (see LinearParams).
 
 @group(0) @binding(0) var<uniform> p: LinearParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read> weight: array<Elem>;
 @group(0) @binding(3) var<storage, read> bias: array<Elem>;
-// With `p.has_residual`: added to the rounded result (rows × outputs).
+// With `p.has_residual`: added to the rounded result (rows × outputs, or NCHW images
+// with `p.images`).
 @group(0) @binding(4) var<storage, read> residual: array<Elem>;
-@group(0) @binding(5) var<storage, read_write> y: array<Elem>;
+// With `p.has_table`: an action table [A, outputs] and the samples' action ids.
+@group(0) @binding(5) var<storage, read> table: array<Elem>;
+@group(0) @binding(6) var<storage, read> ids: array<u32>;
+@group(0) @binding(7) var<storage, read_write> y: array<Elem>;
 
 // Each thread's partial tile (row r at 4t + r).
 var<workgroup> partial: array<vec4<f32>, 4u * WORKGROUP>;
@@ -77,7 +83,19 @@ fn main(invocation: Invocation) {
     }
     let row = r0 + r;
     let o = o0 + c;
-    if row < p.rows && o < p.outputs {
-        y[row * p.outputs + o] = finish(row * p.outputs + o, f32(bias[o]) + sum);
+    if row >= p.rows || o >= p.outputs {
+        return;
     }
+    // Row `row`, output o: at row · outputs + o, or with `p.images` at pixel q of channel
+    // o of image n·F + f for token row (n·HW + q)·F + f.
+    let frames = max(p.images, 1u);
+    let rest = row / frames;
+    let image = (rest / p.hw) * frames + row % frames;
+    let at = select(row * p.outputs + o, (image * p.outputs + o) * p.hw + rest % p.hw, p.images != 0u);
+    var out = finish(at, f32(bias[o]) + sum);
+    if p.has_table != 0u {
+        let action = ids[image / max(p.table_frames, 1u)];
+        out = Elem(f32(out) + f32(table[action * p.outputs + o]));
+    }
+    y[at] = out;
 }

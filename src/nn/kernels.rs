@@ -88,6 +88,10 @@ pub const ATTENTION_SPLIT: Shader = shader!("nn/attention_split.wgsl", [Attentio
 /// Attention for CPU drivers: heads of at most 32 values in named vec4 registers.
 pub const ATTENTION_CPU: Shader =
     shader!("nn/attention_cpu.wgsl", [AttentionParams], elem).with_snippets(&[ONLINE_SOFTMAX]);
+/// A temporal layer's projection and attention for one new frame, for GPUs.
+pub const TEMPORAL_NEXT_SPLIT: Shader =
+    shader!("nn/temporal_next_split.wgsl", [AttentionParams], elem)
+        .with_uints(&[("MAX_HEAD_SIZE", super::ops::MAX_HEAD_SIZE as u32)]);
 /// A temporal layer's projection and attention for one new frame, for CPU drivers.
 pub const TEMPORAL_NEXT: Shader =
     shader!("nn/temporal_next.wgsl", [AttentionParams], elem).with_snippets(&[ONLINE_SOFTMAX]);
@@ -124,6 +128,7 @@ pub const ALL: &[Shader] = &[
     ATTENTION_SPLIT,
     ATTENTION_CPU,
     TEMPORAL_NEXT,
+    TEMPORAL_NEXT_SPLIT,
     TIMESTEP_EMBEDDING,
     GATHER,
     GATHER_CPU,

@@ -1153,7 +1153,13 @@ impl<'a> Recorder<'a> {
                 .limits()
                 .max_compute_workgroups_per_dimension,
         );
-        self.launch(&kernels::GROUP_NORM, &params, &[x, gamma, beta, &y], grid);
+        // Without token rows their binding exists all the same; x stands in (unread).
+        self.launch(
+            &kernels::GROUP_NORM,
+            &params,
+            &[x, gamma, beta, x, &y],
+            grid,
+        );
         Ok(y)
     }
 
@@ -1190,6 +1196,25 @@ impl<'a> Recorder<'a> {
             rows_offset: part.start as u32,
             ..GroupNormParams::nchw([nf, c, h, w], groups, false)
         };
+        if self.kernels == Kernels::Gpu {
+            // group_norm.wgsl stores the tokens: one workgroup per (sample, group).
+            let y = self.output("group_norm.tokens", &[n, hw, frames, c])?;
+            let rows = rows.map_or(x, |(rows, _)| rows);
+            let grid = Grid::for_workgroups(
+                (nf * groups) as u32,
+                self.gpu
+                    .device
+                    .limits()
+                    .max_compute_workgroups_per_dimension,
+            );
+            self.launch(
+                &kernels::GROUP_NORM,
+                &params,
+                &[x, gamma, beta, rows, &y],
+                grid,
+            );
+            return Ok(y);
+        }
         // The serial kernel's layer-norm rows (hw = 1) have no token form.
         if !(self.kernels == Kernels::Cpu && hw.is_multiple_of(4) && params.serial()) {
             let normed = self.group_norm(x, gamma, beta, groups, false)?;
@@ -1285,14 +1310,7 @@ impl<'a> Recorder<'a> {
         // both sum in the same order. All are parity-tested (tests/nn.rs).
         let rows = x.len() / inputs;
         if self.kernels == Kernels::Gpu {
-            let tiles = rows.div_ceil(4) * outputs.div_ceil(4);
-            let grid = self.grid(tiles * crate::gpu::kernel::WORKGROUP_SIZE as usize);
-            self.launch(
-                &kernels::LINEAR_SPLIT,
-                &params,
-                &[x, weight, bias, residual, &y],
-                grid,
-            );
+            self.linear_split(&params, [x, weight, bias, residual], None, &y);
         } else if rows >= 4 && self.kernels != Kernels::Simple {
             if self.kernels == Kernels::Cpu && inputs.is_multiple_of(4) {
                 self.check(&[x, weight, bias, residual]);
@@ -1321,6 +1339,37 @@ impl<'a> Recorder<'a> {
             );
         }
         Ok(y)
+    }
+
+    /// Records `linear_split.wgsl` over `inputs` (x, weight, bias, residual) and the
+    /// optional action table (table, ids) into `y`: one workgroup per tile of 4 rows ×
+    /// 4 outputs of `params`. Without a table the bias stands in for its bindings
+    /// (unread).
+    fn linear_split(
+        &mut self,
+        params: &LinearParams,
+        inputs: [&Tensor; 4],
+        table: Option<(&Tensor, &Indices)>,
+        y: &Tensor,
+    ) {
+        let [x, weight, bias, residual] = inputs;
+        self.check(&[x, weight, bias, residual, y]);
+        let (table, ids) = table.map_or((&bias.buffer, &bias.buffer), |(t, i)| {
+            (&t.buffer, &i.buffer)
+        });
+        let tiles = (params.rows as usize).div_ceil(4) * (params.outputs as usize).div_ceil(4);
+        let grid = self.grid(tiles * crate::gpu::kernel::WORKGROUP_SIZE as usize);
+        let buffers = [
+            &x.buffer,
+            &weight.buffer,
+            &bias.buffer,
+            &residual.buffer,
+            table,
+            ids,
+            &y.buffer,
+        ];
+        self.steps
+            .dispatch(&kernels::LINEAR_SPLIT, params, &buffers, grid);
     }
 
     /// Records `linear_cpu.wgsl` over `x` into `y`: x and the constant weight as
@@ -1392,7 +1441,8 @@ impl<'a> Recorder<'a> {
             assert_eq!(table.shape[1], c, "action bias table {:?}", table.shape);
             assert_eq!(nf, ids.len * per_sample, "{} ids for {nf} images", ids.len);
         }
-        let fused = self.kernels == Kernels::Cpu && rows >= 4 && inputs.is_multiple_of(4);
+        let fused = self.kernels == Kernels::Gpu
+            || (self.kernels == Kernels::Cpu && rows >= 4 && inputs.is_multiple_of(4));
         if !fused {
             let out = self.linear(x, weight, bias, false)?;
             return self.permute_plus(&out, [n, hw, frames, c], [0, 2, 3, 1], Some(a), None, table);
@@ -1413,6 +1463,11 @@ impl<'a> Recorder<'a> {
             norm_rows: 0,
             eps: GROUP_NORM_EPS,
         };
+        if self.kernels == Kernels::Gpu {
+            let table = table.map(|(table, ids, _)| (table, ids));
+            self.linear_split(&params, [x, weight, bias, a], table, &y);
+            return Ok(y);
+        }
         self.check(&[x, weight, bias, a]);
         if let Some((table, ..)) = table {
             self.check(&[table]);
@@ -1705,7 +1760,9 @@ impl<'a> Recorder<'a> {
         Ok(y)
     }
 
-    /// `a` and `b` joined along `axis`; all other axes must agree.
+    /// `a` and `b` joined along `axis`; all other axes must agree. For GPUs two buffer
+    /// copies per outer index (a copy command, not a dispatch) where the byte ranges are
+    /// aligned, else `concat.wgsl`.
     pub fn concat(&mut self, a: &Tensor, b: &Tensor, axis: usize) -> Result<Tensor, GpuError> {
         assert!(
             a.shape.len() == b.shape.len()
@@ -1728,6 +1785,27 @@ impl<'a> Recorder<'a> {
             b_inner: (b.len() / outer) as u32,
             reserved: 0,
         };
+        // For GPUs two buffer copies per outer index where the byte ranges allow
+        // (copies are aligned to 4 bytes): a copy command, not a dispatch.
+        let bytes = self.precision().bytes();
+        let (a_bytes, b_bytes) = (a.len() / outer * bytes, b.len() / outer * bytes);
+        if self.kernels == Kernels::Gpu && a_bytes % 4 == 0 && b_bytes % 4 == 0 {
+            self.check(&[a, b, &y]);
+            for o in 0..outer {
+                let at = (o * (a_bytes + b_bytes)) as u64;
+                let (a_from, b_from) = ((o * a_bytes) as u64, (o * b_bytes) as u64);
+                let steps = &mut self.steps;
+                steps.copy(&a.buffer, a_from, &y.buffer, at, a_bytes as u64);
+                steps.copy(
+                    &b.buffer,
+                    b_from,
+                    &y.buffer,
+                    at + a_bytes as u64,
+                    b_bytes as u64,
+                );
+            }
+            return Ok(y);
+        }
         let grid = self.grid(y.len());
         self.launch(&kernels::CONCAT, &params, &[a, b, &y], grid);
         Ok(y)
@@ -1781,9 +1859,10 @@ impl<'a> Recorder<'a> {
     /// sequences) and its attention over the cached rows `cached` (`params.prefix_keys`
     /// a sequence) and the sequence's own key: [`Recorder::linear`] then
     /// [`Recorder::attention_after`] (`params` as that takes them, one query a
-    /// sequence), which other kernel variants record. For CPU drivers one dispatch
-    /// (`temporal_next.wgsl`: each invocation projects its own head's q, k and v),
-    /// equal bit for bit. `weight` is constant.
+    /// sequence), which the simple kernels record. For CPU drivers one dispatch
+    /// (`temporal_next.wgsl`: each invocation projects its own head's q, k and v), and
+    /// for GPUs one (`temporal_next_split.wgsl`: a workgroup per sequence and head),
+    /// each equal bit for bit to its variant's separate ops. `weight` is constant.
     pub fn temporal_next(
         &mut self,
         tokens: &Tensor,
@@ -1805,6 +1884,34 @@ impl<'a> Recorder<'a> {
                 .all(|v| v % 4 == 0)
             && tokens.len() == params.sequences as usize * c
             && weight.shape == [3 * c, c];
+        // For GPUs: the qkv rows as the separate linear stores them (q | k | v).
+        let fused_gpu = self.kernels == Kernels::Gpu
+            && params.queries == 1
+            && params.kv_share == 1
+            && params.rows == 0
+            && params.keys == params.prefix_keys + 1
+            && params.keys as usize <= crate::gpu::kernel::WORKGROUP_SIZE as usize
+            && head <= MAX_HEAD_SIZE
+            && (params.q_offset, params.k_offset, params.v_offset) == (0, c as u32, 2 * c as u32)
+            && (params.q_stride, params.kv_stride) == (3 * c as u32, 3 * c as u32)
+            && tokens.len() == params.sequences as usize * c
+            && weight.shape == [3 * c, c];
+        if fused_gpu {
+            self.check(&[tokens, weight, bias, cached]);
+            let sequences = params.sequences as usize;
+            let y = self.output("temporal_next.y", &[sequences, 1, c])?;
+            self.flops +=
+                2 * (sequences * 3 * c * c) as u64 + 4 * (y.len() as u64) * u64::from(params.keys);
+            let groups = sequences * params.heads as usize;
+            let grid = self.grid(groups * crate::gpu::kernel::WORKGROUP_SIZE as usize);
+            self.launch(
+                &kernels::TEMPORAL_NEXT_SPLIT,
+                &params,
+                &[tokens, weight, bias, cached, &y],
+                grid,
+            );
+            return Ok(y);
+        }
         if !fused {
             let qkv = self.linear(tokens, weight, bias, false)?;
             return self.attention_after(&qkv, Some(cached), &qkv, params);
