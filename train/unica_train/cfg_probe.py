@@ -15,7 +15,7 @@ manifest; `--write` sets the bundle's `sampler.cfg_scale` to the best scale (and
 `--guided-steps` also tries guidance intervals (guidance over the first N DDIM steps
 only, the PyTorch sampler's `guided_steps`); the engine guides every step, so a best
 interval is reported, not written. Session 17 measured that the keys are lost with it
-(assets/witch/README.md).
+(docs/records/witch/README.md).
 
 Each line also gives the evaluation's motion numbers for the run (`eval.motion`, as
 `unica eval` scores them): every turn's frames, the stop after every release (frames

@@ -3,7 +3,7 @@ steps, epsilon prediction, Min-SNR weights, noise offset; the DDIM sampler with 
 classifier-free guidance (conditional and null action in one batch), optionally only over
 the first `guided_steps` DDIM steps (a guidance interval: measured in session 17, it
 keeps generated poses closer but loses the keys, so the engine guides every step;
-assets/witch/README.md). Two more sampler settings (session 18): `guide_idle` false
+docs/records/witch/README.md). Two more sampler settings (session 18): `guide_idle` false
 samples Idle frames from the conditional prediction alone (guidance away from the null
 action's average motion pushed a standing avatar backwards: she crept), and
 `noise_scale` draws the starting noise at that temperature (less jitter at rest). Since

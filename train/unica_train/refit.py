@@ -10,7 +10,7 @@ It is fitted on two kinds of latents of the training clips (never the held-out o
   they lie off the encoder's latents; a head fitted to the encoder's latents alone
   reconstructs them sharply but amplifies the UNet's errors.
 `--generated-weight` sets the second kind's share and `--ridge` the penalty (relative
-to the sample count); both were chosen on held-out clips (assets/witch/README.md).
+to the sample count); both were chosen on held-out clips (docs/records/witch/README.md).
 
     python -m unica_train.refit --bundle B --data DATA --out NEW [--generated-weight 0.5] [--ridge 1.0]
 
