@@ -17,8 +17,9 @@
 #   adapters.txt                 unica adapters
 #   live_<kernels>_<sampler>_<level>.txt
 #                                unica bench --live N (per-frame counts; per-stage and
-#                                per-shader wall times, each submission waited for
-#                                alone, so each includes its submit and wait) at the shipped one-pass
+#                                per-shader times, each submission waited for alone:
+#                                wall clock, and the GPU's timestamps as gpu_ms) at the
+#                                shipped one-pass
 #                                default and at 1, 2 and 10 teacher steps, splat levels 256
 #                                and 1024, with the GPU kernels; the shipped default and 10
 #                                steps again with the CPU kernels (UNICA_KERNELS=cpu)
@@ -137,7 +138,7 @@ field() { grep -h '^per generated frame' "$1" | grep -o " $2=[^ ]*" | cut -d= -f
         echo "| $name | $kernels | $sampler | $level | $(field "$f" unet_passes) | $(field "$f" dispatches) | ${gflop:-} | $(field "$f" wall_ms) | $(field "$f" fps) |"
     done
     echo
-    echo "Per stage, each submitted and waited for alone (wall clock, the submit and the wait included):"
+    echo "Per stage, each submitted and waited for alone (ms: wall clock, the submit and the wait included; gpu_ms: the GPU's timestamps):"
     echo
     for f in "$out"/live_gpu_default_1024.txt "$out"/live_gpu_steps10_1024.txt "$out"/live_cpu_default_1024.txt; do
         [ -f "$f" ] || continue

@@ -611,8 +611,10 @@ pub fn frame_stages(
 }
 
 /// One more frame, each stage of its plan submitted and waited for alone: one line per
-/// stage, `stage NAME: dispatches=D ms=X gflop=F gflops=G` (FLOPs as the trainer counts
-/// them; stages without counted FLOPs print 0).
+/// stage, `stage NAME: dispatches=D ms=X gpu_ms=Y gflop=F gflops=G` (ms: wall clock
+/// around the submission and the wait; gpu_ms: the GPU's timestamps, "-" where the
+/// device has none; GFLOP/s from gpu_ms where there is one; FLOPs as the trainer counts
+/// them, stages without counted FLOPs print 0).
 fn stage_lines(engine: &mut crate::engine::Engine, out: &mut impl Write) -> anyhow::Result<()> {
     writeln!(
         out,
@@ -621,14 +623,15 @@ fn stage_lines(engine: &mut crate::engine::Engine, out: &mut impl Write) -> anyh
     )?;
     for stage in engine.profile_stages(crate::action::Action::Forward)? {
         let gflop = stage.flops as f64 / 1e9;
+        let gpu_ms = stage.gpu_ms.map_or("-".into(), |ms| format!("{ms:.2}"));
         writeln!(
             out,
-            "stage {}: dispatches={} ms={:.1} gflop={:.3} gflops={:.2}",
+            "stage {}: dispatches={} ms={:.1} gpu_ms={gpu_ms} gflop={:.3} gflops={:.2}",
             stage.name,
             stage.dispatches,
             stage.ms,
             gflop,
-            gflop / (stage.ms / 1e3)
+            gflop / (stage.gpu_ms.unwrap_or(stage.ms) / 1e3)
         )?;
     }
     Ok(())
@@ -764,15 +767,28 @@ pub fn live(
         "one more frame, each dispatch or copy submitted and waited for alone (ms by shader):"
     )?;
     let profile = engine.profile(Action::Forward)?;
-    let total: f64 = profile.iter().map(|p| p.2).sum();
-    for (name, count, ms) in profile {
-        let what = if name.starts_with("copy") {
+    let total: f64 = profile.iter().map(|p| p.ms).sum();
+    let gpu_total: Option<f64> = profile.iter().map(|p| p.gpu_ms).sum();
+    let gpu = |ms: Option<f64>| ms.map_or(String::new(), |ms| format!(" {ms:>10.3} ms on the GPU"));
+    for p in &profile {
+        let what = if p.name.starts_with("copy") {
             "copies    "
         } else {
             "dispatches"
         };
-        writeln!(out, "  {name:<32} {count:>5} {what} {ms:>10.1} ms")?;
+        let (name, count, ms) = (p.name, p.count, p.ms);
+        writeln!(
+            out,
+            "  {name:<32} {count:>5} {what} {ms:>10.1} ms{}",
+            gpu(p.gpu_ms)
+        )?;
     }
-    writeln!(out, "  {:<32} {:>5}            {total:>10.1} ms", "all", "")?;
+    writeln!(
+        out,
+        "  {:<32} {:>5}            {total:>10.1} ms{}",
+        "all",
+        "",
+        gpu(gpu_total)
+    )?;
     Ok(())
 }

@@ -219,6 +219,26 @@ fn bench_live_counts_the_unet_passes_of_a_frame() {
             .unwrap_or_else(|| panic!("no per-frame line: {text}"));
         assert!(line.contains(passes), "{line}");
         assert!(text.contains(&format!("live: {sampler},")), "{text}");
+        // Each stage's wall time and, lavapipe having timestamp queries, its GPU time:
+        // a number no larger than the wall clock around the same submission.
+        let stage = text
+            .lines()
+            .find(|l| l.starts_with("stage unet-target: dispatches="))
+            .unwrap_or_else(|| panic!("no unet-target stage line: {text}"));
+        let field = |name: &str| -> f64 {
+            let value = stage
+                .split(&format!(" {name}="))
+                .nth(1)
+                .unwrap_or_else(|| panic!("{stage}"));
+            value
+                .split(' ')
+                .next()
+                .unwrap()
+                .parse()
+                .unwrap_or_else(|_| panic!("{stage}"))
+        };
+        let (wall, gpu) = (field("ms"), field("gpu_ms"));
+        assert!(gpu > 0.0 && gpu <= wall + 0.05, "{stage}");
     }
 }
 

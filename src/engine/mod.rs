@@ -33,7 +33,7 @@ use glam::Vec3;
 
 use crate::action::Action;
 use crate::gpu::kernel::{PipelineCache, Precision};
-use crate::gpu::plan::StageProfile;
+use crate::gpu::plan::{ShaderProfile, StageProfile};
 use crate::gpu::texels::Texels;
 use crate::gpu::{Bound, GpuContext, GpuError, readback};
 use crate::nn::bundle::{Heading, RootMotion};
@@ -438,7 +438,7 @@ impl Engine {
     /// Runs the frame plan once more, each dispatch in its own submission waited for, and
     /// returns the milliseconds by shader (a profile for benchmarks: it advances the
     /// loop by one frame under `action`).
-    pub fn profile(&mut self, action: Action) -> Result<Vec<(&'static str, usize, f64)>, GpuError> {
+    pub fn profile(&mut self, action: Action) -> Result<Vec<ShaderProfile>, GpuError> {
         self.frame(action)?;
         self.finish();
         let plan = self.plans.get(action, self.after_key);

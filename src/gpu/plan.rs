@@ -97,19 +97,73 @@ fn encode_steps<'s>(
     gpu.counters.dispatches(dispatches);
 }
 
-/// Records `steps` in one submission, waits for it, and returns the milliseconds taken
+/// How long a run of steps took.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Timed {
+    /// Wall clock around its submission and the wait for it.
+    pub wall_ms: f64,
+    /// The GPU's own time between timestamps written just before and just after it,
+    /// where the device has timestamp queries.
+    pub gpu_ms: Option<f64>,
+}
+
+/// Records `steps` in one submission between two timestamped empty compute passes
+/// (where the device has timestamp queries), waits for it, and returns the time taken
 /// (profiles; the steps' effects happen once more).
-fn run_timed<'s>(gpu: &GpuContext, steps: impl IntoIterator<Item = &'s Step>) -> f64 {
+fn run_timed<'s>(gpu: &GpuContext, steps: impl IntoIterator<Item = &'s Step>) -> Timed {
+    let queries = gpu.caps.timestamps.then(|| {
+        let set = gpu.device.create_query_set(&wgpu::QuerySetDescriptor {
+            label: Some("profile timestamps"),
+            ty: wgpu::QueryType::Timestamp,
+            count: 2,
+        });
+        let resolve = gpu.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("profile timestamps resolve"),
+            size: 16,
+            usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        (set, resolve)
+    });
+    let mark = |encoder: &mut wgpu::CommandEncoder, set: &wgpu::QuerySet, index: u32| {
+        let (begin, end) = if index == 0 {
+            (Some(0), None)
+        } else {
+            (None, Some(1))
+        };
+        encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("profile mark"),
+            timestamp_writes: Some(wgpu::ComputePassTimestampWrites {
+                query_set: set,
+                beginning_of_pass_write_index: begin,
+                end_of_pass_write_index: end,
+            }),
+        });
+    };
     let clock = std::time::Instant::now();
     let mut encoder = gpu
         .device
         .create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("profile"),
         });
+    if let Some((set, _)) = &queries {
+        mark(&mut encoder, set, 0);
+    }
     encode_steps(gpu, &mut encoder, steps);
+    if let Some((set, resolve)) = &queries {
+        mark(&mut encoder, set, 1);
+        encoder.resolve_query_set(set, 0..2, resolve, 0);
+    }
     gpu.submit([encoder.finish()]);
     gpu.wait_idle();
-    clock.elapsed().as_secs_f64() * 1e3
+    let wall_ms = clock.elapsed().as_secs_f64() * 1e3;
+    let gpu_ms = queries.and_then(|(_, resolve)| {
+        let bytes = super::readback::buffer(gpu, &resolve, "profile timestamps").ok()?;
+        let ticks: Vec<u64> = bytemuck::pod_collect_to_vec(&bytes);
+        let period = f64::from(gpu.queue.get_timestamp_period());
+        Some(ticks[1].saturating_sub(ticks[0]) as f64 * period / 1e6)
+    });
+    Timed { wall_ms, gpu_ms }
 }
 
 /// Recorded work kept to run again: its buffers, uniforms and bind groups were made when
@@ -137,8 +191,21 @@ struct Mark {
 pub struct StageProfile {
     pub name: &'static str,
     pub dispatches: usize,
+    /// Wall clock around the stage's submission and the wait for it.
     pub ms: f64,
+    /// The GPU's own time for the stage (timestamps), where the device has them.
+    pub gpu_ms: Option<f64>,
     pub flops: u64,
+}
+
+/// One shader's dispatches (or the copies) of a plan, each run alone: their count and
+/// total wall and GPU milliseconds.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShaderProfile {
+    pub name: &'static str,
+    pub count: usize,
+    pub ms: f64,
+    pub gpu_ms: Option<f64>,
 }
 
 impl Plan {
@@ -176,32 +243,39 @@ impl Plan {
     }
 
     /// Runs every step in its own submission, waited for (the plan's effects happen once
-    /// more), and returns (shader, dispatches, milliseconds) by shader, slowest first.
-    pub fn profile(&self, gpu: &GpuContext) -> Vec<(&'static str, usize, f64)> {
-        let mut by_name: Vec<(&'static str, usize, f64)> = Vec::new();
+    /// more), and returns the time by shader, slowest first (by GPU time where the device
+    /// has timestamps, else by wall clock).
+    pub fn profile(&self, gpu: &GpuContext) -> Vec<ShaderProfile> {
+        let mut by_name: Vec<ShaderProfile> = Vec::new();
         for step in self.parts.iter().flatten() {
-            let ms = run_timed(gpu, [step]);
+            let timed = run_timed(gpu, [step]);
             let name = match step {
                 Step::Dispatch { name, .. } => *name,
                 Step::Copy { .. } => "copy",
                 Step::CopyToTexels { .. } => "copy to texels",
             };
-            match by_name.iter_mut().find(|(n, ..)| *n == name) {
+            match by_name.iter_mut().find(|p| p.name == name) {
                 Some(entry) => {
-                    entry.1 += 1;
-                    entry.2 += ms;
+                    entry.count += 1;
+                    entry.ms += timed.wall_ms;
+                    entry.gpu_ms = entry.gpu_ms.zip(timed.gpu_ms).map(|(a, b)| a + b);
                 }
-                None => by_name.push((name, 1, ms)),
+                None => by_name.push(ShaderProfile {
+                    name,
+                    count: 1,
+                    ms: timed.wall_ms,
+                    gpu_ms: timed.gpu_ms,
+                }),
             }
         }
-        by_name.sort_by(|a, b| b.2.total_cmp(&a.2));
+        let key = |p: &ShaderProfile| p.gpu_ms.unwrap_or(p.ms);
+        by_name.sort_by(|a, b| key(b).total_cmp(&key(a)));
         by_name
     }
 
-    /// Runs each stage (as marked by [`Builder::stage`]) in its own submission, waited
-    /// for (the plan's effects happen once more), and returns each stage's dispatches,
-    /// milliseconds and FLOPs, in the order stages first appear. Steps before the first
-    /// mark are the stage "other".
+    /// Runs each stage (the steps between [`Builder::stage`] marks) in its own
+    /// submission, waited for, and returns dispatches, milliseconds and FLOPs per stage
+    /// in order (a stage marked more than once sums its runs).
     pub fn profile_stages(&self, gpu: &GpuContext) -> Vec<StageProfile> {
         let steps: Vec<&Step> = self.parts.iter().flatten().collect();
         let mut marks = self.stages.clone();
@@ -221,7 +295,8 @@ impl Plan {
                 .get(k + 1)
                 .map_or((steps.len(), self.flops), |next| (next.step, next.flops));
             let range = &steps[mark.step..end];
-            let ms = run_timed(gpu, range.iter().copied());
+            let timed = run_timed(gpu, range.iter().copied());
+            let ms = timed.wall_ms;
             let dispatches = range
                 .iter()
                 .filter(|s| matches!(s, Step::Dispatch { .. }))
@@ -231,12 +306,14 @@ impl Plan {
                 Some(p) => {
                     p.dispatches += dispatches;
                     p.ms += ms;
+                    p.gpu_ms = p.gpu_ms.zip(timed.gpu_ms).map(|(a, b)| a + b);
                     p.flops += flops;
                 }
                 None => out.push(StageProfile {
                     name: mark.name,
                     dispatches,
                     ms,
+                    gpu_ms: timed.gpu_ms,
                     flops,
                 }),
             }
