@@ -540,12 +540,14 @@ def main(argv=None):
     started = time.time()
     vae = run.train_vae(args.resume)
     latents, scale = run.encode_groups(vae)
-    if args.unet_only:
-        # The bundle's context latents and the engine use its scale; the one measured
-        # again differs only by rounding.
+    if init is not None:
+        # The VAE is the --init bundle's: its context latents and the engine use its
+        # scale; the one measured again differs only by rounding (the bundle stores the
+        # VAE as float16).
         if rank == 0:
             print(f"unet: the bundle's latent scale {init[3]['latent_scale']:.5f} (measured again {scale:.5f})", flush=True)
         scale = float(init[3]["latent_scale"])
+    if args.unet_only:
         before = run.denoise_errors(init[1].to(device).eval(), Schedule(), latents, scale) if rank == 0 else None
     unet, schedule = run.train_unet(latents, scale, args.resume)
     if args.unet_only:
