@@ -601,8 +601,10 @@ impl Engine {
             // For GPUs a workgroup per component (its threads split the sum), else a
             // thread per component.
             let (kernel, grid) = if r.kernels() == crate::nn::Kernels::Gpu {
-                let threads = live.components * crate::gpu::kernel::WORKGROUP_SIZE as usize;
-                (&kernels::PCA_COEFFICIENTS_SPLIT, r.grid(threads))
+                (
+                    &kernels::PCA_COEFFICIENTS_SPLIT,
+                    r.workgroups(live.components),
+                )
             } else {
                 (&kernels::PCA_COEFFICIENTS, r.grid(live.components))
             };

@@ -368,13 +368,19 @@ impl<'a> Builder<'a> {
 
     /// One thread per element at 64 threads per workgroup.
     pub fn grid(&self, threads: usize) -> Grid {
-        Grid::for_elements(
-            threads as u32,
-            self.gpu
-                .device
-                .limits()
-                .max_compute_workgroups_per_dimension,
-        )
+        Grid::for_elements(threads as u32, self.max_per_dim())
+    }
+
+    /// `count` workgroups (kernels that give each workgroup one tile, query or group).
+    pub fn workgroups(&self, count: usize) -> Grid {
+        Grid::for_workgroups(count as u32, self.max_per_dim())
+    }
+
+    fn max_per_dim(&self) -> u32 {
+        self.gpu
+            .device
+            .limits()
+            .max_compute_workgroups_per_dimension
     }
 
     fn push(&mut self, step: Step) {

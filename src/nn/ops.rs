@@ -659,6 +659,11 @@ impl<'a> Recorder<'a> {
         self.steps.grid(threads)
     }
 
+    /// `count` workgroups (kernels that give each workgroup one tile, query or group).
+    pub fn workgroups(&self, count: usize) -> Grid {
+        self.steps.workgroups(count)
+    }
+
     /// `y = conv2d(x, weight) + bias` (square kernel, `stride`, zero padding `pad`).
     pub fn conv2d(
         &mut self,
@@ -919,7 +924,7 @@ impl<'a> Recorder<'a> {
                 * (params.c_out as usize).div_ceil(8)
                 * params.h_out as usize
                 * (params.w_out as usize).div_ceil(8);
-            let grid = self.grid(tiles * crate::gpu::kernel::WORKGROUP_SIZE as usize);
+            let grid = self.workgroups(tiles);
             let mut bound = vec![
                 Bound::Buffer(&x.buffer),
                 Bound::Buffer(&weights.packed.buffer),
@@ -1146,13 +1151,7 @@ impl<'a> Recorder<'a> {
             return Ok(y);
         }
         // One workgroup per (sample, group).
-        let grid = Grid::for_workgroups(
-            (n * groups) as u32,
-            self.gpu
-                .device
-                .limits()
-                .max_compute_workgroups_per_dimension,
-        );
+        let grid = self.workgroups(n * groups);
         // Without token rows their binding exists all the same; x stands in (unread).
         self.launch(
             &kernels::GROUP_NORM,
@@ -1200,13 +1199,7 @@ impl<'a> Recorder<'a> {
             // group_norm.wgsl stores the tokens: one workgroup per (sample, group).
             let y = self.output("group_norm.tokens", &[n, hw, frames, c])?;
             let rows = rows.map_or(x, |(rows, _)| rows);
-            let grid = Grid::for_workgroups(
-                (nf * groups) as u32,
-                self.gpu
-                    .device
-                    .limits()
-                    .max_compute_workgroups_per_dimension,
-            );
+            let grid = self.workgroups(nf * groups);
             self.launch(
                 &kernels::GROUP_NORM,
                 &params,
@@ -1358,7 +1351,7 @@ impl<'a> Recorder<'a> {
             (&t.buffer, &i.buffer)
         });
         let tiles = (params.rows as usize).div_ceil(4) * (params.outputs as usize).div_ceil(4);
-        let grid = self.grid(tiles * crate::gpu::kernel::WORKGROUP_SIZE as usize);
+        let grid = self.workgroups(tiles);
         let buffers = [
             &x.buffer,
             &weight.buffer,
@@ -1903,7 +1896,7 @@ impl<'a> Recorder<'a> {
             self.flops +=
                 2 * (sequences * 3 * c * c) as u64 + 4 * (y.len() as u64) * u64::from(params.keys);
             let groups = sequences * params.heads as usize;
-            let grid = self.grid(groups * crate::gpu::kernel::WORKGROUP_SIZE as usize);
+            let grid = self.workgroups(groups);
             self.launch(
                 &kernels::TEMPORAL_NEXT_SPLIT,
                 &params,
@@ -2018,7 +2011,7 @@ impl<'a> Recorder<'a> {
             // keys; a head's values are merged by its first head-size threads.
             const { assert!(MAX_HEAD_SIZE <= crate::gpu::kernel::WORKGROUP_SIZE as usize) };
             let queries = (params.sequences * params.heads * params.queries) as usize;
-            let grid = self.grid(queries * crate::gpu::kernel::WORKGROUP_SIZE as usize);
+            let grid = self.workgroups(queries);
             self.launch(
                 &kernels::ATTENTION_SPLIT,
                 &params,
