@@ -10,6 +10,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use crate::gpu::kernel::{PipelineCache, Precision, ScaleAdd};
+use crate::gpu::plan::{Plan, StepProfile};
 use crate::gpu::timing::Profiler;
 use crate::gpu::{GpuContext, GpuError};
 use crate::nn::sampler::{self, Sampling, Schedule};
@@ -766,7 +767,8 @@ pub fn live(
         out,
         "one more frame, each dispatch or copy submitted and waited for alone (ms by shader):"
     )?;
-    let profile = engine.profile(Action::Forward)?;
+    let steps = engine.profile(Action::Forward)?;
+    let profile = Plan::profile(&steps);
     let total: f64 = profile.iter().map(|p| p.ms).sum();
     let gpu_total: Option<f64> = profile.iter().map(|p| p.gpu_ms).sum();
     let gpu = |ms: Option<f64>| ms.map_or(String::new(), |ms| format!(" {ms:>10.3} ms on the GPU"));
@@ -790,5 +792,35 @@ pub fn live(
         "",
         gpu(gpu_total)
     )?;
+    slowest_steps(&steps, out)
+}
+
+/// The slowest single dispatches of a profile (by GPU time where the device has
+/// timestamps): where the next saving is, with the workgroup grid that says how much of
+/// the device the dispatch fills.
+fn slowest_steps(steps: &[StepProfile], out: &mut impl Write) -> anyhow::Result<()> {
+    const SHOWN: usize = 24;
+    let key = |s: &StepProfile| s.gpu_ms.unwrap_or(s.ms);
+    let mut slowest: Vec<&StepProfile> = steps.iter().collect();
+    slowest.sort_by(|a, b| key(b).total_cmp(&key(a)));
+    writeln!(
+        out,
+        "the {SHOWN} slowest steps of that frame (step number in the frame, workgroups x×y):"
+    )?;
+    for s in slowest.iter().take(SHOWN) {
+        let grid = s
+            .grid
+            .map_or(String::from("-"), |g| format!("{}x{}", g.x, g.y));
+        let gpu = s.gpu_ms.map_or(String::new(), |ms| {
+            format!(" {:>8.1} µs on the GPU", ms * 1e3)
+        });
+        writeln!(
+            out,
+            "  #{:<4} {:<34} {grid:>10} {:>8.1} µs{gpu}",
+            s.index,
+            s.name,
+            s.ms * 1e3
+        )?;
+    }
     Ok(())
 }

@@ -239,6 +239,21 @@ fn bench_live_counts_the_unet_passes_of_a_frame() {
         };
         let (wall, gpu) = (field("ms"), field("gpu_ms"));
         assert!(gpu > 0.0 && gpu <= wall + 0.05, "{stage}");
+        // The profile ends with the slowest single steps, each with its place in the
+        // frame and its workgroup grid.
+        let slowest = text
+            .lines()
+            .skip_while(|l| !l.starts_with("the 24 slowest steps of that frame"))
+            .skip(1)
+            .take_while(|l| l.starts_with("  #"))
+            .collect::<Vec<_>>();
+        assert_eq!(slowest.len(), 24, "{text}");
+        assert!(
+            slowest
+                .iter()
+                .any(|l| l.contains(".wgsl") && l.contains('x')),
+            "{text}"
+        );
     }
 }
 

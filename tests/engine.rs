@@ -791,11 +791,19 @@ fn the_gpu_splats_equal_the_cpu_appearance_on_the_shipped_bundle() {
     // logarithms, the refiner's inputs), so positions within 1e-5 m, scales within 1e-3
     // relative, rotations within 1e-4 of |q·q'| = 1, opacity and colour within 1e-3.
     use unica::engine::appearance::Appearance;
+    // The splat stage's GPU kernels (the tiled rank) at level 128 with the refiner.
     let gpu = gpu();
-    for (level, refine) in [(128, true), (256, true), (256, false)] {
+    let cases = [
+        (128, true, None),
+        (128, true, Some(unica::nn::Kernels::Gpu)),
+        (256, true, None),
+        (256, false, None),
+    ];
+    for (level, refine, kernels) in cases {
         let mut options = options(Sampling::new(2, 1.0), 11);
         options.splat_level = Some(level);
         options.refine = refine;
+        options.kernels = kernels;
         let mut engine = Engine::new(&gpu, &witch_bundle(), &options).unwrap();
         let frame = engine.step(Action::Forward).unwrap();
         let got = engine.read_splats().unwrap();
@@ -804,7 +812,7 @@ fn the_gpu_splats_equal_the_cpu_appearance_on_the_shipped_bundle() {
         let want = look.splats(&engine.bundle, &frame.points).unwrap();
         let d = splat_differences(&got, &want);
         eprintln!(
-            "level {level} refiner {refine}: {} splats, worst {d:?}",
+            "level {level} refiner {refine} kernels {kernels:?}: {} splats, worst {d:?}",
             got.len()
         );
         assert!(

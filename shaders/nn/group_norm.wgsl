@@ -1,6 +1,6 @@
 // Group normalisation of NCHW (Elem storage, f32 statistics) with a per-channel affine and an optional fused SiLU.
-// One workgroup per (sample, group): a shared-memory reduction of the mean and variance
-// (two passes over the data, exact), then every thread writes its share. With `p.tokens`
+// One workgroup of THREADS per (sample, group): a shared-memory reduction of the mean and
+// variance (two passes over the data, exact), then every thread writes its share. With `p.tokens`
 // (F > 0) the values are stored as token rows [N, HW, F, C] instead, plus optional frame
 // positions, as group_norm_serial.wgsl stores them: the attention layers' permute, done
 // by the stores (see GroupNormParams).
@@ -13,12 +13,12 @@
 @group(0) @binding(4) var<storage, read> rows: array<Elem>;
 @group(0) @binding(5) var<storage, read_write> y: array<Elem>;
 
-var<workgroup> partial: array<f32, 64>;
+var<workgroup> partial: array<f32, THREADS>;
 
 fn reduce(lane: u32, value: f32) -> f32 {
     partial[lane] = value;
     workgroupBarrier();
-    for (var stride = 32u; stride > 0u; stride /= 2u) {
+    for (var stride = THREADS / 2u; stride > 0u; stride /= 2u) {
         if lane < stride {
             partial[lane] += partial[lane + stride];
         }
@@ -29,7 +29,7 @@ fn reduce(lane: u32, value: f32) -> f32 {
     return total;
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(THREADS)
 fn main(
     @builtin(workgroup_id) group: vec3<u32>,
     @builtin(num_workgroups) groups: vec3<u32>,
@@ -43,12 +43,12 @@ fn main(
     let count = per_group * p.hw;
     let base = id * count; // (n, g) blocks are contiguous in NCHW
     var sum = 0.0;
-    for (var i = lane; i < count; i += 64u) {
+    for (var i = lane; i < count; i += THREADS) {
         sum += f32(x[base + i]);
     }
     let mean = reduce(lane, sum) / f32(count);
     var squares = 0.0;
-    for (var i = lane; i < count; i += 64u) {
+    for (var i = lane; i < count; i += THREADS) {
         let d = f32(x[base + i]) - mean;
         squares += d * d;
     }
@@ -59,7 +59,7 @@ fn main(
     let frames = max(p.tokens, 1u);
     let f = image % frames;
     let first_row = ((image / frames) * p.hw * frames + f) * p.channels;
-    for (var i = lane; i < count; i += 64u) {
+    for (var i = lane; i < count; i += THREADS) {
         let c = first_channel + i / p.hw;
         var v = (f32(x[base + i]) - mean) * inv_std * f32(gamma[c]) + f32(beta[c]);
         if p.silu != 0u {

@@ -33,7 +33,7 @@ use glam::Vec3;
 
 use crate::action::Action;
 use crate::gpu::kernel::{PipelineCache, Precision};
-use crate::gpu::plan::{ShaderProfile, StageProfile};
+use crate::gpu::plan::{StageProfile, StepProfile};
 use crate::gpu::texels::Texels;
 use crate::gpu::{Bound, GpuContext, GpuError, readback};
 use crate::nn::bundle::{Heading, RootMotion};
@@ -394,6 +394,7 @@ impl Engine {
                     level,
                     refiner,
                     self.precision,
+                    self.kernels == crate::nn::Kernels::Gpu,
                 )?)
             }
             None => None,
@@ -436,13 +437,13 @@ impl Engine {
     }
 
     /// Runs the frame plan once more, each dispatch in its own submission waited for, and
-    /// returns the milliseconds by shader (a profile for benchmarks: it advances the
-    /// loop by one frame under `action`).
-    pub fn profile(&mut self, action: Action) -> Result<Vec<ShaderProfile>, GpuError> {
+    /// returns each step's milliseconds in plan order (a profile for benchmarks: it
+    /// advances the loop by one frame under `action`).
+    pub fn profile(&mut self, action: Action) -> Result<Vec<StepProfile>, GpuError> {
         self.frame(action)?;
         self.finish();
         let plan = self.plans.get(action, self.after_key);
-        Ok(plan.plan.profile(&self.gpu))
+        Ok(plan.plan.profile_steps(&self.gpu))
     }
 
     /// Generates a frame (as [`Engine::frame`]), then runs its plan once more stage by

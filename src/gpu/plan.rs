@@ -198,6 +198,17 @@ pub struct StageProfile {
     pub flops: u64,
 }
 
+/// One step of a plan run alone: its place in the plan, shader (or copy), workgroup
+/// grid (dispatches) and wall and GPU milliseconds.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepProfile {
+    pub index: usize,
+    pub name: &'static str,
+    pub grid: Option<Grid>,
+    pub ms: f64,
+    pub gpu_ms: Option<f64>,
+}
+
 /// One shader's dispatches (or the copies) of a plan, each run alone: their count and
 /// total wall and GPU milliseconds.
 #[derive(Clone, Debug, PartialEq)]
@@ -243,28 +254,46 @@ impl Plan {
     }
 
     /// Runs every step in its own submission, waited for (the plan's effects happen once
-    /// more), and returns the time by shader, slowest first (by GPU time where the device
-    /// has timestamps, else by wall clock).
-    pub fn profile(&self, gpu: &GpuContext) -> Vec<ShaderProfile> {
-        let mut by_name: Vec<ShaderProfile> = Vec::new();
-        for step in self.parts.iter().flatten() {
-            let timed = run_timed(gpu, [step]);
-            let name = match step {
-                Step::Dispatch { name, .. } => *name,
-                Step::Copy { .. } => "copy",
-                Step::CopyToTexels { .. } => "copy to texels",
-            };
-            match by_name.iter_mut().find(|p| p.name == name) {
-                Some(entry) => {
-                    entry.count += 1;
-                    entry.ms += timed.wall_ms;
-                    entry.gpu_ms = entry.gpu_ms.zip(timed.gpu_ms).map(|(a, b)| a + b);
-                }
-                None => by_name.push(ShaderProfile {
+    /// more), and returns each step's time in plan order.
+    pub fn profile_steps(&self, gpu: &GpuContext) -> Vec<StepProfile> {
+        self.parts
+            .iter()
+            .flatten()
+            .enumerate()
+            .map(|(index, step)| {
+                let timed = run_timed(gpu, [step]);
+                let (name, grid) = match step {
+                    Step::Dispatch { name, grid, .. } => (*name, Some(*grid)),
+                    Step::Copy { .. } => ("copy", None),
+                    Step::CopyToTexels { .. } => ("copy to texels", None),
+                };
+                StepProfile {
+                    index,
                     name,
-                    count: 1,
+                    grid,
                     ms: timed.wall_ms,
                     gpu_ms: timed.gpu_ms,
+                }
+            })
+            .collect()
+    }
+
+    /// [`Plan::profile_steps`] summed by shader, slowest first (by GPU time where the
+    /// device has timestamps, else by wall clock).
+    pub fn profile(steps: &[StepProfile]) -> Vec<ShaderProfile> {
+        let mut by_name: Vec<ShaderProfile> = Vec::new();
+        for step in steps {
+            match by_name.iter_mut().find(|p| p.name == step.name) {
+                Some(entry) => {
+                    entry.count += 1;
+                    entry.ms += step.ms;
+                    entry.gpu_ms = entry.gpu_ms.zip(step.gpu_ms).map(|(a, b)| a + b);
+                }
+                None => by_name.push(ShaderProfile {
+                    name: step.name,
+                    count: 1,
+                    ms: step.ms,
+                    gpu_ms: step.gpu_ms,
                 }),
             }
         }

@@ -37,6 +37,8 @@ pub const SNIPPETS: &[Snippet] = &[
 pub const CONV2D: Shader = shader!("nn/conv2d.wgsl", [Conv2dParams], elem);
 /// The convolution in register tiles of 4 output pixels × 8 channels.
 pub const CONV2D_TILED: Shader = shader!("nn/conv2d_tiled.wgsl", [Conv2dParams], elem);
+/// The convolution for GPUs: a workgroup per tile of 4 pixels × 8 channels.
+pub const CONV2D_SPLIT: Shader = shader!("nn/conv2d_split.wgsl", [Conv2dParams], elem);
 /// The 3×3 stride-1 convolution in register tiles of 8 pixels × 8 channels, from
 /// repacked f32 weights (`ops::PackedConv`).
 pub const CONV3X3: Shader =
@@ -61,7 +63,11 @@ pub const CONV1X1: Shader =
 pub const CONV1X1_CPU: Shader =
     shader!("nn/conv1x1_cpu.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV1X1_TILE]);
 pub const UPSAMPLE_NEAREST: Shader = shader!("nn/upsample_nearest.wgsl", [UpsampleParams], elem);
-pub const GROUP_NORM: Shader = shader!("nn/group_norm.wgsl", [GroupNormParams], elem);
+pub const GROUP_NORM: Shader =
+    shader!("nn/group_norm.wgsl", [GroupNormParams], elem).with_uints(&[("THREADS", 64)]);
+/// `GROUP_NORM` with workgroups of 256 threads, for GPUs and large groups.
+pub const GROUP_NORM_WIDE: Shader =
+    shader!("nn/group_norm.wgsl", [GroupNormParams], elem).with_uints(&[("THREADS", 256)]);
 /// Group norm for CPU drivers: one invocation per (sample, group), no barriers.
 pub const GROUP_NORM_SERIAL: Shader =
     shader!("nn/group_norm_serial.wgsl", [GroupNormParams], elem).with_snippets(&[TEXEL_STATS]);
@@ -85,6 +91,10 @@ pub const ATTENTION: Shader = shader!("nn/attention.wgsl", [AttentionParams], el
 /// Attention for GPUs: a workgroup per query, its threads splitting the keys.
 pub const ATTENTION_SPLIT: Shader = shader!("nn/attention_split.wgsl", [AttentionParams], elem)
     .with_uints(&[("MAX_HEAD_SIZE", super::ops::MAX_HEAD_SIZE as u32)]);
+/// Attention for GPUs over sequences of many queries: a workgroup per block of
+/// queries, keys and values loaded into workgroup memory a chunk at a time.
+pub const ATTENTION_TILED: Shader = shader!("nn/attention_tiled.wgsl", [AttentionParams], elem)
+    .with_uints(&[("TILE_HEAD", super::ops::TILE_HEAD_SIZE as u32)]);
 /// Attention for CPU drivers: heads of at most 32 values in named vec4 registers.
 pub const ATTENTION_CPU: Shader =
     shader!("nn/attention_cpu.wgsl", [AttentionParams], elem).with_snippets(&[ONLINE_SOFTMAX]);
@@ -106,6 +116,7 @@ pub const SEGMENT_MEAN: Shader = shader!("nn/segment_mean.wgsl", [SegmentParams]
 pub const ALL: &[Shader] = &[
     CONV2D,
     CONV2D_TILED,
+    CONV2D_SPLIT,
     CONV3X3,
     CONV3X3_CPU,
     CONV3X3_NORMED_CPU,
@@ -114,6 +125,7 @@ pub const ALL: &[Shader] = &[
     CONV1X1_CPU,
     UPSAMPLE_NEAREST,
     GROUP_NORM,
+    GROUP_NORM_WIDE,
     GROUP_NORM_SERIAL,
     LINEAR,
     LINEAR_TILED,
@@ -126,6 +138,7 @@ pub const ALL: &[Shader] = &[
     AXPBY,
     ATTENTION,
     ATTENTION_SPLIT,
+    ATTENTION_TILED,
     ATTENTION_CPU,
     TEMPORAL_NEXT,
     TEMPORAL_NEXT_SPLIT,

@@ -291,6 +291,18 @@ pub struct InputNorm<'a> {
 /// The largest attention head the attention kernel holds in registers.
 pub const MAX_HEAD_SIZE: usize = 64;
 
+/// The largest head `attention_tiled.wgsl` takes (its loops over a head are this long).
+pub const TILE_HEAD_SIZE: usize = 32;
+
+/// The fewest queries a sequence has for [`Recorder::attention_after`] to give GPUs
+/// `attention_tiled.wgsl` (a thread per query, the keys loaded once per block of
+/// queries) rather than `attention_split.wgsl` (a workgroup per query): the refiner's
+/// patches and the UNet's spatial attention, not the temporal layers' few frames.
+const TILED_QUERIES: u32 = 16;
+
+/// The fewest values of a group for which GPUs normalise it with 256 threads.
+const WIDE_NORM_VALUES: u32 = 4096;
+
 /// How `b` lines up with `a` in [`Recorder::add`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Broadcast {
@@ -696,10 +708,21 @@ impl<'a> Recorder<'a> {
         self.flops += 2 * (y.len() * c_in * k * k) as u64;
         // A bias binding must exist even without a bias; the weight stands in (unread).
         let bias = bias.unwrap_or(weight);
-        // Register tiles of 4 output pixels × 8 channels where a row has 4 pixels; one
-        // thread per output pixel and block of 8 channels otherwise. Both sum in the same
-        // order; both are parity-tested (tests/nn.rs).
-        if w_out >= 4 && self.kernels != Kernels::Simple {
+        // For GPUs a workgroup per tile of 4 output pixels × 8 channels, its threads
+        // splitting the terms. Otherwise register tiles of 4 output pixels × 8 channels
+        // where a row has 4 pixels, and one thread per output pixel and block of 8
+        // channels where not; these two sum in the same order. All three are
+        // parity-tested (tests/nn.rs).
+        if self.kernels == Kernels::Gpu {
+            let tiles = n * c_out.div_ceil(8) * h_out * w_out.div_ceil(4);
+            let grid = self.workgroups(tiles);
+            self.launch(
+                &kernels::CONV2D_SPLIT,
+                &params,
+                &[x, weight, bias, &y],
+                grid,
+            );
+        } else if w_out >= 4 && self.kernels != Kernels::Simple {
             let grid = self.grid(n * c_out.div_ceil(8) * h_out * w_out.div_ceil(4));
             self.launch(
                 &kernels::CONV2D_TILED,
@@ -1154,12 +1177,24 @@ impl<'a> Recorder<'a> {
         let grid = self.workgroups(n * groups);
         // Without token rows their binding exists all the same; x stands in (unread).
         self.launch(
-            &kernels::GROUP_NORM,
+            self.group_norm_kernel(&params),
             &params,
             &[x, gamma, beta, x, &y],
             grid,
         );
         Ok(y)
+    }
+
+    /// `group_norm.wgsl` with workgroups of 256 threads for GPUs and groups of at least
+    /// [`WIDE_NORM_VALUES`] values, else of 64. A workgroup of 64 threads per group left
+    /// the VAE encoder's few large groups latency-bound on an H200 (docs/gpu).
+    fn group_norm_kernel(&self, params: &GroupNormParams) -> &'static Shader {
+        let values = params.channels / params.groups * params.hw;
+        if self.kernels == Kernels::Gpu && values >= WIDE_NORM_VALUES {
+            &kernels::GROUP_NORM_WIDE
+        } else {
+            &kernels::GROUP_NORM
+        }
     }
 
     /// The group norm of NCHW `x` [N·F, C, H, W] (no SiLU) laid out as token rows
@@ -1201,7 +1236,7 @@ impl<'a> Recorder<'a> {
             let rows = rows.map_or(x, |(rows, _)| rows);
             let grid = self.workgroups(nf * groups);
             self.launch(
-                &kernels::GROUP_NORM,
+                self.group_norm_kernel(&params),
                 &params,
                 &[x, gamma, beta, rows, &y],
                 grid,
@@ -2006,6 +2041,19 @@ impl<'a> Recorder<'a> {
             ];
             self.steps
                 .dispatch_bound(&kernels::ATTENTION_CPU, &params, &bound, grid);
+        } else if self.kernels == Kernels::Gpu
+            && params.queries >= TILED_QUERIES
+            && head as usize <= TILE_HEAD_SIZE
+            && head.is_multiple_of(4)
+        {
+            let blocks = params.queries.div_ceil(crate::gpu::kernel::WORKGROUP_SIZE);
+            let grid = self.workgroups((params.sequences * params.heads * blocks) as usize);
+            self.launch(
+                &kernels::ATTENTION_TILED,
+                &params,
+                &[q, prefix, kv, &y],
+                grid,
+            );
         } else if self.kernels == Kernels::Gpu {
             // One workgroup per query (attention_split.wgsl), its threads splitting the
             // keys; a head's values are merged by its first head-size threads.

@@ -89,6 +89,9 @@ pub const CODES: Shader =
     wgsl_shader!("splat/codes.wgsl", [SplatParams], f16: false, subgroups: false);
 pub const RANK: Shader =
     wgsl_shader!("splat/rank.wgsl", [SplatParams], f16: false, subgroups: false);
+/// `RANK` for GPUs: the codes read a workgroup-shared tile at a time.
+pub const RANK_TILED: Shader =
+    wgsl_shader!("splat/rank_tiled.wgsl", [SplatParams], f16: false, subgroups: false);
 pub const POOLED: Shader =
     wgsl_shader!("splat/pooled.wgsl", [SplatParams], f16: false, subgroups: false);
 pub const ROWS_TO_F32: Shader = wgsl_shader!("splat/rows_to_f32.wgsl", [SplatParams], elem);
@@ -110,6 +113,7 @@ pub const ALL: &[Shader] = &[
     BASE,
     CODES,
     RANK,
+    RANK_TILED,
     POOLED,
     ROWS_TO_F32,
     SCATTER,
@@ -283,8 +287,10 @@ struct Refining {
     stride: usize,
     features: wgpu::Buffer,
     codes: wgpu::Buffer,
-    /// The codes as texels, for the rank kernel.
+    /// The codes as texels, for the rank kernel of CPU drivers.
     codes_texels: Texels,
+    /// Whether the ranks are counted by `rank_tiled.wgsl` (GPUs) rather than `rank.wgsl`.
+    tiled_rank: bool,
     fine: Vec<OrderBuffers>,
     groups: wgpu::Buffer,
     pooled: wgpu::Buffer,
@@ -292,6 +298,38 @@ struct Refining {
     pooled_codes_texels: Texels,
     coarse: Vec<OrderBuffers>,
     residuals: wgpu::Buffer,
+}
+
+impl Refining {
+    /// Records one serialisation order from `codes` (the buffer and its texels) by
+    /// `p.curve`, with each point's group where `p.features` is set; where the rank reads
+    /// texels, the codes are copied into them before curve 0.
+    fn record_rank(
+        &self,
+        b: &mut Builder,
+        p: &SplatParams,
+        codes: (&wgpu::Buffer, &Texels),
+        order: &OrderBuffers,
+        grid: Grid,
+    ) {
+        let rest = [
+            Bound::Buffer(&order.sort),
+            Bound::Buffer(&order.unsort),
+            Bound::Buffer(&self.groups),
+        ];
+        if self.tiled_rank {
+            let mut bound = vec![Bound::Buffer(codes.0)];
+            bound.extend(rest);
+            b.dispatch_bound(&RANK_TILED, p, &bound, grid);
+        } else {
+            if p.curve == 0 {
+                b.copy_to_texels(codes.0, codes.1);
+            }
+            let mut bound = vec![Bound::Texels(codes.1)];
+            bound.extend(rest);
+            b.dispatch_bound(&RANK, p, &bound, grid);
+        }
+    }
 }
 
 /// The GPU splats of a frame at one splat level (see the module header).
@@ -324,7 +362,8 @@ impl SplatFrame {
     /// The buffers of splats at map size `level` (128, 256, 512 or 1024) for the 128²
     /// foreground `pixels` with linear `colors`, `waist` point indices and normalisation
     /// `scale`; `refiner`: (mean bound in normalised units, pooling stride) when the
-    /// refiner runs, its features stored in `precision`.
+    /// refiner runs, its features stored in `precision`. `for_gpus` picks the kernels
+    /// written for GPUs where the splat stage has two (the rank).
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         gpu: &GpuContext,
@@ -335,6 +374,7 @@ impl SplatFrame {
         level: usize,
         refiner: Option<(f32, usize)>,
         precision: Precision,
+        for_gpus: bool,
     ) -> Result<Self, GpuError> {
         assert!(
             level >= COARSE && level.is_multiple_of(COARSE),
@@ -372,6 +412,7 @@ impl SplatFrame {
                         wgpu::BufferUsages::COPY_SRC,
                     )?,
                     codes_texels: Texels::new_u32(gpu, "splat.codes", 4 * n.next_multiple_of(4))?,
+                    tiled_rank: for_gpus,
                     fine: orders("splat.order", n)?,
                     groups: gpu.storage_buffer("splat.groups", 4 * n.max(1) as u64, none)?,
                     pooled: gpu.storage_buffer("splat.pooled", 12 * pooled.max(1) as u64, none)?,
@@ -519,21 +560,10 @@ impl SplatFrame {
         p.stride = r.stride as u32;
         let grid = b.grid(n);
         b.dispatch(&CODES, &p, &[&self.unit, &r.codes], grid);
-        b.copy_to_texels(&r.codes, &r.codes_texels);
         for (curve, order) in r.fine.iter().enumerate() {
             p.curve = curve as u32;
             p.features = u32::from(curve == 0);
-            b.dispatch_bound(
-                &RANK,
-                &p,
-                &[
-                    Bound::Texels(&r.codes_texels),
-                    Bound::Buffer(&order.sort),
-                    Bound::Buffer(&order.unsort),
-                    Bound::Buffer(&r.groups),
-                ],
-                grid,
-            );
+            r.record_rank(b, &p, (&r.codes, &r.codes_texels), order, grid);
         }
         let grid = b.grid(pooled);
         b.dispatch(&POOLED, &p, &[&self.unit, &r.fine[0].sort, &r.pooled], grid);
@@ -541,20 +571,10 @@ impl SplatFrame {
         q.points = pooled as u32;
         q.features = 0;
         b.dispatch(&CODES, &q, &[&r.pooled, &r.pooled_codes], grid);
-        b.copy_to_texels(&r.pooled_codes, &r.pooled_codes_texels);
+        let codes = (&r.pooled_codes, &r.pooled_codes_texels);
         for (curve, order) in r.coarse.iter().enumerate() {
             q.curve = curve as u32;
-            b.dispatch_bound(
-                &RANK,
-                &q,
-                &[
-                    Bound::Texels(&r.pooled_codes_texels),
-                    Bound::Buffer(&order.sort),
-                    Bound::Buffer(&order.unsort),
-                    Bound::Buffer(&r.groups),
-                ],
-                grid,
-            );
+            r.record_rank(b, &q, codes, order, grid);
         }
         Some(RefinerInputs {
             features: &r.features,
