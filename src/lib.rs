@@ -23,7 +23,7 @@ pub mod tensors;
 
 /// Every WGSL snippet (helper functions shared by shaders of a stage).
 pub fn snippets() -> Vec<gpu::shaders::Snippet> {
-    [nn::kernels::SNIPPETS, engine::kernels::SNIPPETS].concat()
+    [nn::ops::snippets(), engine::kernels::SNIPPETS.to_vec()].concat()
 }
 
 /// Every WGSL shader of the crate, gathered from the stages that own them (tests check
@@ -31,7 +31,7 @@ pub fn snippets() -> Vec<gpu::shaders::Snippet> {
 pub fn shaders() -> Vec<gpu::shaders::Shader> {
     [
         gpu::shaders::ALL,
-        nn::kernels::ALL,
+        &nn::ops::shaders(),
         splat::kernels::ALL,
         splat::frame::ALL,
         engine::kernels::ALL,

@@ -54,7 +54,7 @@ pub struct Manifest {
     /// motion's height like its horizontal part; true puts each frame's lowest point on
     /// the floor (y = 0, where the standing start's lowest point is) instead. The window
     /// is root-centred in height too, so integrated heights carry the model's errors:
-    /// session 28 measured the Witch sinking 0.15-0.17 m over each 270-frame key script
+    /// integrated, the Witch measured sinking 0.15-0.17 m over each 270-frame key script
     /// (at 180° turns and starts), about 1 m in 2,000 frames; grounded, the height has
     /// nothing to accumulate.
     #[serde(default)]
@@ -64,8 +64,8 @@ pub struct Manifest {
 /// What the live loop measures a new frame's root motion from. The window puts the last
 /// context frame's root at 0.5, so `Centre` moves the world root by root(new) − 0.5.
 /// `Decoded` moves it by root(new) − root(the last context latent decoded): a bias of
-/// the decoder's root common to both frames cancels (session 27: under Idle that bias
-/// was a creep of 1.7-4 mm a frame that kept the root above 0.05 m/s). The window is
+/// the decoder's root common to both frames cancels (measured under Idle, that bias was
+/// a creep of 1.7-4 mm a frame that kept the root above 0.05 m/s). The window is
 /// recentred on root(new) either way.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -78,11 +78,11 @@ pub enum RootMotion {
 /// Which way the live loop turns the window before the model sees it. `World`: as it
 /// is. `Canonical`: turned about the vertical by the quarter turns that take the last
 /// movement key's direction to W's (+Z), the key turned with it (W for any held key; the
-/// trainer's `dataset.quarter_turn`, the symmetry the UNet is trained with since session
-/// 18), and the new frame turned back. The model then always walks, stops and starts
-/// facing +Z, the direction it does best: session 28 measured the Witch creeping 0.07-0.08
-/// m/s after A on two of three seeds when shown the world as it is, and stopping within
-/// 10-11 frames after every key turned.
+/// trainer's `dataset.quarter_turn`, the symmetry the UNet is trained with), and the new
+/// frame turned back. The model then always walks, stops and starts facing +Z, the
+/// direction it does best: shown the world as it is, the Witch measured creeping
+/// 0.07-0.08 m/s after A on two of three seeds; turned, she stopped within 10-11 frames
+/// after every key.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Heading {

@@ -3,7 +3,6 @@
 //! classifier-free guidance — pinned to the PyTorch trainer by parity tests (tests/nn.rs).
 
 pub mod bundle;
-pub mod kernels;
 pub mod layers;
 pub mod ops;
 pub mod refiner;

@@ -77,14 +77,14 @@ impl Schedule {
 /// batch; otherwise the conditional and the null action run in one batch of two).
 /// With `guide_idle` false an Idle frame takes the conditional prediction alone: its
 /// second half runs Idle instead of the null action, so null + s·(cond − null) = cond
-/// (guidance away from the null action's average motion made a standing avatar creep,
-/// session 18). `idle_cfg_scale`, where set, is Idle's own guidance scale when the
-/// sampler guides, and overrides `guide_idle` (session 20: 1.5 brings the Witch to rest
-/// as the teacher does; see [`Sampling::for_action`]). The starting noise is standard
-/// normal times `noise_scale`. Bundles without these settings guide Idle as the keys and
-/// use noise scale 1. A live loop brakes where `idle_brake_cfg_scale` is set: the first
-/// `idle_brake_frames` Idle frames after a key are guided at that scale (session 22: at
-/// 1.5 alone the Witch glided 1.2 m after A; see [`Sampling::for_frame`]).
+/// (guidance away from the null action's average motion made a standing avatar creep).
+/// `idle_cfg_scale`, where set, is Idle's own guidance scale when the sampler guides,
+/// and overrides `guide_idle` (1.5 brings the Witch to rest as the teacher does; see
+/// [`Sampling::for_action`]). The starting noise is standard normal times
+/// `noise_scale`. Bundles without these settings guide Idle as the keys and use noise
+/// scale 1. A live loop brakes where `idle_brake_cfg_scale` is set: the first
+/// `idle_brake_frames` Idle frames after a key are guided at that scale (at 1.5 alone
+/// the Witch glided 1.2 m after A; see [`Sampling::for_frame`]).
 #[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
 pub struct Sampling {
     #[serde(rename = "ddim_steps")]

@@ -256,7 +256,7 @@ impl ConvDecoder {
     /// instead of 19) for about 4 ms on lavapipe, where the folded norm is recomputed
     /// for every tile that reads a value. At 64² the fold would cost about 5 ms more
     /// for 2 more dispatches, so that block, and the 128² output norm, stay separate
-    /// (`unica bench`, session 10).
+    /// (measured with `unica bench`).
     pub fn forward(&self, r: &mut Recorder, z: &Tensor) -> Result<Tensor, GpuError> {
         let mut h = self.conv_in.forward(r, z)?;
         for (res, up) in self.res.iter().zip(&self.up) {
