@@ -434,3 +434,67 @@ fn rig_errors_name_the_file_and_the_problem() {
         "manifest.json",
     );
 }
+
+/// The command that rewrites docs/cli.md from the binary's help texts.
+const CLI_REFERENCE_BLESS: &str =
+    "UNICA_BLESS=1 cargo test --release --test cli the_cli_reference_matches_the_help";
+
+/// docs/cli.md is `unica --help` and every subcommand's `--help`, as this test builds it:
+/// it fails when the two differ, and with UNICA_BLESS=1 it writes the file instead.
+#[test]
+fn the_cli_reference_matches_the_help() {
+    let help = |args: &[&str]| {
+        let out = unica(args, &[]);
+        assert!(
+            out.status.success(),
+            "unica {} failed: {}",
+            args.join(" "),
+            stderr(&out)
+        );
+        String::from_utf8(out.stdout).expect("the help text is UTF-8")
+    };
+    let root = help(&["--help"]);
+    // The subcommands in the order `unica --help` lists them: the lines under "Commands:"
+    // indented by two spaces (clap does not wrap in this build, one line a command).
+    let subcommands: Vec<String> = root
+        .lines()
+        .skip_while(|line| line.trim_end() != "Commands:")
+        .skip(1)
+        .take_while(|line| !line.trim().is_empty())
+        .filter(|line| line.starts_with("  ") && !line.starts_with("   "))
+        .filter_map(|line| line.split_whitespace().next().map(str::to_owned))
+        .filter(|name| name != "help")
+        .collect();
+    assert!(
+        subcommands.len() >= 10,
+        "expected the subcommands under \"Commands:\" in:\n{root}"
+    );
+
+    let section = |title: &str, text: &str| {
+        let body: Vec<&str> = text.trim_end().lines().map(str::trim_end).collect();
+        format!("## {title}\n\n```text\n{}\n```\n", body.join("\n"))
+    };
+    let mut doc = format!(
+        "# unica command line\n\n\
+         This file is generated from the binary's `--help` texts by the test \
+         `the_cli_reference_matches_the_help` in tests/cli.rs, which fails when the two \
+         differ; do not edit it by hand. After changing the command line, refresh it with \
+         `{CLI_REFERENCE_BLESS}`.\n\n{}",
+        section("unica", &root)
+    );
+    for sub in &subcommands {
+        doc.push('\n');
+        doc.push_str(&section(&format!("unica {sub}"), &help(&[sub, "--help"])));
+    }
+
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/cli.md");
+    if std::env::var("UNICA_BLESS").as_deref() == Ok("1") {
+        std::fs::write(&path, &doc).expect("writing docs/cli.md");
+        return;
+    }
+    let current = std::fs::read_to_string(&path).unwrap_or_default();
+    assert!(
+        current == doc,
+        "docs/cli.md is out of date: refresh it with `{CLI_REFERENCE_BLESS}`"
+    );
+}
