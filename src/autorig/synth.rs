@@ -175,8 +175,8 @@ enum Build {
 }
 
 /// Where a humanoid's variety comes from: a random stream, or none (the plain generator
-/// of sessions 9-14, which the shipped models were trained on: adult build, arms held
-/// out, capsule loose parts, no capes).
+/// the shipped models were trained on: adult build, arms held out, capsule loose parts,
+/// no capes).
 struct Style(Option<Rng>);
 
 impl Style {

@@ -58,10 +58,10 @@ type Planned = (Action, Action, usize, usize);
 /// Frames between the key changes of successive [`switch_plan`] clips of one pair.
 pub const PHASE_STEP: usize = 3;
 
-/// Extra training data for key changes at every gait phase (session 26: the table changes
-/// key at 3, 4 or 5 s, so each transition is seen at one phase of the stride, and a model
-/// trained long on it turned only from those phases: pressed elsewhere, the Witch ran on
-/// for up to 16 frames before turning). Each change from or to Forward — the others are
+/// Extra training data for key changes at every gait phase (the table changes key at 3,
+/// 4 or 5 s, so each transition is seen at one phase of the stride, and a model trained
+/// long on it turned only from those phases: pressed elsewhere, the Witch ran on for up
+/// to 16 frames before turning). Each change from or to Forward — the others are
 /// its quarter turns, which the trainer's `quarter_turns` supplies — `phases` times, the
 /// key changed at 3 s + k·[`PHASE_STEP`] frames (k = 1..=phases), then 2 s of the second.
 pub fn switch_plan(phases: usize) -> Vec<Planned> {

@@ -5,11 +5,11 @@
 //! context latents are the encoder's means of those maps times the latent scale, as in
 //! the trainer's reference loop (`train/unica_train/recentre.py`, mode "reencode").
 //!
-//! (Until session 20 the slide was applied in latent space as -Σ δ_k J_k, J the encoder's
-//! response to a uniform shift measured once per bundle. The PyTorch loop measured that
-//! approximation as the cause of the avatar's short stride: 2.11 m/s on W against 2.42
-//! re-encoded and the teacher's 2.39. Re-encoding three 128² maps costs 0.8 GFLOP a
-//! frame.) This module makes the window's starting maps: the standing-start context
+//! The window is re-encoded rather than slid in latent space as -Σ δ_k J_k (J the
+//! encoder's response to a uniform shift, measured once per bundle): the PyTorch loop
+//! measured that approximation as the cause of a short stride, 2.11 m/s on W against
+//! 2.42 re-encoded and the teacher's 2.39. Re-encoding three 128² maps costs 0.8 GFLOP a
+//! frame. This module makes the window's starting maps: the standing-start context
 //! decoded, background 0.
 
 use crate::gpu::GpuContext;

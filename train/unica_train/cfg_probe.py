@@ -14,7 +14,7 @@ manifest; `--write` sets the bundle's `sampler.cfg_scale` to the best scale (and
 `guide_idle` and `noise_scale` to the ones probed with, the bundle's unless given).
 `--guided-steps` also tries guidance intervals (guidance over the first N DDIM steps
 only, the PyTorch sampler's `guided_steps`); the engine guides every step, so a best
-interval is reported, not written. Session 17 measured that the keys are lost with it
+interval is reported, not written: measured, the keys are lost with it
 (docs/records/witch/README.md).
 
 Each line also gives the evaluation's motion numbers for the run (`eval.motion`, as
@@ -49,7 +49,7 @@ def segments(path: list[list[float]], keys: str) -> list[dict]:
 
 def score(model: list[dict], teacher: list[dict]) -> tuple[float, bool]:
     """(summed distance error in m over every segment, Idle's too: a glide after a
-    release counts (session 22); every moving heading within HEADING_LIMIT of the
+    release counts; every moving heading within HEADING_LIMIT of the
     teacher's; a moving segment that barely moved has no heading and is off)."""
     error, heads = 0.0, True
     for m, t in zip(model, teacher):

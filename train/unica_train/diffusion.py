@@ -1,18 +1,18 @@
 """The diffusion process (DESIGN §5): scaled-linear DDPM betas 0.00085-0.012 over 1000
 steps, epsilon prediction, Min-SNR weights, noise offset; the DDIM sampler with real
 classifier-free guidance (conditional and null action in one batch), optionally only over
-the first `guided_steps` DDIM steps (a guidance interval: measured in session 17, it
-keeps generated poses closer but loses the keys, so the engine guides every step;
-docs/records/witch/README.md). Two more sampler settings (session 18): `guide_idle` false
-samples Idle frames from the conditional prediction alone (guidance away from the null
-action's average motion pushed a standing avatar backwards: she crept), and
-`noise_scale` draws the starting noise at that temperature (less jitter at rest). Since
-session 20 `idle_cfg_scale`, where set, is the guidance scale of Idle samples in guided
-steps instead (1.5 for the Witch: unguided she glided on for 20 frames once the window
-was re-encoded, guided at 4.5 she stopped in two frames and then crept). Since session
-22 the live loop also brakes: the first `idle_brake_frames` Idle frames after a key are
-guided at `idle_brake_cfg_scale` (`frame_idle_scales`; the Witch at 1.5 glided 1.2 m
-after A and never stopped, braked at 2.0 for 10 frames she stops as the teacher does)."""
+the first `guided_steps` DDIM steps (a guidance interval: measured, it keeps generated
+poses closer but loses the keys, so the engine guides every step;
+docs/records/witch/README.md). Two more sampler settings: `guide_idle` false samples Idle
+frames from the conditional prediction alone (guidance away from the null action's
+average motion pushed a standing avatar backwards: she crept), and `noise_scale` draws
+the starting noise at that temperature (less jitter at rest). `idle_cfg_scale`, where
+set, is the guidance scale of Idle samples in guided steps instead (1.5 for the Witch:
+with the window re-encoded, unguided she glided on for 20 frames, guided at 4.5 she
+stopped in two frames and then crept). The live loop also brakes: the first
+`idle_brake_frames` Idle frames after a key are guided at `idle_brake_cfg_scale`
+(`frame_idle_scales`; the Witch at 1.5 glided 1.2 m after A and never stopped, braked at
+2.0 for 10 frames she stops as the teacher does)."""
 
 from __future__ import annotations
 

@@ -7,7 +7,7 @@ networks (LPIPS, FVD).
 (`unica eval --bundle B --data DATA --out OUT` first drives the teacher headless on the
 key script to make TEACHER.json, then runs this.) The live loop is the trainer's
 reference of the WGSL engine (recentre.rollout re-encoding the slid window, as the
-engine does since session 20), run in PyTorch because a 2-core CPU runs it there ~20× faster than lavapipe.
+engine does), run in PyTorch because a 2-core CPU runs it there ~20× faster than lavapipe.
 
 1. Image level: held-out dataset frames, each generated from its three ground-truth
    context frames and the true action, drawn as splats from the dataset's four cardinal
@@ -63,24 +63,23 @@ HELD_OUT_CLIPS = (4, 13)
 # The stops script: a release after every movement key (`--stops-keys`).
 STOPS_KEYS = "40W 30I 40S 30I 40A 30I 40D 30I"
 STOPS_KEYS_QUICK = "20W 20I 20S 20I 20A 20I 20D 20I"
-# Turns pressed at many phases of the stride (session 26: a model can turn on time from the
-# phase the evaluation's script happens to press at and run on for 16 frames from
-# another): every key held a different number of frames, 4 turns of 180° and 6 of 90°.
+# Turns pressed at many phases of the stride (a model can turn on time from the phase
+# the evaluation's script happens to press at and run on for 16 frames from another): every key held a different number of frames, 4 turns of 180° and 6 of 90°.
 TURNS_KEYS = "45W 40S 41W 42A 43W 44D 45S 46A 47D 48W 49S 30I"
 TURNS_KEYS_QUICK = "20W 21S 22A 23D 20I"
 # Headings of the keys (W +Z, S -Z, A +X, D -X), degrees.
 KEY_HEADINGS = {1: 0.0, 2: 180.0, 3: 90.0, 4: -90.0}
 
 # Held-out frames of the teacher-forced masked score (5a), also in quick mode: it is the
-# headline appearance number, and 2 frames (8 images; quick mode before session 24) are too
-# few to read it: the session-23 bundle scored 23.9 dB on them and 25.3 on these 12.
+# headline appearance number, and 2 frames (8 images) are too few to read it: one bundle
+# scored 23.9 dB on them and 25.3 on these 12.
 # 12 frames cost about a minute.
 MASKED_FRAMES = 12
 # The teacher-forced frames are chosen among every 5th frame (what `unica bake` renders by
 # default), whatever the dataset's render density.
 TEACHER_FORCED_STRIDE = 5
-# What `unica bake` renders without --render-every (results written before session 29
-# have no `render_every`: they were all made so).
+# What `unica bake` renders without --render-every (results without `render_every` were
+# all made so).
 DEFAULT_RENDER_EVERY = 5
 
 
@@ -517,7 +516,7 @@ def teacher_free_running(av: Avatar, frames: Frames, rendered: tuple, count: int
     pose, of the other clips only, since its own frame is rendered where every frame is),
     drawn in that pose's place as refined splats and scored against the pose's renders.
     With every 5th frame rendered most frames are 2-3 frames of the stride from the
-    nearest, and even the teacher scores ~0.83 SSIM (session 29); with every frame
+    nearest, and even the teacher scores ~0.83 SSIM; with every frame
     rendered the clips' shared segments and repeated strides hold the same poses and it
     scores as the ground-truth row."""
     keys, roots, poses = rendered
@@ -573,8 +572,8 @@ def every_turn(path: torch.Tensor, teacher: torch.Tensor, actions: list[int]) ->
     """Each change between movement keys of `actions` (the same change may come several
     times): its label, the first frame under the new key and the frames the path and the
     teacher's take to turn (`metrics.turn_frames`). actions[i] moves path[i] to
-    path[i + 1]: the first frame under the new key is path[switch + 1] (until session 20
-    `switch` was passed, which counted every turn, the teacher's too, one frame long)."""
+    path[i + 1]: the first frame under the new key is path[switch + 1] (passing `switch`
+    instead counts every turn, the teacher's too, one frame long)."""
     return [{"turn": label, "frame": switch, "generated": metrics.turn_frames(path, switch + 1, target),
              "teacher": metrics.turn_frames(teacher, switch + 1, target)}
             for label, switch, target in turn_points(actions)]
