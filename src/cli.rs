@@ -937,8 +937,11 @@ fn view(args: ViewArgs, gpu: GpuOptions) -> anyhow::Result<()> {
     if args.exit_after == Some(0) {
         bail!("--exit-after must be at least 1");
     }
-    // Refuse an unreadable file before the window opens.
-    files::read(&args.file, args.up)?;
+    // Refuse an unreadable file before the window opens, and say what was dropped.
+    let kept = files::read(&args.file, args.up)?;
+    if let Some(note) = kept.note() {
+        eprintln!("warning: {}: {note}", args.file.display());
+    }
     app::run(AppOptions {
         splats: Some(args.file),
         splat_up: args.up,

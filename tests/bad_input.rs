@@ -590,6 +590,47 @@ fn view_refuses_an_empty_ply_in_one_line() {
     assert_one_line_error(&out, &["empty.ply", "0 vertices"]);
 }
 
+#[test]
+fn absurd_splats_are_dropped_with_a_line_that_says_how_many_and_why() {
+    // Log-scales of 80 (5e34 m) and a splat 1e6 m away, beside a sane one.
+    let huge = Splat {
+        scale: glam::Vec3::splat(80f32.exp()),
+        ..splat()
+    };
+    let far = Splat {
+        position: glam::Vec3::new(1e6, 0.0, 0.0),
+        ..splat()
+    };
+    let kept = unica::splat::files::Kept::sane(vec![huge, splat(), far, huge]);
+    assert_eq!((kept.splats.len(), kept.too_large, kept.too_far), (1, 2, 1));
+    assert_eq!(
+        kept.note().unwrap(),
+        "dropped 3 of 4 splats: 2 larger than 1000 m, 1 farther than 100 km from the origin"
+    );
+    assert_eq!(unica::splat::files::Kept::sane(vec![splat()]).note(), None);
+    // Through the file reader: every splat absurd is an error naming the file, and `view`
+    // refuses it in one line before a window opens.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("huge.ply");
+    std::fs::write(&path, encode(&[huge, huge])).unwrap();
+    let err = unica::splat::files::read(&path, Default::default()).unwrap_err();
+    assert!(err.to_string().contains("huge.ply"), "{err}");
+    let out = unica(&["view", path.to_str().unwrap(), "--exit-after", "1"]);
+    assert_one_line_error(
+        &out,
+        &[
+            "huge.ply",
+            "every one of its 2 splats is absurd: 2 larger than 1000 m",
+        ],
+    );
+    // A file with some sane splats reads them, and says what it dropped.
+    let mixed = dir.path().join("mixed.ply");
+    std::fs::write(&mixed, encode(&[huge, splat(), far])).unwrap();
+    let kept = unica::splat::files::read(&mixed, Default::default()).unwrap();
+    assert_eq!(kept.splats.len(), 1);
+    assert!(kept.note().unwrap().starts_with("dropped 2 of 3 splats"));
+}
+
 /// A compressed PLY (SuperSplat's layout) header with `chunks` chunks of the 12 bound
 /// floats and `vertices` packed vertices, with a zero body of the size it declares.
 fn compressed_ply(chunks: usize, vertices: usize) -> Vec<u8> {

@@ -356,7 +356,7 @@ fn export_writes_the_neural_avatars_splats_and_view_refuses_bad_files() {
     );
     assert!(run.status.success(), "{}", stderr(&run));
     use unica::splat::files::{Up, read};
-    let z_up = read(&splat_out, Up::Y).unwrap();
+    let z_up = read(&splat_out, Up::Y).unwrap().splats;
     let (lo_z, hi_z) = z_up.iter().fold(
         (glam::Vec3::INFINITY, glam::Vec3::NEG_INFINITY),
         |(lo, hi), s| (lo.min(s.position), hi.max(s.position)),
@@ -365,7 +365,7 @@ fn export_writes_the_neural_avatars_splats_and_view_refuses_bad_files() {
         ((hi_z.z - lo_z.z) - height).abs() < 1e-3,
         "the file stands along Z: {lo_z} {hi_z}"
     );
-    let back = read(&splat_out, Up::Z).unwrap();
+    let back = read(&splat_out, Up::Z).unwrap().splats;
     assert_eq!(back.len(), splats.len());
     let weight = |s: &unica::splat::ply::Splat| s.scale.x * s.scale.y * s.scale.z * s.opacity;
     let mut unmatched = 0;

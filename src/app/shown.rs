@@ -161,9 +161,12 @@ impl Shown {
         up: crate::splat::files::Up,
     ) -> Self {
         let name = path.display().to_string();
+        let mut note = None;
         let loaded = crate::splat::files::read(path, up)
             .map_err(|e| e.to_string())
-            .and_then(|splats| {
+            .and_then(|kept| {
+                note = kept.note();
+                let splats = kept.splats;
                 let first = splats.first().ok_or(format!("{name}: no splats"))?.position;
                 let bounds = splats.iter().fold((first, first), |(lo, hi), s| {
                     (lo.min(s.position), hi.max(s.position))
@@ -174,7 +177,12 @@ impl Shown {
             });
         match loaded {
             Ok(file_splats) => {
-                let parts = nothing(format!("{name} ({} splats)", file_splats.1));
+                let mut label = format!("{name} ({} splats)", file_splats.1);
+                if let Some(note) = note {
+                    log::warn!("{name}: {note}");
+                    label = format!("{label}; {note}");
+                }
+                let parts = nothing(label);
                 let mut shown = Self::from_parts(gpu, renderer, parts);
                 shown.file_splats = Some(file_splats);
                 shown

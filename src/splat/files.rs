@@ -57,15 +57,85 @@ pub fn is_dot_splat(path: &Path) -> bool {
         .is_some_and(|e| e.eq_ignore_ascii_case("splat"))
 }
 
-/// The splats of a file in unica's Y-up frame; the file's up axis is `up`.
-pub fn read(path: &Path, up: Up) -> Result<Vec<Splat>, PlyError> {
-    let mut splats = if is_dot_splat(path) {
+/// Splats larger than this (metres, along any axis) are dropped on reading: no scene
+/// unica or a 3DGS trainer makes has one, and one such splat covers the whole view (a
+/// PLY with log-scales of 80, scales of 5e34 m, drew an empty scene with no word why).
+pub const MAX_SCALE: f32 = 1_000.0;
+/// Splats farther than this from the origin (metres) are dropped on reading.
+pub const MAX_DISTANCE: f32 = 100_000.0;
+
+/// The splats a reading kept, and how many it dropped for absurd values.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Kept {
+    pub splats: Vec<Splat>,
+    /// Splats larger than [`MAX_SCALE`].
+    pub too_large: usize,
+    /// Splats farther than [`MAX_DISTANCE`].
+    pub too_far: usize,
+}
+
+impl Kept {
+    /// Keeps the splats within [`MAX_SCALE`] and [`MAX_DISTANCE`], counting the others.
+    pub fn sane(splats: Vec<Splat>) -> Self {
+        let mut kept = Self::default();
+        for s in splats {
+            if s.scale.max_element() > MAX_SCALE {
+                kept.too_large += 1;
+            } else if s.position.length() > MAX_DISTANCE {
+                kept.too_far += 1;
+            } else {
+                kept.splats.push(s);
+            }
+        }
+        kept
+    }
+
+    /// The splats dropped.
+    pub fn dropped(&self) -> usize {
+        self.too_large + self.too_far
+    }
+
+    /// One line saying what was dropped and why (None when nothing was).
+    pub fn note(&self) -> Option<String> {
+        (self.dropped() > 0).then(|| {
+            format!(
+                "dropped {} of {} splats: {} larger than {MAX_SCALE} m, {} farther than {} km \
+                 from the origin",
+                self.dropped(),
+                self.dropped() + self.splats.len(),
+                self.too_large,
+                self.too_far,
+                MAX_DISTANCE / 1000.0
+            )
+        })
+    }
+}
+
+/// The splats of a file in unica's Y-up frame (the file's up axis is `up`), without the
+/// absurd ones ([`Kept::sane`]). A file whose every splat is absurd is an error that says
+/// why.
+pub fn read(path: &Path, up: Up) -> Result<Kept, PlyError> {
+    let splats = if is_dot_splat(path) {
         dotsplat::read(path)?
     } else {
         ply::read(path)?
     };
-    rotate(&mut splats, up.to_y_up());
-    Ok(splats)
+    let mut kept = Kept::sane(splats);
+    if kept.splats.is_empty() && kept.dropped() > 0 {
+        return Err(PlyError {
+            path: path.to_path_buf(),
+            problem: format!(
+                "every one of its {} splats is absurd: {} larger than {MAX_SCALE} m, {} farther \
+                 than {} km from the origin",
+                kept.dropped(),
+                kept.too_large,
+                kept.too_far,
+                MAX_DISTANCE / 1000.0
+            ),
+        });
+    }
+    rotate(&mut kept.splats, up.to_y_up());
+    Ok(kept)
 }
 
 /// Writes Y-up `splats` as a `format` file whose up axis is `up`.
@@ -130,10 +200,10 @@ mod tests {
             let path = dir.path().join(name);
             write(&path, &standing, format, Up::Z).unwrap();
             // In the file, Z is up again.
-            let raw = read(&path, Up::Y).unwrap();
+            let raw = read(&path, Up::Y).unwrap().splats;
             assert!(raw[0].position.distance(Vec3::new(0.3, 0.0, 2.0)) < 1e-6);
             assert!(long_axis(&raw[0]).distance(Vec3::Z) < 1e-2, "{name}");
-            let back = read(&path, Up::Z).unwrap();
+            let back = read(&path, Up::Z).unwrap().splats;
             assert!(back[0].position.distance(standing[0].position) < 1e-6);
             assert!(long_axis(&back[0]).distance(Vec3::Y) < 1e-2, "{name}");
             // The .splat's 8-bit rotation is within 1/64 rad; the PLY's exact.
@@ -147,7 +217,7 @@ mod tests {
         let splat = dir.path().join("a.SPLAT");
         write(&splat, &[z_up_splat()], Format::Splat, Up::Y).unwrap();
         assert_eq!(std::fs::read(&splat).unwrap().len(), 32);
-        assert_eq!(read(&splat, Up::Y).unwrap().len(), 1);
+        assert_eq!(read(&splat, Up::Y).unwrap().splats.len(), 1);
         // The same bytes named .ply are not a PLY file.
         let ply = dir.path().join("a.ply");
         std::fs::copy(&splat, &ply).unwrap();

@@ -51,6 +51,7 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from . import bundle as bundle_io
+from . import checkpoint as checkpoint_file
 from . import recentre
 from .dataset import ANCHOR, AFTER_SWITCH, BakedDataset, DatasetError, quarter_turn_action
 from .diffusion import Schedule, brake_options, ddim_step, frame_options, guided_eps, sample_next, sampler_options
@@ -271,7 +272,7 @@ def train(teacher: Teacher, pool: dict, targets: torch.Tensor | None, out: Path,
     ckpt = out / "checkpoint.pt"
     step = 0
     if args.resume and ckpt.exists():
-        saved = torch.load(ckpt, weights_only=True)
+        saved = checkpoint_file.load(ckpt)
         student.load_state_dict(saved["student"])
         ema.load_state_dict(saved["ema"])
         opt.load_state_dict(saved["opt"])
@@ -331,9 +332,7 @@ def train(teacher: Teacher, pool: dict, targets: torch.Tensor | None, out: Path,
             print(f"distil {args.method} {bar(step, args.steps)} {step}/{args.steps} loss {loss.item():.5f} "
                   f"{time.time() - started:.0f} s", flush=True)
         if step % args.checkpoint_every == 0 or step == args.steps:
-            tmp = ckpt.with_name(ckpt.name + ".tmp")
-            torch.save({"student": student.state_dict(), "ema": ema.state_dict(), "opt": opt.state_dict(), "step": step}, tmp)
-            os.replace(tmp, ckpt)
+            checkpoint_file.save({"student": student.state_dict(), "ema": ema.state_dict(), "opt": opt.state_dict(), "step": step}, ckpt)
     return ema.eval()
 
 

@@ -35,6 +35,7 @@ from safetensors.torch import save_file
 from torch import nn
 
 from . import bundle as bundle_io
+from . import checkpoint as checkpoint_file
 from . import pca, splats
 from .dataset import BakedDataset
 
@@ -474,7 +475,7 @@ def train(args) -> dict:
     ckpt = out / "refiner_checkpoint.pt"
     log_path = out / "refiner_losses.csv"
     if args.resume and ckpt.exists():
-        state = torch.load(ckpt)
+        state = checkpoint_file.load(ckpt)
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])
@@ -520,7 +521,7 @@ def train(args) -> dict:
             rate = (done - start) / (time.time() - began)
             print(f"step {done}/{cfg.steps} loss {loss.item():.4f} ({rate:.2f} steps/s, {(cfg.steps - done) / rate / 60:.1f} min left)", flush=True)
         if done % cfg.checkpoint_every == 0 or done == cfg.steps:
-            torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "gen": gen.get_state(), "step": done}, ckpt)
+            checkpoint_file.save({"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "gen": gen.get_state(), "step": done}, ckpt)
     model.eval()
     metrics = evaluate(model, frames, test_keys, level)
     metrics.update({

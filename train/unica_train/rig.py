@@ -35,6 +35,7 @@ import torch.nn.functional as F
 from safetensors.torch import load_file, save_file
 from torch import nn
 
+from . import checkpoint as checkpoint_file
 from .layers import attention
 from .plot import curves
 
@@ -467,7 +468,7 @@ def train(args) -> dict:
     checkpoint, losses = run / f"{kind}_checkpoint.pt", run / f"{kind}_losses.csv"
     start = 0
     if args.resume and checkpoint.exists():
-        state = torch.load(checkpoint, map_location=device, weights_only=False)
+        state = checkpoint_file.load(checkpoint, map_location=device)
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["opt"])
         gen.set_state(state["gen"])
@@ -508,7 +509,7 @@ def train(args) -> dict:
                 print(f"{kind} step {done}/{args.steps} loss {loss.item():.4f}" + (f" held-out {held}" if held else "")
                       + f" ({rate:.2f} steps/s, {(args.steps - done) / rate / 60:.1f} min left)", flush=True)
             if done % CHECKPOINT_EVERY == 0 or done == args.steps:
-                torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "gen": gen.get_state(), "step": done, "extra": extra}, checkpoint)
+                checkpoint_file.save({"model": model.state_dict(), "opt": opt.state_dict(), "gen": gen.get_state(), "step": done, "extra": extra}, checkpoint)
     export(model, run, kind, extra)
     write_curve(losses, run / f"{kind}_curve.png")
     result = {}

@@ -34,6 +34,7 @@ from pathlib import Path
 import torch
 
 from . import bundle, pca
+from . import checkpoint as checkpoint_file
 from .dataset import ANCHOR, BakedDataset, DatasetError, quarter_turn, quarter_turn_action
 from .diffusion import Schedule, sample_next
 from .plot import curves
@@ -226,7 +227,7 @@ class Run:
         of the unturned groups."""
         path = self.out / "checkpoints" / "latents.pt"
         if path.exists():
-            saved = torch.load(path)
+            saved = checkpoint_file.load(path)
             self.turned = saved.get("turned")
             return saved["latents"], saved["scale"]
         latents = self._encode(vae, range(len(self.groups)), 0, "latents")
@@ -237,7 +238,7 @@ class Run:
                 self.turned[turns - 1, self.train_groups] = self._encode(vae, self.train_groups, turns, f"latents turned {turns * 90}°")
         scale = float(1.0 / latents[self.train_groups].std())
         if self.rank == 0:
-            torch.save({"latents": latents, "scale": scale, "turned": self.turned}, path)
+            checkpoint_file.save({"latents": latents, "scale": scale, "turned": self.turned}, path)
         return latents, scale
 
     @torch.no_grad()
@@ -367,15 +368,13 @@ class Run:
         if self.rank != 0:
             return
         path = self.out / "checkpoints" / f"{name}.pt"
-        tmp = path.with_suffix(".tmp")
-        torch.save({"step": step, **{k: v.state_dict() for k, v in parts.items()}}, tmp)
-        tmp.replace(path)
+        checkpoint_file.save({"step": step, **{k: v.state_dict() for k, v in parts.items()}}, path)
 
     def restore(self, name: str, resume: bool, parts: dict) -> int:
         path = self.out / "checkpoints" / f"{name}.pt"
         if not (resume and path.exists()):
             return 0
-        saved = torch.load(path)
+        saved = checkpoint_file.load(path)
         for k, v in parts.items():
             v.load_state_dict(saved[k])
         print(f"resumed {name} at step {saved['step']}", flush=True)

@@ -1,0 +1,87 @@
+"""Checkpoints cannot run code (a pickle that would is refused on every resume path) and
+are never seen half-written."""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import pytest
+import torch
+
+from unica_train import checkpoint
+
+PACKAGE = Path(checkpoint.__file__).parent
+
+
+class RunsCode:
+    """Unpickling this calls `open(marker, "w")`: a stand-in for any code a pickle can run."""
+
+    def __init__(self, marker: Path):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (open, (str(self.marker), "w"))
+
+
+def test_a_checkpoint_that_would_run_code_is_refused_with_its_name(tmp_path):
+    marker = tmp_path / "ran"
+    bad = tmp_path / "checkpoint.pt"
+    torch.save({"model": {"w": torch.zeros(2)}, "step": 3, "payload": RunsCode(marker)}, bad)
+    with pytest.raises(checkpoint.UnsafeCheckpoint) as refused:
+        checkpoint.load(bad)
+    message = str(refused.value)
+    assert message.startswith(f"error: {bad}: ") and "\n" not in message, message
+    assert not marker.exists(), "loading the checkpoint ran its code"
+    # The same file through plain pickle would have run it: the test's payload is real.
+    torch.load(bad, weights_only=False)
+    assert marker.exists()
+
+
+def test_tensors_and_plain_data_round_trip(tmp_path):
+    path = tmp_path / "state.pt"
+    gen = torch.Generator().manual_seed(7)
+    state = {"model": {"w": torch.arange(6.0).reshape(2, 3)}, "gen": gen.get_state(), "step": 12,
+             "extra": {"train": {"lr": 1e-3, "data": "x"}, "beta": 0.5, "list": [1, 2]}}
+    checkpoint.save(state, path)
+    loaded = checkpoint.load(path)
+    assert torch.equal(loaded["model"]["w"], state["model"]["w"])
+    assert torch.equal(loaded["gen"], state["gen"]) and loaded["extra"] == state["extra"]
+    assert not (tmp_path / "state.pt.tmp").exists()
+
+
+def test_a_save_killed_part_way_leaves_the_previous_checkpoint_whole(tmp_path):
+    path = tmp_path / "state.pt"
+    checkpoint.save({"step": 1}, path)
+    # A run killed while writing leaves only the temporary file behind, half written.
+    (tmp_path / "state.pt.tmp").write_bytes(b"\x80\x02half")
+    assert checkpoint.load(path)["step"] == 1
+    checkpoint.save({"step": 2}, path)
+    assert checkpoint.load(path)["step"] == 2 and not (tmp_path / "state.pt.tmp").exists()
+
+
+def test_a_truncated_checkpoint_is_an_error_naming_it(tmp_path):
+    path = tmp_path / "state.pt"
+    checkpoint.save({"step": 1, "w": torch.zeros(100)}, path)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    with pytest.raises(checkpoint.UnsafeCheckpoint, match=re.escape(str(path))):
+        checkpoint.load(path)
+
+
+def test_every_resume_path_reads_through_checkpoint_load():
+    # Every torch.load in the trainer is checkpoint.load's own; the resume paths (geometry
+    # trainer, its latents cache, refiner, distillation, auto-rig trainer) call it.
+    loads = {}
+    for file in sorted(PACKAGE.glob("*.py")):
+        text = file.read_text()
+        loads[file.name] = len(re.findall(r"torch\.load\(", text))
+        assert "weights_only=False" not in text, file
+    assert {k: v for k, v in loads.items() if v} == {"checkpoint.py": 1}, loads
+    for name, count in {"train.py": 2, "refiner.py": 1, "distil.py": 1, "rig.py": 1}.items():
+        assert (PACKAGE / name).read_text().count("checkpoint_file.load(") == count, name
+    # And every checkpoint is written through checkpoint.save (temporary file, renamed).
+    saves = {f.name: len(re.findall(r"torch\.save\(", f.read_text())) for f in PACKAGE.glob("*.py")}
+    assert {k: v for k, v in saves.items() if v} == {"checkpoint.py": 1}, saves
+    assert os.path.exists(PACKAGE / "checkpoint.py")
