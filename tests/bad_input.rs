@@ -209,6 +209,68 @@ fn empty_and_garbage_glb_files_and_a_missing_bin_say_so() {
 }
 
 #[test]
+fn buffer_and_image_uris_are_relative_paths_or_data_and_nothing_else() {
+    let bin = triangle_bin(GOOD, 1.0);
+    let cases = [
+        (
+            "http://example.com/t.bin",
+            "is not a relative file path or a data: URI",
+        ),
+        (
+            "file:///etc/passwd",
+            "is not a relative file path or a data: URI",
+        ),
+        ("ftp:t.bin", "is not a relative file path or a data: URI"),
+        ("/etc/passwd", "is an absolute path"),
+        ("\\\\server\\share\\t.bin", "is an absolute path"),
+    ];
+    for (uri, why) in cases {
+        let err = gltf_error(&bin, |doc| doc["buffers"][0]["uri"] = json!(uri));
+        assert!(
+            err.contains("t.gltf") && err.contains(&format!("buffer 0's URI '{uri}' {why}")),
+            "{uri}: {err}"
+        );
+        let err = gltf_error(&bin, |doc| doc["images"] = json!([{"uri": uri}]));
+        assert!(
+            err.contains(&format!("image 0's URI '{uri}' {why}")),
+            "{uri}: {err}"
+        );
+    }
+    // A relative path beside the file, and inline data, load.
+    let dir = tempfile::tempdir().unwrap();
+    let inline = format!(
+        "data:application/octet-stream;base64,{}",
+        base64_encode(&bin)
+    );
+    let path = write_gltf(dir.path(), &bin, |doc| {
+        doc["buffers"][0]["uri"] = json!(inline)
+    });
+    load_character(&path).unwrap();
+}
+
+/// Standard base64 (for a `data:` URI).
+fn base64_encode(bytes: &[u8]) -> String {
+    const ALPHABET: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::new();
+    for chunk in bytes.chunks(3) {
+        let b = [
+            chunk[0],
+            *chunk.get(1).unwrap_or(&0),
+            *chunk.get(2).unwrap_or(&0),
+        ];
+        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
+        for k in 0..4 {
+            if k <= chunk.len() {
+                out.push(ALPHABET[(n >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
+}
+
+#[test]
 fn bake_reports_a_bad_character_in_one_line() {
     let dir = tempfile::tempdir().unwrap();
     // All vertices NaN: this panicked in the spring placement (a clamp).

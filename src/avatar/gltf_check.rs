@@ -59,7 +59,13 @@ pub fn import(path: &Path) -> Result<Imported, LoadError> {
             gltf::image::Source::View { .. } => None,
         }));
     for (kind, index, uri) in uris {
-        let plain = !uri.starts_with("data:") && !uri.contains("://") && !uri.contains('%');
+        if let Some(why) = refused_uri(uri) {
+            return Err(fail(
+                path,
+                format!("{kind} {index}'s URI '{}' {why}", short(uri)),
+            ));
+        }
+        let plain = !uri.starts_with("data:") && !uri.contains('%');
         let file = base.join(uri);
         if plain && !file.is_file() {
             let name = path.file_name().unwrap_or_default().to_string_lossy();
@@ -76,6 +82,37 @@ pub fn import(path: &Path) -> Result<Imported, LoadError> {
     let images = gltf::import_images(&document, Some(base), &buffers)
         .map_err(|e| fail(path, format!("images: {e}")))?;
     Ok((document, buffers, images))
+}
+
+/// Why a buffer or image URI is refused, if it is: a file may point only at files beside
+/// it (a relative path) or carry its data inline (`data:`). Another scheme would fetch
+/// from elsewhere (`http:`, `file:`), and an absolute path reads any file on the machine.
+fn refused_uri(uri: &str) -> Option<&'static str> {
+    if uri.starts_with("data:") {
+        return None;
+    }
+    let scheme = uri.split_once(':').is_some_and(|(head, _)| {
+        head.chars().next().is_some_and(|c| c.is_ascii_alphabetic())
+            && head
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || "+-.".contains(c))
+    });
+    if scheme {
+        return Some("is not a relative file path or a data: URI");
+    }
+    if uri.starts_with('/') || uri.starts_with('\\') {
+        return Some("is an absolute path (only paths relative to the file are read)");
+    }
+    None
+}
+
+/// `uri` cut to 60 characters for an error line.
+fn short(uri: &str) -> String {
+    if uri.chars().count() <= 60 {
+        uri.to_string()
+    } else {
+        format!("{}…", uri.chars().take(60).collect::<String>())
+    }
 }
 
 /// Runs `read` (everything that touches the `gltf` crate for `path`) and turns a panic
