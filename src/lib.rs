@@ -32,8 +32,7 @@ pub fn shaders() -> Vec<gpu::shaders::Shader> {
     [
         gpu::shaders::ALL,
         &nn::ops::shaders(),
-        splat::kernels::ALL,
-        splat::frame::ALL,
+        &splat::shaders(),
         engine::kernels::ALL,
         render::scene::ALL,
     ]

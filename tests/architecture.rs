@@ -60,8 +60,6 @@ const KNOWN_CIRCLES: &[&str] = &[
     "src/avatar/character.rs <-> src/avatar/gltf_check.rs",
     "src/avatar/description.rs <-> src/avatar/loose.rs <-> src/avatar/teacher.rs",
     "src/gpu/kernel.rs <-> src/gpu/shaders.rs <-> src/gpu/texels.rs",
-    "src/splat/composite.rs <-> src/splat/kernels.rs <-> src/splat/raster.rs <-> src/splat/upscale.rs",
-    "src/splat/compressed_ply.rs <-> src/splat/ply.rs",
 ];
 
 /// A use of another module: the line it is on, the module path it names (crate-rooted),

@@ -262,7 +262,7 @@ use crate::wgsl_shader as shader;
 use super::kernel::{ElementwiseParams, Precision, ReduceParams};
 
 // The GPU layer's own example kernels; every stage declares its own shaders beside its
-// dispatch code (`nn::ops`, `splat::kernels`, `splat::frame`, `engine::kernels`,
+// dispatch code (`nn::ops`, `splat::raster` and its neighbours, `engine::kernels`,
 // `render::scene`), and `crate::shaders()` lists them all.
 pub const SCALE_ADD: Shader = shader!("gpu/scale_add.wgsl", [ElementwiseParams], elem);
 pub const SUM_SHARED: Shader =

@@ -1,11 +1,18 @@
 //! Drawing rasterized splats into a render target over what is already there (the
 //! scene's grid and meshes): see shaders/splat_composite.wgsl.
 
-use super::kernels;
 use crate::gpu::GpuContext;
 use crate::gpu::kernel::{Precision, uniform};
+use crate::gpu::shaders::Shader;
 use crate::gpu_struct;
 use crate::render::RenderTarget;
+use crate::wgsl_shader as shader;
+
+pub const SPLAT_COMPOSITE: Shader =
+    shader!("splat/splat_composite.wgsl", [CompositeParams], f16: false, subgroups: false);
+
+/// Every shader of this file (gathered by `splat::shaders`).
+pub const SHADERS: &[Shader] = &[SPLAT_COMPOSITE];
 
 gpu_struct! {
     /// The splat image's size.
@@ -24,7 +31,7 @@ pub struct Compositor {
 
 impl Compositor {
     pub fn new(gpu: &GpuContext, format: wgpu::TextureFormat) -> Self {
-        let module = kernels::SPLAT_COMPOSITE.module(&gpu.device, Precision::F32);
+        let module = SPLAT_COMPOSITE.module(&gpu.device, Precision::F32);
         let blend = wgpu::BlendComponent {
             src_factor: wgpu::BlendFactor::One,
             dst_factor: wgpu::BlendFactor::OneMinusSrcAlpha,

@@ -18,7 +18,7 @@
 
 use glam::{Quat, Vec3};
 
-use super::ply::{Element, Format, Property, SH_C0, Splat, number, skip_binary, type_size};
+use super::ply_layout::{Element, Format, Property, SH_C0, Splat, number, skip_binary, type_size};
 
 /// Splats per chunk.
 pub const CHUNK: usize = 256;

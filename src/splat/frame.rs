@@ -12,7 +12,6 @@
 use glam::Vec3;
 
 use super::base::{self, OPACITY, RESIDUALS, SPREAD, THICKNESS};
-use super::kernels;
 use super::ply::SH_C0;
 use super::raster::GpuSplat;
 use super::upscale::UpscaleParams;
@@ -640,7 +639,7 @@ impl SplatFrame {
             sp.first = first as u32;
             b.dispatch(&SCATTER, &sp, &[rows, &c.pixels, &f.map], coarse_grid);
             b.dispatch(
-                &kernels::UPSCALE_MAP,
+                &super::upscale::UPSCALE_MAP,
                 &upscale,
                 &[&f.map, &f.mask, &f.up_map, &f.up_mask],
                 up_grid,

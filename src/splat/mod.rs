@@ -12,8 +12,19 @@ pub mod compressed_ply;
 pub mod dotsplat;
 pub mod files;
 pub mod frame;
-pub mod kernels;
 pub mod ply;
+pub mod ply_layout;
 pub mod project;
 pub mod raster;
 pub mod upscale;
+
+/// Every shader of the splat stage, from the files that dispatch them.
+pub fn shaders() -> Vec<crate::gpu::shaders::Shader> {
+    [
+        raster::SHADERS,
+        composite::SHADERS,
+        upscale::SHADERS,
+        frame::ALL,
+    ]
+    .concat()
+}

@@ -9,29 +9,8 @@ use std::path::{Path, PathBuf};
 
 use glam::{Quat, Vec3};
 
-/// One Gaussian with the file's activations undone: opacity in (0, 1), linear scales.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Splat {
-    pub position: Vec3,
-    /// SH degree-0 coefficients (colour = 0.5 + SH_C0 · f_dc).
-    pub f_dc: Vec3,
-    pub opacity: f32,
-    pub scale: Vec3,
-    pub rotation: Quat,
-}
-
-/// The SH degree-0 constant, 1 / (2√π).
-/// The smallest scale written (1 nm): zero footprints are written as this.
-pub const MIN_SCALE: f32 = 1e-9;
-
-pub const SH_C0: f32 = 0.282_094_8;
-
-impl Splat {
-    /// Linear RGB colour from the degree-0 coefficients.
-    pub fn color(&self) -> Vec3 {
-        Vec3::splat(0.5) + SH_C0 * self.f_dc
-    }
-}
+use super::ply_layout::{Element, Format, Property, number, skip_binary, type_size};
+pub use super::ply_layout::{MIN_SCALE, SH_C0, Splat};
 
 #[derive(Debug, thiserror::Error)]
 #[error("{}: {problem}", path.display())]
@@ -113,37 +92,6 @@ pub(crate) fn read_with(
         path: path.to_path_buf(),
         problem,
     })
-}
-
-#[derive(Clone, Copy, PartialEq)]
-pub(super) enum Format {
-    Ascii,
-    Little,
-    Big,
-}
-
-/// A property's byte size by PLY type name.
-pub(super) fn type_size(name: &str) -> Option<usize> {
-    Some(match name {
-        "char" | "uchar" | "int8" | "uint8" => 1,
-        "short" | "ushort" | "int16" | "uint16" => 2,
-        "int" | "uint" | "float" | "int32" | "uint32" | "float32" => 4,
-        "double" | "float64" => 8,
-        _ => return None,
-    })
-}
-
-/// One property of a PLY element: a scalar, or a list (its count's type and its items').
-pub(super) enum Property {
-    Scalar(String, String),
-    List(String, String),
-}
-
-/// An element of the header: name, count and properties, in file order.
-pub(super) struct Element {
-    pub(super) name: String,
-    pub(super) count: usize,
-    pub(super) properties: Vec<Property>,
 }
 
 /// Where the header ends and the body starts (after `end_header` and its LF or CRLF).
@@ -329,66 +277,6 @@ fn skip_ascii<'a>(
     Ok(())
 }
 
-/// Skips a binary element from `offset`; returns the offset after it.
-pub(super) fn skip_binary(
-    body: &[u8],
-    mut offset: usize,
-    format: Format,
-    element: &Element,
-) -> Result<usize, String> {
-    let ended = || format!("the file ends inside element '{}'", element.name);
-    let fixed: Option<usize> = element
-        .properties
-        .iter()
-        .map(|p| match p {
-            Property::Scalar(ty, _) => type_size(ty),
-            Property::List(..) => None,
-        })
-        .sum();
-    if let Some(stride) = fixed {
-        let end = stride
-            .checked_mul(element.count)
-            .and_then(|n| n.checked_add(offset))
-            .filter(|&end| end <= body.len())
-            .ok_or_else(ended)?;
-        return Ok(end);
-    }
-    for _ in 0..element.count {
-        for property in &element.properties {
-            let (size, items) = match property {
-                Property::Scalar(ty, _) => (type_size(ty).expect("checked"), 0),
-                Property::List(count_ty, item_ty) => {
-                    let size = type_size(count_ty).expect("checked");
-                    let raw = body.get(offset..offset + size).ok_or_else(ended)?;
-                    let n = number(count_ty, raw, format);
-                    if n.is_nan() || n < 0.0 {
-                        return Err(format!("element '{}': bad list length {n}", element.name));
-                    }
-                    (
-                        size,
-                        (n as usize).saturating_mul(type_size(item_ty).expect("checked")),
-                    )
-                }
-            };
-            offset = offset
-                .checked_add(size)
-                .and_then(|o| o.checked_add(items))
-                .filter(|&o| o <= body.len())
-                .ok_or_else(ended)?;
-        }
-    }
-    Ok(offset)
-}
-
-/// One value of PLY type `ty` in `format`, as f32.
-pub(super) fn number(ty: &str, raw: &[u8], format: Format) -> f32 {
-    let mut raw = raw.to_vec();
-    if format == Format::Big {
-        raw.reverse();
-    }
-    value(ty, &raw)
-}
-
 /// The vertices' properties from ASCII words, row-major.
 fn read_ascii<'a>(
     words: &mut impl Iterator<Item = &'a str>,
@@ -448,20 +336,6 @@ fn read_rows(
         }
     }
     Ok(out)
-}
-
-/// One little-endian value of PLY type `ty` as f32.
-fn value(ty: &str, raw: &[u8]) -> f32 {
-    match ty {
-        "float" | "float32" => f32::from_le_bytes(raw.try_into().expect("4 bytes")),
-        "double" | "float64" => f64::from_le_bytes(raw.try_into().expect("8 bytes")) as f32,
-        "char" | "int8" => raw[0] as i8 as f32,
-        "uchar" | "uint8" => raw[0] as f32,
-        "short" | "int16" => i16::from_le_bytes(raw.try_into().expect("2 bytes")) as f32,
-        "ushort" | "uint16" => u16::from_le_bytes(raw.try_into().expect("2 bytes")) as f32,
-        "int" | "int32" => i32::from_le_bytes(raw.try_into().expect("4 bytes")) as f32,
-        _ => u32::from_le_bytes(raw.try_into().expect("4 bytes")) as f32,
-    }
 }
 
 #[cfg(test)]

@@ -4,15 +4,44 @@
 //! front-to-back blending with early stop. Everything is recorded into one command
 //! encoder; only the caller reads the image back.
 
+use crate::wgsl_shader as shader;
 use glam::{Mat4, Vec3};
 
-use super::kernels;
 use super::ply::Splat;
 use super::project::SplatCamera;
 use crate::gpu::kernel::{Grid, PipelineCache, Precision, dispatch, uniform};
 use crate::gpu::shaders::Shader;
 use crate::gpu::{GpuContext, GpuError};
 use crate::gpu_struct;
+
+pub const SPLAT_PROJECT: Shader = shader!("splat/splat_project.wgsl", [SplatFrame, GpuSplat, ProjectedSplat], f16: false, subgroups: false);
+pub const SCAN_BLOCKS: Shader =
+    shader!("splat/scan_blocks.wgsl", [ScanParams], f16: false, subgroups: false);
+pub const SCAN_ADD: Shader =
+    shader!("splat/scan_add.wgsl", [ScanParams], f16: false, subgroups: false);
+pub const SPLAT_KEYS: Shader =
+    shader!("splat/splat_keys.wgsl", [SplatFrame, ProjectedSplat], f16: false, subgroups: false);
+pub const RADIX_HISTOGRAM: Shader =
+    shader!("splat/radix_histogram.wgsl", [RadixParams], f16: false, subgroups: false);
+pub const RADIX_SCATTER: Shader =
+    shader!("splat/radix_scatter.wgsl", [RadixParams], f16: false, subgroups: false);
+pub const SPLAT_RANGES: Shader =
+    shader!("splat/splat_ranges.wgsl", [SplatFrame], f16: false, subgroups: false);
+pub const SPLAT_RENDER: Shader =
+    shader!("splat/splat_render.wgsl", [SplatFrame, ProjectedSplat], f16: false, subgroups: false)
+        .with_uints(&[("TILE", super::project::TILE)]);
+
+/// Every shader of this file (gathered by `splat::shaders`).
+pub const SHADERS: &[Shader] = &[
+    SPLAT_PROJECT,
+    SCAN_BLOCKS,
+    SCAN_ADD,
+    SPLAT_KEYS,
+    RADIX_HISTOGRAM,
+    RADIX_SCATTER,
+    SPLAT_RANGES,
+    SPLAT_RENDER,
+];
 
 gpu_struct! {
     /// The camera and sizes of one rasterized frame.
@@ -256,7 +285,7 @@ impl Rasterizer {
         self.run(
             gpu,
             encoder,
-            &kernels::SPLAT_PROJECT,
+            &SPLAT_PROJECT,
             &[&frame, splats, &b.projected, &b.touched],
             threads(count),
         );
@@ -271,13 +300,7 @@ impl Rasterizer {
             &b.values[0],
             &b.info,
         ];
-        self.run(
-            gpu,
-            encoder,
-            &kernels::SPLAT_KEYS,
-            &bindings,
-            threads(count),
-        );
+        self.run(gpu, encoder, &SPLAT_KEYS, &bindings, threads(count));
         for pass in 0..4 {
             let (from, to) = (pass % 2, 1 - pass % 2);
             let params = uniform(
@@ -290,13 +313,7 @@ impl Rasterizer {
                 },
             );
             let bindings = [&params, &b.keys[from], &b.info, &b.hist];
-            self.run(
-                gpu,
-                encoder,
-                &kernels::RADIX_HISTOGRAM,
-                &bindings,
-                groups(blocks),
-            );
+            self.run(gpu, encoder, &RADIX_HISTOGRAM, &bindings, groups(blocks));
             self.scan(gpu, encoder, &b.hist, 256 * blocks)?;
             let bindings = [
                 &params,
@@ -307,19 +324,13 @@ impl Rasterizer {
                 &b.keys[to],
                 &b.values[to],
             ];
-            self.run(
-                gpu,
-                encoder,
-                &kernels::RADIX_SCATTER,
-                &bindings,
-                groups(blocks),
-            );
+            self.run(gpu, encoder, &RADIX_SCATTER, &bindings, groups(blocks));
         }
         encoder.clear_buffer(&b.ranges, 0, None);
         self.run(
             gpu,
             encoder,
-            &kernels::SPLAT_RANGES,
+            &SPLAT_RANGES,
             &[&b.keys[0], &b.info, &b.ranges],
             threads(capacity),
         );
@@ -327,7 +338,7 @@ impl Rasterizer {
         self.run(
             gpu,
             encoder,
-            &kernels::SPLAT_RENDER,
+            &SPLAT_RENDER,
             &bindings,
             groups((tiles_x * tiles_y) as usize),
         );
@@ -362,22 +373,10 @@ impl Rasterizer {
             blocks as u32,
             gpu.device.limits().max_compute_workgroups_per_dimension,
         );
-        self.run(
-            gpu,
-            encoder,
-            &kernels::SCAN_BLOCKS,
-            &[&params, data, &sums],
-            grid,
-        );
+        self.run(gpu, encoder, &SCAN_BLOCKS, &[&params, data, &sums], grid);
         if blocks > 1 {
             self.scan(gpu, encoder, &sums, blocks)?;
-            self.run(
-                gpu,
-                encoder,
-                &kernels::SCAN_ADD,
-                &[&params, data, &sums],
-                grid,
-            );
+            self.run(gpu, encoder, &SCAN_ADD, &[&params, data, &sums], grid);
         }
         Ok(())
     }

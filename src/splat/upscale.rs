@@ -1,10 +1,17 @@
 //! Foreground-aware upscaling of 3-channel maps (DESIGN §7: 128² → 1024²): the GPU kernel
 //! (shaders/upscale_map.wgsl) and its CPU reference, the same arithmetic in f32.
 
-use super::kernels;
 use crate::gpu::kernel::{Grid, PipelineCache, Precision, dispatch, uniform};
+use crate::gpu::shaders::Shader;
 use crate::gpu::{GpuContext, GpuError};
 use crate::gpu_struct;
+use crate::wgsl_shader as shader;
+
+pub const UPSCALE_MAP: Shader =
+    shader!("splat/upscale_map.wgsl", [UpscaleParams], f16: false, subgroups: false);
+
+/// Every shader of this file (gathered by `splat::shaders`).
+pub const SHADERS: &[Shader] = &[UPSCALE_MAP];
 
 gpu_struct! {
     /// A `width × height` map upscaled by `factor`.
@@ -92,7 +99,7 @@ pub fn record(
         reserved: 0,
     };
     let params = uniform(gpu, &params);
-    let pipeline = pipelines.get(&gpu.device, &kernels::UPSCALE_MAP, Precision::F32);
+    let pipeline = pipelines.get(&gpu.device, &UPSCALE_MAP, Precision::F32);
     let grid = Grid::for_elements(
         pixels as u32,
         gpu.device.limits().max_compute_workgroups_per_dimension,
