@@ -30,7 +30,7 @@ pub fn snippets() -> Vec<gpu::shaders::Snippet> {
 /// that this covers every file under `shaders/` and that each parses and validates).
 pub fn shaders() -> Vec<gpu::shaders::Shader> {
     [
-        gpu::shaders::ALL,
+        gpu::kernel::SHADERS,
         &nn::ops::shaders(),
         &splat::shaders(),
         engine::kernels::ALL,

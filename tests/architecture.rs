@@ -59,7 +59,6 @@ const RULES: &[Rule] = &[
 const KNOWN_CIRCLES: &[&str] = &[
     "src/avatar/character.rs <-> src/avatar/gltf_check.rs",
     "src/avatar/description.rs <-> src/avatar/loose.rs <-> src/avatar/teacher.rs",
-    "src/gpu/kernel.rs <-> src/gpu/shaders.rs <-> src/gpu/texels.rs",
 ];
 
 /// A use of another module: the line it is on, the module path it names (crate-rooted),

@@ -3,13 +3,14 @@
 
 use std::collections::HashMap;
 
-use super::shaders::{self, Shader};
+use super::shaders::Shader;
 use super::timing::PassTimer;
 use super::{GpuContext, GpuError, readback};
 use crate::gpu_struct;
+use crate::wgsl_shader as shader;
 
-/// Threads per workgroup of the 1-D kernels (`@workgroup_size(64)` in their WGSL).
-pub const WORKGROUP_SIZE: u32 = 64;
+pub use super::precision::Precision;
+pub use super::shaders::WORKGROUP_SIZE;
 
 gpu_struct! {
     /// Parameters of element-wise kernels: `y = scale * x + bias` over `len` elements.
@@ -30,6 +31,18 @@ gpu_struct! {
         pub pad2: u32,
     }
 }
+
+// The GPU layer's own example kernels, declared beside their dispatch code as every
+// stage's are (`nn::ops`, `splat::raster` and its neighbours, `engine::kernels`,
+// `render::scene`); `crate::shaders()` lists them all.
+pub const SCALE_ADD: Shader = shader!("gpu/scale_add.wgsl", [ElementwiseParams], elem);
+pub const SUM_SHARED: Shader =
+    shader!("gpu/sum_shared.wgsl", [ReduceParams], f16: false, subgroups: false);
+pub const SUM_SUBGROUP: Shader =
+    shader!("gpu/sum_subgroup.wgsl", [ReduceParams], f16: false, subgroups: true);
+
+/// The GPU layer's shaders.
+pub const SHADERS: &[Shader] = &[SCALE_ADD, SUM_SHARED, SUM_SUBGROUP];
 
 /// A 2-D dispatch covering `workgroups` linear workgroups with at most `max_per_dim` per
 /// dimension; kernels recover the linear index as `id.x + id.y * num_workgroups.x` and
@@ -134,56 +147,6 @@ pub fn dispatch(
     pass.dispatch_workgroups(grid.x, grid.y, 1);
 }
 
-/// Which element type kernels store (`Elem` in WGSL): f16 where the device has
-/// SHADER_F16 and the caller wants it; arithmetic is f32 either way.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Precision {
-    F32,
-    F16,
-}
-
-impl Precision {
-    /// Bytes per stored value.
-    pub fn bytes(self) -> usize {
-        match self {
-            Self::F32 => 4,
-            Self::F16 => 2,
-        }
-    }
-
-    /// `values` as this precision's bytes (f16: rounded to nearest).
-    pub fn encode(self, values: &[f32]) -> Vec<u8> {
-        match self {
-            Self::F32 => bytemuck::cast_slice(values).to_vec(),
-            Self::F16 => {
-                let halves: Vec<half::f16> =
-                    values.iter().map(|&v| half::f16::from_f32(v)).collect();
-                bytemuck::cast_slice(&halves).to_vec()
-            }
-        }
-    }
-
-    /// Stored bytes back to f32 values.
-    pub fn decode(self, raw: &[u8]) -> Vec<f32> {
-        match self {
-            Self::F32 => bytemuck::pod_collect_to_vec(raw),
-            Self::F16 => bytemuck::pod_collect_to_vec::<u8, half::f16>(raw)
-                .iter()
-                .map(|v| v.to_f32())
-                .collect(),
-        }
-    }
-
-    /// The best precision path the device supports (f16 storage halves bandwidth).
-    pub fn preferred(gpu: &GpuContext) -> Self {
-        if gpu.caps.shader_f16 {
-            Self::F16
-        } else {
-            Self::F32
-        }
-    }
-}
-
 /// A uniform buffer holding `value` (kernel parameters).
 pub fn uniform<T: bytemuck::Pod>(gpu: &GpuContext, value: &T) -> wgpu::Buffer {
     let buffer = gpu.create_buffer(&wgpu::BufferDescriptor {
@@ -233,9 +196,7 @@ impl ScaleAdd {
             pad: 0,
         };
         Ok(Self {
-            pipeline: cache
-                .get(&gpu.device, &shaders::SCALE_ADD, precision)
-                .clone(),
+            pipeline: cache.get(&gpu.device, &SCALE_ADD, precision).clone(),
             params: uniform(gpu, &params),
             input,
             output,
@@ -299,9 +260,9 @@ pub fn scale_add(
 /// workgroup shared memory otherwise.
 pub fn sum(gpu: &GpuContext, cache: &mut PipelineCache, x: &[f32]) -> Result<f32, GpuError> {
     let shader = if gpu.caps.subgroups {
-        &shaders::SUM_SUBGROUP
+        &SUM_SUBGROUP
     } else {
-        &shaders::SUM_SHARED
+        &SUM_SHARED
     };
     let input = gpu.storage_buffer_init(
         "sum.x",

@@ -4,6 +4,7 @@
 pub mod counters;
 pub mod kernel;
 pub mod plan;
+pub mod precision;
 pub mod readback;
 pub mod shaders;
 pub mod texels;

@@ -3,6 +3,11 @@
 
 use std::borrow::Cow;
 
+use super::precision::Precision;
+
+/// Threads per workgroup of the 1-D kernels (`WORKGROUP` in the prelude below).
+pub const WORKGROUP_SIZE: u32 = 64;
+
 /// A Rust type with a WGSL spelling of the same size and alignment.
 pub trait WgslType {
     const WGSL: &'static str;
@@ -124,7 +129,7 @@ macro_rules! wgsl_snippet {
 }
 
 /// What every shader starts with (after its `enable` and `Elem` lines): the workgroup
-/// size of the 1-D kernels from [`WORKGROUP_SIZE`](super::kernel::WORKGROUP_SIZE), the
+/// size of the 1-D kernels from [`WORKGROUP_SIZE`], the
 /// entry point's builtins with the linear index of a 2-D dispatch grid
 /// (see [`Grid`](super::kernel::Grid)), and the fetch of one texel of a flat array held
 /// as [`Texels`](super::texels::Texels), so no kernel repeats them.
@@ -149,7 +154,7 @@ fn texel_u32(t: texture_2d<u32>, i: u32) -> vec4<u32> {{
     return textureLoad(t, vec2<u32>(i & (TEXEL_ROW - 1u), i / TEXEL_ROW), 0);
 }}
 ",
-        super::kernel::WORKGROUP_SIZE,
+        WORKGROUP_SIZE,
         super::texels::TEXEL_ROW
     )
 }
@@ -257,18 +262,3 @@ macro_rules! wgsl_shader {
         }
     };
 }
-use crate::wgsl_shader as shader;
-
-use super::kernel::{ElementwiseParams, Precision, ReduceParams};
-
-// The GPU layer's own example kernels; every stage declares its own shaders beside its
-// dispatch code (`nn::ops`, `splat::raster` and its neighbours, `engine::kernels`,
-// `render::scene`), and `crate::shaders()` lists them all.
-pub const SCALE_ADD: Shader = shader!("gpu/scale_add.wgsl", [ElementwiseParams], elem);
-pub const SUM_SHARED: Shader =
-    shader!("gpu/sum_shared.wgsl", [ReduceParams], f16: false, subgroups: false);
-pub const SUM_SUBGROUP: Shader =
-    shader!("gpu/sum_subgroup.wgsl", [ReduceParams], f16: false, subgroups: true);
-
-/// The GPU layer's shaders.
-pub const ALL: &[Shader] = &[SCALE_ADD, SUM_SHARED, SUM_SUBGROUP];

@@ -10,7 +10,7 @@
 //! kernel is copied into its texels just before the kernel that reads it
 //! ([`Texels::record_copy`]: a plain copy, no shader).
 
-use super::kernel::Precision;
+use super::precision::Precision;
 use super::{GpuContext, GpuError};
 
 /// Texels per texture row (a power of two: the WGSL side splits an index with a mask).
