@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 use glam::{Mat4, Quat, Vec2, Vec3, Vec4};
 
 use super::clip::{Channel, Clip, Interpolation, Values};
+pub use super::load_error::LoadError;
+pub(crate) use super::load_error::fail;
 use super::rig::{Bone, Node, Part, Rig, SkinnedMesh, Transform};
 use super::vrm::Vrm;
 use crate::mesh::Mesh;
@@ -44,21 +46,6 @@ impl Character {
                 format!("clip '{name}' not found (clips: {})", names.join(", ")),
             )
         })
-    }
-}
-
-/// A character file that could not be used, and why.
-#[derive(Debug, thiserror::Error)]
-#[error("{}: {problem}", path.display())]
-pub struct LoadError {
-    pub path: PathBuf,
-    pub problem: String,
-}
-
-pub(crate) fn fail(path: &Path, problem: impl Into<String>) -> LoadError {
-    LoadError {
-        path: path.to_path_buf(),
-        problem: problem.into(),
     }
 }
 

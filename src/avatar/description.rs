@@ -469,7 +469,7 @@ pub fn legs(
 pub fn stance_speed(character: &Character, clip: &Clip, feet: &[usize], hips: usize) -> f32 {
     const SAMPLES: usize = 60;
     let dt = clip.duration.max(1e-3) / SAMPLES as f32;
-    super::teacher::planted_speed(character, clip, feet, Some(hips), SAMPLES, dt, |step| {
+    super::gait::planted_speed(character, clip, feet, Some(hips), SAMPLES, dt, |step| {
         Vec3::new(step.x, 0.0, step.z).length()
     })
 }

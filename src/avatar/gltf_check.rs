@@ -9,7 +9,7 @@ use std::path::Path;
 use gltf::accessor::{Accessor, DataType, Dimensions};
 use gltf::mesh::Semantic;
 
-use super::character::{LoadError, fail};
+use super::load_error::{LoadError, fail};
 
 /// The most elements one accessor may declare (16,777,216).
 pub const MAX_ELEMENTS: usize = 1 << 24;

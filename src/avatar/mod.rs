@@ -4,8 +4,10 @@
 pub mod character;
 pub mod clip;
 pub mod description;
+pub mod gait;
 pub mod gltf_check;
 pub mod humanoid;
+pub mod load_error;
 pub mod locomotion;
 pub mod loose;
 pub mod reference;
