@@ -11,12 +11,15 @@ use crate::app::{self, AppOptions};
 use crate::gpu::{self, GpuContext, GpuOptions};
 use crate::splat::files::{self, Up};
 
-/// Environment variable naming the character file the app shows by default.
-pub const CHARACTER_ENV: &str = "UNICA_CHARACTER";
-/// The default avatar's source, shipped in the repository (CC0; see its SOURCE.md).
-const DEFAULT_CHARACTER: &str = "assets/witch/source/Witch.gltf";
-/// The default neural avatar, shipped in the repository.
-const DEFAULT_BUNDLE: &str = "assets/witch/bundle";
+mod defaults;
+mod eval;
+mod rig;
+
+use defaults::render_with_bar;
+pub use defaults::{CHARACTER_ENV, default_bundle, default_character};
+
+use eval::{EvalArgs, eval};
+use rig::{RigArgs, RigDataArgs, RigEvalArgs, rig, rig_data, rig_eval};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -144,81 +147,6 @@ enum Command {
     /// trainer (pip install -e ./train). Full run ≈ 2 hours on a 2-core CPU; --quick:
     /// minutes
     Make(crate::make::MakeArgs),
-}
-
-#[derive(clap::Args, Debug)]
-struct RigEvalArgs {
-    /// The rig-data folder the models were trained on (its last --holdout pairs are unseen)
-    #[arg(long)]
-    data: PathBuf,
-    /// Pairs at the end of --data held out of training
-    #[arg(long, default_value_t = 100)]
-    holdout: usize,
-    /// Folder of the trained models (skeleton.*, skin.*)
-    #[arg(long, value_name = "DIR", default_value = "assets/autorig")]
-    models: PathBuf,
-    /// A rigged character to rig from its mesh alone and compare with its own rig
-    /// [default: the default character]
-    #[arg(long, value_name = "FILE")]
-    character: Option<PathBuf>,
-    /// Where results.json goes
-    #[arg(long)]
-    out: PathBuf,
-}
-
-#[derive(clap::Args, Debug)]
-struct RigArgs {
-    /// The character mesh
-    mesh: PathBuf,
-    /// The rigged file to write (.glb)
-    #[arg(long)]
-    out: PathBuf,
-    /// Folder of the trained auto-rig models (skeleton.* and skin.*)
-    #[arg(long, value_name = "DIR", default_value = "assets/autorig")]
-    models: PathBuf,
-    /// Use the geometric baselines (template fit, geodesic prior) instead of the models
-    #[arg(long)]
-    baseline: bool,
-    /// The rigged humanoid whose clips are retargeted [default: the default character]
-    #[arg(long, value_name = "FILE")]
-    clips_from: Option<PathBuf>,
-    /// Animation libraries (.gltf/.glb) whose clips join --clips-from's by joint name
-    /// (its idle/walk/run: clips named Idle/Walk/Run, else as its description says)
-    #[arg(long, value_name = "FILE", num_args = 1..)]
-    clips: Vec<PathBuf>,
-    /// Seed of the surface sampling (of the first try)
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// Skeletons to predict, from surface samplings --seed, --seed + 1, …: the rig whose
-    /// walk stretches an edge least is written (the model's spring chains vary most
-    /// between samplings). 1 rigs once
-    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(1..=64))]
-    tries: u64,
-    /// Leave out the finger joints (the hands are each one bone, the wrist). Without it
-    /// they are kept unless they tear the mesh over a walk (a mitten hand): the rig is
-    /// then made both ways and the one without them is written
-    #[arg(long)]
-    no_hands: bool,
-}
-
-#[derive(clap::Args, Debug)]
-struct RigDataArgs {
-    /// Output folder (sample_NNNNN.safetensors + manifest.json)
-    #[arg(long)]
-    out: PathBuf,
-    /// Synthetic characters to write
-    #[arg(long, default_value_t = 2000)]
-    count: usize,
-    /// Seed of the first character (character i uses seed + i)
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// A rigged character (.gltf, .glb) to write as OUT/sample_00000.safetensors instead
-    #[arg(long, value_name = "FILE")]
-    character: Option<PathBuf>,
-    /// The plain generator the shipped models were trained on: no chibi or long-limbed
-    /// builds, no arms at the sides, capsule skirts and hair, no capes
-    #[arg(long)]
-    plain: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -451,60 +379,6 @@ struct ViewArgs {
     screenshot: Option<PathBuf>,
 }
 
-#[derive(clap::Args, Debug)]
-struct EvalArgs {
-    /// The bundle to evaluate (e.g. assets/witch/bundle)
-    #[arg(long, value_name = "DIR")]
-    bundle: PathBuf,
-    /// The dataset baked from the bundle's character, with renders (`unica bake
-    /// --render-every 1`: each free-running frame is compared with the nearest rendered
-    /// teacher pose, so with fewer renders it is measured against a farther one)
-    #[arg(long, value_name = "DIR")]
-    data: PathBuf,
-    /// Output folder for report.md, results.json and the plots (created)
-    #[arg(long, value_name = "DIR")]
-    out: PathBuf,
-    /// The teacher's character file [default: the one the dataset was baked from]
-    #[arg(long, value_name = "FILE")]
-    character: Option<PathBuf>,
-    /// Animation libraries for the teacher's character [default: those the dataset was
-    /// baked with]
-    #[arg(long, value_name = "FILE", num_args = 1..)]
-    clips: Vec<PathBuf>,
-    /// A short script and fewer frames (a few minutes; CI)
-    #[arg(long)]
-    quick: bool,
-    /// The key script the avatar and the teacher are driven on, e.g. "60W 60S 60A 60D 30I"
-    /// [default: that one; with --quick "20W 20S 20A 20D 20I"]. Speeds are measured after
-    /// the first 15 frames of each key where every movement key is held at least 40 frames, else
-    /// after the first 5 (then they include most of each turn)
-    #[arg(long, value_name = "SCRIPT")]
-    keys: Option<String>,
-    /// Seed of the sampler noise
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// Frames of the long (drift) run [default: the key script 10 times; with --quick
-    /// twice]
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(100..))]
-    long_frames: Option<u32>,
-    /// Seeds of the PyTorch loop whose stop, speeds and turns the report gives beside the
-    /// engine's run (summary.json's seeds_* keys are the worst of them) [default: 3; with
-    /// --quick 2]
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
-    motion_seeds: Option<u32>,
-    /// The key script whose every movement key is released into Idle, run from each of
-    /// --motion-seeds seeds for the stop after each direction [default: "40W 30I 40S 30I
-    /// 40A 30I 40D 30I"; with --quick "20W 20I 20S 20I 20A 20I 20D 20I"]
-    #[arg(long, value_name = "SCRIPT")]
-    stops_keys: Option<String>,
-    /// The key script whose turns are pressed at many phases of the stride (every key held
-    /// a different number of frames), run from each of --motion-seeds seeds; summary.json's
-    /// phase_turn180_frames and phase_turn90_frames are its slowest turns [default: "45W
-    /// 40S 41W 42A 43W 44D 45S 46A 47D 48W 49S 30I"; with --quick "20W 21S 22A 23D 20I"]
-    #[arg(long, value_name = "SCRIPT")]
-    turns_keys: Option<String>,
-}
-
 /// Parses the process arguments and runs the command.
 pub fn run() -> anyhow::Result<()> {
     let cli = Cli::parse();
@@ -587,161 +461,6 @@ fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
         },
     };
     crate::bench::run(&gpu, &options, &mut std::io::stdout())
-}
-
-fn rig(args: RigArgs) -> anyhow::Result<()> {
-    use crate::autorig::pipeline::{Models, RigOptions, rig_file};
-    if args
-        .out
-        .extension()
-        .is_none_or(|e| !e.eq_ignore_ascii_case("glb"))
-    {
-        bail!(
-            "{}: the rigged output must be a .glb file",
-            args.out.display()
-        );
-    }
-    let models = if args.baseline {
-        Models::none()
-    } else {
-        Models::load(&models_dir(&args.models))?
-    };
-    let clips_from = args.clips_from.or_else(default_character).ok_or_else(|| {
-        anyhow::anyhow!("no rigged humanoid to take clips from; give --clips-from FILE")
-    })?;
-    let start = std::time::Instant::now();
-    let options = RigOptions {
-        clips_from: &clips_from,
-        clip_files: &args.clips,
-        seed: args.seed,
-        tries: args.tries,
-        hands: !args.no_hands,
-    };
-    let summary = rig_file(&args.mesh, &args.out, &models, &options, &|stage| {
-        eprintln!("rig: {stage}…")
-    })?;
-    println!(
-        "rigged {} into {} in {:.1} s: {} joints ({:?} skeleton), {:?} skin, {} spring chains{} (VRM; {} predicted ones left out), {} clips, largest edge stretch {} over a walk; description {}",
-        args.mesh.display(),
-        args.out.display(),
-        start.elapsed().as_secs_f64(),
-        summary.joints,
-        summary.skeleton,
-        summary.skin,
-        summary.spring_chains,
-        if summary.chain_parents.is_empty() {
-            String::new()
-        } else {
-            format!(" hanging from {}", summary.chain_parents.join(", "))
-        },
-        summary.dropped_chains,
-        summary.clips,
-        summary
-            .stretch
-            .map_or("not measured".to_string(), |s| format!("{s:.2}")),
-        summary.description.display()
-    );
-    if let crate::autorig::pipeline::Hands::DroppedTearing(stretch) = summary.hands {
-        println!(
-            "finger joints left out: with them the walk stretched an edge {stretch:.2} times (the mesh's fingers are not separate)"
-        );
-    }
-    if summary.tries.len() > 1 {
-        let tries: Vec<String> = summary
-            .tries
-            .iter()
-            .map(|(seed, stretch)| {
-                let stretch = stretch.map_or("not measured".to_string(), |s| format!("{s:.2}"));
-                format!("seed {seed}: {stretch}")
-            })
-            .collect();
-        println!(
-            "skeletons tried (largest edge stretch over the walk): {}; written: seed {}",
-            tries.join(", "),
-            summary.seed
-        );
-    }
-    Ok(())
-}
-
-fn rig_eval(args: RigEvalArgs) -> anyhow::Result<()> {
-    use crate::autorig::{evaluate::evaluate, pipeline::Models};
-    let manifest_path = args.data.join("manifest.json");
-    let manifest: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(&manifest_path)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", manifest_path.display()))?,
-    )
-    .map_err(|e| anyhow::anyhow!("{}: {e}", manifest_path.display()))?;
-    let count = manifest["count"]
-        .as_u64()
-        .ok_or_else(|| anyhow::anyhow!("{}: no count", manifest_path.display()))?
-        as usize;
-    if args.holdout == 0 || args.holdout > count {
-        bail!(
-            "--holdout must be between 1 and the {count} pairs of {}",
-            args.data.display()
-        );
-    }
-    let models = Models::load(&models_dir(&args.models))?;
-    let character = args.character.or_else(default_character);
-    let bar = indicatif::ProgressBar::new(args.holdout as u64).with_style(
-        indicatif::ProgressStyle::with_template(
-            "held-out characters {bar:40} {pos}/{len}, {eta} left",
-        )
-        .expect("valid template"),
-    );
-    let report = evaluate(
-        &args.data,
-        args.holdout,
-        count,
-        character.as_deref(),
-        &models,
-        &|done, _| bar.set_position(done as u64),
-    )?;
-    bar.finish_and_clear();
-    std::fs::create_dir_all(&args.out)?;
-    let path = args.out.join("results.json");
-    crate::files::write_atomic(&path, serde_json::to_string_pretty(&report)?.as_bytes())?;
-    let markdown = crate::autorig::evaluate::markdown(&report);
-    crate::files::write_atomic(&args.out.join("report.md"), markdown.as_bytes())?;
-    println!("{markdown}");
-    println!("wrote {} and report.md", path.display());
-    Ok(())
-}
-
-fn rig_data(args: RigDataArgs) -> anyhow::Result<()> {
-    use crate::autorig::{data, skeleton};
-    if let Some(path) = &args.character {
-        let character = crate::avatar::load_character(path)?;
-        let skeleton = skeleton::of_character(&character);
-        let skin = data::skin_of_character(&character, &skeleton);
-        let pair = data::sample(&skeleton, &character.rest_mesh(), &skin, args.seed)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        std::fs::create_dir_all(&args.out)?;
-        pair.write(&data::sample_path(&args.out, 0))?;
-        println!(
-            "wrote {} ({} joints)",
-            data::sample_path(&args.out, 0).display(),
-            skeleton.len()
-        );
-        return Ok(());
-    }
-    let bar = indicatif::ProgressBar::new(args.count as u64).with_style(
-        indicatif::ProgressStyle::with_template("characters {bar:40} {pos}/{len}, {eta} left")
-            .expect("valid template"),
-    );
-    let start = std::time::Instant::now();
-    data::write_synthetic(&args.out, args.count, args.seed, !args.plain, &|done, _| {
-        bar.set_position(done as u64)
-    })?;
-    bar.finish_and_clear();
-    println!(
-        "wrote {} synthetic characters into {} in {:.1} s",
-        args.count,
-        args.out.display(),
-        start.elapsed().as_secs_f64()
-    );
-    Ok(())
 }
 
 fn bake(args: BakeArgs) -> anyhow::Result<()> {
@@ -856,27 +575,6 @@ fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Runs a headless render job under a progress bar (`what` … frames, time left); the
-/// number of frames.
-fn render_with_bar(
-    job: &crate::headless::RenderJob,
-    gpu: GpuContext,
-    what: &str,
-) -> anyhow::Result<usize> {
-    let bar = indicatif::ProgressBar::new(0).with_style(
-        indicatif::ProgressStyle::with_template(&format!(
-            "{what} {{bar:40}} {{pos}}/{{len}} frames, {{eta}} left"
-        ))
-        .expect("valid template"),
-    );
-    let frames = crate::headless::render(job, gpu, &|done, total| {
-        bar.set_length(total);
-        bar.set_position(done);
-    })?;
-    bar.finish_and_clear();
-    Ok(frames)
-}
-
 fn parse_fps(text: &str) -> Result<f64, String> {
     match text.parse::<f64>() {
         Ok(fps) if (1.0..=120.0).contains(&fps) => Ok(fps),
@@ -954,155 +652,6 @@ fn view(args: ViewArgs, gpu: GpuOptions) -> anyhow::Result<()> {
     })
 }
 
-/// The evaluation's key script: every movement key, a 180° (W→S, A→D) and a 90° (S→A)
-/// turn, and enough idle at the end to see the root come to rest.
-const EVAL_KEYS: &str = "60W 60S 60A 60D 30I";
-const EVAL_KEYS_QUICK: &str = "20W 20S 20A 20D 20I";
-/// The stops scripts (`unica eval --stops-keys`): every movement key released into Idle;
-/// the same as the trainer's `eval.STOPS_KEYS` and `STOPS_KEYS_QUICK`.
-const EVAL_STOPS_KEYS: &str = "40W 30I 40S 30I 40A 30I 40D 30I";
-const EVAL_STOPS_KEYS_QUICK: &str = "20W 20I 20S 20I 20A 20I 20D 20I";
-/// The turns scripts (`unica eval --turns-keys`): turns pressed at many phases of the
-/// stride; the same as the trainer's `eval.TURNS_KEYS` and `TURNS_KEYS_QUICK`.
-const EVAL_TURNS_KEYS: &str = "45W 40S 41W 42A 43W 44D 45S 46A 47D 48W 49S 30I";
-const EVAL_TURNS_KEYS_QUICK: &str = "20W 21S 22A 23D 20I";
-
-/// The key script given, else the default (`quick`: the short one).
-fn eval_script<'a>(
-    given: &'a Option<String>,
-    quick: bool,
-    full: &'a str,
-    short: &'a str,
-) -> &'a str {
-    match (given, quick) {
-        (Some(keys), _) => keys,
-        (None, true) => short,
-        (None, false) => full,
-    }
-}
-
-/// Drives the teacher on the evaluation's key script (geometry only), then runs the
-/// trainer's evaluation (`python3 -m unica_train.eval`, or $UNICA_PYTHON) on it.
-fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
-    let manifest_path = args.data.join("manifest.json");
-    let manifest: crate::dataset::Manifest = serde_json::from_slice(
-        &std::fs::read(&manifest_path).with_context(|| manifest_path.display().to_string())?,
-    )
-    .with_context(|| format!("{}: not a dataset manifest", manifest_path.display()))?;
-    let character = args
-        .character
-        .unwrap_or_else(|| PathBuf::from(&manifest.character));
-    if !character.is_file() {
-        bail!(
-            "{}: the dataset's character file is not there; give it with --character",
-            character.display()
-        );
-    }
-    std::fs::create_dir_all(&args.out).with_context(|| args.out.display().to_string())?;
-    let script = eval_script(&args.keys, args.quick, EVAL_KEYS, EVAL_KEYS_QUICK);
-    let keys = KeyScript::parse(script).context("--keys")?;
-    let clips: Vec<PathBuf> = if args.clips.is_empty() {
-        manifest.clip_files.iter().map(PathBuf::from).collect()
-    } else {
-        args.clips
-    };
-    let stops_script = eval_script(
-        &args.stops_keys,
-        args.quick,
-        EVAL_STOPS_KEYS,
-        EVAL_STOPS_KEYS_QUICK,
-    );
-    let stops_keys = KeyScript::parse(stops_script).context("--stops-keys")?;
-    let turns_script = eval_script(
-        &args.turns_keys,
-        args.quick,
-        EVAL_TURNS_KEYS,
-        EVAL_TURNS_KEYS_QUICK,
-    );
-    let turns_keys = KeyScript::parse(turns_script).context("--turns-keys")?;
-    let teacher = args.out.join("teacher.json");
-    let stops_teacher = args.out.join("teacher_stops.json");
-    let turns_teacher = args.out.join("teacher_turns.json");
-    for (keys, path) in [
-        (&keys, &teacher),
-        (&stops_keys, &stops_teacher),
-        (&turns_keys, &turns_teacher),
-    ] {
-        let roots = crate::headless::teacher_roots(&character, &clips, keys)?;
-        let frames: Vec<_> = roots
-            .iter()
-            .map(|r| serde_json::json!({ "root": r.to_array() }))
-            .collect();
-        crate::files::write_atomic(
-            path,
-            serde_json::to_string(&serde_json::json!({ "frames": frames }))?.as_bytes(),
-        )?;
-    }
-    // The free-running rollout through the shipped engine path (the WGSL model, PCA
-    // clean-up): each frame's drawn points, which the report compares with the teacher.
-    let engine_dir = args.out.join("engine");
-    let manifest = crate::nn::bundle::read_manifest(&args.bundle.join("manifest.json"))?;
-    let job = crate::headless::RenderJob {
-        avatar: crate::headless::Avatar::Bundle {
-            dir: args.bundle.clone(),
-            options: crate::engine::EngineOptions {
-                seed: args.seed,
-                sampling: Some(manifest.sampler.live()),
-                pca: true,
-                ..Default::default()
-            },
-        },
-        keys: keys.clone(),
-        out: engine_dir.clone(),
-        size: 64,
-        views: 1,
-        points: true,
-        surface: false,
-        splat_level: Some(128),
-        refine: false,
-    };
-    render_with_bar(&job, GpuContext::headless(gpu)?, "engine rollout")?;
-    let python = std::env::var("UNICA_PYTHON").unwrap_or_else(|_| "python3".into());
-    let mut command = std::process::Command::new(&python);
-    command
-        .args(["-m", "unica_train.eval", "--engine"])
-        .arg(&engine_dir)
-        .args(["--keys", script])
-        .arg("--bundle")
-        .arg(&args.bundle)
-        .arg("--data")
-        .arg(&args.data)
-        .arg("--teacher")
-        .arg(&teacher)
-        .args(["--stops-keys", stops_script])
-        .arg("--stops-teacher")
-        .arg(&stops_teacher)
-        .args(["--turns-keys", turns_script])
-        .arg("--turns-teacher")
-        .arg(&turns_teacher)
-        .arg("--out")
-        .arg(&args.out)
-        .args(["--seed", &args.seed.to_string()]);
-    if args.quick {
-        command.arg("--quick");
-    }
-    if let Some(n) = args.long_frames {
-        command.args(["--long-frames", &n.to_string()]);
-    }
-    if let Some(n) = args.motion_seeds {
-        command.args(["--motion-seeds", &n.to_string()]);
-    }
-    let status = command.status().with_context(|| {
-        format!(
-            "running {python}: unica eval needs Python 3 with the trainer (pip install -e ./train)"
-        )
-    })?;
-    if !status.success() {
-        bail!("the evaluation failed ({python} -m unica_train.eval exited with {status})");
-    }
-    Ok(())
-}
-
 fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
     let (bundle, character) = match (cli.bundle, cli.character) {
         (Some(bundle), character) => (Some(bundle), character),
@@ -1154,40 +703,6 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
         record_fps: cli.record_fps,
         gpu,
     })
-}
-
-/// The shipped Witch bundle, beside the working directory or in the source tree.
-pub fn default_bundle() -> Option<PathBuf> {
-    [
-        PathBuf::from(DEFAULT_BUNDLE),
-        Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_BUNDLE),
-    ]
-    .into_iter()
-    .find(|p| p.join("manifest.json").is_file())
-}
-
-/// The auto-rig models folder: as given, else (for the default relative path run from
-/// elsewhere) the same path in the source tree.
-fn models_dir(dir: &Path) -> PathBuf {
-    if dir.is_dir() {
-        dir.to_path_buf()
-    } else {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join(dir)
-    }
-}
-
-/// `$UNICA_CHARACTER`, else the shared Witch beside the working directory or beside the
-/// source tree; `None` if none of them exists.
-pub fn default_character() -> Option<PathBuf> {
-    if let Some(path) = std::env::var_os(CHARACTER_ENV) {
-        return Some(PathBuf::from(path));
-    }
-    [
-        PathBuf::from(DEFAULT_CHARACTER),
-        Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_CHARACTER),
-    ]
-    .into_iter()
-    .find(|p| p.is_file())
 }
 
 fn adapters(options: &GpuOptions) -> anyhow::Result<()> {

@@ -1,0 +1,218 @@
+//! `unica eval`: the teacher and the engine driven on the evaluation's key scripts, then
+//! the trainer's evaluation.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+
+use super::defaults::render_with_bar;
+use crate::action::KeyScript;
+use crate::gpu::{GpuContext, GpuOptions};
+
+#[derive(clap::Args, Debug)]
+pub(super) struct EvalArgs {
+    /// The bundle to evaluate (e.g. assets/witch/bundle)
+    #[arg(long, value_name = "DIR")]
+    bundle: PathBuf,
+    /// The dataset baked from the bundle's character, with renders (`unica bake
+    /// --render-every 1`: each free-running frame is compared with the nearest rendered
+    /// teacher pose, so with fewer renders it is measured against a farther one)
+    #[arg(long, value_name = "DIR")]
+    data: PathBuf,
+    /// Output folder for report.md, results.json and the plots (created)
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// The teacher's character file [default: the one the dataset was baked from]
+    #[arg(long, value_name = "FILE")]
+    character: Option<PathBuf>,
+    /// Animation libraries for the teacher's character [default: those the dataset was
+    /// baked with]
+    #[arg(long, value_name = "FILE", num_args = 1..)]
+    clips: Vec<PathBuf>,
+    /// A short script and fewer frames (a few minutes; CI)
+    #[arg(long)]
+    quick: bool,
+    /// The key script the avatar and the teacher are driven on, e.g. "60W 60S 60A 60D 30I"
+    /// [default: that one; with --quick "20W 20S 20A 20D 20I"]. Speeds are measured after
+    /// the first 15 frames of each key where every movement key is held at least 40 frames, else
+    /// after the first 5 (then they include most of each turn)
+    #[arg(long, value_name = "SCRIPT")]
+    keys: Option<String>,
+    /// Seed of the sampler noise
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Frames of the long (drift) run [default: the key script 10 times; with --quick
+    /// twice]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(100..))]
+    long_frames: Option<u32>,
+    /// Seeds of the PyTorch loop whose stop, speeds and turns the report gives beside the
+    /// engine's run (summary.json's seeds_* keys are the worst of them) [default: 3; with
+    /// --quick 2]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
+    motion_seeds: Option<u32>,
+    /// The key script whose every movement key is released into Idle, run from each of
+    /// --motion-seeds seeds for the stop after each direction [default: "40W 30I 40S 30I
+    /// 40A 30I 40D 30I"; with --quick "20W 20I 20S 20I 20A 20I 20D 20I"]
+    #[arg(long, value_name = "SCRIPT")]
+    stops_keys: Option<String>,
+    /// The key script whose turns are pressed at many phases of the stride (every key held
+    /// a different number of frames), run from each of --motion-seeds seeds; summary.json's
+    /// phase_turn180_frames and phase_turn90_frames are its slowest turns [default: "45W
+    /// 40S 41W 42A 43W 44D 45S 46A 47D 48W 49S 30I"; with --quick "20W 21S 22A 23D 20I"]
+    #[arg(long, value_name = "SCRIPT")]
+    turns_keys: Option<String>,
+}
+
+/// The evaluation's key script: every movement key, a 180° (W→S, A→D) and a 90° (S→A)
+/// turn, and enough idle at the end to see the root come to rest.
+const EVAL_KEYS: &str = "60W 60S 60A 60D 30I";
+
+const EVAL_KEYS_QUICK: &str = "20W 20S 20A 20D 20I";
+
+/// The stops scripts (`unica eval --stops-keys`): every movement key released into Idle;
+/// the same as the trainer's `eval.STOPS_KEYS` and `STOPS_KEYS_QUICK`.
+const EVAL_STOPS_KEYS: &str = "40W 30I 40S 30I 40A 30I 40D 30I";
+
+const EVAL_STOPS_KEYS_QUICK: &str = "20W 20I 20S 20I 20A 20I 20D 20I";
+
+/// The turns scripts (`unica eval --turns-keys`): turns pressed at many phases of the
+/// stride; the same as the trainer's `eval.TURNS_KEYS` and `TURNS_KEYS_QUICK`.
+const EVAL_TURNS_KEYS: &str = "45W 40S 41W 42A 43W 44D 45S 46A 47D 48W 49S 30I";
+
+const EVAL_TURNS_KEYS_QUICK: &str = "20W 21S 22A 23D 20I";
+
+/// The key script given, else the default (`quick`: the short one).
+pub(super) fn eval_script<'a>(
+    given: &'a Option<String>,
+    quick: bool,
+    full: &'a str,
+    short: &'a str,
+) -> &'a str {
+    match (given, quick) {
+        (Some(keys), _) => keys,
+        (None, true) => short,
+        (None, false) => full,
+    }
+}
+
+/// Drives the teacher on the evaluation's key script (geometry only), then runs the
+/// trainer's evaluation (`python3 -m unica_train.eval`, or $UNICA_PYTHON) on it.
+pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
+    let manifest_path = args.data.join("manifest.json");
+    let manifest: crate::dataset::Manifest = serde_json::from_slice(
+        &std::fs::read(&manifest_path).with_context(|| manifest_path.display().to_string())?,
+    )
+    .with_context(|| format!("{}: not a dataset manifest", manifest_path.display()))?;
+    let character = args
+        .character
+        .unwrap_or_else(|| PathBuf::from(&manifest.character));
+    if !character.is_file() {
+        bail!(
+            "{}: the dataset's character file is not there; give it with --character",
+            character.display()
+        );
+    }
+    std::fs::create_dir_all(&args.out).with_context(|| args.out.display().to_string())?;
+    let script = eval_script(&args.keys, args.quick, EVAL_KEYS, EVAL_KEYS_QUICK);
+    let keys = KeyScript::parse(script).context("--keys")?;
+    let clips: Vec<PathBuf> = if args.clips.is_empty() {
+        manifest.clip_files.iter().map(PathBuf::from).collect()
+    } else {
+        args.clips
+    };
+    let stops_script = eval_script(
+        &args.stops_keys,
+        args.quick,
+        EVAL_STOPS_KEYS,
+        EVAL_STOPS_KEYS_QUICK,
+    );
+    let stops_keys = KeyScript::parse(stops_script).context("--stops-keys")?;
+    let turns_script = eval_script(
+        &args.turns_keys,
+        args.quick,
+        EVAL_TURNS_KEYS,
+        EVAL_TURNS_KEYS_QUICK,
+    );
+    let turns_keys = KeyScript::parse(turns_script).context("--turns-keys")?;
+    let teacher = args.out.join("teacher.json");
+    let stops_teacher = args.out.join("teacher_stops.json");
+    let turns_teacher = args.out.join("teacher_turns.json");
+    for (keys, path) in [
+        (&keys, &teacher),
+        (&stops_keys, &stops_teacher),
+        (&turns_keys, &turns_teacher),
+    ] {
+        let roots = crate::headless::teacher_roots(&character, &clips, keys)?;
+        let frames: Vec<_> = roots
+            .iter()
+            .map(|r| serde_json::json!({ "root": r.to_array() }))
+            .collect();
+        crate::files::write_atomic(
+            path,
+            serde_json::to_string(&serde_json::json!({ "frames": frames }))?.as_bytes(),
+        )?;
+    }
+    // The free-running rollout through the shipped engine path (the WGSL model, PCA
+    // clean-up): each frame's drawn points, which the report compares with the teacher.
+    let engine_dir = args.out.join("engine");
+    let manifest = crate::nn::bundle::read_manifest(&args.bundle.join("manifest.json"))?;
+    let job = crate::headless::RenderJob {
+        avatar: crate::headless::Avatar::Bundle {
+            dir: args.bundle.clone(),
+            options: crate::engine::EngineOptions {
+                seed: args.seed,
+                sampling: Some(manifest.sampler.live()),
+                pca: true,
+                ..Default::default()
+            },
+        },
+        keys: keys.clone(),
+        out: engine_dir.clone(),
+        size: 64,
+        views: 1,
+        points: true,
+        surface: false,
+        splat_level: Some(128),
+        refine: false,
+    };
+    render_with_bar(&job, GpuContext::headless(gpu)?, "engine rollout")?;
+    let python = std::env::var("UNICA_PYTHON").unwrap_or_else(|_| "python3".into());
+    let mut command = std::process::Command::new(&python);
+    command
+        .args(["-m", "unica_train.eval", "--engine"])
+        .arg(&engine_dir)
+        .args(["--keys", script])
+        .arg("--bundle")
+        .arg(&args.bundle)
+        .arg("--data")
+        .arg(&args.data)
+        .arg("--teacher")
+        .arg(&teacher)
+        .args(["--stops-keys", stops_script])
+        .arg("--stops-teacher")
+        .arg(&stops_teacher)
+        .args(["--turns-keys", turns_script])
+        .arg("--turns-teacher")
+        .arg(&turns_teacher)
+        .arg("--out")
+        .arg(&args.out)
+        .args(["--seed", &args.seed.to_string()]);
+    if args.quick {
+        command.arg("--quick");
+    }
+    if let Some(n) = args.long_frames {
+        command.args(["--long-frames", &n.to_string()]);
+    }
+    if let Some(n) = args.motion_seeds {
+        command.args(["--motion-seeds", &n.to_string()]);
+    }
+    let status = command.status().with_context(|| {
+        format!(
+            "running {python}: unica eval needs Python 3 with the trainer (pip install -e ./train)"
+        )
+    })?;
+    if !status.success() {
+        bail!("the evaluation failed ({python} -m unica_train.eval exited with {status})");
+    }
+    Ok(())
+}
