@@ -68,7 +68,6 @@ const KNOWN_LONG_FILES: &[&str] = &[
     "src/app/mod.rs",
     "src/autorig/pipeline.rs",
     "src/autorig/synth.rs",
-    "src/engine/mod.rs",
 ];
 
 /// A use of another module: the line it is on, the module path it names (crate-rooted),
