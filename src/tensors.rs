@@ -10,13 +10,13 @@ use safetensors::{Dtype, SafeTensors};
 use crate::files::{WriteError, write_atomic};
 
 /// A tensor to write: dtype, shape and little-endian bytes.
-pub struct Tensor {
+pub struct TensorData {
     dtype: Dtype,
     shape: Vec<usize>,
     data: Vec<u8>,
 }
 
-impl Tensor {
+impl TensorData {
     pub fn f32(shape: &[usize], values: &[f32]) -> Self {
         assert_eq!(
             shape.iter().product::<usize>(),
@@ -44,7 +44,7 @@ impl Tensor {
     }
 }
 
-impl safetensors::View for &Tensor {
+impl safetensors::View for &TensorData {
     fn dtype(&self) -> Dtype {
         self.dtype
     }
@@ -60,7 +60,7 @@ impl safetensors::View for &Tensor {
 }
 
 /// Writes the tensors atomically (same tensors, same bytes: the format sorts them).
-pub fn write(path: &Path, tensors: &[(&str, Tensor)]) -> Result<(), WriteError> {
+pub fn write(path: &Path, tensors: &[(&str, TensorData)]) -> Result<(), WriteError> {
     let bytes =
         safetensors::serialize(tensors.iter().map(|(name, t)| (*name, t)), None).map_err(|e| {
             WriteError {
@@ -205,8 +205,8 @@ mod tests {
         write(
             &path,
             &[
-                ("a", Tensor::f32(&[2, 2], &[1.0, 2.0, 3.0, 4.0])),
-                ("b", Tensor::i32(&[3], &[7, 8, 9])),
+                ("a", TensorData::f32(&[2, 2], &[1.0, 2.0, 3.0, 4.0])),
+                ("b", TensorData::i32(&[3], &[7, 8, 9])),
             ],
         )
         .unwrap();
@@ -214,8 +214,8 @@ mod tests {
         write(
             &path,
             &[
-                ("b", Tensor::i32(&[3], &[7, 8, 9])),
-                ("a", Tensor::f32(&[2, 2], &[1.0, 2.0, 3.0, 4.0])),
+                ("b", TensorData::i32(&[3], &[7, 8, 9])),
+                ("a", TensorData::f32(&[2, 2], &[1.0, 2.0, 3.0, 4.0])),
             ],
         )
         .unwrap();
@@ -233,7 +233,7 @@ mod tests {
         // F16 is widened exactly: 1, -2, 0.5 and 65504 (the largest half) are all
         // representable, and 0x3555 is the half nearest 1/3 (0.333251953125).
         let halves: [u16; 5] = [0x3c00, 0xc000, 0x3800, 0x7bff, 0x3555];
-        let h = Tensor {
+        let h = TensorData {
             dtype: Dtype::F16,
             shape: vec![5],
             data: bytemuck::cast_slice(&halves).to_vec(),

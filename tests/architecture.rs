@@ -523,3 +523,45 @@ fn no_source_file_is_longer_than_the_limit_but_the_listed_ones() {
          over (remove them from the list): {gone:?}"
     );
 }
+
+#[test]
+fn each_public_type_name_means_one_thing() {
+    // `pub struct|enum|type|trait NAME` anywhere in src/ (gpu_struct! bodies included):
+    // one name, one definition, so that a name read in any file means the same type.
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut defined: BTreeMap<String, Vec<String>> = BTreeMap::new();
+    for file in rust_files(&root.join("src")) {
+        let rel = file
+            .strip_prefix(root)
+            .unwrap()
+            .to_string_lossy()
+            .replace('\\', "/");
+        for (k, line) in std::fs::read_to_string(&file).unwrap().lines().enumerate() {
+            let words: Vec<&str> = line.split_whitespace().collect();
+            if let [first, kind, name, ..] = words[..]
+                && first == "pub"
+                && ["struct", "enum", "type", "trait"].contains(&kind)
+            {
+                let name: String = name
+                    .chars()
+                    .take_while(|c| c.is_alphanumeric() || *c == '_')
+                    .collect();
+                defined
+                    .entry(name)
+                    .or_default()
+                    .push(format!("{rel}:{}", k + 1));
+            }
+        }
+    }
+    assert!(defined.len() > 100, "{} public types read", defined.len());
+    let twice: Vec<String> = defined
+        .iter()
+        .filter(|(_, at)| at.len() > 1)
+        .map(|(name, at)| format!("{name}: {}", at.join(", ")))
+        .collect();
+    assert!(
+        twice.is_empty(),
+        "public type names defined more than once:\n{}",
+        twice.join("\n")
+    );
+}

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use unica::dataset::bake::{BakeOptions, bake};
 use unica::dataset::{ANCHOR, Dataset, GROUP};
 use unica::posmap::GroupNorm;
-use unica::tensors::{self, Tensor};
+use unica::tensors::{self, TensorData};
 
 fn fixtures() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures")
@@ -53,16 +53,19 @@ fn generate(dir: &Path) {
         &[
             (
                 "clip2_frames4to7_positions",
-                Tensor::f32(&[GROUP, n, 3], &flat(&frames)),
+                TensorData::f32(&[GROUP, n, 3], &flat(&frames)),
             ),
             (
                 "clip2_frames4to7_normalised",
-                Tensor::f32(&[GROUP, n, 3], &flat(&unit)),
+                TensorData::f32(&[GROUP, n, 3], &flat(&unit)),
             ),
-            ("clip2_frames4to7_root", Tensor::f32(&[3], &root.to_array())),
+            (
+                "clip2_frames4to7_root",
+                TensorData::f32(&[3], &root.to_array()),
+            ),
             (
                 "clip2_frames4to7_roots",
-                Tensor::f32(
+                TensorData::f32(
                     &[GROUP, 3],
                     &frames
                         .iter()

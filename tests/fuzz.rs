@@ -453,15 +453,18 @@ fn fuzz_ply_ascii() {
 
 #[test]
 fn fuzz_safetensors() {
-    use unica::tensors::{Tensor, TensorFile, write};
+    use unica::tensors::{TensorData, TensorFile, write};
     let dir = work_dir("seeds");
     let path = dir.join("seed.safetensors");
     write(
         &path,
         &[
-            ("a", Tensor::f32(&[2, 3], &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0])),
-            ("b", Tensor::i32(&[4], &[7, 8, 9, 10])),
-            ("c", Tensor::f32(&[1, 1, 2], &[0.5, -0.5])),
+            (
+                "a",
+                TensorData::f32(&[2, 3], &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]),
+            ),
+            ("b", TensorData::i32(&[4], &[7, 8, 9, 10])),
+            ("c", TensorData::f32(&[1, 1, 2], &[0.5, -0.5])),
         ],
     )
     .unwrap();
@@ -489,29 +492,29 @@ fn fuzz_bundle_manifest() {
 /// A tiny dataset (one bone, one clip of 5 frames) whose manifest and reference are
 /// fuzzed: `Dataset::open`, then `validate`.
 fn tiny_dataset(dir: &Path) -> Vec<u8> {
-    use unica::tensors::{Tensor, write};
+    use unica::tensors::{TensorData, write};
     std::fs::create_dir_all(dir.join("clips")).unwrap();
     write(
         &dir.join("reference.safetensors"),
         &[
             (
                 "bind_positions",
-                Tensor::f32(&[3, 3], &[0.0, 0.0, 0.0, 0.2, 0.0, 0.0, 0.0, 0.2, 0.0]),
+                TensorData::f32(&[3, 3], &[0.0, 0.0, 0.0, 0.2, 0.0, 0.0, 0.0, 0.2, 0.0]),
             ),
-            ("colors", Tensor::f32(&[3, 3], &[0.5; 9])),
-            ("joints", Tensor::i32(&[3, 4], &[0; 12])),
+            ("colors", TensorData::f32(&[3, 3], &[0.5; 9])),
+            ("joints", TensorData::i32(&[3, 4], &[0; 12])),
             (
                 "weights",
-                Tensor::f32(&[3, 4], &[1.0, 0.0, 0.0, 0.0].repeat(3)),
+                TensorData::f32(&[3, 4], &[1.0, 0.0, 0.0, 0.0].repeat(3)),
             ),
-            ("triangles", Tensor::i32(&[1, 3], &[0, 1, 2])),
-            ("pixels", Tensor::i32(&[2], &[100, 200])),
-            ("pixel_triangles", Tensor::i32(&[2], &[0, 0])),
+            ("triangles", TensorData::i32(&[1, 3], &[0, 1, 2])),
+            ("pixels", TensorData::i32(&[2], &[100, 200])),
+            ("pixel_triangles", TensorData::i32(&[2], &[0, 0])),
             (
                 "barycentrics",
-                Tensor::f32(&[2, 3], &[0.2, 0.3, 0.5, 0.6, 0.2, 0.2]),
+                TensorData::f32(&[2, 3], &[0.2, 0.3, 0.5, 0.6, 0.2, 0.2]),
             ),
-            ("waist", Tensor::i32(&[2], &[0, 1])),
+            ("waist", TensorData::i32(&[2], &[0, 1])),
         ],
     )
     .unwrap();
@@ -523,9 +526,9 @@ fn tiny_dataset(dir: &Path) -> Vec<u8> {
     write(
         &dir.join("clips/clip_000.safetensors"),
         &[
-            ("skin", Tensor::f32(&[5, 1, 3, 4], &identity.repeat(5))),
-            ("actions", Tensor::i32(&[5], &[0, 0, 1, 1, 1])),
-            ("root", Tensor::f32(&[5, 3], &r.repeat(5))),
+            ("skin", TensorData::f32(&[5, 1, 3, 4], &identity.repeat(5))),
+            ("actions", TensorData::i32(&[5], &[0, 0, 1, 1, 1])),
+            ("root", TensorData::f32(&[5, 3], &r.repeat(5))),
         ],
     )
     .unwrap();

@@ -19,7 +19,7 @@ use std::path::Path;
 use unica::gpu::kernel::{PipelineCache, Precision};
 use unica::gpu::{GpuContext, GpuOptions};
 use unica::nn::layers::{
-    Conv, CrossAttention, Frames, ResBlock, SpatialAttention, TemporalAttention, Up,
+    Conv, CrossAttention, Frames, ResBlock, SpatialAttention, TemporalAttention, UpBlock,
 };
 use unica::nn::ops::{AttentionParams, Broadcast};
 use unica::nn::refiner::{Refiner, RefinerConfig};
@@ -236,7 +236,7 @@ fn stride_two_convolution_matches_pytorch() {
 #[test]
 fn nearest_upsampling_then_convolution_matches_pytorch() {
     check_layer("up", &["io.in.x"], |r, w, x| {
-        let up = Up::load(w, 8, 12).unwrap();
+        let up = UpBlock::load(w, 8, 12).unwrap();
         up.forward(r, &x[0]).unwrap()
     });
 }
@@ -450,7 +450,7 @@ fn the_pca_head_vae_decoder_matches_pytorch() {
 
 #[test]
 fn index_tensors_out_of_order_or_out_of_range_are_refused_by_name() {
-    use unica::tensors::{Tensor as Stored, write};
+    use unica::tensors::{TensorData as Stored, write};
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("bad.safetensors");
     let tensors = [

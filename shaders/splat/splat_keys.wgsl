@@ -2,7 +2,7 @@
 // splat's index, written at the splat's scanned offset (tiles in row-major order).
 // Entries past the capacity are dropped; info = [entries kept, entries wanted].
 
-@group(0) @binding(0) var<uniform> f: SplatFrame;
+@group(0) @binding(0) var<uniform> f: RasterView;
 @group(0) @binding(1) var<storage, read> projected: array<ProjectedSplat>;
 @group(0) @binding(2) var<storage, read> touched: array<u32>;
 @group(0) @binding(3) var<storage, read> offsets: array<u32>;

@@ -2,7 +2,7 @@
 // Σ' = J W Σ Wᵀ Jᵀ + 0.3 I, the conic, a 3σ radius padded like 3DGS, the covered tiles,
 // and how many tiles it touches (0 when culled).
 
-@group(0) @binding(0) var<uniform> f: SplatFrame;
+@group(0) @binding(0) var<uniform> f: RasterView;
 @group(0) @binding(1) var<storage, read> splats: array<GpuSplat>;
 @group(0) @binding(2) var<storage, read_write> projected: array<ProjectedSplat>;
 @group(0) @binding(3) var<storage, read_write> touched: array<u32>;

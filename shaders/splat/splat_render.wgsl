@@ -4,7 +4,7 @@
 // its transmittance would fall below 1e-4; the workgroup stops when every pixel has.
 // Output: linear RGBA (alpha = coverage) over the background.
 
-@group(0) @binding(0) var<uniform> f: SplatFrame;
+@group(0) @binding(0) var<uniform> f: RasterView;
 @group(0) @binding(1) var<storage, read> projected: array<ProjectedSplat>;
 @group(0) @binding(2) var<storage, read> values: array<u32>;
 @group(0) @binding(3) var<storage, read> ranges: array<vec2<u32>>;

@@ -18,7 +18,7 @@ use crate::gpu::timing::StageTiming;
 use crate::gpu::{self, GpuContext, GpuOptions};
 use crate::nn::sampler::SamplerKind;
 use crate::render::OrbitCamera;
-use recorder::Recorder;
+use recorder::SessionRecorder;
 use shown::Shown;
 use viewport::Viewport;
 
@@ -133,7 +133,7 @@ struct UnicaApp {
     frame: u64,
     last_frame: Instant,
     timings: Vec<StageTiming>,
-    recording: Option<(Recorder, Instant)>,
+    recording: Option<(SessionRecorder, Instant)>,
     /// Teacher frames owed to the clock (interactive pacing).
     step_clock: f64,
     follow: bool,
@@ -177,7 +177,7 @@ impl UnicaApp {
                 &viewport.renderer,
                 character,
                 &options.clips,
-                neural::Start {
+                neural::NeuralStart {
                     dir: dir.clone(),
                     steps: options.steps,
                     script: options.keys.clone(),
@@ -235,7 +235,7 @@ impl UnicaApp {
                 renderer,
                 None,
                 &[],
-                neural::Start {
+                neural::NeuralStart {
                     dir: path.clone(),
                     steps: self.options.steps,
                     script: self.options.keys.clone(),
@@ -279,7 +279,10 @@ impl UnicaApp {
                 });
             }
             None => {
-                match Recorder::start(&PathBuf::from(&self.record_dir), self.options.record_fps) {
+                match SessionRecorder::start(
+                    &PathBuf::from(&self.record_dir),
+                    self.options.record_fps,
+                ) {
                     Ok(recorder) => {
                         self.message = None;
                         self.recording = Some((recorder, Instant::now()));

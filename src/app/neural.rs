@@ -91,7 +91,7 @@ pub type Wake = Arc<dyn Fn() + Send + Sync>;
 
 /// What a neural avatar starts from: its bundle folder, the teacher's DDIM steps instead
 /// of the bundle's sampler (`--steps`), a key script, and how to wake the window.
-pub struct Start {
+pub struct NeuralStart {
     pub dir: PathBuf,
     pub steps: Option<usize>,
     /// With a key script, generated frame `i` takes the script's action `i` (the held
@@ -120,8 +120,8 @@ impl NeuralAvatar {
     /// Starts loading `dir` on a worker thread (`steps`: DDIM steps, else the bundle's).
     /// With a key `script`, generated frame `i` takes the script's action `i` (the held
     /// action is ignored), so a scripted run is the same however fast the model runs.
-    pub fn start(gpu: &GpuContext, start: Start) -> Self {
-        let Start {
+    pub fn start(gpu: &GpuContext, start: NeuralStart) -> Self {
+        let NeuralStart {
             dir,
             steps,
             script,

@@ -115,7 +115,7 @@ struct Job {
 
 /// A recording in progress: paces frames to the fixed rate and hands them to a writer
 /// thread, so the window never waits on the disk.
-pub struct Recorder {
+pub struct SessionRecorder {
     pub dir: PathBuf,
     fps: f64,
     queued: u64,
@@ -124,7 +124,7 @@ pub struct Recorder {
     thread: Option<JoinHandle<Result<u64, WriteError>>>,
 }
 
-impl Recorder {
+impl SessionRecorder {
     pub fn start(dir: &Path, fps: f64) -> Result<Self, WriteError> {
         let mut writer = FrameWriter::create(dir, fps)?;
         let (jobs, job_rx) = mpsc::channel::<Job>();
@@ -276,7 +276,7 @@ mod tests {
     #[test]
     fn frames_are_paced_to_the_rate() {
         let dir = tempfile::tempdir().unwrap();
-        let mut rec = Recorder::start(dir.path(), 30.0).unwrap();
+        let mut rec = SessionRecorder::start(dir.path(), 30.0).unwrap();
         assert_eq!(rec.frames_due(0.0), 1);
         rec.push(image(1), moment(Action::Idle), 1);
         assert_eq!(rec.frames_due(0.01), 0, "faster than 30 fps: nothing due");
@@ -302,7 +302,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         // The temporary name of frame 2 is taken by a directory: that write fails.
         std::fs::create_dir(dir.path().join("frame_000002.png.tmp")).unwrap();
-        let mut rec = Recorder::start(dir.path(), 30.0).unwrap();
+        let mut rec = SessionRecorder::start(dir.path(), 30.0).unwrap();
         rec.push(image(7), moment(Action::Left), 3);
         let err = rec.stop().unwrap_err();
         assert!(err.to_string().contains("frame_000002.png"), "{err}");
@@ -342,7 +342,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("not_a_folder");
         std::fs::write(&file, b"x").unwrap();
-        let err = Recorder::start(&file, 30.0).err().unwrap();
+        let err = SessionRecorder::start(&file, 30.0).err().unwrap();
         assert!(err.to_string().contains("not_a_folder"), "{err}");
     }
 }

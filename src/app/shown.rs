@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::neural::{NeuralAvatar, Settings, Start, Update};
+use super::neural::{NeuralAvatar, NeuralStart, Settings, Update};
 use crate::action::{Action, KeyScript};
 use crate::avatar::description::Description;
 use crate::avatar::load_character_with;
@@ -198,7 +198,7 @@ impl Shown {
         renderer: &SceneRenderer,
         character: Option<&Path>,
         clips: &[PathBuf],
-        start: Start,
+        start: NeuralStart,
     ) -> Self {
         let mut shown = Self::load(gpu, renderer, character, clips);
         shown.show_teacher = shown.teacher.is_some();

@@ -13,7 +13,7 @@ use super::voxel::{Voxels, bone_tails};
 use crate::files::{WriteError, write_atomic};
 use crate::mesh::Mesh;
 use crate::random::Rng;
-use crate::tensors::{Tensor, write};
+use crate::tensors::{TensorData, write};
 
 /// Surface samples per character for the skeleton model.
 pub const POINTS: usize = 2048;
@@ -154,23 +154,29 @@ impl Sample {
             &[
                 (
                     "points",
-                    Tensor::f32(&[self.points.len(), 3], &flat(&self.points)),
+                    TensorData::f32(&[self.points.len(), 3], &flat(&self.points)),
                 ),
                 (
                     "normals",
-                    Tensor::f32(&[self.normals.len(), 3], &flat(&self.normals)),
+                    TensorData::f32(&[self.normals.len(), 3], &flat(&self.normals)),
                 ),
-                ("tokens", Tensor::i32(&[tokens.len()], &tokens)),
-                ("joints", Tensor::f32(&[j, 3], &flat(&self.skeleton.joints))),
-                ("parents", Tensor::i32(&[j], &parents)),
-                ("bone_tails", Tensor::f32(&[j, 3], &flat(&self.tails))),
-                ("vertices", Tensor::f32(&[v, 3], &flat(&self.vertices))),
+                ("tokens", TensorData::i32(&[tokens.len()], &tokens)),
+                (
+                    "joints",
+                    TensorData::f32(&[j, 3], &flat(&self.skeleton.joints)),
+                ),
+                ("parents", TensorData::i32(&[j], &parents)),
+                ("bone_tails", TensorData::f32(&[j, 3], &flat(&self.tails))),
+                ("vertices", TensorData::f32(&[v, 3], &flat(&self.vertices))),
                 (
                     "vertex_normals",
-                    Tensor::f32(&[v, 3], &flat(&self.vertex_normals)),
+                    TensorData::f32(&[v, 3], &flat(&self.vertex_normals)),
                 ),
-                ("skin", Tensor::f32(&[v, j], &self.skin.concat())),
-                ("geodesic", Tensor::f32(&[v, j], &self.geodesic.concat())),
+                ("skin", TensorData::f32(&[v, j], &self.skin.concat())),
+                (
+                    "geodesic",
+                    TensorData::f32(&[v, j], &self.geodesic.concat()),
+                ),
             ],
         )
     }

@@ -1,7 +1,7 @@
 //! CPU inference of the auto-rigger's two models, weight for weight as the PyTorch
 //! trainer defines them (train/unica_train/rig.py): the skeleton-token predictor (a
 //! point-cloud encoder to M latents, then a causal transformer over [latents; tokens],
-//! decoded token by token with a KV cache under the grammar of [`Decoder`]) and the skin
+//! decoded token by token with a KV cache under the grammar of [`TokenDecoder`]) and the skin
 //! model (softmax over bones of a learned vertex-bone score plus geodesic and
 //! bone-distance priors). Plain f32 on one CPU thread: the auto-rigger runs on the
 //! teacher side, once per character. Every attention and MLP block is pre-LN with a
@@ -15,7 +15,7 @@ use serde::Deserialize;
 use serde::de::DeserializeOwned;
 
 use super::skeleton::{Class, Skeleton};
-use super::tokens::{self, BINS, BOS, CLASS_OTHER, Decoder, EOS, TokenError, VOCAB};
+use super::tokens::{self, BINS, BOS, CLASS_OTHER, EOS, TokenDecoder, TokenError, VOCAB};
 use crate::random::Rng;
 use crate::tensors::{TensorError, TensorFile};
 
@@ -514,7 +514,7 @@ impl SkeletonModel {
         seed: u64,
     ) -> Result<Vec<u32>, ModelError> {
         let mut rng = Rng::new(seed);
-        let mut grammar = Decoder::new();
+        let mut grammar = TokenDecoder::new();
         let mut decoding = self.start(points, normals);
         let mut tokens = vec![BOS];
         grammar.push(BOS)?;
@@ -583,7 +583,7 @@ fn shortest_next(allowed: &[bool; VOCAB]) -> Option<u32> {
 }
 
 /// Tokens the shortest completion of `grammar` takes, eos included.
-fn shortest_completion(grammar: &Decoder) -> Option<usize> {
+fn shortest_completion(grammar: &TokenDecoder) -> Option<usize> {
     let mut d = grammar.clone();
     let mut n = 0;
     while !d.is_done() {
@@ -595,7 +595,7 @@ fn shortest_completion(grammar: &Decoder) -> Option<usize> {
 
 /// The allowed tokens after which the sequence can still end within `room` tokens (this
 /// one included).
-fn fitting(grammar: &Decoder, room: usize) -> [bool; VOCAB] {
+fn fitting(grammar: &TokenDecoder, room: usize) -> [bool; VOCAB] {
     let allowed = grammar.allowed();
     let fits = |t: u32| {
         let mut d = grammar.clone();

@@ -9,7 +9,7 @@
 //! walk whose children are visited by their own position (z, then x, then y); a chain
 //! continues while each joint is the previous one's child with the same spring flag.
 //! Decoding attaches each chain to the earlier joint nearest its parent coordinates.
-//! [`Decoder`] is also the grammar: it says which tokens may come next.
+//! [`TokenDecoder`] is also the grammar: it says which tokens may come next.
 
 use glam::Vec3;
 
@@ -188,10 +188,10 @@ enum State {
     Done,
 }
 
-/// Incremental decoder and grammar: feed tokens one by one; [`Decoder::allowed`] says
+/// Incremental decoder and grammar: feed tokens one by one; [`TokenDecoder::allowed`] says
 /// which may come next.
 #[derive(Clone, Debug)]
-pub struct Decoder {
+pub struct TokenDecoder {
     state: State,
     class: Class,
     bins: Vec<u32>,
@@ -208,13 +208,13 @@ pub struct Decoder {
     chains: usize,
 }
 
-impl Default for Decoder {
+impl Default for TokenDecoder {
     fn default() -> Self {
         Self::new()
     }
 }
 
-impl Decoder {
+impl TokenDecoder {
     pub fn new() -> Self {
         Self {
             state: State::Start,
@@ -415,7 +415,7 @@ impl Decoder {
 
 /// Decodes a whole sequence (bos … eos).
 pub fn decode(tokens: &[u32]) -> Result<Skeleton, TokenError> {
-    let mut decoder = Decoder::new();
+    let mut decoder = TokenDecoder::new();
     for &t in tokens {
         decoder.push(t)?;
     }
@@ -545,7 +545,7 @@ mod tests {
 
     #[test]
     fn the_grammar_admits_only_valid_continuations() {
-        let mut d = Decoder::new();
+        let mut d = TokenDecoder::new();
         assert!(d.push(EOS).is_err());
         d.push(BOS).unwrap();
         d.push(CLASS_HUMANOID).unwrap();
@@ -576,7 +576,7 @@ mod tests {
 
     #[test]
     fn decoding_stops_at_the_joint_limit() {
-        let mut d = Decoder::new();
+        let mut d = TokenDecoder::new();
         for t in [BOS, CLASS_OTHER] {
             d.push(t).unwrap();
         }

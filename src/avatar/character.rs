@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use glam::{Mat4, Quat, Vec2, Vec3, Vec4};
 
 use super::clip::{Channel, Clip, Interpolation, Values};
-pub use super::load_error::LoadError;
+pub use super::load_error::CharacterError;
 pub(crate) use super::load_error::fail;
 use super::rig::{Bone, Node, Part, Rig, SkinnedMesh, Transform};
 use super::vrm::Vrm;
@@ -38,7 +38,7 @@ impl Character {
         self.pose_mesh(&self.rig.rest_pose(), Mat4::IDENTITY)
     }
 
-    pub fn clip(&self, name: &str) -> Result<&Clip, LoadError> {
+    pub fn clip(&self, name: &str) -> Result<&Clip, CharacterError> {
         self.clips.iter().find(|c| c.name == name).ok_or_else(|| {
             let names: Vec<&str> = self.clips.iter().map(|c| c.name.as_str()).collect();
             fail(
@@ -51,7 +51,7 @@ impl Character {
 
 /// Loads a character and merges the clips of animation libraries `clips` into it (see
 /// [`merge_clip_files`]).
-pub fn load_character_with(path: &Path, clips: &[PathBuf]) -> Result<Character, LoadError> {
+pub fn load_character_with(path: &Path, clips: &[PathBuf]) -> Result<Character, CharacterError> {
     let mut character = load_character(path)?;
     merge_clip_files(&mut character, clips)?;
     Ok(character)
@@ -61,7 +61,10 @@ pub fn load_character_with(path: &Path, clips: &[PathBuf]) -> Result<Character, 
 /// a mesh or not) to `character`'s clips, each channel retargeted onto the character's
 /// node of the same name (channels of nodes it lacks are dropped). A clip whose name is
 /// taken gets the library's file stem appended.
-pub fn merge_clip_files(character: &mut Character, files: &[PathBuf]) -> Result<(), LoadError> {
+pub fn merge_clip_files(
+    character: &mut Character,
+    files: &[PathBuf],
+) -> Result<(), CharacterError> {
     for file in files {
         let ext = file
             .extension()
@@ -93,7 +96,7 @@ pub fn merge_clip_files(character: &mut Character, files: &[PathBuf]) -> Result<
 }
 
 /// The clips of an animation library, on `rig`'s nodes matched by name.
-fn read_clip_library(path: &Path, rig: &Rig) -> Result<Vec<Clip>, LoadError> {
+fn read_clip_library(path: &Path, rig: &Rig) -> Result<Vec<Clip>, CharacterError> {
     let (doc, buffers, _) = super::gltf_check::import(path)?;
     if doc.animations().len() == 0 {
         return Err(fail(path, "the file has no animations"));
@@ -151,7 +154,7 @@ pub fn node_names(rig: &Rig, most: usize) -> String {
 }
 
 /// Loads a character by extension: `.gltf`/`.glb` or `.obj`.
-pub fn load_character(path: &Path) -> Result<Character, LoadError> {
+pub fn load_character(path: &Path) -> Result<Character, CharacterError> {
     if !path.is_file() {
         return Err(fail(path, "no such file"));
     }
@@ -222,7 +225,7 @@ pub fn load_character(path: &Path) -> Result<Character, LoadError> {
 
 type Loaded = (Rig, SkinnedMesh, Vec<Clip>, Option<Vrm>);
 
-fn load_gltf(path: &Path) -> Result<Loaded, LoadError> {
+fn load_gltf(path: &Path) -> Result<Loaded, CharacterError> {
     let (doc, buffers, images) = super::gltf_check::import(path)?;
     let scene = doc
         .default_scene()
@@ -317,7 +320,7 @@ fn skin_bones(
     buffers: &[gltf::buffer::Data],
     index_of: &[Option<usize>],
     rig: &mut Rig,
-) -> Result<Vec<usize>, LoadError> {
+) -> Result<Vec<usize>, CharacterError> {
     let joints: Vec<gltf::Node> = skin.joints().collect();
     let inverse_bind: Vec<Mat4> = match skin
         .reader(|b| Some(&buffers[b.index()]))
@@ -362,7 +365,7 @@ fn read_primitive(
     images: &[gltf::image::Data],
     bones: &[usize],
     skinned: bool,
-) -> Result<SkinnedMesh, LoadError> {
+) -> Result<SkinnedMesh, CharacterError> {
     let reader = primitive.reader(|b| Some(&buffers[b.index()]));
     let positions: Vec<Vec3> = reader
         .read_positions()
@@ -534,7 +537,7 @@ fn read_clip(
     animation: &gltf::Animation,
     buffers: &[gltf::buffer::Data],
     index_of: &[Option<usize>],
-) -> Result<Clip, LoadError> {
+) -> Result<Clip, CharacterError> {
     let name = animation
         .name()
         .map(str::to_string)
@@ -618,7 +621,7 @@ fn read_clip(
     })
 }
 
-fn load_obj(path: &Path) -> Result<Loaded, LoadError> {
+fn load_obj(path: &Path) -> Result<Loaded, CharacterError> {
     let options = tobj::LoadOptions {
         triangulate: true,
         single_index: true,

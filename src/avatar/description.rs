@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use glam::Vec3;
 
 use super::Character;
-use super::character::{LoadError, fail};
+use super::character::{CharacterError, fail};
 use super::clip::Clip;
 
 /// Descriptions shipped with unica, by lower-case character file stem.
@@ -155,7 +155,7 @@ impl Description {
     /// The description for `character`: `explicit` if given, else `<file>.avatar.json`
     /// beside the character, else a shipped one for its name, else inferred (printing what
     /// was inferred in one line on standard error).
-    pub fn find(character: &Character, explicit: Option<&Path>) -> Result<Self, LoadError> {
+    pub fn find(character: &Character, explicit: Option<&Path>) -> Result<Self, CharacterError> {
         if let Some(path) = explicit {
             return Self::read(path);
         }
@@ -174,12 +174,12 @@ impl Description {
         Ok(inferred)
     }
 
-    pub fn read(path: &Path) -> Result<Self, LoadError> {
+    pub fn read(path: &Path) -> Result<Self, CharacterError> {
         let text = std::fs::read_to_string(path).map_err(|e| fail(path, e.to_string()))?;
         Self::parse(&text, path)
     }
 
-    pub fn parse(text: &str, path: &Path) -> Result<Self, LoadError> {
+    pub fn parse(text: &str, path: &Path) -> Result<Self, CharacterError> {
         let description: Self =
             serde_json::from_str(text).map_err(|e| fail(path, e.to_string()))?;
         if !["+z", "-z", "+x", "-x"].contains(&description.forward.as_str()) {
@@ -243,7 +243,7 @@ impl Description {
     /// from the skeleton ([`legs`]); each clip role from clip names
     /// (containing idle/walk/run), else from the motion ([`assign_roles`] on each clip's
     /// [`stance_speed`]); no loose parts. `inferred` says what was inferred, in one line.
-    pub fn infer(character: &Character) -> Result<Self, LoadError> {
+    pub fn infer(character: &Character) -> Result<Self, CharacterError> {
         if character.clips.is_empty() {
             return Err(fail(
                 &character.path,

@@ -9,7 +9,7 @@ use std::path::Path;
 use gltf::accessor::{Accessor, DataType, Dimensions};
 use gltf::mesh::Semantic;
 
-use super::load_error::{LoadError, fail};
+use super::load_error::{CharacterError, fail};
 
 /// The most elements one accessor may declare (16,777,216).
 pub const MAX_ELEMENTS: usize = 1 << 24;
@@ -26,7 +26,7 @@ pub type Imported = (
 );
 
 /// Reads a `.gltf` or `.glb` file and its external buffers and images, then [`check`]s it.
-pub fn import(path: &Path) -> Result<Imported, LoadError> {
+pub fn import(path: &Path) -> Result<Imported, CharacterError> {
     let bytes = std::fs::read(path).map_err(|e| fail(path, e.to_string()))?;
     if bytes.is_empty() {
         return Err(fail(path, "the file is empty"));
@@ -121,8 +121,8 @@ fn short(uri: &str) -> String {
 /// are kept silent on this thread, so the caller prints one line.
 pub fn guarded<T>(
     path: &Path,
-    read: impl FnOnce() -> Result<T, LoadError>,
-) -> Result<T, LoadError> {
+    read: impl FnOnce() -> Result<T, CharacterError>,
+) -> Result<T, CharacterError> {
     use std::cell::Cell;
     use std::panic::{AssertUnwindSafe, catch_unwind};
     thread_local! {
@@ -158,7 +158,7 @@ pub fn check(
     path: &Path,
     doc: &gltf::Document,
     buffers: &[gltf::buffer::Data],
-) -> Result<(), LoadError> {
+) -> Result<(), CharacterError> {
     use DataType::{F32, I8, I16, U8, U16, U32};
     use Dimensions::{Mat4, Scalar, Vec2, Vec3, Vec4};
     for accessor in doc.accessors() {
@@ -220,7 +220,7 @@ fn expect(
     what: &str,
     types: &[DataType],
     dims: &[Dimensions],
-) -> Result<(), LoadError> {
+) -> Result<(), CharacterError> {
     if types.contains(&a.data_type()) && dims.contains(&a.dimensions()) {
         return Ok(());
     }
@@ -241,7 +241,7 @@ fn check_extent(
     path: &Path,
     a: &Accessor,
     buffers: &[gltf::buffer::Data],
-) -> Result<(), LoadError> {
+) -> Result<(), CharacterError> {
     let name = label(a);
     let count = a.count();
     if count == 0 || count > MAX_ELEMENTS {
@@ -314,7 +314,7 @@ fn fits(
     count: usize,
     size: usize,
     buffers: &[gltf::buffer::Data],
-) -> Result<(), LoadError> {
+) -> Result<(), CharacterError> {
     let buffer = view.buffer().index();
     let have = buffers.get(buffer).map_or(0, |b| b.len());
     let view_end = view.offset().checked_add(view.length());

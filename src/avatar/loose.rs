@@ -7,7 +7,7 @@ use std::f32::consts::TAU;
 use glam::{Mat4, Vec3};
 
 use super::Character;
-use super::character::{LoadError, fail};
+use super::character::{CharacterError, fail};
 use super::description::{ChainLayout, Description, LoosePart, SpringChain};
 use super::locomotion::{angle_difference, heading};
 use super::rig::{Bone, Node, Transform};
@@ -32,7 +32,7 @@ struct Placement {
 pub fn add_spring_chains(
     character: &mut Character,
     description: &Description,
-) -> Result<SpringSystem, LoadError> {
+) -> Result<SpringSystem, CharacterError> {
     let rest = character
         .rig
         .world(&character.rig.rest_pose(), Mat4::IDENTITY);
@@ -196,7 +196,7 @@ fn vrm_springs(
     world: &[Mat4],
     vrm: &Vrm,
     system: &mut SpringSystem,
-) -> Result<(), LoadError> {
+) -> Result<(), CharacterError> {
     let rig = &character.rig;
     let base = system.colliders.len();
     for c in &vrm.colliders {
@@ -279,7 +279,7 @@ fn existing_chain(
     world: &[Mat4],
     spec: &SpringChain,
     height: f32,
-) -> Result<Chain, LoadError> {
+) -> Result<Chain, CharacterError> {
     let rig = &character.rig;
     let root = rig
         .find(&spec.root)

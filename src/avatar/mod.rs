@@ -16,4 +16,4 @@ pub mod springs;
 pub mod teacher;
 pub mod vrm;
 
-pub use character::{Character, LoadError, load_character, load_character_with};
+pub use character::{Character, CharacterError, load_character, load_character_with};

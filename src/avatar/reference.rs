@@ -4,7 +4,7 @@
 
 use glam::Vec3;
 
-use super::character::{LoadError, fail};
+use super::character::{CharacterError, fail};
 use super::teacher::Teacher;
 use crate::posmap::table::VIEWS;
 use crate::posmap::{GroupNorm, SurfaceTable};
@@ -49,7 +49,7 @@ pub struct RegionCoverage {
 }
 
 impl Reference {
-    pub fn new(teacher: &Teacher) -> Result<Self, LoadError> {
+    pub fn new(teacher: &Teacher) -> Result<Self, CharacterError> {
         let character = &teacher.character;
         let mesh = character.rest_mesh();
         let (lo, hi) = mesh.bounds().expect("a character has vertices");

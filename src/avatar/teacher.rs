@@ -4,7 +4,7 @@
 
 use glam::{Mat4, Vec3};
 
-use super::character::{Character, LoadError, fail, node_names};
+use super::character::{Character, CharacterError, fail, node_names};
 use super::clip::Clip;
 use super::description::{Description, REST_CLIP};
 use super::gait::planted_speed;
@@ -33,7 +33,7 @@ pub struct Teacher {
 }
 
 impl Teacher {
-    pub fn new(mut character: Character, description: Description) -> Result<Self, LoadError> {
+    pub fn new(mut character: Character, description: Description) -> Result<Self, CharacterError> {
         let springs = add_spring_chains(&mut character, &description)?;
         if description.clips.idle == REST_CLIP && character.clip(REST_CLIP).is_err() {
             character.clips.push(Clip {
@@ -44,7 +44,7 @@ impl Teacher {
         }
         let clip_index = |name: &str| {
             character.clip(name)?;
-            Ok::<_, LoadError>(
+            Ok::<_, CharacterError>(
                 character
                     .clips
                     .iter()

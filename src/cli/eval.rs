@@ -99,7 +99,7 @@ pub(super) fn eval_script<'a>(
 /// trainer's evaluation (`python3 -m unica_train.eval`, or $UNICA_PYTHON) on it.
 pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     let manifest_path = args.data.join("manifest.json");
-    let manifest: crate::dataset::Manifest = serde_json::from_slice(
+    let manifest: crate::dataset::DatasetManifest = serde_json::from_slice(
         &std::fs::read(&manifest_path).with_context(|| manifest_path.display().to_string())?,
     )
     .with_context(|| format!("{}: not a dataset manifest", manifest_path.display()))?;

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::{ANCHOR, ClipInfo, FORMAT, GROUP, Manifest, VERSION};
+use super::{ANCHOR, ClipInfo, DatasetManifest, FORMAT, GROUP, VERSION};
 use crate::action::Action;
 use crate::avatar::description::Description;
 use crate::avatar::load_character_with;
@@ -20,7 +20,7 @@ use crate::posmap::{GroupNorm, MAP_SIZE};
 use crate::render::OrbitCamera;
 use crate::render::offscreen::Offscreen;
 use crate::render::scene::DrawOptions;
-use crate::tensors::{self, Tensor};
+use crate::tensors::{self, TensorData};
 
 /// The preview shows the middle frame of every third clip.
 const PREVIEW_EVERY: usize = 3;
@@ -110,7 +110,7 @@ pub fn bake(
     out: &Path,
     options: &BakeOptions,
     progress: &dyn Fn(u64, u64),
-) -> anyhow::Result<Manifest> {
+) -> anyhow::Result<DatasetManifest> {
     let loaded = load_character_with(character, &options.clips)?;
     let description = Description::find(&loaded, options.description.as_deref())?;
     let start = Teacher::new(loaded, description)?;
@@ -175,9 +175,9 @@ pub fn bake(
         tensors::write(
             &out.join(&file),
             &[
-                ("skin", Tensor::f32(&[frames, bones, 3, 4], &skin)),
-                ("actions", Tensor::i32(&[frames], &actions)),
-                ("root", Tensor::f32(&[frames, 3], &flat_roots)),
+                ("skin", TensorData::f32(&[frames, bones, 3, 4], &skin)),
+                ("actions", TensorData::i32(&[frames], &actions)),
+                ("root", TensorData::f32(&[frames, 3], &flat_roots)),
             ],
         )?;
         clips.push(ClipInfo {
@@ -195,7 +195,7 @@ pub fn bake(
     // Witch's motion fits at the extent's scale, which stays).
     reference.norm = reference.norm.fitted(reach);
     let p = start.locomotion.params;
-    let manifest = Manifest {
+    let manifest = DatasetManifest {
         format: FORMAT.into(),
         version: VERSION,
         avatar: start.character.name.clone(),
@@ -348,12 +348,12 @@ fn write_reference(teacher: &Teacher, reference: &Reference, path: &Path) -> any
         &[
             (
                 "bind_positions",
-                Tensor::f32(&[v, 3], &flat3(&s.bind.positions)),
+                TensorData::f32(&[v, 3], &flat3(&s.bind.positions)),
             ),
-            ("colors", Tensor::f32(&[v, 3], &flat3(&s.bind.colors))),
+            ("colors", TensorData::f32(&[v, 3], &flat3(&s.bind.colors))),
             (
                 "joints",
-                Tensor::i32(
+                TensorData::i32(
                     &[v, 4],
                     &s.joints
                         .iter()
@@ -363,26 +363,26 @@ fn write_reference(teacher: &Teacher, reference: &Reference, path: &Path) -> any
             ),
             (
                 "weights",
-                Tensor::f32(
+                TensorData::f32(
                     &[v, 4],
                     &s.weights.iter().flatten().copied().collect::<Vec<_>>(),
                 ),
             ),
             (
                 "triangles",
-                Tensor::i32(&[s.bind.indices.len() / 3, 3], &as_i32(&s.bind.indices)),
+                TensorData::i32(&[s.bind.indices.len() / 3, 3], &as_i32(&s.bind.indices)),
             ),
             (
                 "pixels",
-                Tensor::i32(&[n], &as_i32(&reference.table.pixels)),
+                TensorData::i32(&[n], &as_i32(&reference.table.pixels)),
             ),
             (
                 "pixel_triangles",
-                Tensor::i32(&[n], &as_i32(&reference.table.triangles)),
+                TensorData::i32(&[n], &as_i32(&reference.table.triangles)),
             ),
             (
                 "barycentrics",
-                Tensor::f32(
+                TensorData::f32(
                     &[n, 3],
                     &reference
                         .table
@@ -395,7 +395,7 @@ fn write_reference(teacher: &Teacher, reference: &Reference, path: &Path) -> any
             ),
             (
                 "waist",
-                Tensor::i32(&[reference.waist.len()], &as_i32(&reference.waist)),
+                TensorData::i32(&[reference.waist.len()], &as_i32(&reference.waist)),
             ),
         ],
     )?;

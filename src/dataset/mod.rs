@@ -21,7 +21,7 @@ pub const GROUP: usize = 4;
 pub const ANCHOR: usize = 2;
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-pub struct Manifest {
+pub struct DatasetManifest {
     pub format: String,
     pub version: u32,
     pub avatar: String,
@@ -73,7 +73,7 @@ fn invalid(path: &Path, problem: impl Into<String>) -> DatasetError {
 }
 
 /// The reference mesh and table, as stored in `reference.safetensors`.
-pub struct Reference {
+pub struct BakedReference {
     pub bind_positions: Vec<Vec3>,
     pub joints: Vec<[i32; 4]>,
     pub weights: Vec<[f32; 4]>,
@@ -85,7 +85,7 @@ pub struct Reference {
 }
 
 /// One clip: per frame the skinning matrices (rows 0-2 of each), the action and the root.
-pub struct Clip {
+pub struct BakedClip {
     pub skin: Vec<[f32; 12]>,
     pub actions: Vec<i32>,
     pub root: Vec<Vec3>,
@@ -93,8 +93,8 @@ pub struct Clip {
 
 pub struct Dataset {
     pub dir: PathBuf,
-    pub manifest: Manifest,
-    pub reference: Reference,
+    pub manifest: DatasetManifest,
+    pub reference: BakedReference,
 }
 
 impl Dataset {
@@ -102,7 +102,7 @@ impl Dataset {
         let manifest_path = dir.join("manifest.json");
         let text = std::fs::read_to_string(&manifest_path)
             .map_err(|e| invalid(&manifest_path, e.to_string()))?;
-        let manifest: Manifest =
+        let manifest: DatasetManifest =
             serde_json::from_str(&text).map_err(|e| invalid(&manifest_path, e.to_string()))?;
         if manifest.format != FORMAT || manifest.version != VERSION {
             return Err(invalid(
@@ -121,7 +121,7 @@ impl Dataset {
                 .collect::<Vec<_>>()
         };
         let to_u32 = |data: Vec<i32>| data.into_iter().map(|x| x as u32).collect::<Vec<_>>();
-        let reference = Reference {
+        let reference = BakedReference {
             bind_positions: vec3(file.f32("bind_positions", &[v, Some(3)])?.0),
             joints: file
                 .i32("joints", &[v, Some(4)])?
@@ -175,12 +175,12 @@ impl Dataset {
         })
     }
 
-    pub fn clip(&self, index: usize) -> Result<Clip, DatasetError> {
+    pub fn clip(&self, index: usize) -> Result<BakedClip, DatasetError> {
         let info = &self.manifest.clips[index];
         let file = TensorFile::open(&self.dir.join(&info.file))?;
         let (f, b) = (Some(info.frames), Some(self.manifest.bones));
         let skin = file.f32("skin", &[f, b, Some(3), Some(4)])?.0;
-        Ok(Clip {
+        Ok(BakedClip {
             skin: skin
                 .chunks_exact(12)
                 .map(|c| c.try_into().expect("12"))
@@ -197,7 +197,7 @@ impl Dataset {
 
     /// The world-space foreground points of frame `frame` of `clip`: linear blend
     /// skinning of the reference, then the table gather.
-    pub fn positions(&self, clip: &Clip, frame: usize) -> Vec<Vec3> {
+    pub fn positions(&self, clip: &BakedClip, frame: usize) -> Vec<Vec3> {
         let bones = self.manifest.bones;
         let skin: Vec<Mat4> = clip.skin[frame * bones..(frame + 1) * bones]
             .iter()
@@ -243,7 +243,7 @@ impl Dataset {
 /// Every index in the reference points at something that exists (joints below `bones`,
 /// triangle corners below the vertex count, pixel triangles below the triangle count,
 /// waist entries below the pixel count) and every value is finite.
-fn check_reference(path: &Path, r: &Reference, bones: usize) -> Result<(), DatasetError> {
+fn check_reference(path: &Path, r: &BakedReference, bones: usize) -> Result<(), DatasetError> {
     fn first_bad(
         path: &Path,
         name: &str,

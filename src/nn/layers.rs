@@ -338,11 +338,11 @@ impl ResBlock {
 }
 
 /// Nearest ×2 upsampling then a 3×3 convolution.
-pub struct Up {
+pub struct UpBlock {
     conv: Conv,
 }
 
-impl Up {
+impl UpBlock {
     pub fn load(w: &Weights, c_in: usize, c_out: usize) -> Result<Self, LoadError> {
         Ok(Self {
             conv: Conv::load(&w.at("conv"), c_in, c_out, 3, 1)?,

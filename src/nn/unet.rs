@@ -7,7 +7,8 @@ use serde::Deserialize;
 
 use super::Tensor;
 use super::layers::{
-    Conv, CrossAttention, Frames, Linear, Norm, ResBlock, SpatialAttention, TemporalAttention, Up,
+    Conv, CrossAttention, Frames, Linear, Norm, ResBlock, SpatialAttention, TemporalAttention,
+    UpBlock,
 };
 use super::ops::{Indices, Recorder};
 use super::weights::{LoadError, Weights};
@@ -192,7 +193,7 @@ pub struct UNet {
     mid2: ResBlock,
     up1: ResBlock,
     up_attn: AttentionStack,
-    up: Up,
+    up: UpBlock,
     up0: ResBlock,
     temporal_up0: TemporalAttention,
     norm_out: Norm,
@@ -222,7 +223,7 @@ impl UNet {
             mid2: ResBlock::load(&w.at("mid2"), c1, c1, e)?,
             up1: ResBlock::load(&w.at("up1"), 2 * c1, c1, e)?,
             up_attn: AttentionStack::load(&w.at("up_attn"), &mut r, &action, c1, cfg)?,
-            up: Up::load(&w.at("up"), c1, c1)?,
+            up: UpBlock::load(&w.at("up"), c1, c1)?,
             up0: ResBlock::load(&w.at("up0"), c1 + c0, c0, e)?,
             temporal_up0: TemporalAttention::load(
                 &w.at("temporal_up0"),

@@ -7,7 +7,7 @@
 use serde::Deserialize;
 
 use super::Tensor;
-use super::layers::{Conv, Linear, Norm, ResBlock, Up};
+use super::layers::{Conv, Linear, Norm, ResBlock, UpBlock};
 use super::ops::Recorder;
 use super::weights::{LoadError, Weights};
 use crate::gpu::GpuError;
@@ -223,7 +223,7 @@ impl PcaDecoder {
 pub struct ConvDecoder {
     conv_in: Conv,
     res: Vec<ResBlock>,
-    up: Vec<Up>,
+    up: Vec<UpBlock>,
     norm_out: Norm,
     conv_out: Conv,
 }
@@ -242,7 +242,7 @@ impl ConvDecoder {
             up: steps
                 .iter()
                 .enumerate()
-                .map(|(i, &(a, b))| Up::load(&w.at(&format!("up.{i}")), a, b))
+                .map(|(i, &(a, b))| UpBlock::load(&w.at(&format!("up.{i}")), a, b))
                 .collect::<Result<_, _>>()?,
             norm_out: Norm::load(&w.at("norm_out"), c128)?,
             conv_out: Conv::load(&w.at("conv_out"), c128, 3, 3, 1)?,

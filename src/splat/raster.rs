@@ -14,21 +14,21 @@ use crate::gpu::shaders::Shader;
 use crate::gpu::{GpuContext, GpuError};
 use crate::gpu_struct;
 
-pub const SPLAT_PROJECT: Shader = shader!("splat/splat_project.wgsl", [SplatFrame, GpuSplat, ProjectedSplat], f16: false, subgroups: false);
+pub const SPLAT_PROJECT: Shader = shader!("splat/splat_project.wgsl", [RasterView, GpuSplat, ProjectedSplat], f16: false, subgroups: false);
 pub const SCAN_BLOCKS: Shader =
     shader!("splat/scan_blocks.wgsl", [ScanParams], f16: false, subgroups: false);
 pub const SCAN_ADD: Shader =
     shader!("splat/scan_add.wgsl", [ScanParams], f16: false, subgroups: false);
 pub const SPLAT_KEYS: Shader =
-    shader!("splat/splat_keys.wgsl", [SplatFrame, ProjectedSplat], f16: false, subgroups: false);
+    shader!("splat/splat_keys.wgsl", [RasterView, ProjectedSplat], f16: false, subgroups: false);
 pub const RADIX_HISTOGRAM: Shader =
     shader!("splat/radix_histogram.wgsl", [RadixParams], f16: false, subgroups: false);
 pub const RADIX_SCATTER: Shader =
     shader!("splat/radix_scatter.wgsl", [RadixParams], f16: false, subgroups: false);
 pub const SPLAT_RANGES: Shader =
-    shader!("splat/splat_ranges.wgsl", [SplatFrame], f16: false, subgroups: false);
+    shader!("splat/splat_ranges.wgsl", [RasterView], f16: false, subgroups: false);
 pub const SPLAT_RENDER: Shader =
-    shader!("splat/splat_render.wgsl", [SplatFrame, ProjectedSplat], f16: false, subgroups: false)
+    shader!("splat/splat_render.wgsl", [RasterView, ProjectedSplat], f16: false, subgroups: false)
         .with_uints(&[("TILE", super::project::TILE)]);
 
 /// Every shader of this file (gathered by `splat::shaders`).
@@ -45,7 +45,7 @@ pub const SHADERS: &[Shader] = &[
 
 gpu_struct! {
     /// The camera and sizes of one rasterized frame.
-    pub struct SplatFrame {
+    pub struct RasterView {
         pub view: Mat4,
         pub fx: f32,
         pub fy: f32,
@@ -255,7 +255,7 @@ impl Rasterizer {
         Self::fits(gpu, count)?;
         let count = count.max(1);
         let capacity = capacity(count);
-        let frame = SplatFrame {
+        let frame = RasterView {
             view: camera.view,
             fx: camera.fx,
             fy: camera.fy,
