@@ -1,5 +1,5 @@
 // The PCA coefficients of a frame: c_k = Σ_d basis[k, d] · (unit[d] - shift[d % 3] -
-// mean[d]), one thread per component (the frame centred on its own root, DESIGN §6),
+// mean[d]), one thread per component (the frame centred on its own root: docs/architecture.md, The live loop),
 // summed over d in order. The frame, the mean and the basis are read as texels
 // (src/gpu/texels.rs), four values a fetch; each basis row is padded with zeros to
 // whole texels, so the padding adds exact zeros.

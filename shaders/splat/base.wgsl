@@ -1,4 +1,4 @@
-// Base splats (DESIGN §7, as src/splat/base.rs): per point, tangents from central
+// Base splats (docs/architecture.md, Appearance; as src/splat/base.rs): per point, tangents from central
 // differences over its right/left and lower/upper neighbours within 3× the median
 // spacing (frame[3]), the local frame (x along the column tangent, z the normal), σ from
 // the footprints, the bundle's colour; with `features`, the refiner's 11 inputs too.

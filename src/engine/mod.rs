@@ -1,4 +1,4 @@
-//! The live neural avatar (DESIGN §6): the window of three context maps, turned to the
+//! The live neural avatar (docs/architecture.md, The live loop): the window of three context maps, turned to the
 //! model's heading (the bundle's `heading`: the last movement key's direction turned to
 //! W's, or not turned) and encoded into context latents → the UNet + DDIM with CFG →
 //! decode → turned back, clamped, the new frame's root shift → PCA cleans what is drawn

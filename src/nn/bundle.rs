@@ -1,4 +1,4 @@
-//! Bundles (DESIGN §8), the trainer's output: `manifest.json` (format, version, model
+//! Bundles (docs/architecture.md, Files), the trainer's output: `manifest.json` (format, version, model
 //! configs, sampler defaults, normalisation) and `weights.safetensors`. Loading refuses
 //! another format or version and names the first tensor whose name, dtype or shape is
 //! not what the manifest's configs imply.
@@ -91,7 +91,7 @@ pub enum Heading {
     Canonical,
 }
 
-/// Group normalisation (DESIGN §4): normalised = (world - root) · scale + 0.5.
+/// Group normalisation (docs/architecture.md, Position maps): normalised = (world - root) · scale + 0.5.
 #[derive(Clone, Debug, Deserialize)]
 pub struct Normalisation {
     pub scale: f32,

@@ -1,4 +1,4 @@
-//! Six-view position maps (DESIGN §4): a fixed pixel → (triangle, barycentrics) table of
+//! Six-view position maps (docs/architecture.md, Position maps): a fixed pixel → (triangle, barycentrics) table of
 //! the reference mesh, the per-frame gather, group normalisation and the inverse.
 //! Plain data and math: no GPU, no rig.
 

@@ -1,4 +1,4 @@
-//! World alignment (DESIGN §7): the least-squares similarity — rotation, uniform scale,
+//! World alignment (docs/architecture.md, Appearance): the least-squares similarity — rotation, uniform scale,
 //! translation — that maps one point set onto another (Horn's closed form with unit
 //! quaternions: the rotation is the top eigenvector of a symmetric 4×4 matrix built from
 //! the cross-covariance, found by Jacobi rotations; no reflection can come out).

@@ -1,4 +1,4 @@
-//! Base splats (DESIGN §7): one flat Gaussian per foreground pixel of a position map, in
+//! Base splats (docs/architecture.md, Appearance): one flat Gaussian per foreground pixel of a position map, in
 //! the local surface frame of its map neighbourhood, recomputed every frame (so splats
 //! turn and stretch with the body instead of keeping the rest pose's shape). x follows the
 //! column tangent, z the surface normal; σ = 0.6 × the footprint along the surface and

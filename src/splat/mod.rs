@@ -1,4 +1,4 @@
-//! Appearance (DESIGN §7): Gaussian splats from position maps — base splats in each
+//! Appearance (docs/architecture.md, Appearance): Gaussian splats from position maps — base splats in each
 //! pixel's local surface frame, the foreground-aware map upscale, the projection with a
 //! CPU reference renderer, the WGSL tile rasterizer, compositing, world alignment and the
 //! splat file formats (3DGS PLY, SuperSplat's compressed PLY, antimatter15 .splat, Z-up

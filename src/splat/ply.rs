@@ -1,4 +1,4 @@
-//! Gaussian splats in the de-facto 3DGS PLY layout (DESIGN §8): binary little-endian
+//! Gaussian splats in the de-facto 3DGS PLY layout (docs/architecture.md, Files): binary little-endian
 //! vertices with x y z, nx ny nz, f_dc_0..2 (SH degree 0), opacity (logit), scale_0..2
 //! (log), rot_0..3 (w x y z). Reading also takes ASCII and big-endian files, float or
 //! double properties in any order, and ignores extra ones (higher SH degrees: f_rest_*).

@@ -1,4 +1,4 @@
-//! Foreground-aware upscaling of 3-channel maps (DESIGN §7: 128² → 1024²): the GPU kernel
+//! Foreground-aware upscaling of 3-channel maps (docs/architecture.md, Appearance: 128² → 1024²): the GPU kernel
 //! (shaders/upscale_map.wgsl) and its CPU reference, the same arithmetic in f32.
 
 use crate::gpu::kernel::{Grid, PipelineCache, Precision, dispatch, uniform};

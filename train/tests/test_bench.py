@@ -15,7 +15,7 @@ def test_bench_tiny_and_default_on_cpu(tmp_path, capsys):
     unet = rows["default", "unet step"]["gflop"]
     assert abs(unet - 2 * 4 * 0.455) < 0.05 * 3.64
     decode = rows["default", "vae decode"]["gflop"]
-    assert 0.3 < decode < 0.5  # DESIGN §5: the decoder stays under 0.5 GFLOP
+    assert 0.3 < decode < 0.5  # docs/architecture.md, The geometry model: the decoder stays under 0.5 GFLOP
     assert abs(rows["default", "generated frame"]["gflop"] - (2 * unet + decode)) < 1e-9
     assert rows["tiny", "unet step"]["gflop"] < unet / 10
     # unet-target is one sample of the group at CFG 1: half the CFG batch.

@@ -1,4 +1,4 @@
-"""Evaluation metrics (DESIGN §10), each on cases with known answers."""
+"""Evaluation metrics (docs/architecture.md, Evaluation), each on cases with known answers."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""Bundles (DESIGN §8): what the app loads to play an avatar — `weights.safetensors` and a
+"""Bundles (docs/architecture.md, Files): what the app loads to play an avatar — `weights.safetensors` and a
 versioned `manifest.json` with the full model config, action names, normalisation, PCA,
 the position-map layout, per-pixel colours and the initial context of a standing start.
 Loading checks every tensor's name, shape and dtype and names the first that is wrong.

@@ -1,4 +1,4 @@
-"""The diffusion process (DESIGN §5): scaled-linear DDPM betas 0.00085-0.012 over 1000
+"""The diffusion process (docs/architecture.md, The geometry model): scaled-linear DDPM betas 0.00085-0.012 over 1000
 steps, epsilon prediction, Min-SNR weights, noise offset; the DDIM sampler with real
 classifier-free guidance (conditional and null action in one batch), optionally only over
 the first `guided_steps` DDIM steps (a guidance interval: measured, it keeps generated

@@ -1,4 +1,4 @@
-"""The evaluation report (DESIGN §10): the neural avatar of a bundle measured against the
+"""The evaluation report (docs/architecture.md, Evaluation): the neural avatar of a bundle measured against the
 teacher on the UNICA paper's protocol, with honest stand-ins for what needs pretrained
 networks (LPIPS, FVD).
 

@@ -1,4 +1,4 @@
-"""The evaluation metrics of DESIGN §10: generated motion measured against the teacher.
+"""The evaluation metrics (docs/architecture.md, Evaluation): generated motion measured against the teacher.
 
 - point clouds: symmetric Chamfer distance, and Chamfer to the nearest of a set of poses;
 - distributions: Fréchet distance between Gaussians fitted to feature rows, and sliding

@@ -1,4 +1,4 @@
-"""PCA of position maps (DESIGN §5-6): fitted on the training frames' foreground values,
+"""PCA of position maps (docs/architecture.md, The geometry model and The live loop): fitted on the training frames' foreground values,
 each frame centred on its own root, and used only to clean what is drawn."""
 
 from __future__ import annotations

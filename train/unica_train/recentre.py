@@ -1,4 +1,4 @@
-"""Recentring the context window in latent space (DESIGN §6) instead of re-encoding it.
+"""Recentring the context window in latent space (docs/architecture.md, The live loop) instead of re-encoding it.
 
 The live loop normalises every group so that the 3rd frame's root sits at 0.5; after each
 generated frame its root shift δ = root(new) − 0.5 moves the world root by δ / scale and

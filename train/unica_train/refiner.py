@@ -1,4 +1,4 @@
-"""The splat refiner (DESIGN §7): a small point transformer in the spirit of PTv3 that
+"""The splat refiner (docs/architecture.md, Appearance): a small point transformer in the spirit of PTv3 that
 predicts per-Gaussian residuals of every attribute from the base splats of a frame.
 
 - Serialisation: positions quantised to 1024 bins per axis, ordered along a z-order and a

@@ -1,4 +1,4 @@
-"""Gaussian splats in PyTorch (DESIGN §7), the same meaning as the Rust side:
+"""Gaussian splats in PyTorch (docs/architecture.md, Appearance), the same meaning as the Rust side:
 
 - base splats from a frame's foreground points: each pixel's local surface frame from its
   map neighbours (src/splat/base.rs does the same arithmetic);

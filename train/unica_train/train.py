@@ -441,7 +441,7 @@ class Run:
 
     @torch.no_grad()
     def rollout(self, vae, unet, schedule, scale) -> dict:
-        """The reference of the live loop (DESIGN §6): from a standing start, generate each
+        """The reference of the live loop (docs/architecture.md, The live loop): from a standing start, generate each
         next frame from the last three, move the world root by the new frame's root shift,
         recentre the window on the new frame and slide it."""
         cfg, ds = self.cfg, self.ds

@@ -1,5 +1,5 @@
 """The position-map VAE: 3x128x128 maps <-> 4x16x16 latents (x8 down), small enough that the
-decoder stays under 0.5 GFLOP (DESIGN §5). L1 on the foreground plus a small KL.
+decoder stays under 0.5 GFLOP (docs/architecture.md, The geometry model). L1 on the foreground plus a small KL.
 
 Two decoders (`VaeConfig.decoder`): "conv", the upsampling convolutions, and "pca", a linear
 head onto a fixed PCA basis of training maps (`PcaDecoder`): the character's pose space is
