@@ -60,7 +60,8 @@ fn the_witch_map_covers_most_of_the_surface() {
         report.view_pixels
     );
     // Measured 0.85: the Witch's layered hair (a quarter of the surface area, 59 % seen)
-    // and the face under the brim hide from every outside view. The design aims at 0.97 (docs/architecture.md, Position maps).
+    // and the face under the brim hide from every outside view. The design aims at 0.97
+    // (docs/architecture.md, Position maps).
     assert!(
         report.surface_seen > 0.8,
         "surface seen {}",

@@ -140,9 +140,9 @@ fn a_second_frame_reusing_the_buffers_shows_only_its_own_splats() {
 #[test]
 fn the_gpu_upscale_matches_the_cpu_reference() {
     // A 128² map with a ragged foreground (a disc with holes) and varied values, ×8 to
-    // 1024² as docs/architecture.md, Appearance, says. Same f32 arithmetic; the GPU may fuse multiply-adds, so values
-    // agree within 1e-5 and the mask may differ only where the interpolated mask is
-    // within rounding of the 0.25 threshold.
+    // 1024² as docs/architecture.md, Appearance, says. Same f32 arithmetic; the GPU may
+    // fuse multiply-adds, so values agree within 1e-5 and the mask may differ only where
+    // the interpolated mask is within rounding of the 0.25 threshold.
     use unica::splat::upscale;
     let (w, h) = (128usize, 128usize);
     let mask: Vec<f32> = (0..w * h)

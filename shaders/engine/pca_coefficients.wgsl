@@ -1,8 +1,8 @@
 // The PCA coefficients of a frame: c_k = Σ_d basis[k, d] · (unit[d] - shift[d % 3] -
-// mean[d]), one thread per component (the frame centred on its own root: docs/architecture.md, The live loop),
-// summed over d in order. The frame, the mean and the basis are read as texels
-// (src/gpu/texels.rs), four values a fetch; each basis row is padded with zeros to
-// whole texels, so the padding adds exact zeros.
+// mean[d]), one thread per component (the frame centred on its own root:
+// docs/architecture.md, The live loop), summed over d in order. The frame, the mean and
+// the basis are read as texels (src/gpu/texels.rs), four values a fetch; each basis row
+// is padded with zeros to whole texels, so the padding adds exact zeros.
 
 @group(0) @binding(0) var<uniform> p: PostParams;
 @group(0) @binding(1) var unit: texture_2d<f32>;

@@ -1,7 +1,8 @@
-// Base splats (docs/architecture.md, Appearance; as src/splat/base.rs): per point, tangents from central
-// differences over its right/left and lower/upper neighbours within 3× the median
-// spacing (frame[3]), the local frame (x along the column tangent, z the normal), σ from
-// the footprints, the bundle's colour; with `features`, the refiner's 11 inputs too.
+// Base splats (docs/architecture.md, Appearance; as src/splat/base.rs): per point,
+// tangents from central differences over its right/left and lower/upper neighbours within
+// 3× the median spacing (frame[3]), the local frame (x along the column tangent, z the
+// normal), σ from the footprints, the bundle's colour; with `features`, the refiner's 11
+// inputs too.
 
 @group(0) @binding(0) var<uniform> p: SplatParams;
 @group(0) @binding(1) var<storage, read> points: array<f32>;

@@ -1,5 +1,6 @@
-//! The command-line contract (docs/architecture.md, Command line): the app by default, and the subcommands.
-//! Subcommands of later milestones are listed and refuse to run until they exist.
+//! The command-line contract (docs/architecture.md, Command line): the app by default,
+//! and the subcommands. Subcommands of later milestones are listed and refuse to run
+//! until they exist.
 
 use std::path::{Path, PathBuf};
 

@@ -1,7 +1,8 @@
-//! The baked teacher dataset (docs/architecture.md, Files), compact: per clip the skinning matrices of every
-//! frame (spring bones included), the actions and the root path; one reference file with
-//! the mesh, skin weights and the pixel → surface table. A frame's position map is LBS of
-//! the reference followed by the table gather ([`Dataset::positions`]); `bake` writes it.
+//! The baked teacher dataset (docs/architecture.md, Files), compact: per clip the
+//! skinning matrices of every frame (spring bones included), the actions and the root
+//! path; one reference file with the mesh, skin weights and the pixel → surface table. A
+//! frame's position map is LBS of the reference followed by the table gather
+//! ([`Dataset::positions`]); `bake` writes it.
 
 pub mod bake;
 

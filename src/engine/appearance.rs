@@ -1,7 +1,7 @@
-//! From a generated frame's points to splats (docs/architecture.md, Appearance): base splats in each pixel's
-//! local surface frame, the refiner's residuals (run on the 128² points), and, at a finer
-//! splat level, the foreground-aware GPU upscale of the positions, colours and residuals
-//! to that level's map, whose pixels become the splats.
+//! From a generated frame's points to splats (docs/architecture.md, Appearance): base
+//! splats in each pixel's local surface frame, the refiner's residuals (run on the 128²
+//! points), and, at a finer splat level, the foreground-aware GPU upscale of the
+//! positions, colours and residuals to that level's map, whose pixels become the splats.
 
 use glam::Vec3;
 
@@ -18,8 +18,9 @@ use super::surface::COLOR;
 /// Map sizes splats can be drawn at: one splat per foreground pixel of that map.
 pub const LEVELS: [usize; 4] = [128, 256, 512, 1024];
 
-/// The splat level to use when none is asked for: 1024 (docs/architecture.md, Appearance) on a GPU; 256 on a
-/// CPU driver such as lavapipe, where 250k splats take seconds per frame.
+/// The splat level to use when none is asked for: 1024 (docs/architecture.md, Appearance)
+/// on a GPU; 256 on a CPU driver such as lavapipe, where 250k splats take seconds per
+/// frame.
 pub fn default_level(gpu: &GpuContext) -> usize {
     if gpu.adapter.get_info().device_type == wgpu::DeviceType::Cpu {
         256

@@ -1,23 +1,23 @@
-//! The live neural avatar (docs/architecture.md, The live loop): the window of three context maps, turned to the
-//! model's heading (the bundle's `heading`: the last movement key's direction turned to
-//! W's, or not turned) and encoded into context latents → the UNet + DDIM with CFG →
-//! decode → turned back, clamped, the new frame's root shift → PCA cleans what is drawn
-//! (never fed back) → world-space points, while the window of maps slides and is
-//! recentred on the new root, and the world root accumulates the root motion (the shift,
-//! or where the bundle says `root_motion: decoded` the new root minus the last context
-//! latent's, decoded too). All of it is one captured
-//! [`Plan`] made at load (and again when the sampling or PCA setting changes): a generated
-//! frame writes its noise and action ids, submits the plan and creates nothing. The only
-//! readback is the 64-byte [`FrameState`] (world root, shift, motion, clamp counts), mapped
+//! The live neural avatar (docs/architecture.md, The live loop): the window of three
+//! context maps, turned to the model's heading (the bundle's `heading`: the last movement
+//! key's direction turned to W's, or not turned) and encoded into context latents → the
+//! UNet + DDIM with CFG → decode → turned back, clamped, the new frame's root shift → PCA
+//! cleans what is drawn (never fed back) → world-space points, while the window of maps
+//! slides and is recentred on the new root, and the world root accumulates the root
+//! motion (the shift, or where the bundle says `root_motion: decoded` the new root minus
+//! the last context latent's, decoded too). All of it is one captured [`Plan`] made at
+//! load (and again when the sampling or PCA setting changes): a generated frame writes
+//! its noise and action ids, submits the plan and creates nothing. The only readback is
+//! the 64-byte [`FrameState`] (world root, shift, motion, clamp counts), mapped
 //! asynchronously and picked up by [`Engine::poll`]. Beside a window
 //! (`EngineOptions::split`) the plan is submitted part by part (context pass, each step,
 //! decode), each part waited for on the caller's thread, so the window's own submissions
 //! interleave. A guided sampler whose Idle frames are guided at another scale
-//! (`Sampling::for_action`) gets a second plan for them: one batch where Idle is
-//! unguided (the conditional prediction alone, half the UNet work), else the guided
-//! batch at Idle's scale; one that brakes (`Sampling::for_frame`: the first Idle frames
-//! after a key at a braking scale) a third, the guided batch at that scale.
-//! `appearance` turns a frame's points into splats.
+//! (`Sampling::for_action`) gets a second plan for them: one batch where Idle is unguided
+//! (the conditional prediction alone, half the UNet work), else the guided batch at
+//! Idle's scale; one that brakes (`Sampling::for_frame`: the first Idle frames after a
+//! key at a braking scale) a third, the guided batch at that scale. `appearance` turns a
+//! frame's points into splats.
 
 pub mod appearance;
 mod capture;

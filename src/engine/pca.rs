@@ -1,5 +1,6 @@
-//! PCA cleaning of a drawn frame (docs/architecture.md, The live loop): the frame, centred on its own root, is
-//! replaced by its closest point in the bundle's PCA subspace; never fed back.
+//! PCA cleaning of a drawn frame (docs/architecture.md, The live loop): the frame,
+//! centred on its own root, is replaced by its closest point in the bundle's PCA
+//! subspace; never fed back.
 
 use glam::Vec3;
 

@@ -1,7 +1,7 @@
-//! Bundles (docs/architecture.md, Files), the trainer's output: `manifest.json` (format, version, model
-//! configs, sampler defaults, normalisation) and `weights.safetensors`. Loading refuses
-//! another format or version and names the first tensor whose name, dtype or shape is
-//! not what the manifest's configs imply.
+//! Bundles (docs/architecture.md, Files), the trainer's output: `manifest.json` (format,
+//! version, model configs, sampler defaults, normalisation) and `weights.safetensors`.
+//! Loading refuses another format or version and names the first tensor whose name, dtype
+//! or shape is not what the manifest's configs imply.
 
 use std::path::{Path, PathBuf};
 
@@ -91,7 +91,8 @@ pub enum Heading {
     Canonical,
 }
 
-/// Group normalisation (docs/architecture.md, Position maps): normalised = (world - root) · scale + 0.5.
+/// Group normalisation (docs/architecture.md, Position maps): normalised = (world - root)
+/// · scale + 0.5.
 #[derive(Clone, Debug, Deserialize)]
 pub struct Normalisation {
     pub scale: f32,

@@ -1,8 +1,9 @@
-//! The splat refiner (docs/architecture.md, Appearance) on the GPU: a small point transformer (PTv3-style) that
-//! predicts 14 residuals per base splat. Serialisation orders and pooling groups come
-//! from [`super::serialise`] on the CPU; the network — linear layers, layer norms,
-//! attention inside patches of each order, strided pooling and unpooling — runs as WGSL
-//! kernels, pinned to train/unica_train/refiner.py by parity tests.
+//! The splat refiner (docs/architecture.md, Appearance) on the GPU: a small point
+//! transformer (PTv3-style) that predicts 14 residuals per base splat. Serialisation
+//! orders and pooling groups come from [`super::serialise`] on the CPU; the network —
+//! linear layers, layer norms, attention inside patches of each order, strided pooling
+//! and unpooling — runs as WGSL kernels, pinned to train/unica_train/refiner.py by parity
+//! tests.
 
 use glam::Vec3;
 use serde::Deserialize;

@@ -1,7 +1,8 @@
-//! World alignment (docs/architecture.md, Appearance): the least-squares similarity — rotation, uniform scale,
-//! translation — that maps one point set onto another (Horn's closed form with unit
-//! quaternions: the rotation is the top eigenvector of a symmetric 4×4 matrix built from
-//! the cross-covariance, found by Jacobi rotations; no reflection can come out).
+//! World alignment (docs/architecture.md, Appearance): the least-squares similarity —
+//! rotation, uniform scale, translation — that maps one point set onto another (Horn's
+//! closed form with unit quaternions: the rotation is the top eigenvector of a symmetric
+//! 4×4 matrix built from the cross-covariance, found by Jacobi rotations; no reflection
+//! can come out).
 
 use glam::{DMat3, DQuat, DVec3, Quat, Vec3};
 

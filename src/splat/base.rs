@@ -1,10 +1,10 @@
-//! Base splats (docs/architecture.md, Appearance): one flat Gaussian per foreground pixel of a position map, in
-//! the local surface frame of its map neighbourhood, recomputed every frame (so splats
-//! turn and stretch with the body instead of keeping the rest pose's shape). x follows the
-//! column tangent, z the surface normal; σ = 0.6 × the footprint along the surface and
-//! 0.1 × the smaller footprint across it. The same arithmetic as
-//! train/unica_train/splats.py, pinned by a parity fixture; the refiner's residuals are
-//! applied here too.
+//! Base splats (docs/architecture.md, Appearance): one flat Gaussian per foreground pixel
+//! of a position map, in the local surface frame of its map neighbourhood, recomputed
+//! every frame (so splats turn and stretch with the body instead of keeping the rest
+//! pose's shape). x follows the column tangent, z the surface normal; σ = 0.6 × the
+//! footprint along the surface and 0.1 × the smaller footprint across it. The same
+//! arithmetic as train/unica_train/splats.py, pinned by a parity fixture; the refiner's
+//! residuals are applied here too.
 
 use glam::{Quat, Vec3};
 

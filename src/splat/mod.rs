@@ -1,9 +1,9 @@
-//! Appearance (docs/architecture.md, Appearance): Gaussian splats from position maps — base splats in each
-//! pixel's local surface frame, the foreground-aware map upscale, the projection with a
-//! CPU reference renderer, the WGSL tile rasterizer, compositing, world alignment and the
-//! splat file formats (3DGS PLY, SuperSplat's compressed PLY, antimatter15 .splat, Z-up
-//! files). The refiner is in `nn::refiner`; `engine::appearance` puts it all
-//! together per frame.
+//! Appearance (docs/architecture.md, Appearance): Gaussian splats from position maps —
+//! base splats in each pixel's local surface frame, the foreground-aware map upscale, the
+//! projection with a CPU reference renderer, the WGSL tile rasterizer, compositing, world
+//! alignment and the splat file formats (3DGS PLY, SuperSplat's compressed PLY,
+//! antimatter15 .splat, Z-up files). The refiner is in `nn::refiner`;
+//! `engine::appearance` puts it all together per frame.
 
 pub mod align;
 pub mod base;

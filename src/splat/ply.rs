@@ -1,9 +1,9 @@
-//! Gaussian splats in the de-facto 3DGS PLY layout (docs/architecture.md, Files): binary little-endian
-//! vertices with x y z, nx ny nz, f_dc_0..2 (SH degree 0), opacity (logit), scale_0..2
-//! (log), rot_0..3 (w x y z). Reading also takes ASCII and big-endian files, float or
-//! double properties in any order, and ignores extra ones (higher SH degrees: f_rest_*).
-//! A file in SuperSplat's compressed layout (`packed_position` vertices) is handed to
-//! [`super::compressed_ply`].
+//! Gaussian splats in the de-facto 3DGS PLY layout (docs/architecture.md, Files): binary
+//! little-endian vertices with x y z, nx ny nz, f_dc_0..2 (SH degree 0), opacity (logit),
+//! scale_0..2 (log), rot_0..3 (w x y z). Reading also takes ASCII and big-endian files,
+//! float or double properties in any order, and ignores extra ones (higher SH degrees:
+//! f_rest_*). A file in SuperSplat's compressed layout (`packed_position` vertices) is
+//! handed to [`super::compressed_ply`].
 
 use std::path::{Path, PathBuf};
 

@@ -1,5 +1,6 @@
-//! Foreground-aware upscaling of 3-channel maps (docs/architecture.md, Appearance: 128² → 1024²): the GPU kernel
-//! (shaders/upscale_map.wgsl) and its CPU reference, the same arithmetic in f32.
+//! Foreground-aware upscaling of 3-channel maps (docs/architecture.md, Appearance: 128² →
+//! 1024²): the GPU kernel (shaders/upscale_map.wgsl) and its CPU reference, the same
+//! arithmetic in f32.
 
 use crate::gpu::kernel::{Grid, PipelineCache, Precision, dispatch, uniform};
 use crate::gpu::shaders::Shader;
