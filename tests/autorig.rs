@@ -116,7 +116,7 @@ fn rig_bake_and_walk(
         unica::autorig::data::POINTS,
         &mut unica::random::Rng::new(0),
     );
-    let reach = unica::autorig::pipeline::LOOSE_DEPTH * height;
+    let reach = unica::autorig::spring_chains::LOOSE_DEPTH * height;
     for spring in &vrm.springs {
         assert!(spring.joints.len() >= 2);
         for joint in &spring.joints {

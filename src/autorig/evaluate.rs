@@ -11,11 +11,10 @@ use super::data::VOXELS;
 use super::data::{Sample, dense, sample_path, skin_of_character};
 use super::metrics::{b2b, j2b, j2j, motion_l2, random_poses, skin_l1};
 use super::model::{baseline_weights, top4};
-use super::pipeline::{
-    LOOSE_DEPTH, Models, loose_springs, skeleton_for, swinging, swinging_chains, template_fit,
-};
+use super::pipeline::{Models, skeleton_for, template_fit};
 use super::skeleton::{BODY, Class, Skeleton, UnitCube, of_character};
 use super::smoothing;
+use super::spring_chains::{LOOSE_DEPTH, loose_springs, swinging, swinging_chains};
 use super::tokens::{decode, encode, naive_length};
 use super::voxel::{Voxels, bone_tails, segment_distance};
 use crate::avatar::load_character;
