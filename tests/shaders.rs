@@ -75,7 +75,7 @@ fn every_shader_parses_and_validates_with_only_the_features_it_declares() {
 fn the_f32_variant_of_an_elem_shader_needs_no_f16() {
     let shader = unica::nn::ops::shaders()
         .into_iter()
-        .find(|s| s.file == "nn/conv2d.wgsl")
+        .find(|s| s.file == "nn/conv/conv2d.wgsl")
         .expect("conv2d.wgsl is registered");
     assert!(!shader.needs_f16_for(Precision::F32));
     assert!(shader.needs_f16_for(Precision::F16));

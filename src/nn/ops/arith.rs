@@ -8,12 +8,12 @@ use crate::gpu_struct;
 use crate::nn::Tensor;
 use crate::wgsl_shader as shader;
 
-pub const ADD: Shader = shader!("nn/add.wgsl", [AddParams], elem);
+pub const ADD: Shader = shader!("nn/arith/add.wgsl", [AddParams], elem);
 /// The cross-attention to one action token, as a per-action bias.
-pub const ADD_ACTION_BIAS: Shader = shader!("nn/add_action_bias.wgsl", [ActionBiasParams], elem);
-pub const AXPBY: Shader = shader!("nn/axpby.wgsl", [AxpbyParams], elem);
+pub const ADD_ACTION_BIAS: Shader = shader!("nn/arith/add_action_bias.wgsl", [ActionBiasParams], elem);
+pub const AXPBY: Shader = shader!("nn/arith/axpby.wgsl", [AxpbyParams], elem);
 pub const TIMESTEP_EMBEDDING: Shader =
-    shader!("nn/timestep_embedding.wgsl", [EmbeddingParams], elem);
+    shader!("nn/arith/timestep_embedding.wgsl", [EmbeddingParams], elem);
 
 /// Every shader of this file (see [`super::shaders`]).
 pub const SHADERS: &[Shader] = &[ADD, ADD_ACTION_BIAS, AXPBY, TIMESTEP_EMBEDDING];

@@ -14,42 +14,42 @@ use crate::wgsl_shader as shader;
 use crate::wgsl_snippet as snippet;
 
 /// `pick`: a run of values read as texels that starts anywhere in a texel.
-pub const PICK: Snippet = snippet!("nn/snippets/pick.wgsl");
+pub const PICK: Snippet = snippet!("nn/conv/pick.wgsl");
 /// `bias_lanes`: a convolution tile's starting sums.
-pub const CONV_BIAS: Snippet = snippet!("nn/snippets/conv_bias.wgsl");
+pub const CONV_BIAS: Snippet = snippet!("nn/conv/conv_bias.wgsl");
 /// `finish` and `store`: the 3×3 convolutions' epilogue.
-pub const CONV_STORE: Snippet = snippet!("nn/snippets/conv_store.wgsl");
+pub const CONV_STORE: Snippet = snippet!("nn/conv/conv_store.wgsl");
 /// The 1×1 convolution's tile (its entry point), for the buffer and the texel forms.
-pub const CONV1X1_TILE: Snippet = snippet!("nn/snippets/conv1x1_tile.wgsl");
+pub const CONV1X1_TILE: Snippet = snippet!("nn/conv/conv1x1_tile.wgsl");
 
-pub const CONV2D: Shader = shader!("nn/conv2d.wgsl", [Conv2dParams], elem);
+pub const CONV2D: Shader = shader!("nn/conv/conv2d.wgsl", [Conv2dParams], elem);
 /// The convolution in register tiles of 4 output pixels × 8 channels.
-pub const CONV2D_TILED: Shader = shader!("nn/conv2d_tiled.wgsl", [Conv2dParams], elem);
+pub const CONV2D_TILED: Shader = shader!("nn/conv/conv2d_tiled.wgsl", [Conv2dParams], elem);
 /// The convolution for GPUs: a workgroup per tile of 4 pixels × 8 channels.
-pub const CONV2D_SPLIT: Shader = shader!("nn/conv2d_split.wgsl", [Conv2dParams], elem);
+pub const CONV2D_SPLIT: Shader = shader!("nn/conv/conv2d_split.wgsl", [Conv2dParams], elem);
 /// The 3×3 stride-1 convolution in register tiles of 8 pixels × 8 channels, from
 /// repacked f32 weights (`ops::PackedConv`).
 pub const CONV3X3: Shader =
-    shader!("nn/conv3x3.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV_STORE]);
+    shader!("nn/conv/conv3x3.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV_STORE]);
 /// `CONV3X3` for CPU drivers: the input and the weights read as texels.
-pub const CONV3X3_CPU: Shader = shader!("nn/conv3x3_cpu.wgsl", [Conv2dParams], elem)
+pub const CONV3X3_CPU: Shader = shader!("nn/conv/conv3x3_cpu.wgsl", [Conv2dParams], elem)
     .with_snippets(&[PICK, CONV_BIAS, CONV_STORE, TEXEL_STATS])
     .with_uints(&[("NORM_STATS", NORM_STATS as u32), ("NORMED", 0)]);
 /// `CONV3X3_CPU` that group-normalises its input as it loads it (`Recorder::normed_conv3x3`):
 /// the same file built with `NORMED` set, so the plain form carries none of it.
-pub const CONV3X3_NORMED_CPU: Shader = shader!("nn/conv3x3_cpu.wgsl", [Conv2dParams], elem)
+pub const CONV3X3_NORMED_CPU: Shader = shader!("nn/conv/conv3x3_cpu.wgsl", [Conv2dParams], elem)
     .with_snippets(&[PICK, CONV_BIAS, CONV_STORE, TEXEL_STATS])
     .with_uints(&[("NORM_STATS", NORM_STATS as u32), ("NORMED", 1)]);
 /// The 1×1 convolution in register tiles of 8 pixels × 8 channels, from repacked f32
 /// weights (`ops::PackedConv`).
 /// The 3×3 stride-2 convolution for CPU drivers: input and packed weights as texels.
-pub const CONV3X3_S2_CPU: Shader = shader!("nn/conv3x3_s2_cpu.wgsl", [Conv2dParams], elem)
+pub const CONV3X3_S2_CPU: Shader = shader!("nn/conv/conv3x3_s2_cpu.wgsl", [Conv2dParams], elem)
     .with_snippets(&[PICK, CONV_BIAS, CONV_STORE]);
 pub const CONV1X1: Shader =
-    shader!("nn/conv1x1.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV1X1_TILE]);
+    shader!("nn/conv/conv1x1.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV1X1_TILE]);
 /// `CONV1X1` for CPU drivers: the input and the weights read as texels.
 pub const CONV1X1_CPU: Shader =
-    shader!("nn/conv1x1_cpu.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV1X1_TILE]);
+    shader!("nn/conv/conv1x1_cpu.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV1X1_TILE]);
 
 /// Every shader of this file (see [`super::shaders`]).
 pub const SHADERS: &[Shader] = &[

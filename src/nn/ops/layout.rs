@@ -10,14 +10,14 @@ use crate::gpu_struct;
 use crate::nn::Tensor;
 use crate::wgsl_shader as shader;
 
-pub const UPSAMPLE_NEAREST: Shader = shader!("nn/upsample_nearest.wgsl", [UpsampleParams], elem);
-pub const PERMUTE: Shader = shader!("nn/permute.wgsl", [PermuteParams], elem);
+pub const UPSAMPLE_NEAREST: Shader = shader!("nn/layout/upsample_nearest.wgsl", [UpsampleParams], elem);
+pub const PERMUTE: Shader = shader!("nn/layout/permute.wgsl", [PermuteParams], elem);
 /// `a + permute(x)`: the attention layers' residual.
-pub const CONCAT: Shader = shader!("nn/concat.wgsl", [ConcatParams], elem);
-pub const GATHER: Shader = shader!("nn/gather.wgsl", [GatherParams], elem);
+pub const CONCAT: Shader = shader!("nn/layout/concat.wgsl", [ConcatParams], elem);
+pub const GATHER: Shader = shader!("nn/layout/gather.wgsl", [GatherParams], elem);
 /// `GATHER` for CPU drivers: four values a texel.
-pub const GATHER_CPU: Shader = shader!("nn/gather_cpu.wgsl", [GatherParams], elem);
-pub const SEGMENT_MEAN: Shader = shader!("nn/segment_mean.wgsl", [SegmentParams], elem);
+pub const GATHER_CPU: Shader = shader!("nn/layout/gather_cpu.wgsl", [GatherParams], elem);
+pub const SEGMENT_MEAN: Shader = shader!("nn/layout/segment_mean.wgsl", [SegmentParams], elem);
 
 /// Every shader of this file (see [`super::shaders`]).
 pub const SHADERS: &[Shader] = &[

@@ -9,14 +9,14 @@ use crate::gpu_struct;
 use crate::nn::Tensor;
 use crate::wgsl_shader as shader;
 
-pub const LINEAR: Shader = shader!("nn/linear.wgsl", [LinearParams], elem);
+pub const LINEAR: Shader = shader!("nn/linear/linear.wgsl", [LinearParams], elem);
 /// The linear layer in 4 × 4 register tiles (for 4 rows or more).
-pub const LINEAR_TILED: Shader = shader!("nn/linear_tiled.wgsl", [LinearParams], elem);
+pub const LINEAR_TILED: Shader = shader!("nn/linear/linear_tiled.wgsl", [LinearParams], elem);
 /// The linear layer for GPUs: a workgroup per 4 × 4 tile, its threads splitting the inputs.
-pub const LINEAR_SPLIT: Shader = shader!("nn/linear_split.wgsl", [LinearParams], elem);
+pub const LINEAR_SPLIT: Shader = shader!("nn/linear/linear_split.wgsl", [LinearParams], elem);
 /// The tiled linear layer for CPU drivers: vec4 loads along the inputs.
 pub const LINEAR_CPU: Shader =
-    shader!("nn/linear_cpu.wgsl", [LinearParams], elem).with_snippets(&[TEXEL_STATS]);
+    shader!("nn/linear/linear_cpu.wgsl", [LinearParams], elem).with_snippets(&[TEXEL_STATS]);
 
 /// Every shader of this file (see [`super::shaders`]).
 pub const SHADERS: &[Shader] = &[LINEAR, LINEAR_TILED, LINEAR_SPLIT, LINEAR_CPU];

@@ -11,16 +11,16 @@ use crate::wgsl_shader as shader;
 use crate::wgsl_snippet as snippet;
 
 /// `texel_stats`: every CPU-driver norm's (mean, 1 / std), one summation order.
-pub const TEXEL_STATS: Snippet = snippet!("nn/snippets/texel_stats.wgsl");
+pub const TEXEL_STATS: Snippet = snippet!("nn/norm/texel_stats.wgsl");
 
 pub const GROUP_NORM: Shader =
-    shader!("nn/group_norm.wgsl", [GroupNormParams], elem).with_uints(&[("THREADS", 64)]);
+    shader!("nn/norm/group_norm.wgsl", [GroupNormParams], elem).with_uints(&[("THREADS", 64)]);
 /// `GROUP_NORM` with workgroups of 256 threads, for GPUs and large groups.
 pub const GROUP_NORM_WIDE: Shader =
-    shader!("nn/group_norm.wgsl", [GroupNormParams], elem).with_uints(&[("THREADS", 256)]);
+    shader!("nn/norm/group_norm.wgsl", [GroupNormParams], elem).with_uints(&[("THREADS", 256)]);
 /// Group norm for CPU drivers: one invocation per (sample, group), no barriers.
 pub const GROUP_NORM_SERIAL: Shader =
-    shader!("nn/group_norm_serial.wgsl", [GroupNormParams], elem).with_snippets(&[TEXEL_STATS]);
+    shader!("nn/norm/group_norm_serial.wgsl", [GroupNormParams], elem).with_snippets(&[TEXEL_STATS]);
 
 /// Every shader of this file (see [`super::shaders`]).
 pub const SHADERS: &[Shader] = &[GROUP_NORM, GROUP_NORM_WIDE, GROUP_NORM_SERIAL];
