@@ -10,7 +10,8 @@ use crate::wgsl_shader as shader;
 
 pub const ADD: Shader = shader!("nn/arith/add.wgsl", [AddParams], elem);
 /// The cross-attention to one action token, as a per-action bias.
-pub const ADD_ACTION_BIAS: Shader = shader!("nn/arith/add_action_bias.wgsl", [ActionBiasParams], elem);
+pub const ADD_ACTION_BIAS: Shader =
+    shader!("nn/arith/add_action_bias.wgsl", [ActionBiasParams], elem);
 pub const AXPBY: Shader = shader!("nn/arith/axpby.wgsl", [AxpbyParams], elem);
 pub const TIMESTEP_EMBEDDING: Shader =
     shader!("nn/arith/timestep_embedding.wgsl", [EmbeddingParams], elem);

@@ -16,22 +16,29 @@ pub const ONLINE_SOFTMAX: Snippet = snippet!("nn/attention/online_softmax.wgsl")
 pub const ATTENTION: Shader = shader!("nn/attention/attention.wgsl", [AttentionParams], elem)
     .with_uints(&[("MAX_HEAD_SIZE", MAX_HEAD_SIZE as u32)]);
 /// Attention for GPUs: a workgroup per query, its threads splitting the keys.
-pub const ATTENTION_SPLIT: Shader = shader!("nn/attention/attention_split.wgsl", [AttentionParams], elem)
-    .with_uints(&[("MAX_HEAD_SIZE", MAX_HEAD_SIZE as u32)]);
+pub const ATTENTION_SPLIT: Shader =
+    shader!("nn/attention/attention_split.wgsl", [AttentionParams], elem)
+        .with_uints(&[("MAX_HEAD_SIZE", MAX_HEAD_SIZE as u32)]);
 /// Attention for GPUs over sequences of many queries: a workgroup per block of
 /// queries, keys and values loaded into workgroup memory a chunk at a time.
-pub const ATTENTION_TILED: Shader = shader!("nn/attention/attention_tiled.wgsl", [AttentionParams], elem)
-    .with_uints(&[("TILE_HEAD", TILE_HEAD_SIZE as u32)]);
+pub const ATTENTION_TILED: Shader =
+    shader!("nn/attention/attention_tiled.wgsl", [AttentionParams], elem)
+        .with_uints(&[("TILE_HEAD", TILE_HEAD_SIZE as u32)]);
 /// Attention for CPU drivers: heads of at most 32 values in named vec4 registers.
 pub const ATTENTION_CPU: Shader =
-    shader!("nn/attention/attention_cpu.wgsl", [AttentionParams], elem).with_snippets(&[ONLINE_SOFTMAX]);
+    shader!("nn/attention/attention_cpu.wgsl", [AttentionParams], elem)
+        .with_snippets(&[ONLINE_SOFTMAX]);
 /// A temporal layer's projection and attention for one new frame, for GPUs.
-pub const TEMPORAL_NEXT_SPLIT: Shader =
-    shader!("nn/attention/temporal_next_split.wgsl", [AttentionParams], elem)
-        .with_uints(&[("MAX_HEAD_SIZE", MAX_HEAD_SIZE as u32)]);
+pub const TEMPORAL_NEXT_SPLIT: Shader = shader!(
+    "nn/attention/temporal_next_split.wgsl",
+    [AttentionParams],
+    elem
+)
+.with_uints(&[("MAX_HEAD_SIZE", MAX_HEAD_SIZE as u32)]);
 /// A temporal layer's projection and attention for one new frame, for CPU drivers.
 pub const TEMPORAL_NEXT: Shader =
-    shader!("nn/attention/temporal_next.wgsl", [AttentionParams], elem).with_snippets(&[ONLINE_SOFTMAX]);
+    shader!("nn/attention/temporal_next.wgsl", [AttentionParams], elem)
+        .with_snippets(&[ONLINE_SOFTMAX]);
 
 /// Every shader of this file (see [`super::shaders`]).
 pub const SHADERS: &[Shader] = &[

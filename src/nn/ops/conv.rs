@@ -48,8 +48,8 @@ pub const CONV3X3_S2_CPU: Shader = shader!("nn/conv/conv3x3_s2_cpu.wgsl", [Conv2
 pub const CONV1X1: Shader =
     shader!("nn/conv/conv1x1.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV1X1_TILE]);
 /// `CONV1X1` for CPU drivers: the input and the weights read as texels.
-pub const CONV1X1_CPU: Shader =
-    shader!("nn/conv/conv1x1_cpu.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV1X1_TILE]);
+pub const CONV1X1_CPU: Shader = shader!("nn/conv/conv1x1_cpu.wgsl", [Conv2dParams], elem)
+    .with_snippets(&[CONV_BIAS, CONV1X1_TILE]);
 
 /// Every shader of this file (see [`super::shaders`]).
 pub const SHADERS: &[Shader] = &[

@@ -10,7 +10,8 @@ use crate::gpu_struct;
 use crate::nn::Tensor;
 use crate::wgsl_shader as shader;
 
-pub const UPSAMPLE_NEAREST: Shader = shader!("nn/layout/upsample_nearest.wgsl", [UpsampleParams], elem);
+pub const UPSAMPLE_NEAREST: Shader =
+    shader!("nn/layout/upsample_nearest.wgsl", [UpsampleParams], elem);
 pub const PERMUTE: Shader = shader!("nn/layout/permute.wgsl", [PermuteParams], elem);
 /// `a + permute(x)`: the attention layers' residual.
 pub const CONCAT: Shader = shader!("nn/layout/concat.wgsl", [ConcatParams], elem);

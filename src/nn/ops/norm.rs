@@ -20,7 +20,8 @@ pub const GROUP_NORM_WIDE: Shader =
     shader!("nn/norm/group_norm.wgsl", [GroupNormParams], elem).with_uints(&[("THREADS", 256)]);
 /// Group norm for CPU drivers: one invocation per (sample, group), no barriers.
 pub const GROUP_NORM_SERIAL: Shader =
-    shader!("nn/norm/group_norm_serial.wgsl", [GroupNormParams], elem).with_snippets(&[TEXEL_STATS]);
+    shader!("nn/norm/group_norm_serial.wgsl", [GroupNormParams], elem)
+        .with_snippets(&[TEXEL_STATS]);
 
 /// Every shader of this file (see [`super::shaders`]).
 pub const SHADERS: &[Shader] = &[GROUP_NORM, GROUP_NORM_WIDE, GROUP_NORM_SERIAL];
