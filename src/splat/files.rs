@@ -99,15 +99,22 @@ impl Kept {
     pub fn note(&self) -> Option<String> {
         (self.dropped() > 0).then(|| {
             format!(
-                "dropped {} of {} splats: {} larger than {MAX_SCALE} m, {} farther than {} km \
-                 from the origin",
+                "dropped {} of {} splats: {}",
                 self.dropped(),
                 self.dropped() + self.splats.len(),
-                self.too_large,
-                self.too_far,
-                MAX_DISTANCE / 1000.0
+                self.why()
             )
         })
+    }
+
+    /// Why the dropped splats were dropped: how many for each bound.
+    fn why(&self) -> String {
+        format!(
+            "{} larger than {MAX_SCALE} m, {} farther than {} km from the origin",
+            self.too_large,
+            self.too_far,
+            MAX_DISTANCE / 1000.0
+        )
     }
 }
 
@@ -125,12 +132,9 @@ pub fn read(path: &Path, up: Up) -> Result<Kept, PlyError> {
         return Err(PlyError {
             path: path.to_path_buf(),
             problem: format!(
-                "every one of its {} splats is absurd: {} larger than {MAX_SCALE} m, {} farther \
-                 than {} km from the origin",
+                "every one of its {} splats is absurd: {}",
                 kept.dropped(),
-                kept.too_large,
-                kept.too_far,
-                MAX_DISTANCE / 1000.0
+                kept.why()
             ),
         });
     }
