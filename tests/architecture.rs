@@ -243,6 +243,25 @@ fn rust_files(dir: &Path) -> Vec<PathBuf> {
     out
 }
 
+/// A path as the messages and lists here write it: forward slashes.
+fn slashed(path: &Path) -> String {
+    path.to_string_lossy().replace('\\', "/")
+}
+
+/// Fails unless `found` is exactly the `known` list of a rule's exceptions: what is
+/// found and not listed breaks the rule; what is listed and no longer found must leave
+/// the list, so that it can only shrink.
+fn assert_only_known(found: &BTreeSet<String>, known: &[&str], what: &str) {
+    let known: BTreeSet<String> = known.iter().map(|s| s.to_string()).collect();
+    let new: Vec<&String> = found.difference(&known).collect();
+    let gone: Vec<&String> = known.difference(found).collect();
+    assert!(
+        new.is_empty() && gone.is_empty(),
+        "{what}, not listed: {new:#?}\nlisted but no longer so (remove them from the list): \
+         {gone:#?}"
+    );
+}
+
 /// The source files of the crate and their uses, keyed by path relative to the repo.
 struct Source {
     files: BTreeMap<PathBuf, Vec<Use>>,
@@ -325,7 +344,7 @@ impl Source {
     fn broken_rules(&self) -> Vec<String> {
         let mut out = Vec::new();
         for (file, uses) in &self.files {
-            let name = file.to_string_lossy().replace('\\', "/");
+            let name = slashed(file);
             for rule in RULES {
                 let applies = rule.from.iter().any(|f| name.starts_with(f))
                     && !rule.except.iter().any(|e| name.starts_with(e));
@@ -392,7 +411,7 @@ impl Source {
                 .iter()
                 .filter(|g| reachable.get(g).is_some_and(|r| r.contains(*f)))
                 .chain(from_f.contains(*f).then_some(*f))
-                .map(|p| p.to_string_lossy().replace('\\', "/"))
+                .map(|p| slashed(p))
                 .collect();
             if group.len() >= 2 {
                 out.insert(group.into_iter().collect::<Vec<_>>().join(" <-> "));
@@ -417,22 +436,10 @@ fn the_source_keeps_the_dependency_rules() {
 #[test]
 fn no_new_circle_of_imports_and_the_known_ones_are_listed() {
     let source = Source::read(Path::new(env!("CARGO_MANIFEST_DIR")));
-    let circles = source.circles();
-    let known: BTreeSet<String> = KNOWN_CIRCLES.iter().map(|s| s.to_string()).collect();
-    let new: Vec<&String> = circles.difference(&known).collect();
-    let gone: Vec<&String> = known.difference(&circles).collect();
-    assert!(
-        new.is_empty() && gone.is_empty(),
-        "files that import each other in a circle, not in KNOWN_CIRCLES:\n{}\n\
-         listed in KNOWN_CIRCLES but gone (remove them from the list):\n{}",
-        new.iter()
-            .map(|s| s.as_str())
-            .collect::<Vec<_>>()
-            .join("\n"),
-        gone.iter()
-            .map(|s| s.as_str())
-            .collect::<Vec<_>>()
-            .join("\n")
+    assert_only_known(
+        &source.circles(),
+        KNOWN_CIRCLES,
+        "files that import each other in a circle (KNOWN_CIRCLES)",
     );
 }
 
@@ -503,20 +510,12 @@ fn no_source_file_is_longer_than_the_limit_but_the_listed_ones() {
     let long: BTreeSet<String> = rust_files(&root.join("src"))
         .into_iter()
         .filter(|f| std::fs::read_to_string(f).unwrap().lines().count() > MAX_LINES)
-        .map(|f| {
-            f.strip_prefix(root)
-                .unwrap()
-                .to_string_lossy()
-                .replace('\\', "/")
-        })
+        .map(|f| slashed(f.strip_prefix(root).unwrap()))
         .collect();
-    let known: BTreeSet<String> = KNOWN_LONG_FILES.iter().map(|s| s.to_string()).collect();
-    let new: Vec<&String> = long.difference(&known).collect();
-    let gone: Vec<&String> = known.difference(&long).collect();
-    assert!(
-        new.is_empty() && gone.is_empty(),
-        "files over {MAX_LINES} lines, not in KNOWN_LONG_FILES: {new:?}; listed but no longer \
-         over (remove them from the list): {gone:?}"
+    assert_only_known(
+        &long,
+        KNOWN_LONG_FILES,
+        &format!("files over {MAX_LINES} lines (KNOWN_LONG_FILES)"),
     );
 }
 
@@ -527,11 +526,7 @@ fn each_public_type_name_means_one_thing() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut defined: BTreeMap<String, Vec<String>> = BTreeMap::new();
     for file in rust_files(&root.join("src")) {
-        let rel = file
-            .strip_prefix(root)
-            .unwrap()
-            .to_string_lossy()
-            .replace('\\', "/");
+        let rel = slashed(file.strip_prefix(root).unwrap());
         for (k, line) in std::fs::read_to_string(&file).unwrap().lines().enumerate() {
             let words: Vec<&str> = line.split_whitespace().collect();
             if let [first, kind, name, ..] = words[..]
