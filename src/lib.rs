@@ -9,6 +9,7 @@ pub mod bench;
 pub mod cli;
 pub mod dataset;
 pub mod engine;
+pub mod eval;
 pub mod files;
 pub mod gpu;
 pub mod headless;

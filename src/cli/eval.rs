@@ -1,5 +1,5 @@
-//! `unica eval`: the teacher and the engine driven on the evaluation's key scripts, then
-//! the trainer's evaluation.
+//! `unica eval`: the strict evaluation (src/eval), then the lenient one (the teacher and
+//! the engine driven on fixed key scripts, then the trainer's evaluation).
 
 use std::path::PathBuf;
 
@@ -14,7 +14,8 @@ pub(super) struct EvalArgs {
     /// The bundle to evaluate (e.g. assets/witch/bundle)
     #[arg(long, value_name = "DIR")]
     bundle: PathBuf,
-    /// The dataset baked from the bundle's character, with renders (`unica bake
+    /// The dataset baked from the bundle's character: the strict evaluation reads its
+    /// character and clips; the lenient one needs its renders (`unica bake
     /// --render-every 1`: each free-running frame is compared with the nearest rendered
     /// teacher pose, so with fewer renders it is measured against a farther one)
     #[arg(long, value_name = "DIR")]
@@ -61,6 +62,42 @@ pub(super) struct EvalArgs {
     /// 40S 41W 42A 43W 44D 45S 46A 47D 48W 49S 30I"; with --quick "20W 21S 22A 23D 20I"]
     #[arg(long, value_name = "SCRIPT")]
     turns_keys: Option<String>,
+    /// Engine seeds of the strict evaluation, each driven on its own random key script
+    /// [default: 5; with --quick 2]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..100))]
+    seeds: Option<u32>,
+    /// Seed the strict evaluation's key scripts are drawn from: one that no training or
+    /// tuning used
+    #[arg(long, value_name = "N", default_value_t = crate::eval::scripts::SCRIPT_SEED)]
+    script_seed: u64,
+    /// Frames of random keys in each strict script, before its final idle (the first
+    /// script idles 330 frames, to measure idle creep over 300; the others 60)
+    /// [default: 280; with --quick 40]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(20..100_000))]
+    script_frames: Option<u32>,
+    /// Score every this many frames at the engine's own splat level [default: 10 on a
+    /// GPU, 30 on a CPU driver; with --quick 10]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..1000))]
+    score_every: Option<u32>,
+    /// Score the other levels (1024 where the engine draws 256) every this many frames:
+    /// a frame of 250k splats takes seconds to draw on a CPU driver [default: as
+    /// --score-every on a GPU, 300 on a CPU driver; with --quick 100]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..10_000))]
+    fine_every: Option<u32>,
+    /// Each scored frame is compared with the teacher's frames this many either side of
+    /// its index (half a stride: gait phase may differ)
+    #[arg(long, value_name = "N", default_value_t = 15, value_parser = clap::value_parser!(u32).range(0..100))]
+    window: u32,
+    /// ... taking every this many of them [default: 1; with --quick 5]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..100))]
+    window_step: Option<u32>,
+    /// Image size of the strict views, in pixels (square) [default: 512; with --quick 128]
+    #[arg(long, value_name = "PX", value_parser = clap::value_parser!(u32).range(64..=2048))]
+    size: Option<u32>,
+    /// Only the strict evaluation (no lenient one, whose keys are otherwise added to
+    /// summary.json with a `lenient_` prefix)
+    #[arg(long)]
+    strict_only: bool,
 }
 
 /// The evaluation's key script: every movement key, a 180° (W→S, A→D) and a 90° (S→A)
@@ -95,8 +132,9 @@ pub(super) fn eval_script<'a>(
     }
 }
 
-/// Drives the teacher on the evaluation's key script (geometry only), then runs the
-/// trainer's evaluation (`python3 -m unica_train.eval`, or $UNICA_PYTHON) on it.
+/// The strict evaluation (src/eval) of the bundle against the dataset's teacher, then,
+/// unless `--strict-only`, the lenient one in `OUT/lenient`, whose summary keys join
+/// summary.json with a `lenient_` prefix.
 pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     let manifest_path = args.data.join("manifest.json");
     let manifest: crate::dataset::DatasetManifest = serde_json::from_slice(
@@ -105,6 +143,7 @@ pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     .with_context(|| format!("{}: not a dataset manifest", manifest_path.display()))?;
     let character = args
         .character
+        .clone()
         .unwrap_or_else(|| PathBuf::from(&manifest.character));
     if !character.is_file() {
         bail!(
@@ -113,13 +152,105 @@ pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         );
     }
     std::fs::create_dir_all(&args.out).with_context(|| args.out.display().to_string())?;
-    let script = eval_script(&args.keys, args.quick, EVAL_KEYS, EVAL_KEYS_QUICK);
-    let keys = KeyScript::parse(script).context("--keys")?;
     let clips: Vec<PathBuf> = if args.clips.is_empty() {
         manifest.clip_files.iter().map(PathBuf::from).collect()
     } else {
-        args.clips
+        args.clips.clone()
     };
+    let context = GpuContext::headless(gpu)?;
+    let engine_level = crate::engine::appearance::default_level(&context);
+    let mut levels = vec![engine_level, 1024];
+    levels.dedup();
+    let quick = args.quick;
+    let cpu = context.adapter.get_info().device_type == wgpu::DeviceType::Cpu;
+    let score_every = args
+        .score_every
+        .map_or(if cpu && !quick { 30 } else { 10 }, |n| n as usize);
+    let options = crate::eval::StrictOptions {
+        bundle: args.bundle.clone(),
+        character: character.clone(),
+        clips: clips.clone(),
+        out: args.out.clone(),
+        seeds: args.seeds.unwrap_or(if quick { 2 } else { 5 }),
+        script_seed: args.script_seed,
+        script_frames: args.script_frames.unwrap_or(if quick { 40 } else { 280 }) as usize,
+        first_idle: if quick { 40 } else { 330 },
+        idle: if quick { 20 } else { 60 },
+        size: args.size.unwrap_or(if quick { 128 } else { 512 }),
+        score_every,
+        fine_every: args.fine_every.map_or(
+            if quick {
+                100
+            } else if cpu {
+                300
+            } else {
+                score_every
+            },
+            |n| n as usize,
+        ),
+        window: args.window as usize,
+        window_step: args.window_step.unwrap_or(if quick { 5 } else { 1 }) as usize,
+        engine_level,
+        levels,
+    };
+    let bar = indicatif::ProgressBar::new(0).with_style(
+        indicatif::ProgressStyle::with_template(
+            "strict evaluation: {msg} {bar:30} {pos}/{len} frames, {eta} left",
+        )
+        .expect("valid template"),
+    );
+    let summary = crate::eval::strict(&context, &options, &|what, done, total| {
+        bar.set_message(what.to_string());
+        bar.set_length(total);
+        bar.set_position(done);
+    })?;
+    bar.finish_and_clear();
+    let summary = if args.strict_only {
+        summary
+    } else {
+        let folder = args.out.join("lenient");
+        lenient(&args, &character, &clips, &folder, gpu)?;
+        with_lenient(&folder, summary)?
+    };
+    crate::files::write_atomic(
+        &args.out.join("summary.json"),
+        serde_json::to_string_pretty(&summary)?.as_bytes(),
+    )?;
+    eprintln!(
+        "unica eval: {} (summary.json, report.md)",
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// The strict summary with the lenient evaluation's keys added under `lenient_`.
+fn with_lenient(
+    folder: &std::path::Path,
+    mut summary: serde_json::Map<String, serde_json::Value>,
+) -> anyhow::Result<serde_json::Map<String, serde_json::Value>> {
+    let path = folder.join("summary.json");
+    let lenient: serde_json::Map<String, serde_json::Value> =
+        serde_json::from_slice(&std::fs::read(&path).with_context(|| path.display().to_string())?)
+            .with_context(|| format!("{}: not a summary", path.display()))?;
+    for (key, value) in lenient {
+        summary.insert(format!("lenient_{key}"), value);
+    }
+    Ok(summary)
+}
+
+/// The lenient evaluation into `out`: the teacher driven on its key scripts (geometry
+/// only) and the engine's rollout, then the trainer's evaluation (`python3 -m
+/// unica_train.eval`, or $UNICA_PYTHON) on them.
+fn lenient(
+    args: &EvalArgs,
+    character: &std::path::Path,
+    clips: &[PathBuf],
+    out: &std::path::Path,
+    gpu: &GpuOptions,
+) -> anyhow::Result<()> {
+    std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
+    let script = eval_script(&args.keys, args.quick, EVAL_KEYS, EVAL_KEYS_QUICK);
+    let keys = KeyScript::parse(script).context("--keys")?;
     let stops_script = eval_script(
         &args.stops_keys,
         args.quick,
@@ -134,15 +265,15 @@ pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         EVAL_TURNS_KEYS_QUICK,
     );
     let turns_keys = KeyScript::parse(turns_script).context("--turns-keys")?;
-    let teacher = args.out.join("teacher.json");
-    let stops_teacher = args.out.join("teacher_stops.json");
-    let turns_teacher = args.out.join("teacher_turns.json");
+    let teacher = out.join("teacher.json");
+    let stops_teacher = out.join("teacher_stops.json");
+    let turns_teacher = out.join("teacher_turns.json");
     for (keys, path) in [
         (&keys, &teacher),
         (&stops_keys, &stops_teacher),
         (&turns_keys, &turns_teacher),
     ] {
-        let roots = crate::headless::teacher_roots(&character, &clips, keys)?;
+        let roots = crate::headless::teacher_roots(character, clips, keys)?;
         let frames: Vec<_> = roots
             .iter()
             .map(|r| serde_json::json!({ "root": r.to_array() }))
@@ -154,7 +285,7 @@ pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     }
     // The free-running rollout through the shipped engine path (the WGSL model, PCA
     // clean-up): each frame's drawn points, which the report compares with the teacher.
-    let engine_dir = args.out.join("engine");
+    let engine_dir = out.join("engine");
     let manifest = crate::nn::bundle::read_manifest(&args.bundle.join("manifest.json"))?;
     let job = crate::headless::RenderJob {
         avatar: crate::headless::Avatar::Bundle {
@@ -195,7 +326,7 @@ pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         .arg("--turns-teacher")
         .arg(&turns_teacher)
         .arg("--out")
-        .arg(&args.out)
+        .arg(out)
         .args(["--seed", &args.seed.to_string()]);
     if args.quick {
         command.arg("--quick");

@@ -120,8 +120,10 @@ enum Command {
     /// Headless scripted session to numbered PNGs per view + manifest.json: the neural
     /// avatar of --bundle DIR, or the teacher of --teacher CHARACTER
     Render(RenderArgs),
-    /// Evaluate a bundle against the teacher: image, sequence, long-run and ablation
-    /// metrics in OUT/report.md with plots (runs the trainer's evaluation: python3 with
+    /// Evaluate a bundle strictly against its teacher: both driven in lockstep on random
+    /// key scripts from several seeds, the engine's splats scored on foreground pixels on
+    /// white, grey and black from 8 views, motion two-sided (OUT/report.md,
+    /// summary.json); then the former lenient evaluation in OUT/lenient (python3 with
     /// `pip install -e ./train`)
     Eval(EvalArgs),
     /// Export the neural avatar's splats after a key script as a 3DGS PLY or an

@@ -1,0 +1,343 @@
+//! Motion compared two-sided with the teacher's, on root paths and facings of the same
+//! key script: each turn's frames, each stop's frames and slide, idle creep and the speed
+//! under each key. A path has one root per frame: `path[0]` is the start and `actions[t]`
+//! moves `path[t]` to `path[t + 1]`.
+
+use glam::Vec3;
+
+use crate::action::Action;
+use crate::avatar::locomotion::FRAME_RATE;
+
+/// A turn is complete when the step into a frame and the next 3 steps each move at least
+/// this far horizontally (m) ...
+const MIN_STEP: f32 = 1e-3;
+/// ... within this many degrees of the new key's heading (the UNICA paper's measure).
+const TURN_TOLERANCE_DEG: f32 = 10.0;
+/// A stopped root moves slower than this (m/s) for good.
+const STOPPED_SPEED: f32 = 0.05;
+/// Frames of each key's run left out of its speed (a 180° turn takes the teacher 14).
+const SETTLE: usize = 15;
+/// Idle creep is measured over the last this many frames of an idle run ...
+pub const CREEP_FRAMES: usize = 300;
+/// ... that runs at least this long (the stop itself takes the teacher about 10 frames).
+const CREEP_RUN: usize = CREEP_FRAMES + 30;
+
+/// The tolerances of docs/eval (issue #48): each ratio is generated / teacher.
+pub const TURN_RATIO: (f64, f64) = (0.75, 1.25);
+pub const SLIDE_RATIO: (f64, f64) = (0.7, 1.3);
+pub const STOP_RATIO: (f64, f64) = (0.75, 1.25);
+pub const IDLE_CREEP_M: f64 = 0.02;
+pub const SPEED_ERROR_PCT: f64 = 5.0;
+
+/// Heading of a horizontal displacement in degrees: atan2(dx, dz), so W (+Z) is 0 and A
+/// (+X) is 90.
+pub fn heading_deg(d: Vec3) -> f32 {
+    d.x.atan2(d.z).to_degrees()
+}
+
+/// `a - b` in degrees, wrapped to (-180, 180].
+pub fn wrap_deg(d: f32) -> f32 {
+    let r = d.rem_euclid(360.0);
+    if r > 180.0 { r - 360.0 } else { r }
+}
+
+/// The heading a movement key moves toward (degrees); None for Idle.
+pub fn key_heading(action: Action) -> Option<f32> {
+    action.quarter().map(|q| wrap_deg(90.0 * q as f32))
+}
+
+fn flat(d: Vec3) -> Vec3 {
+    Vec3::new(d.x, 0.0, d.z)
+}
+
+/// The facing (degrees, `heading_deg`'s convention) of root-centred `points` against the
+/// root-centred `rest` pose facing +Z, point for point: the turn about +Y that best maps
+/// the rest onto the points (least squares in the XZ plane).
+pub fn facing_deg(points: &[Vec3], rest: &[Vec3]) -> f32 {
+    let (mut c, mut s) = (0.0f64, 0.0f64);
+    for (f, r) in points.iter().zip(rest) {
+        c += (f.x * r.x + f.z * r.z) as f64;
+        s += (f.x * r.z - f.z * r.x) as f64;
+    }
+    s.atan2(c).to_degrees() as f32
+}
+
+/// Horizontal speeds (m/s) of each step of `path`.
+pub fn speeds(path: &[Vec3]) -> Vec<f32> {
+    path.windows(2)
+        .map(|w| flat(w[1] - w[0]).length() * FRAME_RATE)
+        .collect()
+}
+
+/// The frames a key switch takes: frame `switch` is the first frame under the new key
+/// (`path[switch]`, reached by `actions[switch - 1]`); the count runs up to and including
+/// the first frame from which the step into it and the next 3 are on the new heading.
+/// None: never within the path.
+pub fn turn_frames(path: &[Vec3], switch: usize, target_deg: f32) -> Option<usize> {
+    let on = |f: usize| {
+        let d = flat(path[f] - path[f - 1]);
+        d.length() >= MIN_STEP && wrap_deg(heading_deg(d) - target_deg).abs() <= TURN_TOLERANCE_DEG
+    };
+    (switch.max(1)..path.len().saturating_sub(3))
+        .find(|&f| (f..f + 4).all(on))
+        .map(|f| f - switch + 1)
+}
+
+/// After the keys are released at step `release` (path[release] -> path[release + 1] is
+/// the first idle step) until `end` (the next key press, or the path's end): the frames
+/// until the root moves slower than 0.05 m/s for good (None: never), and the slide, the
+/// horizontal distance from the release to where it stopped (to `end` when it never did).
+pub fn stop(path: &[Vec3], release: usize, end: usize) -> (Option<usize>, f32) {
+    let v = speeds(&path[release..=end]);
+    let frames = v
+        .iter()
+        .rposition(|&s| s >= STOPPED_SPEED)
+        .map_or(0, |i| i + 1);
+    let stopped = (frames < v.len()).then_some(frames);
+    let at = release + stopped.unwrap_or(v.len());
+    (stopped, flat(path[at] - path[release]).length())
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct TurnCompare {
+    pub label: String,
+    /// The first frame under the new key.
+    pub frame: usize,
+    pub generated: Option<usize>,
+    pub teacher: Option<usize>,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct StopCompare {
+    pub after: Action,
+    pub release: usize,
+    pub frames: Option<usize>,
+    pub teacher_frames: Option<usize>,
+    pub slide_m: f32,
+    pub teacher_slide_m: f32,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct SpeedCompare {
+    pub key: Action,
+    pub start: usize,
+    pub speed: f32,
+    pub teacher_speed: f32,
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct CreepCompare {
+    /// The first frame of the last `CREEP_FRAMES` of the idle run.
+    pub from: usize,
+    pub creep_m: f32,
+    pub teacher_creep_m: f32,
+}
+
+/// Everything compared on one script.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct MotionCompare {
+    pub turns: Vec<TurnCompare>,
+    pub stops: Vec<StopCompare>,
+    pub speeds: Vec<SpeedCompare>,
+    pub creep: Vec<CreepCompare>,
+}
+
+/// Runs of one action: (action, first step, steps).
+fn runs(actions: &[Action]) -> Vec<(Action, usize, usize)> {
+    let mut out: Vec<(Action, usize, usize)> = Vec::new();
+    for (t, &a) in actions.iter().enumerate() {
+        match out.last_mut() {
+            Some((b, _, n)) if *b == a => *n += 1,
+            _ => out.push((a, t, 1)),
+        }
+    }
+    out
+}
+
+/// Compares the generated path with the teacher's on the same `actions` (both have
+/// `actions.len() + 1` roots).
+pub fn compare(generated: &[Vec3], teacher: &[Vec3], actions: &[Action]) -> MotionCompare {
+    assert!(generated.len() == actions.len() + 1 && teacher.len() == actions.len() + 1);
+    let mut out = MotionCompare::default();
+    let runs = runs(actions);
+    for (k, &(action, start, steps)) in runs.iter().enumerate() {
+        let before = k.checked_sub(1).map(|k| runs[k].0);
+        let end = start + steps;
+        match (before.and_then(key_heading), key_heading(action)) {
+            (Some(from), Some(to)) => {
+                // actions[start] moves into path[start + 1], the first new frame.
+                let label = format!(
+                    "{}→{} ({:.0}°)",
+                    before.map_or('?', Action::letter),
+                    action.letter(),
+                    wrap_deg(to - from).abs()
+                );
+                let within = &generated[..=end];
+                out.turns.push(TurnCompare {
+                    label,
+                    frame: start + 1,
+                    generated: turn_frames(within, start + 1, to),
+                    teacher: turn_frames(&teacher[..=end], start + 1, to),
+                });
+            }
+            (Some(_), None) => {
+                let (frames, slide_m) = stop(generated, start, end);
+                let (teacher_frames, teacher_slide_m) = stop(teacher, start, end);
+                out.stops.push(StopCompare {
+                    after: before.unwrap_or(Action::Idle),
+                    release: start,
+                    frames,
+                    teacher_frames,
+                    slide_m,
+                    teacher_slide_m,
+                });
+            }
+            _ => {}
+        }
+        if action == Action::Idle && steps >= CREEP_RUN {
+            let from = end - CREEP_FRAMES;
+            let creep = |p: &[Vec3]| flat(p[end] - p[from]).length();
+            out.creep.push(CreepCompare {
+                from,
+                creep_m: creep(generated),
+                teacher_creep_m: creep(teacher),
+            });
+        }
+        if action != Action::Idle && steps > SETTLE + 5 {
+            let mean = |p: &[Vec3]| {
+                let v = speeds(&p[start + SETTLE..=end]);
+                v.iter().sum::<f32>() / v.len() as f32
+            };
+            out.speeds.push(SpeedCompare {
+                key: action,
+                start,
+                speed: mean(generated),
+                teacher_speed: mean(teacher),
+            });
+        }
+    }
+    out
+}
+
+/// generated / teacher; infinite when the generated side never finishes; None when the
+/// teacher gives nothing to compare with (it never finishes, or takes no frames).
+pub fn ratio(generated: Option<f64>, teacher: Option<f64>) -> Option<f64> {
+    match (generated, teacher) {
+        (_, None) => None,
+        (_, Some(t)) if t <= 0.0 => None,
+        (None, Some(_)) => Some(f64::INFINITY),
+        (Some(g), Some(t)) => Some(g / t),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn walk(steps: &[(Vec3, usize)]) -> Vec<Vec3> {
+        let mut path = vec![Vec3::ZERO];
+        for &(d, n) in steps {
+            for _ in 0..n {
+                let last = *path.last().unwrap();
+                path.push(last + d);
+            }
+        }
+        path
+    }
+
+    #[test]
+    fn headings_follow_the_keys() {
+        assert_eq!(heading_deg(Vec3::Z), 0.0);
+        assert!((heading_deg(Vec3::X) - 90.0).abs() < 1e-5);
+        assert_eq!(key_heading(Action::Left), Some(90.0));
+        assert_eq!(key_heading(Action::Right), Some(-90.0));
+        assert_eq!(key_heading(Action::Backward), Some(180.0));
+        assert_eq!(wrap_deg(-190.0), 170.0);
+        assert_eq!(wrap_deg(180.0), 180.0);
+    }
+
+    #[test]
+    fn facing_is_the_turn_of_the_rest_pose() {
+        let rest = [
+            Vec3::new(0.3, 1.0, 0.1),
+            Vec3::new(-0.2, 0.5, 0.4),
+            Vec3::new(0.1, 0.0, -0.3),
+        ];
+        let turn = glam::Quat::from_rotation_y(30f32.to_radians());
+        let turned: Vec<Vec3> = rest.iter().map(|&p| turn * p).collect();
+        assert!((facing_deg(&turned, &rest) - 30.0).abs() < 1e-3);
+        // +Z turned 30° about +Y heads 30° toward +X.
+        assert!((heading_deg(turn * Vec3::Z) - 30.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn a_turn_counts_the_frames_until_four_steps_are_on_the_new_heading() {
+        // 5 steps +Z, 2 steps sideways-diagonal (off heading), then +X.
+        let path = walk(&[
+            (Vec3::Z * 0.05, 5),
+            (Vec3::new(0.03, 0.0, 0.03), 2),
+            (Vec3::X * 0.05, 6),
+        ]);
+        // Frame 6 is the first under the new key; frames 6, 7 are diagonal; 8 on heading.
+        assert_eq!(turn_frames(&path, 6, 90.0), Some(3));
+        assert_eq!(turn_frames(&path, 6, -90.0), None);
+    }
+
+    #[test]
+    fn a_stop_gives_its_frames_and_slide() {
+        // Released at step 4: 3 slowing steps of 0.02, 0.01, 0.004 m (0.6, 0.3, 0.12 m/s)
+        // then 0.001 m steps (0.03 m/s).
+        let mut path = walk(&[(Vec3::Z * 0.05, 4)]);
+        for d in [0.02, 0.01, 0.004, 0.001, 0.001] {
+            let last = *path.last().unwrap();
+            path.push(last + Vec3::Z * d);
+        }
+        let (frames, slide) = stop(&path, 4, 9);
+        assert_eq!(frames, Some(3));
+        assert!((slide - 0.034).abs() < 1e-6);
+        // Never stopping: the slide runs to the end.
+        let path = walk(&[(Vec3::Z * 0.05, 8)]);
+        let (frames, slide) = stop(&path, 4, 8);
+        assert_eq!(frames, None);
+        assert!((slide - 0.2).abs() < 1e-6);
+    }
+
+    #[test]
+    fn compare_finds_turns_stops_speeds_and_creep() {
+        use Action::*;
+        let mut actions = vec![Forward; 30];
+        actions.extend([Left; 30]);
+        actions.extend([Idle; 340]);
+        // Teacher: 0.05 m/frame forward, turns in 1 frame, stops in 1.
+        let teacher = walk(&[
+            (Vec3::Z * 0.05, 30),
+            (Vec3::X * 0.05, 30),
+            (Vec3::ZERO, 340),
+        ]);
+        // Generated: 10 % faster, turns in 3 frames, creeps 0.0001 m a frame while idle.
+        let generated = walk(&[
+            (Vec3::Z * 0.055, 30),
+            (Vec3::Z * 0.055, 2),
+            (Vec3::X * 0.055, 28),
+            (Vec3::X * 0.0001, 340),
+        ]);
+        let c = compare(&generated, &teacher, &actions);
+        assert_eq!(c.turns.len(), 1);
+        assert_eq!(
+            (c.turns[0].generated, c.turns[0].teacher),
+            (Some(3), Some(1))
+        );
+        assert_eq!(c.turns[0].label, "W→A (90°)");
+        assert_eq!(c.stops.len(), 1);
+        assert_eq!(c.stops[0].teacher_frames, Some(0));
+        assert_eq!(c.stops[0].frames, Some(0));
+        assert_eq!(c.speeds.len(), 2);
+        assert!((c.speeds[0].speed / c.speeds[0].teacher_speed - 1.1).abs() < 1e-4);
+        assert_eq!(c.creep.len(), 1);
+        assert!((c.creep[0].creep_m - 0.03).abs() < 1e-5);
+        assert_eq!(c.creep[0].teacher_creep_m, 0.0);
+        assert_eq!(ratio(Some(3.0), Some(1.0)), Some(3.0));
+        assert_eq!(ratio(None, Some(2.0)), Some(f64::INFINITY));
+        assert_eq!(ratio(Some(2.0), Some(0.0)), None);
+    }
+}
