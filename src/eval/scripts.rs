@@ -17,7 +17,7 @@ const PAUSE: (usize, usize) = (20, 60);
 
 /// Script `index` of `seed`: random keys for about `frames` frames (a movement key held
 /// 20-90 frames, a quarter of the time an idle of 20-60 frames after it), then a final
-/// idle of `idle` frames. Every script starts with a movement key.
+/// idle of `idle` frames. Every script starts with a movement key and has at least two.
 pub fn draw(seed: u64, index: u64, frames: usize, idle: usize) -> String {
     let mut rng = Rng::new(seed ^ index.wrapping_mul(0x9e37_79b9_7f4a_7c15));
     let moves = [
@@ -29,7 +29,9 @@ pub fn draw(seed: u64, index: u64, frames: usize, idle: usize) -> String {
     let mut parts: Vec<(usize, Action)> = Vec::new();
     let mut total = 0;
     let mut last = None;
-    while total < frames {
+    let mut keys = 0;
+    // At least two movement keys, so that every script has a turn.
+    while total < frames || keys < 2 {
         let key = loop {
             let k = moves[rng.below(4)];
             if Some(k) != last {
@@ -40,6 +42,7 @@ pub fn draw(seed: u64, index: u64, frames: usize, idle: usize) -> String {
         parts.push((hold, key));
         total += hold;
         last = Some(key);
+        keys += 1;
         if total < frames && rng.chance(0.25) {
             let pause = PAUSE.0 + rng.below(PAUSE.1 - PAUSE.0 + 1);
             parts.push((pause, Action::Idle));
@@ -76,5 +79,9 @@ mod tests {
         let (_, keys) = script(SCRIPT_SEED, 0, 300, 300);
         assert!(keys.len() >= 600 && keys.len() < 600 + HOLD.1 + PAUSE.1);
         assert_ne!(keys.action_at(0), Action::Idle);
+        // Short scripts still turn: two movement keys at least.
+        let short = draw(SCRIPT_SEED, 0, 20, 20);
+        let moves = short.split(' ').filter(|p| !p.ends_with('I')).count();
+        assert!(moves >= 2, "{short}");
     }
 }
