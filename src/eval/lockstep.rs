@@ -27,13 +27,13 @@ use crate::render::scene::{DrawOptions, character_light};
 use crate::splat::raster::Rasterizer;
 
 use super::motion::facing_deg;
-use super::pixels::{self, BACKGROUNDS, Linear, Silhouette};
+use super::pixels::{self, BACKGROUNDS, LinearImage, Silhouette};
 
 /// Share of the image height the standing teacher fills in the full-body views.
 const FILL: f32 = 0.72;
 
 /// One camera around the teacher's root, turned with the teacher's facing.
-pub struct View {
+pub struct EvalView {
     pub name: &'static str,
     /// From the teacher's front (0) toward its left (+90), degrees.
     pub yaw_deg: f32,
@@ -43,7 +43,7 @@ pub struct View {
 }
 
 /// The 4 cardinal views and 4 the training renders never had.
-pub const VIEWS: [View; 8] = [
+pub const VIEWS: [EvalView; 8] = [
     view("front", 0.0, 6.0, false),
     view("left", 90.0, 6.0, false),
     view("back", 180.0, 6.0, false),
@@ -54,8 +54,8 @@ pub const VIEWS: [View; 8] = [
     view("upper body", 20.0, 8.0, true),
 ];
 
-const fn view(name: &'static str, yaw_deg: f32, pitch_deg: f32, close: bool) -> View {
-    View {
+const fn view(name: &'static str, yaw_deg: f32, pitch_deg: f32, close: bool) -> EvalView {
+    EvalView {
         name,
         yaw_deg,
         pitch_deg,
@@ -154,7 +154,7 @@ struct Framing {
 }
 
 impl Framing {
-    fn camera(&self, view: &View, facing_deg: f32, root: Vec3) -> OrbitCamera {
+    fn camera(&self, view: &EvalView, facing_deg: f32, root: Vec3) -> OrbitCamera {
         let (y, distance) = if view.close {
             (self.ground + 0.72 * self.height, self.distance * 0.45)
         } else {
@@ -335,13 +335,13 @@ pub fn run(
                 .collect();
             // Each level's generated images: the engine's own splats at its level, the
             // others drawn from its points through the same appearance stage.
-            let mut generated: Vec<(usize, Vec<Linear>)> = Vec::new();
+            let mut generated: Vec<(usize, Vec<LinearImage>)> = Vec::new();
             let (buffer, count) = engine
                 .splats()
                 .ok_or_else(|| anyhow::anyhow!("the engine made no splats"))?;
             let mut own = Vec::new();
             for camera in &cameras {
-                own.push(Linear::from_srgb8(&offscreen.render_splats(
+                own.push(LinearImage::from_srgb8(&offscreen.render_splats(
                     buffer,
                     count,
                     camera,
@@ -359,7 +359,7 @@ pub fn run(
                 let buffer = Rasterizer::upload(gpu, &splats)?;
                 let mut images = Vec::new();
                 for camera in &cameras {
-                    images.push(Linear::from_srgb8(&offscreen.render_splats(
+                    images.push(LinearImage::from_srgb8(&offscreen.render_splats(
                         &buffer,
                         splats.len(),
                         camera,
@@ -379,8 +379,8 @@ pub fn run(
                     })
                     .collect()
             };
-            let mut best: Vec<(f64, usize, Rc<Vec<Linear>>)> = Vec::new();
-            let mut same: Option<Rc<Vec<Linear>>> = None;
+            let mut best: Vec<(f64, usize, Rc<Vec<LinearImage>>)> = Vec::new();
+            let mut same: Option<Rc<Vec<LinearImage>>> = None;
             for j in window(index) {
                 let mesh = frames.meshes[j]
                     .as_ref()
@@ -391,7 +391,7 @@ pub fn run(
                 };
                 let mut images = Vec::new();
                 for camera in teacher_cameras(j) {
-                    images.push(Linear::from_srgb8(
+                    images.push(LinearImage::from_srgb8(
                         &offscreen.render(mesh, &camera, &light)?,
                     ));
                 }
@@ -429,30 +429,31 @@ pub fn run(
                 let buffer = Rasterizer::upload(gpu, &splats)?;
                 let mut ceiling_images = Vec::new();
                 for camera in teacher_cameras(index) {
-                    ceiling_images.push(Linear::from_srgb8(&offscreen.render_splats(
+                    ceiling_images.push(LinearImage::from_srgb8(&offscreen.render_splats(
                         &buffer,
                         splats.len(),
                         &camera,
                         &plain(),
                     )?));
                 }
-                let score_all = |got: &[Linear], want: &[Linear], j: usize| -> Vec<ViewScore> {
-                    got.iter()
-                        .zip(want)
-                        .enumerate()
-                        .map(|(v, (g, w))| {
-                            let camera = OrbitCamera {
-                                target: Vec3::new(
-                                    frames.roots[j].x,
-                                    cameras[v].target.y,
-                                    frames.roots[j].z,
-                                ),
-                                ..cameras[v]
-                            };
-                            score(g, w, v, &framing, &camera, &frames, j)
-                        })
-                        .collect()
-                };
+                let score_all =
+                    |got: &[LinearImage], want: &[LinearImage], j: usize| -> Vec<ViewScore> {
+                        got.iter()
+                            .zip(want)
+                            .enumerate()
+                            .map(|(v, (g, w))| {
+                                let camera = OrbitCamera {
+                                    target: Vec3::new(
+                                        frames.roots[j].x,
+                                        cameras[v].target.y,
+                                        frames.roots[j].z,
+                                    ),
+                                    ..cameras[v]
+                                };
+                                score(g, w, v, &framing, &camera, &frames, j)
+                            })
+                            .collect()
+                    };
                 if sheet.is_none()
                     && *level == options.levels.iter().copied().max().unwrap_or(*level)
                 {
@@ -502,7 +503,7 @@ fn plain() -> DrawOptions {
 }
 
 /// The smallest share of the image height the figure spans in the full-body views.
-fn filled(images: &[Linear], size: u32) -> f32 {
+fn filled(images: &[LinearImage], size: u32) -> f32 {
     images
         .iter()
         .zip(&VIEWS)
@@ -524,8 +525,8 @@ fn filled(images: &[Linear], size: u32) -> f32 {
 /// All scores of one view: whole image on each background, silhouette, and the face and
 /// hand crops placed from teacher frame `j`'s joints.
 fn score(
-    got: &Linear,
-    want: &Linear,
+    got: &LinearImage,
+    want: &LinearImage,
     view: usize,
     framing: &Framing,
     camera: &OrbitCamera,
@@ -567,7 +568,7 @@ fn score(
 }
 
 /// Rows of images shown on grey, side by side.
-fn contact_sheet(rows: &[&[Linear]]) -> image::RgbaImage {
+fn contact_sheet(rows: &[&[LinearImage]]) -> image::RgbaImage {
     let (w, h) = (rows[0][0].width as u32, rows[0][0].height as u32);
     let columns = rows.iter().map(|r| r.len()).max().unwrap_or(0) as u32;
     let mut sheet = image::RgbaImage::new(w * columns, h * rows.len() as u32);

@@ -6,7 +6,7 @@
 use std::sync::OnceLock;
 
 /// A render as premultiplied linear RGBA floats, row-major.
-pub struct Linear {
+pub struct LinearImage {
     pub width: usize,
     pub height: usize,
     pub rgba: Vec<[f32; 4]>,
@@ -46,7 +46,7 @@ fn decode_table() -> &'static [f32; 256] {
     TABLE.get_or_init(|| std::array::from_fn(|i| to_linear(i as f32 / 255.0)))
 }
 
-impl Linear {
+impl LinearImage {
     /// A render read back from an sRGB target: RGB is sRGB-encoded premultiplied colour,
     /// alpha is linear coverage.
     pub fn from_srgb8(image: &image::RgbaImage) -> Self {
@@ -92,8 +92,8 @@ impl Linear {
 }
 
 /// Both images must describe the same frame; anything else is a caller's bug.
-fn same_size(got: &Linear, want: &Linear) {
-    let size = |i: &Linear| (i.width, i.height, i.rgba.len());
+fn same_size(got: &LinearImage, want: &LinearImage) {
+    let size = |i: &LinearImage| (i.width, i.height, i.rgba.len());
     assert_eq!(size(got), size(want), "renders differ in size");
     assert_eq!(
         got.rgba.len(),
@@ -111,7 +111,7 @@ pub struct Silhouette {
 
 /// IoU of the two SOLID masks; halo = |generated-only| / |generated|; holes =
 /// |teacher-only| / |teacher| (0 where the denominator is 0; IoU 1 when both are empty).
-pub fn silhouette(got: &Linear, want: &Linear) -> Silhouette {
+pub fn silhouette(got: &LinearImage, want: &LinearImage) -> Silhouette {
     same_size(got, want);
     let (mut both, mut only_got, mut only_want) = (0usize, 0usize, 0usize);
     for (g, w) in got.rgba.iter().zip(&want.rgba) {
@@ -133,7 +133,7 @@ pub fn silhouette(got: &Linear, want: &Linear) -> Silhouette {
 
 /// PSNR (dB) over the union of TOUCHED pixels of both (3 channels), shown on
 /// `background`; f64::INFINITY when equal or when the union is empty.
-pub fn psnr(got: &Linear, want: &Linear, background: f32) -> f64 {
+pub fn psnr(got: &LinearImage, want: &LinearImage, background: f32) -> f64 {
     same_size(got, want);
     let bg = to_linear(background);
     let (mut sum, mut count) = (0.0f64, 0usize);
@@ -171,7 +171,7 @@ fn gaussian() -> [f64; WINDOW] {
 /// pixels. 1.0 when the union is empty; the mean over all valid windows when no valid
 /// centre is in the union; the whole image as one uniform window when it is smaller than
 /// a window.
-pub fn ssim(got: &Linear, want: &Linear, background: f32) -> f64 {
+pub fn ssim(got: &LinearImage, want: &LinearImage, background: f32) -> f64 {
     same_size(got, want);
     let (w, h) = (got.width, got.height);
     let (gs, ws) = (got.rgba.iter(), want.rgba.iter());
@@ -205,7 +205,7 @@ pub fn ssim(got: &Linear, want: &Linear, background: f32) -> f64 {
     };
     let (cw, ch) = (cx.len(), cy.len());
     let (bx, by) = ((cx.start - HALF) as i64, (cy.start - HALF) as i64);
-    let shown = |i: &Linear| {
+    let shown = |i: &LinearImage| {
         i.crop(bx, by, cw + 2 * HALF, ch + 2 * HALF)
             .shown(background)
     };
@@ -296,14 +296,14 @@ fn whole_image(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
 mod tests {
     use super::*;
 
-    fn image(size: u32, pixel: impl Fn(u32, u32) -> [u8; 4]) -> Linear {
-        Linear::from_srgb8(&image::RgbaImage::from_fn(size, size, |x, y| {
+    fn image(size: u32, pixel: impl Fn(u32, u32) -> [u8; 4]) -> LinearImage {
+        LinearImage::from_srgb8(&image::RgbaImage::from_fn(size, size, |x, y| {
             image::Rgba(pixel(x, y))
         }))
     }
 
-    fn linear(width: usize, rgba: Vec<[f32; 4]>) -> Linear {
-        Linear {
+    fn linear(width: usize, rgba: Vec<[f32; 4]>) -> LinearImage {
+        LinearImage {
             width,
             height: rgba.len() / width.max(1),
             rgba,
@@ -316,7 +316,7 @@ mod tests {
 
     /// The SSIM test pair (mirrored in the Python snippet below): integer patterns,
     /// opaque where `inside` holds, transparent black elsewhere.
-    fn pattern(second: bool, inside: impl Fn(u32, u32) -> bool) -> Linear {
+    fn pattern(second: bool, inside: impl Fn(u32, u32) -> bool) -> LinearImage {
         image(32, |x, y| {
             let a = [
                 (7 * x + 3 * y) % 200 + 30,
