@@ -271,7 +271,7 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
                     .arg(&eval)
                     .arg("--character")
                     .arg(&args.character)
-                    .arg("--quick");
+                    .args(["--quick", "--strict-only"]);
                 run(command, "unica eval")?;
             }
             _ => unreachable!("a stage of STAGES"),
@@ -323,7 +323,7 @@ fn trainer(python: &str, module: &str) -> Command {
 }
 
 /// PYTHONPATH with this source tree's trainer first, for every process a make starts
-/// (`unica eval` runs the trainer's evaluation too).
+/// (`unica eval` runs the trainer for the lenient evaluation, which a make skips).
 fn python_path() -> std::ffi::OsString {
     let mut path = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("train")

@@ -76,12 +76,12 @@ pub(super) struct EvalArgs {
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(20..100_000))]
     script_frames: Option<u32>,
     /// Score every this many frames at the engine's own splat level [default: 10 on a
-    /// GPU, 30 on a CPU driver; with --quick 10]
+    /// GPU, 30 on a CPU driver; with --quick 20]
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..1000))]
     score_every: Option<u32>,
     /// Score the other levels (1024 where the engine draws 256) every this many frames:
     /// a frame of 250k splats takes seconds to draw on a CPU driver [default: as
-    /// --score-every on a GPU, 300 on a CPU driver; with --quick 100]
+    /// --score-every on a GPU, 300 on a CPU driver; with --quick 120]
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..10_000))]
     fine_every: Option<u32>,
     /// Each scored frame is compared with the teacher's frames this many either side of
@@ -163,9 +163,16 @@ pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     levels.dedup();
     let quick = args.quick;
     let cpu = context.adapter.get_info().device_type == wgpu::DeviceType::Cpu;
-    let score_every = args
-        .score_every
-        .map_or(if cpu && !quick { 30 } else { 10 }, |n| n as usize);
+    let score_every = args.score_every.map_or(
+        if quick {
+            20
+        } else if cpu {
+            30
+        } else {
+            10
+        },
+        |n| n as usize,
+    );
     let options = crate::eval::StrictOptions {
         bundle: args.bundle.clone(),
         character: character.clone(),
@@ -180,7 +187,7 @@ pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         score_every,
         fine_every: args.fine_every.map_or(
             if quick {
-                100
+                120
             } else if cpu {
                 300
             } else {
