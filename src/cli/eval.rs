@@ -230,15 +230,25 @@ pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The strict summary with the lenient evaluation's keys added under `lenient_`.
+/// The strict summary with the lenient evaluation's keys added under `lenient_`. Python
+/// writes NaN and infinities as bare `NaN` / `Infinity`, which JSON has no words for: they
+/// become null, as the strict summary writes them.
 fn with_lenient(
     folder: &std::path::Path,
     mut summary: serde_json::Map<String, serde_json::Value>,
 ) -> anyhow::Result<serde_json::Map<String, serde_json::Value>> {
     let path = folder.join("summary.json");
-    let lenient: serde_json::Map<String, serde_json::Value> =
-        serde_json::from_slice(&std::fs::read(&path).with_context(|| path.display().to_string())?)
-            .with_context(|| format!("{}: not a summary", path.display()))?;
+    let text = std::fs::read_to_string(&path).with_context(|| path.display().to_string())?;
+    let lenient: serde_json::Map<String, serde_json::Value> = serde_json::from_str(&text)
+        .or_else(|_| {
+            serde_json::from_str(
+                &text
+                    .replace("-Infinity", "null")
+                    .replace("Infinity", "null")
+                    .replace("NaN", "null"),
+            )
+        })
+        .with_context(|| format!("{}: not a summary", path.display()))?;
     for (key, value) in lenient {
         summary.insert(format!("lenient_{key}"), value);
     }
@@ -353,4 +363,31 @@ fn lenient(
         bail!("the evaluation failed ({python} -m unica_train.eval exited with {status})");
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_lenient_keys_join_with_a_prefix_and_python_non_numbers_become_null() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("summary.json"),
+            "{\"masked_psnr_db\": 25.5, \"stop_frames\": NaN, \"drift\": -Infinity, \"seeds\": [0, 1]}",
+        )
+        .unwrap();
+        let mut strict = serde_json::Map::new();
+        strict.insert("seeds".into(), serde_json::json!(5));
+        let merged = with_lenient(dir.path(), strict).unwrap();
+        assert_eq!(merged["seeds"], serde_json::json!(5));
+        assert_eq!(merged["lenient_seeds"], serde_json::json!([0, 1]));
+        assert_eq!(merged["lenient_masked_psnr_db"], serde_json::json!(25.5));
+        assert!(merged["lenient_stop_frames"].is_null() && merged["lenient_drift"].is_null());
+        let error = with_lenient(&dir.path().join("none"), serde_json::Map::new()).unwrap_err();
+        assert!(
+            format!("{error:#}").contains("none/summary.json"),
+            "{error:#}"
+        );
+    }
 }
