@@ -383,7 +383,13 @@ pub fn markdown(runs: &[SeedRun], levels: &[usize], summary: &Map<String, Value>
         summary
             .get(k)
             .and_then(Value::as_f64)
-            .map_or("not measured".to_string(), |v| format!("{v:.3}"))
+            .map_or("not measured".to_string(), |v| {
+                if v.fract() == 0.0 {
+                    format!("{v:.0}")
+                } else {
+                    format!("{v:.3}")
+                }
+            })
     };
     let _ = writeln!(out, "# Strict evaluation\n");
     let _ = writeln!(
