@@ -305,6 +305,11 @@ pub fn summary(runs: &[SeedRun], levels: &[usize], script_seed: u64) -> Map<Stri
     put("stop_ratio_max", hi);
     put("turns", json!(m.turns.len()));
     put("stops", json!(m.stops.len()));
+    // A turn or stop that never completes is an infinite ratio, which JSON cannot hold:
+    // the max is then null and these counts say why.
+    let never = |v: &[f64]| v.iter().filter(|r| r.is_infinite()).count();
+    put("turns_never_completed", json!(never(&m.turns)));
+    put("stops_never_completed", json!(never(&m.stops)));
     put("idle_creep_m", m.creep_m.map_or(Value::Null, number));
     put(
         "teacher_idle_creep_m",
@@ -413,12 +418,19 @@ pub fn markdown(runs: &[SeedRun], levels: &[usize], summary: &Map<String, Value>
         "## Targets\n\n| key | target | value | |\n|---|---|---|---|"
     );
     for &(key, op, target) in TARGETS {
-        let mark = match meets(summary, key, op, target) {
-            Some(true) => "✓",
-            Some(false) => "✗",
-            None => "not measured",
+        let never = match key {
+            "turn_ratio_max" => "turns_never_completed",
+            "stop_ratio_max" => "stops_never_completed",
+            _ => "",
         };
-        let _ = writeln!(out, "| {key} | {op} {target} | {} | {mark} |", f(key));
+        let infinite = summary.get(never).and_then(Value::as_u64).unwrap_or(0);
+        let (value, mark) = match meets(summary, key, op, target) {
+            _ if infinite > 0 => (format!("∞ ({infinite} never completed)"), "✗"),
+            Some(true) => (f(key), "✓"),
+            Some(false) => (f(key), "✗"),
+            None => (f(key), "not measured"),
+        };
+        let _ = writeln!(out, "| {key} | {op} {target} | {value} | {mark} |");
     }
     for key in [
         "flicker_ratio",
@@ -640,6 +652,11 @@ mod tests {
         assert_eq!(get("slide_ratio_min"), 0.25);
         // A stop that never comes is an infinite ratio, which JSON holds as null.
         assert!(s["stop_ratio_max"].is_null());
+        assert_eq!(s["stops_never_completed"], json!(1));
+        assert!(
+            markdown(&runs, &[1024], &s)
+                .contains("| stop_ratio_max | <= 1.25 | ∞ (1 never completed) | ✗ |")
+        );
         assert!(s["idle_creep_m"].is_null() && s["flicker_ratio"].is_null());
         assert_eq!(meets(&s, "free_psnr_db", ">=", 22.0), Some(false));
         assert_eq!(meets(&s, "turn_ratio_min", ">=", 0.75), Some(false));
