@@ -339,15 +339,7 @@ pub fn run(
             let (buffer, count) = engine
                 .splats()
                 .ok_or_else(|| anyhow::anyhow!("the engine made no splats"))?;
-            let mut own = Vec::new();
-            for camera in &cameras {
-                own.push(LinearImage::from_srgb8(&offscreen.render_splats(
-                    buffer,
-                    count,
-                    camera,
-                    &plain(),
-                )?));
-            }
+            let own = draw_splats(&mut offscreen, buffer, count, &cameras)?;
             generated.push((options.engine_level, own));
             for (level, look) in looks.iter_mut() {
                 if *level == options.engine_level || index % options.fine_every != 0 {
@@ -357,15 +349,7 @@ pub fn run(
                 let splats = look.splats(&engine.bundle, &frame.points)?;
                 appearance_seconds += t.elapsed().as_secs_f64();
                 let buffer = Rasterizer::upload(gpu, &splats)?;
-                let mut images = Vec::new();
-                for camera in &cameras {
-                    images.push(LinearImage::from_srgb8(&offscreen.render_splats(
-                        &buffer,
-                        splats.len(),
-                        camera,
-                        &plain(),
-                    )?));
-                }
+                let images = draw_splats(&mut offscreen, &buffer, splats.len(), &cameras)?;
                 generated.push((*level, images));
             }
             // The teacher's frames in the window, drawn from the same cameras about their
@@ -427,15 +411,12 @@ pub fn run(
                 let splats = look.splats(&engine.bundle, &frames.points[index])?;
                 appearance_seconds += t.elapsed().as_secs_f64();
                 let buffer = Rasterizer::upload(gpu, &splats)?;
-                let mut ceiling_images = Vec::new();
-                for camera in teacher_cameras(index) {
-                    ceiling_images.push(LinearImage::from_srgb8(&offscreen.render_splats(
-                        &buffer,
-                        splats.len(),
-                        &camera,
-                        &plain(),
-                    )?));
-                }
+                let ceiling_images = draw_splats(
+                    &mut offscreen,
+                    &buffer,
+                    splats.len(),
+                    &teacher_cameras(index),
+                )?;
                 let score_all =
                     |got: &[LinearImage], want: &[LinearImage], j: usize| -> Vec<ViewScore> {
                         got.iter()
@@ -491,6 +472,22 @@ pub fn run(
         ],
         sheet,
     })
+}
+
+/// `count` splats of `buffer` drawn from each camera.
+fn draw_splats(
+    offscreen: &mut Offscreen,
+    buffer: &wgpu::Buffer,
+    count: usize,
+    cameras: &[OrbitCamera],
+) -> anyhow::Result<Vec<LinearImage>> {
+    cameras
+        .iter()
+        .map(|camera| {
+            let image = offscreen.render_splats(buffer, count, camera, &plain())?;
+            Ok(LinearImage::from_srgb8(&image))
+        })
+        .collect()
 }
 
 /// Drawn over a transparent background with no grid: alpha is coverage.
