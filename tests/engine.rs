@@ -747,6 +747,56 @@ fn the_gpu_kernel_variant_makes_the_frames_of_the_cpu_variant() {
 }
 
 #[test]
+fn frames_recorded_ahead_equal_frames_submitted_in_parts() {
+    // An unsplit frame submits commands recorded while the GPU ran the frame before, on
+    // the guess that the key stays; a wrong guess (a key change, Idle's one-batch plan
+    // after W, a settings change) records again. Split frames record each part as it is
+    // submitted. Same seed and keys: the same bytes, and the same dispatch counts.
+    let gpu = gpu();
+    let sampling = Sampling {
+        guide_idle: false,
+        ..Sampling::new(2, 2.0)
+    };
+    let keys = [
+        Action::Forward,
+        Action::Forward,
+        Action::Idle,
+        Action::Idle,
+        Action::Left,
+        Action::Idle,
+    ];
+    let run = |split: bool| -> (Vec<Vec<Vec3>>, u64) {
+        let mut engine = Engine::new(
+            &gpu,
+            &witch_bundle(),
+            &EngineOptions {
+                split,
+                ..options(sampling, 5)
+            },
+        )
+        .unwrap();
+        let before = gpu.counts();
+        let mut frames = Vec::new();
+        for (i, &action) in keys.iter().enumerate() {
+            if i == 4 {
+                engine.set_sampling(Sampling::new(3, 2.0));
+            }
+            engine.frame(action).unwrap();
+            engine.finish();
+            frames.push(engine.read_points().unwrap());
+        }
+        (frames, (gpu.counts() - before).dispatches)
+    };
+    let (ahead, ahead_dispatches) = run(false);
+    let (parts, parts_dispatches) = run(true);
+    assert!(
+        ahead == parts,
+        "frames recorded ahead differ from split frames"
+    );
+    assert_eq!(ahead_dispatches, parts_dispatches);
+}
+
+#[test]
 fn the_same_seed_and_keys_give_the_same_bytes() {
     let gpu = gpu();
     let run = |seed: u64| -> Vec<Vec<Vec3>> {

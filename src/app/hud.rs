@@ -137,7 +137,7 @@ impl UnicaApp {
         );
         ui.separator();
         ui.label(format!("Adapter: {}", self.gpu.adapter_label()));
-        let cpu = self.gpu.adapter.get_info().device_type == wgpu::DeviceType::Cpu;
+        let cpu = self.gpu.cpu_driver();
         ui.label(format!(
             "Defaults for {}: the bundle's sampler (one pass where distilled), splat level {}, \
              3D resolution scale {}",

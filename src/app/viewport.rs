@@ -53,11 +53,7 @@ pub struct Viewport {
 /// quarter of the pixels, since there the viewport's draws take the cores the model
 /// needs (docs/performance.md has the measurements).
 pub fn default_resolution_scale(gpu: &GpuContext) -> f32 {
-    if gpu.adapter.get_info().device_type == wgpu::DeviceType::Cpu {
-        0.5
-    } else {
-        1.0
-    }
+    if gpu.cpu_driver() { 0.5 } else { 1.0 }
 }
 
 type SceneKey = (

@@ -230,7 +230,8 @@ pub fn describe(s: Sampling) -> String {
 /// `unica bench --live N`: N generated frames after a warm-up frame, made as the app
 /// makes them — key → the engine's frame plan (model, clamping, PCA, splats at `level`
 /// into the rasterizer's buffer) — with the GPU layer's counts per frame. cpu_ms is the
-/// time spent recording and submitting on this thread (it never waits inside a frame);
+/// time spent in `Engine::frame` on this thread (it never waits inside a frame): the
+/// submission, then the recording of the next frame while the GPU runs this one;
 /// wall_ms is the whole run, ended by waiting for the GPU, per frame.
 pub fn live(
     gpu: &GpuContext,
@@ -302,7 +303,7 @@ pub fn live(
         let clock = Instant::now();
         engine.frame(keys[i % keys.len()])?;
         cpu_ms += clock.elapsed().as_secs_f64() * 1e3;
-        // As the app paces itself: the next frame is recorded once this one has run
+        // As the app paces itself: the next frame is submitted once this one has run
         // (wgpu itself blocks a submission that runs two frames ahead).
         engine.finish();
         bar.inc(1);

@@ -162,7 +162,7 @@ pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     let mut levels = vec![engine_level, 1024];
     levels.dedup();
     let quick = args.quick;
-    let cpu = context.adapter.get_info().device_type == wgpu::DeviceType::Cpu;
+    let cpu = context.cpu_driver();
     let score_every = args.score_every.map_or(
         if quick {
             20

@@ -22,11 +22,7 @@ pub const LEVELS: [usize; 4] = [128, 256, 512, 1024];
 /// on a GPU; 256 on a CPU driver such as lavapipe, where 250k splats take seconds per
 /// frame.
 pub fn default_level(gpu: &GpuContext) -> usize {
-    if gpu.adapter.get_info().device_type == wgpu::DeviceType::Cpu {
-        256
-    } else {
-        1024
-    }
+    if gpu.cpu_driver() { 256 } else { 1024 }
 }
 
 /// The foreground pixels of one level, their neighbours and colours.

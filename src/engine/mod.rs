@@ -7,7 +7,9 @@
 //! motion (the shift, or where the bundle says `root_motion: decoded` the new root minus
 //! the last context latent's, decoded too). All of it is one captured [`Plan`] made at
 //! load (and again when the sampling or PCA setting changes): a generated frame writes
-//! its noise and action ids, submits the plan and creates nothing. The only readback is
+//! its noise and action ids, submits the plan and creates nothing. The plan's commands
+//! for the next frame are recorded right after a frame is submitted, while the GPU runs
+//! it. The only readback is
 //! the 64-byte [`FrameState`] (world root, shift, motion, clamp counts), mapped
 //! asynchronously and picked up by [`Engine::poll`]. Beside a window
 //! (`EngineOptions::split`) the plan is submitted part by part (context pass, each step,
@@ -161,22 +163,50 @@ struct Plans {
     brake: Option<FramePlan>,
 }
 
+/// Which captured plan a frame runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Which {
+    Keys,
+    Idle,
+    Brake,
+}
+
 impl Plans {
     /// The plan a frame under `action` runs, once prepared, `after_key` being its
     /// `sampler::idle_run`: the braking plan for the first Idle frames after a key where
     /// there is one, the Idle plan for other Idle frames where there is one, else the
     /// frame plan.
-    fn get(&self, action: Action, after_key: Option<u32>) -> &FramePlan {
+    fn which(&self, action: Action, after_key: Option<u32>) -> Which {
         let keys = self.keys.as_ref().expect("prepared");
         if action != Action::Idle {
-            return keys;
+            return Which::Keys;
         }
         match (&self.brake, &self.idle) {
-            (Some(brake), _) if keys.sampling.brakes(after_key) => brake,
-            (_, Some(idle)) => idle,
-            _ => keys,
+            (Some(_), _) if keys.sampling.brakes(after_key) => Which::Brake,
+            (_, Some(_)) => Which::Idle,
+            _ => Which::Keys,
         }
     }
+
+    fn plan(&self, which: Which) -> &FramePlan {
+        let plan = match which {
+            Which::Keys => &self.keys,
+            Which::Idle => &self.idle,
+            Which::Brake => &self.brake,
+        };
+        plan.as_ref().expect("prepared")
+    }
+
+    fn get(&self, action: Action, after_key: Option<u32>) -> &FramePlan {
+        self.plan(self.which(action, after_key))
+    }
+}
+
+/// The next frame's work, recorded while the GPU runs the frame before it (unsplit
+/// frames): the plan it was recorded from, and its commands.
+struct Ahead {
+    which: Which,
+    commands: wgpu::CommandBuffer,
 }
 
 /// A mapped readback of the frame state in flight.
@@ -199,6 +229,9 @@ pub struct Engine {
     kernels: crate::nn::Kernels,
     live: Live,
     plans: Plans,
+    /// The next frame's commands, recorded after this frame's submission on the guess
+    /// that its key stays (dropped when the key or the settings change).
+    ahead: Option<Ahead>,
     /// Idle frames since the last key, the latest frame counted (`sampler::idle_run`;
     /// None before any key).
     after_key: Option<u32>,
@@ -286,6 +319,7 @@ impl Engine {
                 .unwrap_or_else(|| crate::nn::Kernels::for_adapter(gpu)),
             live,
             plans: Plans::default(),
+            ahead: None,
             after_key: None,
             heading: 0,
             splats: None,
@@ -507,6 +541,7 @@ impl Engine {
                 p.sampling == self.sampling && p.pca == self.pca && p.look == look
             });
         if !fresh {
+            self.ahead = None;
             let sampling = self.sampling;
             self.plans = Plans {
                 keys: Some(self.capture(sampling)?),
@@ -550,7 +585,8 @@ impl Engine {
             .write_buffer(&live.heading, 0, bytemuck::bytes_of(&turns));
         // The model sees the action turned with the window.
         let model_action = action.turned(turns.to_model);
-        let plan = self.plans.get(action, self.after_key);
+        let which = self.plans.which(action, self.after_key);
+        let plan = self.plans.plan(which);
         let ids = if plan.guided {
             let null = self.bundle.unet.cfg.null_action();
             let partner = plan.sampling.partner(model_action.id() as usize, null);
@@ -559,34 +595,31 @@ impl Engine {
             vec![model_action.id()]
         };
         plan.actions.write(&self.gpu, &ids);
-        let slot = self.slots.iter().position(|s| !s.busy);
-        let new_encoder = || {
-            self.gpu
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("engine frame"),
-                })
-        };
-        let mut encoder = new_encoder();
-        for k in 0..plan.plan.parts() {
-            plan.plan.encode_part(&self.gpu, &mut encoder, k);
-            if self.split && k + 1 < plan.plan.parts() {
-                let done = std::mem::replace(&mut encoder, new_encoder());
-                let index = self.gpu.submit([done.finish()]);
-                let _ = self.gpu.device.poll(wgpu::PollType::Wait {
-                    submission_index: Some(index),
-                    timeout: None,
-                });
-                if let Some(pacer) = self.pacer.as_mut() {
-                    pacer();
-                }
+        let commands = if self.split {
+            self.ahead = None;
+            self.submit_parts(which)
+        } else {
+            match self.ahead.take() {
+                Some(ahead) if ahead.which == which => ahead.commands,
+                _ => self.record(which),
             }
-        }
+        };
+        // The frame state's readback rides in the frame's submission, in a small
+        // encoder of its own: which slot is free is known only now.
+        let slot = self.slots.iter().position(|s| !s.busy);
+        let mut encoder = self.new_encoder();
         let size = std::mem::size_of::<FrameState>() as u64;
         if let Some(k) = slot {
-            encoder.copy_buffer_to_buffer(&live.state, 0, &self.slots[k].staging, 0, size);
+            encoder.copy_buffer_to_buffer(&self.live.state, 0, &self.slots[k].staging, 0, size);
         }
-        self.gpu.submit([encoder.finish()]);
+        let last_part = self.plans.plan(which).plan.parts() - 1;
+        let dispatches = if self.split {
+            self.plans.plan(which).plan.part_dispatches(last_part)
+        } else {
+            self.plans.plan(which).plan.dispatches()
+        };
+        self.gpu.counters.dispatches(dispatches as u64);
+        self.gpu.submit([commands, encoder.finish()]);
         if let Some(k) = slot {
             let slot = &mut self.slots[k];
             slot.busy = true;
@@ -599,7 +632,64 @@ impl Engine {
                 });
         }
         self.frames += 1;
+        if !self.split {
+            // Recording takes about 1 ms of CPU for the frame's 251 dispatches (NVIDIA
+            // H200, docs/gpu run 4): done now, it overlaps the GPU's run of this frame
+            // instead of delaying the next. The next frame is guessed to run under the
+            // same key; a wrong guess records again.
+            let next = self.plans.which(action, idle_run(self.after_key, action));
+            let commands = self.record(next);
+            self.ahead = Some(Ahead {
+                which: next,
+                commands,
+            });
+        }
         Ok(())
+    }
+
+    fn new_encoder(&self) -> wgpu::CommandEncoder {
+        self.gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("engine frame"),
+            })
+    }
+
+    /// The whole of plan `which` recorded into one command buffer (its dispatches are
+    /// counted when it is submitted).
+    fn record(&self, which: Which) -> wgpu::CommandBuffer {
+        let plan = &self.plans.plan(which).plan;
+        let mut encoder = self.new_encoder();
+        for k in 0..plan.parts() {
+            plan.record_part(&mut encoder, k);
+        }
+        encoder.finish()
+    }
+
+    /// A split frame: submits each part of plan `which` but the last and waits for it
+    /// (calling the pacer after each), and returns the last part's commands.
+    fn submit_parts(&mut self, which: Which) -> wgpu::CommandBuffer {
+        let parts = self.plans.plan(which).plan.parts();
+        for k in 0..parts - 1 {
+            let mut encoder = self.new_encoder();
+            let plan = &self.plans.plan(which).plan;
+            plan.record_part(&mut encoder, k);
+            self.gpu.counters.dispatches(plan.part_dispatches(k) as u64);
+            let index = self.gpu.submit([encoder.finish()]);
+            let _ = self.gpu.device.poll(wgpu::PollType::Wait {
+                submission_index: Some(index),
+                timeout: None,
+            });
+            if let Some(pacer) = self.pacer.as_mut() {
+                pacer();
+            }
+        }
+        let mut encoder = self.new_encoder();
+        self.plans
+            .plan(which)
+            .plan
+            .record_part(&mut encoder, parts - 1);
+        encoder.finish()
     }
 
     /// Picks up frame states that have arrived (never waits); true if one did.

@@ -323,6 +323,12 @@ impl GpuContext {
         self.queue.submit(buffers)
     }
 
+    /// Whether the adapter is a CPU driver (lavapipe, llvmpipe, WARP): the per-adapter
+    /// defaults (kernel variant, splat level, window scale, split frames) follow it.
+    pub fn cpu_driver(&self) -> bool {
+        self.adapter.get_info().device_type == wgpu::DeviceType::Cpu
+    }
+
     /// Human-readable adapter name, backend and device type.
     pub fn adapter_label(&self) -> String {
         adapter_label(&self.adapter)

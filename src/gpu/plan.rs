@@ -36,13 +36,24 @@ enum Step {
     },
 }
 
-/// Records a run of steps into `encoder`: consecutive dispatches share one compute pass
-/// (wgpu orders each dispatch's storage writes before the next one's reads).
+/// Records a run of steps into `encoder` and counts its dispatches in the GPU layer's
+/// counters.
 fn encode_steps<'s>(
     gpu: &GpuContext,
     encoder: &mut wgpu::CommandEncoder,
     steps: impl IntoIterator<Item = &'s Step>,
 ) {
+    let dispatches = record_steps(encoder, steps);
+    gpu.counters.dispatches(dispatches);
+}
+
+/// Records a run of steps into `encoder` and returns its dispatches: consecutive
+/// dispatches share one compute pass (wgpu orders each dispatch's storage writes before
+/// the next one's reads).
+fn record_steps<'s>(
+    encoder: &mut wgpu::CommandEncoder,
+    steps: impl IntoIterator<Item = &'s Step>,
+) -> u64 {
     let mut pass: Option<wgpu::ComputePass> = None;
     let mut dispatches = 0;
     for step in steps {
@@ -94,7 +105,7 @@ fn encode_steps<'s>(
             }
         }
     }
-    gpu.counters.dispatches(dispatches);
+    dispatches
 }
 
 /// How long a run of steps took.
@@ -248,9 +259,18 @@ impl Plan {
         self.flops
     }
 
-    /// Records part `k` into `encoder`.
-    pub fn encode_part(&self, gpu: &GpuContext, encoder: &mut wgpu::CommandEncoder, k: usize) {
-        encode_steps(gpu, encoder, &self.parts[k]);
+    /// Compute dispatches in part `k`.
+    pub fn part_dispatches(&self, k: usize) -> usize {
+        self.parts[k]
+            .iter()
+            .filter(|s| matches!(s, Step::Dispatch { .. }))
+            .count()
+    }
+
+    /// Records part `k` into `encoder` without counting its dispatches: the caller
+    /// counts them when it submits them (a recording may be dropped unsubmitted).
+    pub fn record_part(&self, encoder: &mut wgpu::CommandEncoder, k: usize) {
+        record_steps(encoder, &self.parts[k]);
     }
 
     /// Runs every step in its own submission, waited for (the plan's effects happen once

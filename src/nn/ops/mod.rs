@@ -123,7 +123,7 @@ impl Kernels {
                 other => log::warn!("{KERNELS_ENV}={other} is not simple, cpu or gpu; ignored"),
             }
         }
-        if gpu.adapter.get_info().device_type == wgpu::DeviceType::Cpu {
+        if gpu.cpu_driver() {
             Self::Cpu
         } else {
             Self::Gpu
