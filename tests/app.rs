@@ -165,6 +165,11 @@ fn the_neural_witch_is_generated_and_drawn_while_the_window_yields() {
             "2I 100W 10000D",
             "--screenshot",
             shot.to_str().unwrap(),
+            "--record",
+            "--record-fps",
+            "2",
+            "--record-dir",
+            dir.path().join("rec").to_str().unwrap(),
             "--exit-after-seconds",
             "45",
         ],
@@ -203,6 +208,25 @@ fn the_neural_witch_is_generated_and_drawn_while_the_window_yields() {
         generated_fps > 0.0 && window_fps <= 2.0 * generated_fps + 1.0,
         "the window drew {window_fps} frames a second for {generated_fps} generated: {stdout}"
     );
+    // The camera follows the avatar through its generated frames: every recorded frame
+    // after the first generated one knows her root, and the camera's target moved with
+    // it (she runs W, then D).
+    let manifest: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(dir.path().join("rec/manifest.json")).expect("manifest.json"),
+    )
+    .unwrap();
+    let listed = manifest["frames"].as_array().unwrap();
+    let (first, last) = (&listed[0], listed.last().unwrap());
+    assert!(
+        !last["root"].is_null(),
+        "the last recorded frame has no root: the camera lost the avatar"
+    );
+    if generated >= 4 {
+        assert_ne!(
+            first["camera"]["target"], last["camera"]["target"],
+            "the camera stayed while the avatar ran"
+        );
+    }
     let (variance, covered) = viewport_stats(&shot);
     eprintln!(
         "neural viewport: luma variance {variance:.1}, {:.1}% covered",

@@ -77,12 +77,13 @@ impl Neural {
                     status = Some(None);
                 }
                 Update::Frame(drawn, _) => {
+                    // The surface stays when the frame brings splats and no points:
+                    // the camera's follow and the labels ask for it.
                     if let (Some(points), Some((surface, gpu_mesh))) =
-                        (&drawn.points, self.surface.take())
+                        (&drawn.points, self.surface.as_mut())
                     {
                         self.mesh = surface.mesh(points);
                         gpu_mesh.write_vertices(gpu, &self.mesh);
-                        self.surface = Some((surface, gpu_mesh));
                     }
                     if drawn.splats.is_some() {
                         self.splats = drawn.splats;

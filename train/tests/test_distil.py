@@ -11,7 +11,7 @@ import torch
 
 from unica_train import bundle
 from unica_train.diffusion import Schedule, frame_idle_scales, sample_next
-from unica_train.distil import Teacher, main, one_pass, x0_prediction
+from unica_train.distil import RELEASE_WINDOW, Teacher, main, one_pass, pick_frames, x0_prediction
 
 from test_train import trained_bundle_with_refiner
 
@@ -74,6 +74,44 @@ def test_the_pool_takes_the_live_loops_guidance_for_each_frame(teacher_bundle, q
         want = frame_idle_scales(history, 1.5, 5.0, 10)[-1]
         assert scale == want  # used only where the action is Idle (diffusion.guided_eps)
     assert part["context"].shape[1:] == (3, 4, 16, 16) and part["truth"].shape[1:] == (4, 16, 16)
+
+
+def test_release_share_draws_that_share_from_the_frames_after_a_key_is_released(teacher_bundle, quick_dataset_dir):
+    t = Teacher(teacher_bundle, quick_dataset_dir, [], [2])
+    # Clip 3: W for 12 frames, then Idle (released at frame 12); clip 1: Idle, then W
+    # (a start, not a release).
+    t.ds.clips[3]["actions"], t.ds.clips[3]["switch"] = torch.tensor([1] * 12 + [0] * 14), 12
+    t.ds.clips[1]["actions"], t.ds.clips[1]["switch"] = torch.tensor([0] * 12 + [1] * 14), 12
+    released = {x for x in t.frames(held_out=False) if t.after_release(*x)}
+    assert released == {(3, f) for f in range(12, min(26, 12 + RELEASE_WINDOW))}, sorted(released)
+    picks = pick_frames(t, 40, seed=0, held_out=False, release_share=0.25)
+    assert all(x in released for x in picks[:10]), picks[:10]
+    assert sum(x in released for x in picks) < 40
+    # Without the option the pool is drawn as before (the same picks from the same seed).
+    assert pick_frames(t, 40, 0, False) == pick_frames(t, 40, 0, False, 0.0)
+
+
+def test_from_student_starts_from_the_bundles_student(teacher_bundle, quick_dataset_dir, tmp_path):
+    first = tmp_path / "first"
+    main(["--bundle", str(teacher_bundle), "--data", str(quick_dataset_dir), "--out", str(first), "--steps", "3",
+          "--lr", "1e-3", *QUICK])
+    # Zero steps from the first run's student: the written student is that student.
+    again = tmp_path / "again"
+    main(["--bundle", str(first / "bundle"), "--data", str(quick_dataset_dir), "--out", str(again), "--steps", "1",
+          "--lr", "0", "--from-student", "--release-share", "0.5", *QUICK])
+    _, _, extra1, _ = bundle.load(first / "bundle")
+    _, _, extra2, manifest = bundle.load(again / "bundle")
+    _, teacher_unet, _, _ = bundle.load(teacher_bundle)
+    keys = [k for k in extra1 if k.startswith("student.")]
+    assert keys and all(torch.allclose(extra1[k], extra2[k], rtol=1e-3, atol=1e-6) for k in keys)
+    teacher = teacher_unet.state_dict()
+    assert any(not torch.allclose(extra2[k], teacher[k[len("student."):]]) for k in keys), "the teacher, not the student"
+    assert manifest["metrics"]["one_pass"]["from_student"] is True
+    # A bundle without a student is refused in one line naming it.
+    with pytest.raises(SystemExit) as e:
+        main(["--bundle", str(teacher_bundle), "--data", str(quick_dataset_dir), "--out", str(tmp_path / "none"),
+              "--steps", "1", "--from-student", *QUICK])
+    assert str(teacher_bundle) in str(e.value) and "no student" in str(e.value) and "\n" not in str(e.value)
 
 
 def test_direct_distillation_moves_the_student_to_the_teachers_samples_and_resumes(teacher_bundle, quick_dataset_dir,

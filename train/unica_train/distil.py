@@ -62,6 +62,9 @@ METHODS = ("direct", "consistency")
 CHUNK = 256
 # The held-out clips of the shipped training configs (train.TrainConfig.held_out_clips).
 HELD_OUT_CLIPS = [4, 13]
+# Frames after a key is released into Idle that `--release-share` draws from: the braked
+# frames and the first frames of standing still (the teacher stops within 9-11).
+RELEASE_WINDOW = 40
 
 
 class DistilError(ValueError):
@@ -136,6 +139,15 @@ class Teacher:
         s = self.ds.clips[clip]["switch"]
         return s <= f < s + AFTER_SWITCH
 
+    def after_release(self, clip: int, f: int) -> bool:
+        """Frame f is one of the first RELEASE_WINDOW after a movement key is released
+        into Idle (where the live loop brakes, then must stand still)."""
+        c = self.ds.clips[clip]
+        s, actions = c["switch"], c["actions"]
+        if not 0 < s < actions.shape[0]:
+            return False
+        return int(actions[s]) == 0 and int(actions[s - 1]) != 0 and s <= f < s + RELEASE_WINDOW
+
     @torch.no_grad()
     def encode(self, picks: list[tuple[int, int]]) -> dict:
         """The live loop's view of frames (clip, f): the three context latents turned to the
@@ -196,26 +208,34 @@ class Teacher:
 
 
 # -- the pool and the teacher's samples ------------------------------------------------
-def pick_frames(teacher: Teacher, count: int, seed: int, held_out: bool) -> list[tuple[int, int]]:
-    """`count` frames, half of them within AFTER_SWITCH frames after a key change (where
-    starts, stops and turns happen), the rest uniform."""
+def pick_frames(teacher: Teacher, count: int, seed: int, held_out: bool, release_share: float = 0.0) -> list[tuple[int, int]]:
+    """`count` frames: a `release_share` of them within RELEASE_WINDOW frames after a key
+    is released into Idle (`Teacher.after_release`), then of the rest half within
+    AFTER_SWITCH frames after any key change (where starts, stops and turns happen) and
+    half uniform."""
     gen = torch.Generator().manual_seed(seed)
     frames = teacher.frames(held_out)
     if not frames:
         raise DistilError(f"{teacher.ds.dir}: no {'held-out' if held_out else 'training'} clip has 4 frames")
     after = [x for x in frames if teacher.after_switch(*x)] or frames
+    released = [x for x in frames if teacher.after_release(*x)] or frames
+    releases = round(release_share * count)
     out = []
     for i in range(count):
-        pool = after if i % 2 == 0 else frames
+        if i < releases:
+            pool = released
+        else:
+            pool = after if (i - releases) % 2 == 0 else frames
         out.append(pool[int(torch.randint(len(pool), (1,), generator=gen))])
     return out
 
 
-def build_pool(teacher: Teacher, folder: Path, count: int, seed: int, held_out: bool, label: str) -> dict:
+def build_pool(teacher: Teacher, folder: Path, count: int, seed: int, held_out: bool, label: str,
+               release_share: float = 0.0) -> dict:
     """The encoded frames in chunks of CHUNK (`folder/chunk_NNNN.safetensors`), each with
     its starting noise; chunks already there are kept (resume)."""
     folder.mkdir(parents=True, exist_ok=True)
-    picks = pick_frames(teacher, count, seed, held_out)
+    picks = pick_frames(teacher, count, seed, held_out, release_share)
     gen = torch.Generator().manual_seed(seed + 7)
     started = time.time()
     noise_scale = teacher.options["noise_scale"]
@@ -267,7 +287,12 @@ def train(teacher: Teacher, pool: dict, targets: torch.Tensor | None, out: Path,
     """Trains the student (`args.method`) with checkpoints every `args.checkpoint_every`
     steps; returns its EMA weights."""
     student = copy.deepcopy(teacher.unet).train()
-    ema = copy.deepcopy(teacher.unet).eval()
+    if args.from_student:
+        weights = {k[len("student."):]: v for k, v in teacher.extra.items() if k.startswith("student.")}
+        if not weights:
+            raise DistilError(f"{teacher.bundle_dir}: --from-student: the bundle has no student (no student.* tensors)")
+        student.load_state_dict(weights)
+    ema = copy.deepcopy(student).eval()
     opt = torch.optim.AdamW(student.parameters(), lr=args.lr, weight_decay=0.0)
     ckpt = out / "checkpoint.pt"
     step = 0
@@ -413,7 +438,14 @@ def main(argv=None):
     parser.add_argument("--held-out-clips", type=int, nargs="+", default=HELD_OUT_CLIPS,
                         help="clips scored at the end and never trained on (default: 4 13, as the geometry trainer)")
     parser.add_argument("--resume", action="store_true", help="continue from what the run folder holds")
+    parser.add_argument("--release-share", type=float, default=0.0,
+                        help=f"share of the pool drawn from the first {RELEASE_WINDOW} frames after a key is released into Idle "
+                             "(default 0: half the pool after any key change, half uniform)")
+    parser.add_argument("--from-student", action="store_true",
+                        help="start from the bundle's own one-pass student (its student.* tensors), not the teacher")
     args = parser.parse_args(argv)
+    if not 0.0 <= args.release_share <= 1.0:
+        parser.error("--release-share must be between 0 and 1")
     for name in ("frames", "held_out_frames", "steps", "batch", "checkpoint_every"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be at least 1")
@@ -426,13 +458,16 @@ def main(argv=None):
     started = time.time()
     try:
         teacher = Teacher(args.bundle, args.data, args.extra_data, args.held_out_clips)
-        pool = build_pool(teacher, args.out / "pool", args.frames, args.seed, False, "pool")
+        pool = build_pool(teacher, args.out / "pool", args.frames, args.seed, False, "pool", args.release_share)
         held = build_pool(teacher, args.out / "held_out", args.held_out_frames, args.seed + 1, True, "held-out pool")
         held_z = teacher_samples(teacher, held, args.out / "held_out_teacher", "teacher (held out)")
         targets = teacher_samples(teacher, pool, args.out / "teacher", "teacher") if args.method == "direct" else None
     except (bundle_io.BundleError, DatasetError, DistilError) as e:
         raise SystemExit(f"unica_train.distil: {e}") from None
-    student = train(teacher, pool, targets, args.out, args)
+    try:
+        student = train(teacher, pool, targets, args.out, args)
+    except DistilError as e:
+        raise SystemExit(f"unica_train.distil: {e}") from None
     record = {
         "method": args.method,
         "teacher_steps": teacher.steps,
@@ -441,6 +476,8 @@ def main(argv=None):
         "steps": args.steps,
         "batch": args.batch,
         "lr": args.lr,
+        "release_share": args.release_share,
+        "from_student": args.from_student,
         "minutes": (time.time() - started) / 60,
         "held_out": held_out_errors(teacher, student, held, held_z),
     }
