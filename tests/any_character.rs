@@ -787,3 +787,98 @@ fn bad_vrm_springs_are_named() {
         assert!(!out.exists(), "nothing written");
     }
 }
+
+/// Every file below `dir`, relative to it.
+fn files_below(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            out.extend(
+                files_below(&path)
+                    .into_iter()
+                    .map(|p| path.strip_prefix(dir).unwrap().join(p)),
+            );
+        } else {
+            out.push(path.strip_prefix(dir).unwrap().to_path_buf());
+        }
+    }
+    out
+}
+
+#[test]
+fn names_from_the_file_write_nothing_outside_the_output_folder() {
+    // Clip, joint, mesh, node, material and scene names holding `../`, `/` and `\`, deep
+    // enough to climb from any output folder to /tmp: bake and render write only below
+    // their output folders, and no written file is named after them.
+    let dir = tempfile::tempdir().unwrap();
+    let tag = format!("unica_escape_{}", std::process::id());
+    let climb = |what: &str| format!("../../../../../../../../../../tmp/{tag}_{what}");
+    let input = dir.path().join("in");
+    std::fs::create_dir(&input).unwrap();
+    let path = input.join("blocky.glb");
+    let mut names = CONVENTIONAL;
+    let tail: &'static str = Box::leak(climb("tail").into_boxed_str());
+    names[15] = tail;
+    let clips = [
+        clip(&climb("Idle"), "idle"),
+        clip(&format!("/tmp/{tag}_Walk"), "walk"),
+        clip(&format!("..\\..\\..\\..\\{tag}_Run"), "run"),
+    ];
+    write_character(&path, &normal_body(names), &clips);
+    edit_glb(&path, |json| {
+        for key in ["meshes", "scenes", "materials"] {
+            for item in json[key].as_array_mut().into_iter().flatten() {
+                item["name"] = Value::from(climb(key));
+            }
+        }
+        for node in json["nodes"].as_array_mut().unwrap() {
+            if node.get("mesh").is_some() {
+                node["name"] = Value::from(climb("node"));
+            }
+        }
+    });
+    let out = dir.path().join("out");
+    ok(&unica(&[
+        "bake",
+        path.to_str().unwrap(),
+        "--out",
+        out.join("data").to_str().unwrap(),
+        "--quick",
+        "--no-renders",
+    ]));
+    ok(&unica(&[
+        "render",
+        "--teacher",
+        path.to_str().unwrap(),
+        "--keys",
+        "3W",
+        "--size",
+        "64",
+        "--views",
+        "1",
+        "--out",
+        out.join("render").to_str().unwrap(),
+    ]));
+    for file in files_below(dir.path()) {
+        assert!(
+            file.starts_with("in") || file.starts_with("out"),
+            "{} was written outside the output folders",
+            file.display()
+        );
+        assert!(
+            !file.to_string_lossy().contains("escape"),
+            "{} is named after a name from the file",
+            file.display()
+        );
+    }
+    assert!(files_below(&out.join("data")).len() > 2);
+    assert!(files_below(&out.join("render")).len() > 2);
+    let leaked: Vec<_> = std::fs::read_dir("/tmp")
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().starts_with(&tag))
+        .map(|e| e.path())
+        .collect();
+    assert!(leaked.is_empty(), "written outside: {leaked:?}");
+}
