@@ -749,8 +749,8 @@ fn the_gpu_kernel_variant_makes_the_frames_of_the_cpu_variant() {
 #[test]
 fn frames_recorded_ahead_equal_frames_submitted_in_parts() {
     // An unsplit frame submits commands recorded while the GPU ran the frame before, on
-    // the guess that the key stays; a wrong guess (a key change, Idle's one-batch plan
-    // after W, a settings change) records again. Split frames record each part as it is
+    // the guess that its plan stays; a wrong guess (Idle's one-batch plan after W, a
+    // settings change) records again. Split frames record each part as it is
     // submitted. Same seed and keys: the same bytes, and the same dispatch counts.
     let gpu = gpu();
     let sampling = Sampling {

@@ -9,9 +9,8 @@
 //! load (and again when the sampling or PCA setting changes): a generated frame writes
 //! its noise and action ids, submits the plan and creates nothing. The plan's commands
 //! for the next frame are recorded right after a frame is submitted, while the GPU runs
-//! it. The only readback is
-//! the 64-byte [`FrameState`] (world root, shift, motion, clamp counts), mapped
-//! asynchronously and picked up by [`Engine::poll`]. Beside a window
+//! it. The only readback is the 64-byte [`FrameState`] (world root, shift, motion,
+//! clamp counts), mapped asynchronously and picked up by [`Engine::poll`]. Beside a window
 //! (`EngineOptions::split`) the plan is submitted part by part (context pass, each step,
 //! decode), each part waited for on the caller's thread, so the window's own submissions
 //! interleave. A guided sampler whose Idle frames are guided at another scale
@@ -196,7 +195,8 @@ pub struct Engine {
     live: Live,
     plans: Plans,
     /// The next frame's commands, recorded after this frame's submission on the guess
-    /// that its key stays (dropped when the key or the settings change).
+    /// that its plan stays (dropped when the frame runs another plan, or the plans are
+    /// captured again).
     ahead: Option<Ahead>,
     /// Idle frames since the last key, the latest frame counted (`sampler::idle_run`;
     /// None before any key).
@@ -578,12 +578,9 @@ impl Engine {
         if let Some(k) = slot {
             encoder.copy_buffer_to_buffer(&self.live.state, 0, &self.slots[k].staging, 0, size);
         }
-        let last_part = self.plans.plan(which).plan.parts() - 1;
-        let dispatches = if self.split {
-            self.plans.plan(which).plan.part_dispatches(last_part)
-        } else {
-            self.plans.plan(which).plan.dispatches()
-        };
+        // The frame's dispatches are counted once, when its last commands are submitted
+        // (recording counts nothing: a recording ahead may be dropped).
+        let dispatches = self.plans.plan(which).plan.dispatches();
         self.gpu.counters.dispatches(dispatches as u64);
         self.gpu.submit([commands, encoder.finish()]);
         if let Some(k) = slot {
@@ -633,14 +630,14 @@ impl Engine {
     }
 
     /// A split frame: submits each part of plan `which` but the last and waits for it
-    /// (calling the pacer after each), and returns the last part's commands.
+    /// (calling the pacer after each), and returns the last part's commands (the caller
+    /// counts the frame's dispatches).
     fn submit_parts(&mut self, which: Which) -> wgpu::CommandBuffer {
         let parts = self.plans.plan(which).plan.parts();
         for k in 0..parts - 1 {
             let mut encoder = self.new_encoder();
             let plan = &self.plans.plan(which).plan;
             plan.record_part(&mut encoder, k);
-            self.gpu.counters.dispatches(plan.part_dispatches(k) as u64);
             let index = self.gpu.submit([encoder.finish()]);
             let _ = self.gpu.device.poll(wgpu::PollType::Wait {
                 submission_index: Some(index),

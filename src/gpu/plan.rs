@@ -259,14 +259,6 @@ impl Plan {
         self.flops
     }
 
-    /// Compute dispatches in part `k`.
-    pub fn part_dispatches(&self, k: usize) -> usize {
-        self.parts[k]
-            .iter()
-            .filter(|s| matches!(s, Step::Dispatch { .. }))
-            .count()
-    }
-
     /// Records part `k` into `encoder` without counting its dispatches: the caller
     /// counts them when it submits them (a recording may be dropped unsubmitted).
     pub fn record_part(&self, encoder: &mut wgpu::CommandEncoder, k: usize) {
