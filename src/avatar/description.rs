@@ -81,6 +81,9 @@ pub enum ChainLayout {
     Ring,
     /// One chain from the part's base to its point farthest from the parent bone (hat tip).
     Tip,
+    /// Chains hang side by side across a flat part (a cape, a banner): each from the
+    /// part's top to its bottom, evenly spaced across its widest horizontal extent.
+    Sheet,
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
@@ -252,11 +255,15 @@ impl Description {
             ));
         }
         let rig = &character.rig;
+        // Only bones that move vertices: rigs exported with IK and control helpers name
+        // some of them after the foot (`control-foot-roll.l`, `IK-foot.l`), and those
+        // stand still while the foot walks.
+        let deforms = deforming_nodes(character);
         let bones = |words: &[&str]| -> Vec<usize> {
             (0..rig.nodes.len())
                 .filter(|&n| {
                     let name = rig.nodes[n].name.to_lowercase();
-                    words.iter().any(|w| name.contains(w))
+                    deforms[n] && words.iter().any(|w| name.contains(w))
                 })
                 .collect()
         };
@@ -279,7 +286,12 @@ impl Description {
             )
         } else {
             let parents: Vec<Option<usize>> = rig.nodes.iter().map(|n| n.parent).collect();
-            let mut joints: Vec<usize> = rig.bones.iter().map(|b| b.node).collect();
+            let mut joints: Vec<usize> = rig
+                .bones
+                .iter()
+                .map(|b| b.node)
+                .filter(|&n| deforms[n])
+                .collect();
             joints.sort_unstable();
             joints.dedup();
             let (hips, feet) = legs(&parents, &positions, &joints).ok_or_else(|| {
@@ -353,6 +365,7 @@ impl Description {
                 .collect();
         }
         let [idle, walk, run] = roles.map(|r| r.expect("every role is assigned"));
+        let (loose_parts, colliders) = super::loose::infer_loose_parts(character, waist, &feet);
         let node_name = |n: usize| rig.nodes[n].name.clone();
         let shown = |clip: &str| {
             let speed = speeds
@@ -372,8 +385,15 @@ impl Description {
         } else {
             shown(&idle)
         };
+        let loose: String = loose_parts
+            .iter()
+            .map(|p| {
+                let kind = format!("{:?}", p.kind).to_lowercase();
+                format!(" loose={} ({kind}, {} chains)", p.name, p.chains)
+            })
+            .collect();
         let inferred = format!(
-            "inferred: waist={} feet={} idle={idle_shown} walk={} run={run_shown} (bones from {}, clips from {})",
+            "inferred: waist={} feet={} idle={idle_shown} walk={} run={run_shown}{loose} (bones from {}, clips from {})",
             node_name(waist),
             feet.iter()
                 .map(|&f| node_name(f))
@@ -390,12 +410,26 @@ impl Description {
             forward: default_forward(),
             walk_speed: None,
             run_speed: None,
-            loose_parts: Vec::new(),
-            colliders: Vec::new(),
+            loose_parts,
+            colliders,
             spring_chains: Vec::new(),
             inferred: Some(inferred),
         })
     }
+}
+
+/// Per rig node: whether it is the node of a bone that carries skin weight on some vertex.
+pub fn deforming_nodes(character: &Character) -> Vec<bool> {
+    let mut deforms = vec![false; character.rig.nodes.len()];
+    let skinned = &character.skinned;
+    for (joints, weights) in skinned.joints.iter().zip(&skinned.weights) {
+        for (&j, &w) in joints.iter().zip(weights) {
+            if w > 0.0 {
+                deforms[character.rig.bones[j as usize].node] = true;
+            }
+        }
+    }
+    deforms
 }
 
 /// The idle clip's name when no clip stands still: the rig's rest pose (a clip with no

@@ -8,7 +8,7 @@ use glam::{Mat4, Vec3};
 
 use super::Character;
 use super::character::{CharacterError, fail};
-use super::description::{ChainLayout, Description, LoosePart, SpringChain};
+use super::description::{ChainLayout, ColliderSpec, Description, LoosePart, SpringChain};
 use super::locomotion::{angle_difference, heading};
 use super::rig::{Bone, Node, Transform};
 use super::springs::{Chain, Collider, SpringParams, SpringSystem, median_radius};
@@ -93,6 +93,7 @@ pub fn add_spring_chains(
         let layout = match part.kind {
             ChainLayout::Ring => ring(&points, part, forward_heading + std::f32::consts::PI),
             ChainLayout::Tip => tip(&points, part, rest[parent].w_axis.truncate()),
+            ChainLayout::Sheet => sheet(&points, part),
         };
         // Nodes and bones, one per segment; each chain's last node carries the tip.
         let mut chain_bones = Vec::new();
@@ -385,6 +386,182 @@ fn ring(points: &[Vec3], part: &LoosePart, back: f32) -> Layout {
             };
             Placement {
                 chains: (k0, k1, mix),
+                down: ((top - p.y) / span).clamp(0.0, 1.0),
+            }
+        }),
+    }
+}
+
+/// Below its parent joint by more than this share of the character's height, a rigid part
+/// hangs (a cape does; a helmet or a shoulder pad does not).
+const HANGS: f32 = 0.25;
+
+/// Across over along its widest direction, in standard deviations, under which a part is
+/// a sheet (a cape: 0.2) rather than a ring around its axis (a skirt: about 1).
+const FLAT: f32 = 0.5;
+
+/// Loose parts inferred from the file: a mesh that is not skinned but hangs from a skin
+/// joint it is parented to (KayKit's capes are such meshes, following their joint
+/// rigidly) gets spring chains, laid as a sheet or a ring by its shape. With any, the
+/// legs (waist to each foot) and the waist get colliders so that the part swings around
+/// them. Each part is named by its mesh.
+pub fn infer_loose_parts(
+    character: &Character,
+    waist: usize,
+    feet: &[usize],
+) -> (Vec<LoosePart>, Vec<ColliderSpec>) {
+    let rig = &character.rig;
+    let rest = rig.world(&rig.rest_pose(), Mat4::IDENTITY);
+    let rest_mesh = character.rest_mesh();
+    let height = rest_mesh.height();
+    let skinned = &character.skinned;
+    let is_joint = |n: usize| rig.bones.iter().any(|b| b.node == n);
+    let mut parts = Vec::new();
+    let mut names: Vec<&str> = skinned.parts.iter().map(|p| p.mesh.as_str()).collect();
+    names.dedup();
+    for name in names {
+        let vertices = skinned.select(Some(name), &[]);
+        // Rigid: every vertex wholly on the bone of the mesh's own node.
+        let Some(node) = vertices
+            .first()
+            .map(|&v| rig.bones[skinned.joints[v][0] as usize].node)
+        else {
+            continue;
+        };
+        let rigid = rig.nodes[node].name == name
+            && vertices.iter().all(|&v| {
+                skinned.weights[v][0] == 1.0
+                    && rig.bones[skinned.joints[v][0] as usize].node == node
+            });
+        let Some(parent) = rig.nodes[node].parent.filter(|&p| rigid && is_joint(p)) else {
+            continue;
+        };
+        let points: Vec<Vec3> = vertices.iter().map(|&v| rest_mesh.positions[v]).collect();
+        let bottom = points.iter().map(|p| p.y).fold(f32::MAX, f32::min);
+        if rest[parent].w_axis.y - bottom < HANGS * height {
+            continue;
+        }
+        let (_, _, along, across) = horizontal_spread(&points);
+        let (kind, chains) = if across < FLAT * along {
+            (ChainLayout::Sheet, 5)
+        } else {
+            (ChainLayout::Ring, 8)
+        };
+        parts.push(LoosePart {
+            name: name.to_string(),
+            kind,
+            mesh: Some(name.to_string()),
+            materials: Vec::new(),
+            parent_bone: name.to_string(),
+            chains,
+            segments: 4,
+            arc_degrees: 360.0,
+            stiffness: 1.0,
+            drag: 0.4,
+            gravity: 0.5,
+        });
+    }
+    if parts.is_empty() {
+        return (parts, Vec::new());
+    }
+    let mut colliders = vec![ColliderSpec {
+        bone: rig.nodes[waist].name.clone(),
+        to: None,
+        radius: None,
+    }];
+    for &foot in feet {
+        // Each leg bone from the foot up to (not including) the waist, as a capsule to
+        // the joint below it.
+        let mut below = foot;
+        while let Some(above) = rig.nodes[below].parent.filter(|&a| a != waist) {
+            colliders.push(ColliderSpec {
+                bone: rig.nodes[above].name.clone(),
+                to: Some(rig.nodes[below].name.clone()),
+                radius: None,
+            });
+            below = above;
+        }
+    }
+    (parts, colliders)
+}
+
+/// The horizontal centre of `points` and their widest horizontal direction (unit, in xz),
+/// with the standard deviations along it and across it.
+pub(crate) fn horizontal_spread(points: &[Vec3]) -> (Vec3, Vec3, f32, f32) {
+    let n = points.len().max(1) as f32;
+    let centre = points
+        .iter()
+        .map(|p| Vec3::new(p.x, 0.0, p.z))
+        .sum::<Vec3>()
+        / n;
+    let (mut xx, mut xz, mut zz) = (0.0f32, 0.0f32, 0.0f32);
+    for p in points {
+        let (x, z) = (p.x - centre.x, p.z - centre.z);
+        xx += x * x / n;
+        xz += x * z / n;
+        zz += z * z / n;
+    }
+    // The larger eigenvalue of [[xx, xz], [xz, zz]] and its eigenvector.
+    let half_trace = (xx + zz) / 2.0;
+    let root = (((xx - zz) / 2.0).powi(2) + xz * xz).sqrt();
+    let (major, minor) = (half_trace + root, (half_trace - root).max(0.0));
+    let axis = if xz.abs() > 1e-12 {
+        Vec3::new(xz, 0.0, major - xx).normalize()
+    } else if xx >= zz {
+        Vec3::X
+    } else {
+        Vec3::Z
+    };
+    (centre, axis, major.sqrt(), minor.sqrt())
+}
+
+/// Chains side by side across the part's widest horizontal direction, each from its top
+/// to its bottom; each joint sits at the mean depth of the part's vertices near it.
+fn sheet(points: &[Vec3], part: &LoosePart) -> Layout {
+    let (centre, across, _, _) = horizontal_spread(points);
+    let depth_axis = Vec3::Y.cross(across);
+    let top = points.iter().map(|p| p.y).fold(f32::MIN, f32::max);
+    let bottom = points.iter().map(|p| p.y).fold(f32::MAX, f32::min);
+    let span = (top - bottom).max(1e-4);
+    let side = move |p: &Vec3| (*p - centre).dot(across);
+    let (left, right) = points.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| {
+        (lo.min(side(p)), hi.max(side(p)))
+    });
+    let width = (right - left).max(1e-4);
+    let spacing = width / part.chains as f32;
+    let band = span / part.segments as f32;
+    let chains = (0..part.chains)
+        .map(|k| {
+            let s = left + spacing * (k as f32 + 0.5);
+            (0..=part.segments)
+                .map(|j| {
+                    let y = top - span * j as f32 / part.segments as f32;
+                    // The mean depth of the vertices nearest this joint: within half a
+                    // spacing and a band when there are any, else the widest window.
+                    let depth = [(spacing / 2.0, band), (spacing, band), (width, span)]
+                        .into_iter()
+                        .find_map(|(w, h)| {
+                            let near: Vec<f32> = points
+                                .iter()
+                                .filter(|p| (side(p) - s).abs() <= w && (p.y - y).abs() <= h)
+                                .map(|p| (*p - centre).dot(depth_axis))
+                                .collect();
+                            (!near.is_empty()).then(|| near.iter().sum::<f32>() / near.len() as f32)
+                        })
+                        .unwrap_or(0.0);
+                    centre + across * s + depth_axis * depth + Vec3::Y * y
+                })
+                .collect()
+        })
+        .collect();
+    let last = part.chains - 1;
+    Layout {
+        chains,
+        place: Box::new(move |p: Vec3| {
+            let position = ((side(&p) - left) / spacing - 0.5).clamp(0.0, last as f32);
+            let k0 = position.floor() as usize;
+            Placement {
+                chains: (k0, (k0 + 1).min(last), position - k0 as f32),
                 down: ((top - p.y) / span).clamp(0.0, 1.0),
             }
         }),
