@@ -242,10 +242,12 @@ impl Description {
     }
 
     /// Inferred defaults: the waist and feet from the file's VRM humanoid map (hips,
-    /// leftFoot, rightFoot), else from bone names (hips or pelvis; foot or ankle), else
-    /// from the skeleton ([`legs`]); each clip role from clip names
-    /// (containing idle/walk/run), else from the motion ([`assign_roles`] on each clip's
-    /// [`stance_speed`]); no loose parts. `inferred` says what was inferred, in one line.
+    /// leftFoot, rightFoot), else from the names of bones that deform the mesh (hips or
+    /// pelvis; foot or ankle), else from the skeleton ([`legs`]); each clip role from clip
+    /// names (containing idle/walk/run), else from the motion ([`assign_roles`] on each
+    /// clip's [`stance_speed`]); loose parts (with leg colliders) for rigid meshes that
+    /// hang from a joint ([`super::loose::infer_loose_parts`]). `inferred` says what was
+    /// inferred, in one line.
     pub fn infer(character: &Character) -> Result<Self, CharacterError> {
         if character.clips.is_empty() {
             return Err(fail(

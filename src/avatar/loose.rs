@@ -701,3 +701,72 @@ fn measured_radius(
         .collect();
     median_radius(distances, height)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn horizontal_spread_finds_the_widest_direction() {
+        // Points on a line at 45° between +x and +z, 1 m either side of (2, *, 3), with
+        // heights that must not count: the spread along is sqrt(mean(t²)), across 0.
+        let t = [-1.0f32, -0.5, 0.0, 0.5, 1.0];
+        let points: Vec<Vec3> = t
+            .iter()
+            .enumerate()
+            .map(|(i, &t)| Vec3::new(2.0 + t / 2f32.sqrt(), i as f32, 3.0 + t / 2f32.sqrt()))
+            .collect();
+        let (centre, axis, along, across) = horizontal_spread(&points);
+        assert!(centre.abs_diff_eq(Vec3::new(2.0, 0.0, 3.0), 1e-5), "{centre}");
+        let diagonal = Vec3::new(1.0, 0.0, 1.0).normalize();
+        assert!(axis.dot(diagonal).abs() > 1.0 - 1e-5, "{axis}");
+        let expected = (t.iter().map(|t| t * t).sum::<f32>() / 5.0).sqrt();
+        assert!((along - expected).abs() < 1e-5 && across < 1e-3, "{along} {across}");
+        // Along an axis: the axis itself.
+        let flat = [Vec3::new(-1.0, 0.0, 0.0), Vec3::new(1.0, 5.0, 0.0)];
+        assert_eq!(horizontal_spread(&flat).1, Vec3::X);
+    }
+
+    #[test]
+    fn a_sheet_hangs_its_chains_evenly_across_the_part() {
+        // A 1 m wide, 2 m tall sheet at z = -0.5: chains at x = -0.3, 0 and 0.3 (centres
+        // of thirds), joints every 0.5 m from y = 2 down to 0, on the sheet.
+        let mut points = Vec::new();
+        for i in 0..=10 {
+            for j in 0..=20 {
+                points.push(Vec3::new(-0.5 + i as f32 * 0.1, j as f32 * 0.1, -0.5));
+            }
+        }
+        let part = LoosePart {
+            name: "cape".into(),
+            kind: ChainLayout::Sheet,
+            mesh: None,
+            materials: Vec::new(),
+            parent_bone: "chest".into(),
+            chains: 3,
+            segments: 4,
+            arc_degrees: 360.0,
+            stiffness: 1.0,
+            drag: 0.4,
+            gravity: 0.5,
+        };
+        let layout = sheet(&points, &part);
+        assert_eq!(layout.chains.len(), 3);
+        for (k, chain) in layout.chains.iter().enumerate() {
+            assert_eq!(chain.len(), 5);
+            for (s, joint) in chain.iter().enumerate() {
+                let expected = Vec3::new(-1.0 / 3.0 + k as f32 / 3.0, 2.0 - 0.5 * s as f32, -0.5);
+                assert!(joint.abs_diff_eq(expected, 1e-4), "chain {k} joint {s}: {joint}");
+            }
+        }
+        // A vertex halfway between the first two chains, a quarter of the way down.
+        let place = (layout.place)(Vec3::new(-1.0 / 6.0, 1.5, -0.5));
+        let (k0, k1, mix) = place.chains;
+        assert_eq!((k0, k1), (0, 1));
+        assert!((mix - 0.5).abs() < 1e-4 && (place.down - 0.25).abs() < 1e-4);
+        // Beyond the last chain: all on it.
+        let place = (layout.place)(Vec3::new(0.5, 0.0, -0.5));
+        assert_eq!((place.chains.0, place.chains.2), (2, 0.0));
+        assert!((place.down - 1.0).abs() < 1e-6);
+    }
+}
