@@ -118,6 +118,10 @@ struct State {
     asked: Asked,
     /// Stages finished, in order.
     done: Vec<String>,
+    /// Wall-clock seconds of each finished stage, in order: the run that finished it (a
+    /// stage resumed after an interruption counts its last run only).
+    #[serde(default)]
+    seconds: Vec<(String, f64)>,
 }
 
 /// Runs the stages not yet done; `exe` is this program (for bake and eval), `python` the
@@ -138,6 +142,7 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
     let mut state = read_state(&state_path)?.unwrap_or(State {
         asked: asked.clone(),
         done: Vec::new(),
+        seconds: Vec::new(),
     });
     if state.asked != asked {
         bail!(
@@ -276,27 +281,49 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
             }
             _ => unreachable!("a stage of STAGES"),
         }
+        let seconds = clock.elapsed().as_secs_f64();
         state.done.push(stage.to_string());
+        state
+            .seconds
+            .push((stage.to_string(), (seconds * 10.0).round() / 10.0));
         write_state(&state_path, &state)?;
         println!(
-            "[{}/{}] {stage}: done in {:.0} s",
+            "[{}/{}] {stage}: done in {}",
             index + 1,
             STAGES.len(),
-            clock.elapsed().as_secs_f64()
+            duration(seconds)
         );
         if args.until.as_deref() == Some(*stage) {
             println!("stopped after {stage} (--until); the same command without --until goes on");
             return Ok(());
         }
     }
+    let times: Vec<String> = state
+        .seconds
+        .iter()
+        .map(|(stage, s)| format!("{stage} {}", duration(*s)))
+        .collect();
     println!(
-        "made {} in {:.0} s: play it with `unica --bundle {}`; the evaluation is in {}",
+        "made {} in {} ({}; this run {}): play it with `unica --bundle {}`; the evaluation is in {}",
         bundle.display(),
-        started.elapsed().as_secs_f64(),
+        duration(state.seconds.iter().map(|(_, s)| s).sum()),
+        times.join(", "),
+        duration(started.elapsed().as_secs_f64()),
         bundle.display(),
         eval.join("report.md").display()
     );
     Ok(())
+}
+
+/// Seconds as "42 s", "12.5 min" or "2.25 h".
+fn duration(seconds: f64) -> String {
+    if seconds < 120.0 {
+        format!("{seconds:.0} s")
+    } else if seconds < 7200.0 {
+        format!("{:.1} min", seconds / 60.0)
+    } else {
+        format!("{:.2} h", seconds / 3600.0)
+    }
 }
 
 fn read_state(path: &Path) -> anyhow::Result<Option<State>> {

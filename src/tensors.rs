@@ -1,13 +1,23 @@
 //! Named f32 and i32 tensors to and from safetensors files (datasets, bundles, fixtures);
 //! reading checks each tensor's dtype and shape and names the file and tensor when wrong.
-//! A float tensor stored as F16 (the shipped bundle's weights, to halve the clone) is
-//! read as f32: every stage computes in f32 from the widened values.
+//! A float tensor stored as F16, or as I8 with an F16 scale per group of [`QUANT_GROUP`]
+//! consecutive values (the last group shorter) in the tensor `<name>:scale` (the shipped
+//! bundles' weights, to fit two avatars in the clone), is read as f32: every stage
+//! computes in f32 from the widened values.
 
 use std::path::{Path, PathBuf};
 
 use safetensors::{Dtype, SafeTensors};
 
 use crate::files::{WriteError, write_atomic};
+
+/// Values per scale of an I8 tensor (`train/unica_train/bundle.py` writes them).
+pub const QUANT_GROUP: usize = 32;
+
+/// The name of an I8 tensor's scales.
+pub fn scale_name(name: &str) -> String {
+    format!("{name}:scale")
+}
 
 /// A tensor to write: dtype, shape and little-endian bytes.
 pub struct TensorData {
@@ -168,18 +178,27 @@ impl TensorFile {
         Ok((view.data().to_vec(), view.dtype(), found.to_vec()))
     }
 
-    /// An F32 tensor, or an F16 one widened to f32.
+    /// An F32 tensor, or an F16 one widened to f32, or an I8 one times its scales.
     pub fn f32(
         &self,
         name: &str,
         shape: &[Option<usize>],
     ) -> Result<(Vec<f32>, Vec<usize>), TensorError> {
-        let (bytes, dtype, found) = self.read_any(name, &[Dtype::F32, Dtype::F16], shape)?;
+        let (bytes, dtype, found) =
+            self.read_any(name, &[Dtype::F32, Dtype::F16, Dtype::I8], shape)?;
         let values = match dtype {
-            Dtype::F16 => bytemuck::pod_collect_to_vec::<u8, half::f16>(&bytes)
-                .into_iter()
-                .map(f32::from)
-                .collect(),
+            Dtype::F16 => widen(&bytes),
+            Dtype::I8 => {
+                let groups = bytes.len().div_ceil(QUANT_GROUP);
+                let (scales, _) = self
+                    .read_any(&scale_name(name), &[Dtype::F16], &[Some(groups)])
+                    .map(|(b, _, f)| (widen(&b), f))?;
+                bytes
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &q)| f32::from(q as i8) * scales[i / QUANT_GROUP])
+                    .collect()
+            }
             _ => bytemuck::pod_collect_to_vec(&bytes),
         };
         Ok((values, found))
@@ -192,6 +211,14 @@ impl TensorFile {
     ) -> Result<(Vec<i32>, Vec<usize>), TensorError> {
         self.read(name, Dtype::I32, shape)
     }
+}
+
+/// Little-endian F16 bytes widened to f32 (exactly).
+fn widen(bytes: &[u8]) -> Vec<f32> {
+    bytemuck::pod_collect_to_vec::<u8, half::f16>(bytes)
+        .into_iter()
+        .map(f32::from)
+        .collect()
 }
 
 #[cfg(test)]
@@ -259,6 +286,60 @@ mod tests {
                 .to_string()
                 .contains("'c' is missing")
         );
+        // I8 times the F16 scale of its group of 32: group 0 has scale 0.5, group 1
+        // scale 2, so q = 127, -128, 3 read 63.5, -64, 1.5 and then 254, -256, 6.
+        let q: Vec<i8> = (0..64).map(|i| [127i8, -128, 3][i % 3]).collect();
+        let i8_tensor = TensorData {
+            dtype: Dtype::I8,
+            shape: vec![2, 32],
+            data: bytemuck::cast_slice(&q).to_vec(),
+        };
+        let scales: [u16; 2] = [0x3800, 0x4000];
+        let scale = TensorData {
+            dtype: Dtype::F16,
+            shape: vec![2],
+            data: bytemuck::cast_slice(&scales).to_vec(),
+        };
+        let q_path = dir.path().join("q.safetensors");
+        write(&q_path, &[("w", i8_tensor), ("w:scale", scale)]).unwrap();
+        let (values, shape) = TensorFile::open(&q_path)
+            .unwrap()
+            .f32("w", &[Some(2), None])
+            .unwrap();
+        assert_eq!(shape, vec![2, 32]);
+        let expected: Vec<f32> = (0..64)
+            .map(|i| [127.0, -128.0, 3.0][i % 3] * if i < 32 { 0.5 } else { 2.0 })
+            .collect();
+        assert_eq!(values, expected);
+        // 33 values: a second group of one.
+        let short = TensorData {
+            dtype: Dtype::I8,
+            shape: vec![33],
+            data: vec![2; 33],
+        };
+        let scale = TensorData {
+            dtype: Dtype::F16,
+            shape: vec![2],
+            data: bytemuck::cast_slice(&scales).to_vec(),
+        };
+        write(&q_path, &[("w", short), ("w:scale", scale)]).unwrap();
+        let (values, _) = TensorFile::open(&q_path)
+            .unwrap()
+            .f32("w", &[Some(33)])
+            .unwrap();
+        assert_eq!((values[31], values[32]), (1.0, 4.0));
+        let lone = TensorData {
+            dtype: Dtype::I8,
+            shape: vec![32],
+            data: vec![1; 32],
+        };
+        write(&q_path, &[("w", lone)]).unwrap();
+        let e = TensorFile::open(&q_path)
+            .unwrap()
+            .f32("w", &[None])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("tensor 'w:scale' is missing"), "{e}");
         std::fs::write(&path, b"junk").unwrap();
         assert!(
             TensorFile::open(&path)

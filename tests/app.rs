@@ -149,8 +149,8 @@ fn the_witch_window_screenshot_is_not_blank_and_keys_drive_the_action() {
 
 #[test]
 fn the_neural_witch_is_generated_and_drawn_while_the_window_yields() {
-    // The shipped bundle alone (no teacher beside it) at its defaults: the distilled
-    // student, one UNet pass a frame. The window draws only when something changes (a
+    // The shipped bundle, which plays beside its teacher without --character, at its
+    // defaults: the distilled student, one UNet pass a frame. The window draws only when something changes (a
     // new generated frame, the first frame's note each half second), so the model gets
     // the machine; the run ends after 45 s whatever was drawn. The key script counts
     // generated frames, not window frames.
@@ -182,6 +182,10 @@ fn the_neural_witch_is_generated_and_drawn_while_the_window_yields() {
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("no generated frame count: {stdout}"));
     assert!(generated >= 1, "{stdout}");
+    assert!(
+        stdout.contains("; teacher Witch beside;"),
+        "the shipped bundle plays without its teacher: {stdout}"
+    );
     let next = match generated {
         0..2 => "Idle",
         2..102 => "Forward",

@@ -244,7 +244,11 @@ fn the_knight_infers_feet_that_deform_and_a_cape_that_swings() {
         (cape.name.as_str(), cape.kind, cape.parent_bone.as_str()),
         ("Knight_Cape", ChainLayout::Sheet, "Knight_Cape")
     );
-    assert_eq!(description.colliders.len(), 1 + 2 * 2, "the waist, each thigh and shin");
+    assert_eq!(
+        description.colliders.len(),
+        1 + 2 * 2,
+        "the waist, each thigh and shin"
+    );
 
     let rigid = Description {
         loose_parts: vec![],
@@ -283,7 +287,10 @@ fn the_knight_infers_feet_that_deform_and_a_cape_that_swings() {
     // The cape (1.1 m long) swings back while walking, and comes to rest after the stop:
     // it then hangs straight down where the rigid cape follows the idle's leaning chest
     // (measured: 0.155-0.163 m apart; 0.32 m at most while walking).
-    assert!((0.1..0.8).contains(&run), "largest swing while walking {run} m");
+    assert!(
+        (0.1..0.8).contains(&run),
+        "largest swing while walking {run} m"
+    );
     assert!(
         high - low < 0.1 * run,
         "still swinging {low}-{high} m in the last second of idle"

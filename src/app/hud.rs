@@ -48,6 +48,24 @@ impl UnicaApp {
                 }
             });
             ui.menu_button("View", |ui| {
+                if !self.options.avatars.is_empty() {
+                    ui.menu_button("Avatar", |ui| {
+                        let mut chosen = None;
+                        for avatar in &self.options.avatars {
+                            let current = self.shown.bundle().is_some_and(|dir| {
+                                dir.canonicalize().ok() == avatar.bundle.canonicalize().ok()
+                            });
+                            if ui.radio(current, &avatar.name).clicked() && !current {
+                                chosen = Some(avatar.clone());
+                            }
+                        }
+                        if let Some(avatar) = chosen {
+                            self.open_with(avatar.bundle, Some(avatar.character));
+                            ui.close();
+                        }
+                    });
+                    ui.separator();
+                }
                 ui.checkbox(&mut self.follow, "Camera follows the avatar");
                 if self.shown.neural.is_some() && self.shown.teacher.is_some() {
                     ui.checkbox(&mut self.shown.show_teacher, "Teacher beside the neural avatar");

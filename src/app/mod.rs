@@ -22,11 +22,21 @@ use recorder::SessionRecorder;
 use shown::Shown;
 use viewport::Viewport;
 
+/// A neural avatar offered in View → Avatar: its bundle folder and its teacher.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShippedAvatar {
+    pub name: String,
+    pub bundle: PathBuf,
+    pub character: PathBuf,
+}
+
 /// How the app was started (see `unica --help`).
 #[derive(Clone, Debug, Default)]
 pub struct AppOptions {
     /// Neural avatar bundle to play; `None` shows the character's teacher.
     pub bundle: Option<PathBuf>,
+    /// The avatars View → Avatar offers.
+    pub avatars: Vec<ShippedAvatar>,
     /// A splat file to show instead of an avatar (`unica view`).
     pub splats: Option<PathBuf>,
     /// The up axis of `splats`.
@@ -228,12 +238,17 @@ impl UnicaApp {
 
     /// Opens a bundle folder (the neural avatar) or a character file (its teacher).
     fn open(&mut self, path: PathBuf) {
+        self.open_with(path, None);
+    }
+
+    /// Opens a bundle folder beside `teacher`, or a character file (its teacher).
+    fn open_with(&mut self, path: PathBuf, teacher: Option<PathBuf>) {
         let renderer = &self.viewport.renderer;
         self.shown = if path.is_dir() {
             Shown::neural(
                 &self.gpu,
                 renderer,
-                None,
+                teacher.as_deref(),
                 &[],
                 neural::NeuralStart {
                     dir: path.clone(),
@@ -434,8 +449,14 @@ impl UnicaApp {
             .unwrap_or_default();
         let latency = median(&self.latencies.lock().expect("latency lock"))
             .map_or("none".to_string(), |ms| format!("{ms:.1}"));
+        let beside = match (&self.shown.neural, &self.shown.teacher) {
+            (Some(_), Some(teacher)) if self.shown.show_teacher => {
+                format!("; teacher {} beside", teacher.character.name)
+            }
+            _ => String::new(),
+        };
         format!(
-            "unica: {} frames rendered; action {}; character {}{generated}; input_latency_ms={latency}",
+            "unica: {} frames rendered; action {}; character {}{beside}{generated}; input_latency_ms={latency}",
             self.frame, self.action, self.shown.name
         )
     }

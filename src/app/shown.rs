@@ -25,6 +25,8 @@ pub const TEACHER_OFFSET: Vec3 = Vec3::new(1.5, 0.0, 0.0);
 /// The neural avatar and what the window draws of it.
 pub struct Neural {
     pub avatar: NeuralAvatar,
+    /// The bundle folder it was opened from.
+    dir: PathBuf,
     /// Live settings, known once the bundle is loaded.
     pub settings: Option<Settings>,
     surface: Option<(MapSurface, GpuMesh)>,
@@ -194,6 +196,11 @@ impl Shown {
 
     /// The neural avatar of the bundle `dir`, loading on its worker; the teacher of
     /// `character` beside it when that file loads.
+    /// The bundle folder of the neural avatar shown, if any.
+    pub fn bundle(&self) -> Option<&Path> {
+        self.neural.as_ref().map(|n| n.dir.as_path())
+    }
+
     pub fn neural(
         gpu: &GpuContext,
         renderer: &SceneRenderer,
@@ -211,8 +218,10 @@ impl Shown {
         }
         shown.name = format!("{} (neural)", start.dir.display());
         shown.problem = Some("Loading the neural avatar…".into());
+        let dir = start.dir.clone();
         shown.neural = Some(Neural {
             avatar: NeuralAvatar::start(gpu, start),
+            dir,
             settings: None,
             surface: None,
             mesh: Mesh::default(),

@@ -717,11 +717,17 @@ mod tests {
             .map(|(i, &t)| Vec3::new(2.0 + t / 2f32.sqrt(), i as f32, 3.0 + t / 2f32.sqrt()))
             .collect();
         let (centre, axis, along, across) = horizontal_spread(&points);
-        assert!(centre.abs_diff_eq(Vec3::new(2.0, 0.0, 3.0), 1e-5), "{centre}");
+        assert!(
+            centre.abs_diff_eq(Vec3::new(2.0, 0.0, 3.0), 1e-5),
+            "{centre}"
+        );
         let diagonal = Vec3::new(1.0, 0.0, 1.0).normalize();
         assert!(axis.dot(diagonal).abs() > 1.0 - 1e-5, "{axis}");
         let expected = (t.iter().map(|t| t * t).sum::<f32>() / 5.0).sqrt();
-        assert!((along - expected).abs() < 1e-5 && across < 1e-3, "{along} {across}");
+        assert!(
+            (along - expected).abs() < 1e-5 && across < 1e-3,
+            "{along} {across}"
+        );
         // Along an axis: the axis itself.
         let flat = [Vec3::new(-1.0, 0.0, 0.0), Vec3::new(1.0, 5.0, 0.0)];
         assert_eq!(horizontal_spread(&flat).1, Vec3::X);
@@ -756,7 +762,10 @@ mod tests {
             assert_eq!(chain.len(), 5);
             for (s, joint) in chain.iter().enumerate() {
                 let expected = Vec3::new(-1.0 / 3.0 + k as f32 / 3.0, 2.0 - 0.5 * s as f32, -0.5);
-                assert!(joint.abs_diff_eq(expected, 1e-4), "chain {k} joint {s}: {joint}");
+                assert!(
+                    joint.abs_diff_eq(expected, 1e-4),
+                    "chain {k} joint {s}: {joint}"
+                );
             }
         }
         // A vertex halfway between the first two chains, a quarter of the way down.

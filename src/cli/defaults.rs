@@ -12,14 +12,53 @@ const DEFAULT_CHARACTER: &str = "assets/witch/source/Witch.gltf";
 /// The default neural avatar, shipped in the repository.
 const DEFAULT_BUNDLE: &str = "assets/witch/bundle";
 
-/// The shipped Witch bundle, beside the working directory or in the source tree.
-pub fn default_bundle() -> Option<PathBuf> {
+/// The neural avatars shipped with unica: name, bundle folder and teacher (the character
+/// it learned from), relative to the repository. The first is the default.
+const SHIPPED: [(&str, &str, &str); 2] = [
+    ("Witch", DEFAULT_BUNDLE, DEFAULT_CHARACTER),
+    (
+        "Knight",
+        "assets/knight/bundle",
+        "assets/knight/source/Knight.glb",
+    ),
+];
+
+/// `relative` beside the working directory, else in the source tree, where `exists`.
+fn shipped_path(relative: &str, exists: impl Fn(&Path) -> bool) -> Option<PathBuf> {
     [
-        PathBuf::from(DEFAULT_BUNDLE),
-        Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_BUNDLE),
+        PathBuf::from(relative),
+        Path::new(env!("CARGO_MANIFEST_DIR")).join(relative),
     ]
     .into_iter()
-    .find(|p| p.join("manifest.json").is_file())
+    .find(|p| exists(p))
+}
+
+/// The shipped avatars whose bundle and teacher are both present, in menu order.
+pub fn shipped_avatars() -> Vec<crate::app::ShippedAvatar> {
+    SHIPPED
+        .iter()
+        .filter_map(|(name, bundle, character)| {
+            Some(crate::app::ShippedAvatar {
+                name: name.to_string(),
+                bundle: shipped_path(bundle, |p| p.join("manifest.json").is_file())?,
+                character: shipped_path(character, Path::is_file)?,
+            })
+        })
+        .collect()
+}
+
+/// The teacher of `bundle` when it is a shipped avatar's bundle folder.
+pub fn shipped_teacher(bundle: &Path) -> Option<PathBuf> {
+    let wanted = bundle.canonicalize().ok()?;
+    shipped_avatars()
+        .into_iter()
+        .find(|a| a.bundle.canonicalize().is_ok_and(|b| b == wanted))
+        .map(|a| a.character)
+}
+
+/// The shipped Witch bundle, beside the working directory or in the source tree.
+pub fn default_bundle() -> Option<PathBuf> {
+    shipped_path(DEFAULT_BUNDLE, |p| p.join("manifest.json").is_file())
 }
 
 /// `$UNICA_CHARACTER`, else the shared Witch beside the working directory or beside the
@@ -28,12 +67,7 @@ pub fn default_character() -> Option<PathBuf> {
     if let Some(path) = std::env::var_os(CHARACTER_ENV) {
         return Some(PathBuf::from(path));
     }
-    [
-        PathBuf::from(DEFAULT_CHARACTER),
-        Path::new(env!("CARGO_MANIFEST_DIR")).join(DEFAULT_CHARACTER),
-    ]
-    .into_iter()
-    .find(|p| p.is_file())
+    shipped_path(DEFAULT_CHARACTER, Path::is_file)
 }
 
 /// Runs a headless render job under a progress bar (`what` … frames, time left); the

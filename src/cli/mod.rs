@@ -17,7 +17,9 @@ mod eval;
 mod rig;
 
 use defaults::render_with_bar;
-pub use defaults::{CHARACTER_ENV, default_bundle, default_character};
+pub use defaults::{
+    CHARACTER_ENV, default_bundle, default_character, shipped_avatars, shipped_teacher,
+};
 
 use eval::{EvalArgs, eval};
 use rig::{RigArgs, RigDataArgs, RigEvalArgs, rig, rig_data, rig_eval};
@@ -51,7 +53,8 @@ pub struct Cli {
     #[arg(long, value_name = "FILE", num_args = 1..)]
     clips: Vec<PathBuf>,
 
-    /// Neural avatar bundle to play [default: assets/witch/bundle unless --character]
+    /// Neural avatar bundle to play, e.g. assets/knight/bundle; a shipped one plays beside
+    /// its teacher [default: assets/witch/bundle unless --character]
     #[arg(long, value_name = "DIR")]
     bundle: Option<PathBuf>,
 
@@ -657,7 +660,11 @@ fn view(args: ViewArgs, gpu: GpuOptions) -> anyhow::Result<()> {
 
 fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
     let (bundle, character) = match (cli.bundle, cli.character) {
-        (Some(bundle), character) => (Some(bundle), character),
+        // A shipped bundle plays beside its teacher unless --character says otherwise.
+        (Some(bundle), character) => {
+            let character = character.or_else(|| shipped_teacher(&bundle));
+            (Some(bundle), character)
+        }
         (None, Some(character)) => (None, Some(character)),
         (None, None) => (default_bundle(), default_character()),
     };
@@ -692,6 +699,7 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
     });
     app::run(AppOptions {
         bundle,
+        avatars: shipped_avatars(),
         splats: None,
         splat_up: Up::Y,
         character,

@@ -38,18 +38,49 @@ def test_bundle_round_trip(tmp_path):
     bundle.save(tmp_path, vae, unet, extra, {"avatar": "test", "actions": ["Idle"]})
     vae2, unet2, extra2, manifest = bundle.load(tmp_path)
     assert manifest["avatar"] == "test" and manifest["version"] == bundle.VERSION
-    # The weights and the PCA basis are stored as float16 and read back widened: each
-    # value is its nearest half; positions (pca.mean) and integers stay exact.
+    # Weight arrays and the PCA basis are stored as int8 with scales, vectors (biases,
+    # norms) as float16, and read back widened; positions (pca.mean) and integers stay
+    # exact.
     for a, b in [(vae, vae2), (unet, unet2)]:
         for (k, v), (k2, v2) in zip(a.state_dict().items(), b.state_dict().items()):
-            assert k == k2 and v2.dtype == torch.float32 and torch.equal(v.half().float(), v2)
-    assert torch.equal(extra2["pca.basis"], extra["pca.basis"].half().float())
+            assert k == k2 and v2.dtype == torch.float32
+            want = bundle.dequantise(*bundle.quantise(v)) if v.dim() >= 2 else v.half().float()
+            assert torch.equal(want, v2), k
+            # Within half a step of the group's scale of the original.
+            assert (v2 - v).abs().max() <= v.abs().max() / 254 + 2.0**-15 + 1e-7, k
+    assert torch.equal(extra2["pca.basis"], bundle.dequantise(*bundle.quantise(extra["pca.basis"])))
     assert torch.equal(extra2["pca.mean"], extra["pca.mean"])
     assert torch.equal(extra2["map.pixels"], extra["map.pixels"])
-    assert manifest["tensors"]["unet.conv_in.weight"] == {"shape": [16, 4, 3, 3], "dtype": "float16"}
+    assert manifest["tensors"]["unet.conv_in.weight"] == {"shape": [16, 4, 3, 3], "dtype": "int8"}
+    assert manifest["tensors"]["unet.conv_in.weight:scale"] == {"shape": [18], "dtype": "float16"}
+    assert manifest["tensors"]["unet.conv_in.bias"]["dtype"] == "float16"
     assert manifest["tensors"]["pca.mean"]["dtype"] == "float32"
     raw = load_file(str(tmp_path / "weights.safetensors"))
-    assert raw["vae.encoder.conv_in.weight"].dtype == torch.float16 and raw["pca.mean"].dtype == torch.float32
+    assert raw["vae.encoder.conv_in.weight"].dtype == torch.int8 and raw["pca.mean"].dtype == torch.float32
+    # Reading and writing again stores the same bytes (the make rewrites bundles).
+    again = tmp_path / "again"
+    again.mkdir()
+    bundle.write_weights(again, bundle.read_weights(tmp_path / "weights.safetensors"), manifest)
+    assert (again / "weights.safetensors").read_bytes() == (tmp_path / "weights.safetensors").read_bytes()
+
+
+def test_int8_storage_known_answers(tmp_path):
+    # 33 values: a group of 32 whose largest magnitude is 2.54 (scale 0.02 as a half,
+    # 0.0200043: 2.54 -> 127, 0.05 -> 2.4995 -> 2, -1.0 -> -50) and a group of one, 1e-3, under
+    # 127 steps of 2^-14 (6.1e-5): it is stored as 16 of them.
+    v = torch.zeros(33)
+    v[0], v[1], v[2], v[32] = 2.54, 0.05, -1.0, 1e-3
+    q, scale = bundle.quantise(v.reshape(3, 11))
+    assert q.shape == (3, 11) and q.dtype == torch.int8 and scale.dtype == torch.float16
+    assert scale.shape == (2,)
+    assert abs(scale[0].item() - 0.02) < 1e-5 and scale[1].item() == 2.0**-14
+    assert q.flatten()[:3].tolist() == [127, 2, -50] and q.flatten()[32].item() == 16
+    back = bundle.dequantise(q, scale).flatten()
+    assert abs(back[0].item() - 2.54) < 2e-3 and back[32].item() == 16 * 2.0**-14
+    # A missing scale is named.
+    save_file({"w": q}, str(tmp_path / "w.safetensors"))
+    with pytest.raises(bundle.BundleError, match="'w:scale' is missing"):
+        bundle.read_weights(tmp_path / "w.safetensors")
 
 
 def test_bundle_errors_name_the_tensor(tmp_path):

@@ -40,6 +40,10 @@ def test_make_quick_writes_a_bundle_that_loads_and_continues_where_it_stopped(tm
     assert (out / "eval" / "report.md").is_file()
     state = json.loads((out / "make.json").read_text())
     assert state["done"] == ["bake", "geometry", "refiner", "distil", "eval"]
+    # Each stage's time, in order, in make.json and in the last line.
+    assert [stage for stage, _ in state["seconds"]] == state["done"], state
+    assert all(seconds > 0 for _, seconds in state["seconds"]), state
+    assert "(bake " in log and ", eval " in log, log.splitlines()[-1]
 
     # The same command again: nothing is redone.
     log = make(out)

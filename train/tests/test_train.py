@@ -111,7 +111,7 @@ def test_two_process_data_parallel_training_stays_in_sync(quick_dataset_dir, tmp
     out = tmp_path / "ddp"
     argv = ["--data", str(quick_dataset_dir), "--out", str(out), "--config", str(config), "--device", "cpu"]
     mp.spawn(_rank, args=(2, port, argv), nprocs=2, join=True)
-    assert "parameters in sync across 2 ranks" in capfd.readouterr().out
+    assert "parameters in sync across 2 processes" in capfd.readouterr().out
     bundle.load(out / "bundle")
 
 

@@ -2,14 +2,22 @@
 versioned `manifest.json` with the full model config, action names, normalisation, PCA,
 the position-map layout, per-pixel colours and the initial context of a standing start.
 Loading checks every tensor's name, shape and dtype and names the first that is wrong.
-The network weights and the PCA basis are stored as float16 (`HALF`): it halves the
-shipped bundle (43 to 22 MB) and every reader widens them to float32 before use; positions
-(`pca.mean`, `context.latents`) and colours stay float32.
+The geometry networks' weight arrays and the PCA basis are stored as 8-bit integers with a
+float16 scale per group of 32 values (`QUANTISED`), the other network tensors as float16
+(`HALF`): two avatars' bundles then fit the clone (float32 43 MB, float16 22 MB, this 12 MB
+for the Witch). Every reader widens them to float32 before use; positions (`pca.mean`,
+`context.latents`) and colours stay float32. Quantising is idempotent (reading and writing
+a bundle again stores the same bytes), so the stages that rewrite a bundle lose nothing.
 
     python -m unica_train.bundle add-colors --bundle DIR --data DATASET
 
 adds the per-pixel colours (`map.colors`, from the dataset's reference) to a bundle made
-before the trainer wrote them; the models are untouched."""
+before the trainer wrote them; the models are untouched.
+
+    python -m unica_train.bundle store --bundle DIR
+
+rewrites a bundle's weights as this trainer stores them, printing how far its
+standing-start frame moved."""
 
 from __future__ import annotations
 
@@ -17,6 +25,7 @@ import json
 from pathlib import Path
 
 import torch
+import torch.nn.functional as F
 from safetensors.torch import load_file, save_file
 
 from .unet import UNet, UNetConfig
@@ -32,19 +41,68 @@ class BundleError(ValueError):
 
 # Tensors stored as float16: names starting with one of these.
 HALF = ("vae.", "unet.", "student.", "refiner.", "pca.basis")
+# Of those, arrays of 2 or more dimensions stored as int8 with a float16 scale per group of
+# QUANT_GROUP consecutive values, in the tensor `<name>:scale` (src/tensors.rs reads them).
+QUANTISED = ("vae.", "unet.", "student.", "pca.basis")
+QUANT_GROUP = 32
+SCALE = ":scale"
+
+
+def _groups(flat: torch.Tensor) -> torch.Tensor:
+    """Values [n] as rows of QUANT_GROUP, the last padded with zeros."""
+    return F.pad(flat, (0, -len(flat) % QUANT_GROUP)).reshape(-1, QUANT_GROUP)
+
+
+def quantise(v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(int8 values, float16 scale per group of QUANT_GROUP consecutive values, the last
+    group shorter where the size is not a multiple): each group's largest magnitude maps
+    to 127, or steps of 2^-14 for groups under 127 of them (7.8e-3)."""
+    groups = _groups(v.detach().float().flatten())
+    # At least float16's smallest normal number: a subnormal scale is too coarse for the
+    # largest value to land on 127, and then reading and writing again would shrink it.
+    scale = (groups.abs().amax(1) / 127).clamp_min(2.0**-14).half()
+    q = (groups / scale.float()[:, None]).round().clamp(-127, 127).to(torch.int8)
+    return q.flatten()[: v.numel()].reshape(v.shape), scale
+
+
+def dequantise(q: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    groups = _groups(q.float().flatten()) * scale.float()[:, None]
+    return groups.flatten()[: q.numel()].reshape(q.shape)
+
+
+def quantised(name: str, v: torch.Tensor) -> bool:
+    return name.startswith(QUANTISED) and v.is_floating_point() and v.dim() >= 2
 
 
 def read_weights(path: str | Path) -> dict:
-    """A bundle's tensors, float16 ones widened to float32."""
-    return {k: v.float() if v.dtype == torch.float16 else v for k, v in load_file(str(path)).items()}
+    """A bundle's tensors, float16 and int8 ones widened to float32."""
+    raw = load_file(str(path))
+    out = {}
+    for k, v in raw.items():
+        if k.endswith(SCALE):
+            continue
+        if v.dtype == torch.int8:
+            if k + SCALE not in raw:
+                raise BundleError(f"{path}: tensor '{k}{SCALE}' is missing")
+            v = dequantise(v, raw[k + SCALE])
+        out[k] = v.float() if v.dtype == torch.float16 else v
+    return out
 
 
 def write_weights(directory: str | Path, tensors: dict, manifest: dict) -> None:
-    """Writes weights.safetensors (the `HALF` tensors as float16) and manifest.json with
-    its `tensors` table of stored shapes and dtypes."""
+    """Writes weights.safetensors (the `QUANTISED` tensors as int8 with scales, the other
+    `HALF` ones as float16) and manifest.json with its `tensors` table of stored shapes
+    and dtypes."""
     d = Path(directory)
-    stored = {k: (v.half() if k.startswith(HALF) and v.is_floating_point() else v).detach().contiguous().cpu()
-              for k, v in tensors.items()}
+    stored = {}
+    for k, v in tensors.items():
+        if quantised(k, v):
+            stored[k], stored[k + SCALE] = quantise(v)
+        elif k.startswith(HALF) and v.is_floating_point():
+            stored[k] = v.half()
+        else:
+            stored[k] = v
+    stored = {k: v.detach().contiguous().cpu() for k, v in stored.items()}
     manifest = dict(manifest)
     manifest["tensors"] = {k: {"shape": list(v.shape), "dtype": str(v.dtype).removeprefix("torch.")}
                            for k, v in sorted(stored.items())}
@@ -146,6 +204,54 @@ def add_colors(directory: str | Path, data: str | Path) -> None:
     write_weights(d, tensors, json.loads((d / "manifest.json").read_text()))
 
 
+def standing_start(directory: str | Path, tensors: dict | None = None, seed: int = 0) -> dict[str, torch.Tensor]:
+    """The bundle's first generated position map [6*3, H, W] from its standing start under
+    Forward, with the teacher sampler (`ddim`) and, where it has one, the one-pass student
+    (`one_pass`), from the noise of `seed`; `tensors` replaces the stored weights."""
+    from .diffusion import Schedule, sample_next, sampler_options
+
+    vae, unet, extra, manifest = load(directory)
+    if tensors is not None:
+        vae.load_state_dict({k[4:]: v for k, v in tensors.items() if k.startswith("vae.")})
+        unet.load_state_dict({k[5:]: v for k, v in tensors.items() if k.startswith("unet.")})
+        extra = {k: v for k, v in tensors.items() if not k.startswith(("vae.", "unet."))}
+    sampler, scale = manifest["sampler"], manifest["latent_scale"]
+    context = extra["context.latents"][None]
+    noise = torch.randn(context.shape[:1] + context.shape[2:], generator=torch.Generator().manual_seed(seed))
+    samplers = {"ddim": (unet, sampler["ddim_steps"], sampler["cfg_scale"])}
+    student = live_sampler(manifest, unet, extra, Path(directory) / "manifest.json")
+    if student[0] is not unet:
+        samplers["one_pass"] = student
+    out = {}
+    with torch.no_grad():
+        for name, (model, steps, cfg) in samplers.items():
+            z = sample_next(model, Schedule(), context, torch.tensor([1]), steps, cfg, noise, **sampler_options(sampler))
+            out[name] = vae.decode(z / scale)[0]
+    return out
+
+
+def store(directory: str | Path) -> list[str]:
+    """Rewrites the bundle's weights with this storage (`write_weights`) and returns, per
+    sampler, how far its standing-start map moved: the largest and mean change over the
+    map's foreground pixels, in map units and in millimetres."""
+    d = Path(directory)
+    before = standing_start(d)
+    tensors = read_weights(d / "weights.safetensors")
+    stored = {k: dequantise(*quantise(v)) if quantised(k, v) else (v.half().float() if k.startswith(HALF) and v.is_floating_point() else v)
+              for k, v in tensors.items()}
+    after = standing_start(d, stored)
+    manifest = json.loads((d / "manifest.json").read_text())
+    pixels = stored["map.pixels"].long()
+    mm = 1000 / manifest["normalisation"]["scale"]
+    lines = []
+    for name in before:
+        change = (before[name] - after[name]).flatten(1)[:, pixels].abs()
+        lines.append(f"{name}: standing-start map moved by at most {change.max():.2e} ({change.max() * mm:.2f} mm), "
+                     f"mean {change.mean():.2e} ({change.mean() * mm:.3f} mm)")
+    write_weights(d, tensors, manifest)
+    return lines
+
+
 def main(argv=None):
     import argparse
 
@@ -154,7 +260,17 @@ def main(argv=None):
     colors = sub.add_parser("add-colors", help="add per-pixel colours from a dataset")
     colors.add_argument("--bundle", required=True, type=Path)
     colors.add_argument("--data", required=True, type=Path, help="dataset folder written by `unica bake`")
+    restore = sub.add_parser("store", help="rewrite the weights as this trainer stores them (int8 and float16), "
+                                          "printing how far the standing-start frame moved")
+    restore.add_argument("--bundle", required=True, type=Path)
     args = parser.parse_args(argv)
+    if args.command == "store":
+        before = (args.bundle / "weights.safetensors").stat().st_size
+        for line in store(args.bundle):
+            print(line)
+        after = (args.bundle / "weights.safetensors").stat().st_size
+        print(f"{args.bundle / 'weights.safetensors'}: {before / 1e6:.1f} MB -> {after / 1e6:.1f} MB")
+        return
     add_colors(args.bundle, args.data)
     print(f"added map.colors to {args.bundle}")
 

@@ -24,6 +24,7 @@ import argparse
 import csv
 import json
 import math
+import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -291,6 +292,12 @@ class RefinerTrainConfig:
     eval_frames: int = 24
     checkpoint_every: int = 100
     seed: int = 0
+    # > 0: the schedule in frames seen rather than steps: each step sees one frame on each
+    # of the data-parallel processes, so N processes take samples / N steps.
+    samples: int = 0
+
+    def total_steps(self, world: int) -> int:
+        return math.ceil(self.samples / world) if self.samples > 0 else self.steps
 
 
 def frame_inputs(world: torch.Tensor, waist: torch.Tensor, scale: float, colors: torch.Tensor, nbrs: torch.Tensor):
@@ -343,6 +350,14 @@ class Frames:
                 for k, u, r in zip(chunk, cleaned, root):
                     self.unit[k], self.root[k] = u, r
 
+    def to(self, device: torch.device) -> "Frames":
+        """Moves what a training step reads to `device` (renders move as they are read)."""
+        self.device = device
+        self.colors, self.nbrs = self.colors.to(device), self.nbrs.to(device)
+        self.unit = {k: v.to(device) for k, v in self.unit.items()}
+        self.root = {k: v.to(device) for k, v in self.root.items()}
+        return self
+
     def world(self, key) -> torch.Tensor:
         """The frame's reconstructed points in world space [N, 3]."""
         return (self.unit[key] - 0.5) / self.scale + self.root[key]
@@ -369,6 +384,7 @@ class Frames:
         rgba = F.avg_pool2d(rgba.permute(2, 0, 1)[None], factor)[0].permute(1, 2, 0)
         k = view["camera"]
         cam = splats.Camera.orbit(k["target"], k["yaw"], k["pitch"], k["distance"], self.size, self.size)
+        rgba = rgba.to(getattr(self, "device", rgba.device))
         return cam, torch.cat([splats.linear(rgba[..., :3]) * rgba[..., 3:], rgba[..., 3:]], -1)
 
 
@@ -447,15 +463,39 @@ def frame_generator(bundle: Path, data: Path, cfg: RefinerTrainConfig):
     return lambda clip, f, gen: teacher_forced(avatar, clip, f, gen)[0]
 
 
+def device_of(name: str, world: int) -> torch.device:
+    """The device a run trains on: `auto` is CUDA when PyTorch sees a GPU; under torchrun
+    each process takes the GPU of its LOCAL_RANK."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    device = torch.device(name)
+    if device.type == "cuda" and world > 1:
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+    return device
+
+
 def train(args) -> dict:
+    from .train import distributed
+
     cfg = train_config(args.config)
     if args.steps is not None:
-        cfg.steps = args.steps
+        cfg.steps, cfg.samples = args.steps, 0
+    if args.samples is not None:
+        cfg.samples = args.samples
+    rank, world = distributed()
+    device = device_of(args.device, world)
+    if device.type == "cuda":
+        torch.cuda.set_device(device)
+        torch.backends.cuda.matmul.allow_tf32 = False
+        torch.backends.cudnn.allow_tf32 = False
+    steps = cfg.total_steps(world)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
-    (out / "refiner_config.json").write_text(json.dumps(asdict(cfg), indent=2) + "\n")
-    torch.manual_seed(cfg.seed)
-    gen = torch.Generator().manual_seed(cfg.seed)
+    if rank == 0:
+        (out / "refiner_config.json").write_text(json.dumps(asdict(cfg), indent=2) + "\n")
+    torch.manual_seed(cfg.seed)  # the same initial weights in every process
+    # Each process draws its own frames.
+    gen = torch.Generator().manual_seed(cfg.seed + rank)
     frames = Frames(args.data, args.bundle, cfg.image_size)
     train_keys = [k for k in frames.keys if k[0] not in cfg.held_out_clips]
     test_keys = held_out_keys(frames, cfg)
@@ -464,65 +504,91 @@ def train(args) -> dict:
         model_cfg.pixel_residuals = len(frames.ds.pixels)
     if model_cfg.pixel_residuals not in (0, len(frames.ds.pixels)):
         raise ValueError(f"{args.config}: pixel_residuals {model_cfg.pixel_residuals} is not the map's {len(frames.ds.pixels)} foreground pixels")
-    model = Refiner(model_cfg)
+    model = Refiner(model_cfg).to(device)
     network = [p for name, p in model.named_parameters() if name != "pixel"]
     groups = [{"params": network, "lr": cfg.lr}]
     if model.pixel is not None:
         groups.append({"params": [model.pixel], "lr": cfg.pixel_lr})
     opt = torch.optim.Adam(groups)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.steps)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
     start = 0
     ckpt = out / "refiner_checkpoint.pt"
     log_path = out / "refiner_losses.csv"
     if args.resume and ckpt.exists():
-        state = checkpoint_file.load(ckpt)
+        state = checkpoint_file.load(ckpt, map_location="cpu")
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])
-        gen.set_state(state["gen"])
+        sched.T_max = steps  # this run's length: the number of processes may differ
         start = state["step"]
-        print(f"resumed at step {start}")
+        # The checkpoint holds the first process's frame draws; the others (any number of
+        # them, not necessarily the number that wrote it) draw on from their own seeds.
+        if rank == 0:
+            gen.set_state(state["gen"])
+        else:
+            gen.manual_seed(cfg.seed + rank + 7919 * start)
+        if start > steps:
+            raise SystemExit(f"{ckpt}: step {start} is past this run's {steps} steps")
+        if rank == 0:
+            print(f"resumed at step {start}")
     else:
-        if log_path.exists():
+        if log_path.exists() and rank == 0:
             log_path.unlink()
         if args.init is not None:
             init_from_bundle(model, args.init)
+    # The frames' inputs and renders, and the tensors the splat code makes, live on the
+    # device; the frame draws stay on the CPU generator.
+    frames.to(device)
     bound = model.cfg.mean_bound / frames.scale
-    level = drawn_level(frames, cfg)
+    with torch.device(device):
+        level = drawn_level(frames, cfg)
     generate = frame_generator(args.bundle, args.data, cfg)
+    # Data-parallel: gradients averaged over the processes after each backward pass.
+    trained = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
     began = time.time()
-    for step in range(start, cfg.steps):
+    for step in range(start, steps):
         key = train_keys[int(torch.randint(len(train_keys), (1,), generator=gen))]
-        world = frames.world(key)
+        points = frames.world(key)
         if generate is not None and key[1] >= 3 and torch.rand(1, generator=gen).item() < cfg.generated_fraction:
-            world = generate(key[0], key[1], gen)
-        base, feats, unit = frames.inputs_at(world)
-        drawn = refined(base, model(feats, unit), bound, level, world)
+            points = generate(key[0], key[1], gen).to(device)
         views = frames.views[key]
         chosen = torch.randperm(len(views), generator=gen)[: cfg.views_per_step]
-        loss_l1, loss_ssim, loss_alpha = 0.0, 0.0, 0.0
-        for v in chosen:
-            cam, target = frames.target(views[int(v)])
-            bg = torch.ones(3) if torch.rand(1, generator=gen).item() < 0.5 else torch.zeros(3)
-            image, alpha = splats.render(drawn, cam, bg)
-            got, want = splats.srgb(image), splats.srgb(composite(target, bg))
-            loss_l1 = loss_l1 + (got - want).abs().mean()
-            loss_ssim = loss_ssim + 1 - splats.ssim(got, want)
-            loss_alpha = loss_alpha + (alpha - target[..., 3]).abs().mean()
-        loss = ((1 - cfg.ssim_weight) * loss_l1 + cfg.ssim_weight * loss_ssim + cfg.alpha_weight * loss_alpha) / len(chosen)
+        backgrounds = [torch.rand(1, generator=gen).item() < 0.5 for _ in chosen]
+        with torch.device(device):
+            base, feats, unit = frames.inputs_at(points)
+            drawn = refined(base, trained(feats, unit), bound, level, points)
+            loss_l1, loss_ssim, loss_alpha = 0.0, 0.0, 0.0
+            for v, white in zip(chosen, backgrounds):
+                cam, target = frames.target(views[int(v)])
+                bg = torch.ones(3) if white else torch.zeros(3)
+                image, alpha = splats.render(drawn, cam, bg)
+                got, want = splats.srgb(image), splats.srgb(composite(target, bg))
+                loss_l1 = loss_l1 + (got - want).abs().mean()
+                loss_ssim = loss_ssim + 1 - splats.ssim(got, want)
+                loss_alpha = loss_alpha + (alpha - target[..., 3]).abs().mean()
+            loss = ((1 - cfg.ssim_weight) * loss_l1 + cfg.ssim_weight * loss_ssim + cfg.alpha_weight * loss_alpha) / len(chosen)
         opt.zero_grad()
         loss.backward()
         opt.step()
         sched.step()
+        done = step + 1
+        if rank != 0:
+            continue
         with log_path.open("a", newline="") as f:
             csv.writer(f).writerow([step, f"{loss.item():.6f}", f"{loss_l1.item() / len(chosen):.6f}"])
-        done = step + 1
-        if done % 10 == 0 or done == cfg.steps:
+        if done % 10 == 0 or done == steps:
             rate = (done - start) / (time.time() - began)
-            print(f"step {done}/{cfg.steps} loss {loss.item():.4f} ({rate:.2f} steps/s, {(cfg.steps - done) / rate / 60:.1f} min left)", flush=True)
-        if done % cfg.checkpoint_every == 0 or done == cfg.steps:
+            print(f"step {done}/{steps} loss {loss.item():.4f} ({rate:.2f} steps/s, {(steps - done) / rate / 60:.1f} min left)", flush=True)
+        if done % cfg.checkpoint_every == 0 or done == steps:
             checkpoint_file.save({"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "gen": gen.get_state(), "step": done}, ckpt)
-    model.eval()
+    if world > 1:
+        from .train import leave_process_group
+
+        if not leave_process_group(rank, world, model):
+            return {}
+    model = model.cpu().eval()
+    frames.to(torch.device("cpu"))
+    level = drawn_level(frames, cfg)
     metrics = evaluate(model, frames, test_keys, level)
     metrics.update({
         "parameters": parameter_count(model),
@@ -531,6 +597,9 @@ def train(args) -> dict:
         "image_size": cfg.image_size,
         "splat_level": cfg.splat_level,
         "minutes": (time.time() - began) / 60,
+        "steps": steps,
+        "processes": world,
+        "device": str(device),
     })
     (out / "refiner_eval.json").write_text(json.dumps(metrics, indent=2) + "\n")
     save_file({f"refiner.{k}": v.contiguous() for k, v in model.state_dict().items()}, str(out / "refiner.safetensors"))
@@ -605,7 +674,10 @@ def main(argv=None):
     parser.add_argument("--data", required=True, type=Path, help="dataset folder written by `unica bake` (with renders)")
     parser.add_argument("--out", required=True, type=Path, help="run folder (checkpoint, losses, eval)")
     parser.add_argument("--config", type=Path, help="JSON with RefinerTrainConfig fields")
-    parser.add_argument("--steps", type=int)
+    parser.add_argument("--steps", type=int, help="optimizer steps (overrides the config's steps and samples)")
+    parser.add_argument("--samples", type=int,
+                        help="frames to train on in all: each step sees one frame on each process, so N processes take samples / N steps")
+    parser.add_argument("--device", default="auto", help="auto (CUDA when PyTorch sees a GPU), cpu or cuda")
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--init", type=Path, help="start from the refiner in this bundle (same refiner config)")
     parser.add_argument("--write-bundle", action="store_true", help="add the trained refiner to --bundle")
@@ -613,7 +685,8 @@ def main(argv=None):
                         help="no training: evaluate --bundle's own refiner on the held-out frames at the config's image size and splat level (OUT/refiner_eval.json)")
     args = parser.parse_args(argv)
     metrics = evaluate_bundle(args) if args.eval_only else train(args)
-    print(json.dumps(metrics, indent=2))
+    if metrics:
+        print(json.dumps(metrics, indent=2))
 
 
 if __name__ == "__main__":

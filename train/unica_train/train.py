@@ -108,6 +108,28 @@ def checksum(module: torch.nn.Module) -> float:
     return float(sum(p.detach().double().sum() for p in module.parameters()))
 
 
+def leave_process_group(rank: int, world: int, *modules: torch.nn.Module) -> bool:
+    """After data-parallel training: checks that every process ends with the same
+    parameters, leaves the process group, and returns True on the first process only
+    (which writes the results); the others should return."""
+    sums = [None] * world
+    torch.distributed.all_gather_object(sums, [checksum(m) for m in modules])
+    if any(s != sums[0] for s in sums):
+        raise RuntimeError(f"processes disagree after training: {sums}")
+    if rank == 0:
+        print(f"parameters in sync across {world} processes", flush=True)
+    torch.distributed.barrier()  # no collective is in flight on any process past this point
+    torch.distributed.destroy_process_group()
+    if rank != 0:
+        # gloo's transport threads can still be joinable in the interpreter's teardown and
+        # abort the process ("terminate called without an active exception", seen once in
+        # CI after a run whose processes were in sync): flush and leave without it.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
+    return True
+
+
 def extra_clips(main: BakedDataset, more: BakedDataset) -> list[dict]:
     """The clips of `more` (`unica bake --switch-phases`), to train on after `main`'s
     (so the held-out clip numbers keep meaning the same clips; normalised with `main`'s
@@ -556,22 +578,7 @@ def main(argv=None):
             write_unet_only(args.out, run, init, unet, schedule, latents, scale, before, device, started)
         return
     if world > 1:
-        sums = [None] * world
-        torch.distributed.all_gather_object(sums, (checksum(vae), checksum(unet)))
-        if any(s != sums[0] for s in sums):
-            raise RuntimeError(f"ranks disagree after training: {sums}")
-        if rank == 0:
-            print(f"parameters in sync across {world} ranks", flush=True)
-        torch.distributed.barrier()  # no collective is in flight on any rank past this point
-        torch.distributed.destroy_process_group()
-        if rank != 0:
-            # This rank has nothing left to do. It leaves without the interpreter's teardown,
-            # where gloo's transport threads can still be joinable and abort the process
-            # ("terminate called without an active exception", seen once in CI after a run
-            # whose ranks were in sync); everything it wrote is flushed first.
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(0)
+        leave_process_group(rank, world, vae, unet)
     vae, unet = vae.cpu(), unet.cpu()
     run.device = torch.device("cpu")
     run.mask = run.mask.cpu()
