@@ -21,11 +21,13 @@ pub const STAGES: [(&str, &str); 5] = [
     ("eval", "eval/report.md"),
 ];
 
-/// The geometry schedule of the shipped Witch (train/configs/witch_cpu.json): about
-/// 50 minutes on a 2-core CPU.
-const FULL_GEOMETRY: &str = include_str!("../train/configs/witch_cpu.json");
-/// The shipped Witch's refiner steps (about 50 minutes on a 2-core CPU).
-const FULL_REFINER_STEPS: u32 = 3000;
+/// The geometry schedule of the shipped Witch (train/configs/witch_cpu.json: 3,000 VAE
+/// steps and 3,800 + 1,200 UNet steps at batch 16) in samples, so that more processes or
+/// larger batches see the same data in fewer steps: about 105 minutes on a 2-core CPU.
+const FULL_GEOMETRY: &str = include_str!("../train/configs/make_full.json");
+/// The shipped Witch's refiner schedule in frames: 3,000 steps of one frame (about 50
+/// minutes on a 2-core CPU); N processes take 3,000 / N steps.
+const FULL_REFINER_FRAMES: u32 = 3000;
 
 /// The distillation of the shipped Witch's sampler (docs/experiments/distillation.md):
 /// 1,536 frames sampled by the teacher and 400 student steps, about 35 minutes on a
@@ -61,7 +63,7 @@ const QUICK_DISTIL: [&str; 12] = [
 const QUICK_GEOMETRY: &str = r#"{
   "vae": {"channels": [16, 12, 8, 8], "latent": 4, "kl_weight": 1e-6},
   "unet": {"latent": 4, "channels": [16, 32], "embed": 32, "heads": 2, "frames": 4, "actions": 5},
-  "vae_steps": 20, "vae_batch": 2, "unet_steps": 20, "stage2_steps": 10, "unet_batch": 2,
+  "vae_samples": 40, "vae_batch": 2, "unet_samples": 40, "stage2_samples": 20, "unet_batch": 2,
   "pca_components": 8, "pca_frames": 20, "held_out_clips": [2], "rollout_frames": 3,
   "ddim_steps": 2, "checkpoint_every": 10
 }
@@ -69,7 +71,7 @@ const QUICK_GEOMETRY: &str = r#"{
 const QUICK_REFINER: &str = r#"{
   "model": {"channels": [8, 16], "depths": [1, 1], "heads": [2, 2], "decoder_depth": 1,
             "patch": 16, "stride": 4, "mean_bound": 0.004},
-  "steps": 10, "image_size": 32, "held_out_clips": [2], "eval_frames": 2,
+  "samples": 10, "image_size": 32, "held_out_clips": [2], "eval_frames": 2,
   "checkpoint_every": 5, "splat_level": 256, "alpha_weight": 0.5
 }
 "#;
@@ -87,10 +89,15 @@ pub struct MakeArgs {
     /// avatar will not look like anything)
     #[arg(long)]
     pub quick: bool,
-    /// Where the trainers run: auto (CUDA when PyTorch sees a GPU), cpu or cuda. The
-    /// refiner trains on the CPU either way
+    /// Where the trainers run: auto (CUDA when PyTorch sees a GPU), cpu or cuda
     #[arg(long, default_value = "auto", value_parser = ["auto", "cpu", "cuda"])]
     pub device: String,
+    /// Train the geometry model and the refiner data-parallel in this many processes
+    /// (torchrun, one machine): one per GPU with --device cuda (NCCL), or CPU processes
+    /// (gloo). Schedules are the same data either way: N processes take 1/N of the steps
+    /// of the refiner, and of the geometry model where its config gives samples
+    #[arg(long, value_name = "N", default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub gpus: u32,
     /// Avatar description (JSON) passed to `unica bake` [default: inferred]
     #[arg(long, value_name = "FILE")]
     pub avatar: Option<PathBuf>,
@@ -198,7 +205,7 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
                     FULL_GEOMETRY
                 };
                 crate::files::write_atomic(&config, text.as_bytes())?;
-                let mut command = trainer(python, "unica_train.train");
+                let mut command = trainer_on(python, "unica_train.train", args.gpus);
                 command
                     .arg("--data")
                     .arg(&data)
@@ -221,7 +228,7 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
                     std::fs::remove_dir_all(&distil)
                         .with_context(|| distil.display().to_string())?;
                 }
-                let mut command = trainer(python, "unica_train.refiner");
+                let mut command = trainer_on(python, "unica_train.refiner", args.gpus);
                 command
                     .arg("--bundle")
                     .arg(&bundle)
@@ -229,13 +236,14 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
                     .arg(&data)
                     .arg("--out")
                     .arg(&refiner)
+                    .args(["--device", &args.device])
                     .arg("--write-bundle");
                 if args.quick {
                     let config = args.out.join("refiner_config.json");
                     crate::files::write_atomic(&config, QUICK_REFINER.as_bytes())?;
                     command.arg("--config").arg(&config);
                 } else {
-                    command.args(["--steps", &FULL_REFINER_STEPS.to_string()]);
+                    command.args(["--samples", &FULL_REFINER_FRAMES.to_string()]);
                 }
                 if refiner.join("refiner_checkpoint.pt").is_file() {
                     command.arg("--resume");
@@ -349,6 +357,19 @@ fn trainer(python: &str, module: &str) -> Command {
     command
 }
 
+/// `trainer`, in `processes` data-parallel processes under torchrun on this machine when
+/// more than one (`torch.distributed.run --standalone`: it picks a free port).
+fn trainer_on(python: &str, module: &str, processes: u32) -> Command {
+    if processes <= 1 {
+        return trainer(python, module);
+    }
+    let mut command = Command::new(python);
+    command.args(["-u", "-m", "torch.distributed.run", "--standalone"]);
+    command.arg(format!("--nproc-per-node={processes}"));
+    command.args(["-m", module]);
+    command
+}
+
 /// PYTHONPATH with this source tree's trainer first, for every process a make starts
 /// (`unica eval` runs the trainer for the lenient evaluation, which a make skips).
 fn python_path() -> std::ffi::OsString {
@@ -383,6 +404,9 @@ fn check_trainer(python: &str) -> anyhow::Result<()> {
 fn run(mut command: Command, what: &str) -> anyhow::Result<()> {
     let status = command
         .env("PYTHONPATH", python_path())
+        // torchrun's worker processes do not get `python -u`: unbuffered output keeps
+        // their progress lines in order with the make's own.
+        .env("PYTHONUNBUFFERED", "1")
         .status()
         .with_context(|| format!("starting {what}"))?;
     if !status.success() {

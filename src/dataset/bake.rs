@@ -138,55 +138,63 @@ pub fn bake(
     let mut clips = Vec::new();
     let mut previews = Vec::new();
     let mut reach = 0.0f32;
-    let mesh_indices = &start.character.skinned.bind.indices;
-    for (index, &(first, second, first_frames, second_frames)) in plan.iter().enumerate() {
-        let mut teacher = start.clone();
-        let frames = first_frames + second_frames;
-        let (mut skin, mut actions, mut roots) = (Vec::new(), Vec::new(), Vec::new());
-        let mut bounds = Vec::new();
-        for f in 0..frames {
-            let action = if f < first_frames { first } else { second };
-            // Frame f is the pose before step f; its action moves it to frame f + 1.
-            let mesh = teacher.mesh();
-            let points = reference.gather(&mesh.positions, mesh_indices);
-            roots.push(GroupNorm::root(&points, &reference.waist));
-            bounds.push(points.iter().fold(
-                (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
-                |(lo, hi), p| (lo.min(*p), hi.max(*p)),
-            ));
-            for m in teacher.skin_matrices() {
-                skin.extend_from_slice(&m.transpose().to_cols_array()[..12]);
+    let bones = start.character.rig.bones.len();
+    // The clips are independent runs of the teacher from the same start: they run on
+    // every core, a batch of them at a time, and are written (and rendered, on the one
+    // GPU) in order, so the dataset is the same whatever the number of cores.
+    let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let wanted = ClipWants {
+        render_every: renders.as_ref().map(|_| render_every),
+        preview: options.preview,
+    };
+    for batch in plan.chunks(workers).enumerate() {
+        let (b, entries) = batch;
+        let runs: Vec<ClipRun> = std::thread::scope(|scope| {
+            let handles: Vec<_> = entries
+                .iter()
+                .enumerate()
+                .map(|(k, &entry)| {
+                    let (start, reference, wanted) = (&start, &reference, &wanted);
+                    let index = b * workers + k;
+                    scope.spawn(move || run_clip(start, reference, index, entry, wanted))
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| h.join().expect("a clip's teacher run panicked"))
+                .collect()
+        });
+        for (k, run) in runs.into_iter().enumerate() {
+            let index = b * workers + k;
+            let (first, second, first_frames, _) = entries[k];
+            if let Some(renders) = renders.as_mut() {
+                for (f, mesh, facing) in &run.renders {
+                    renders.frame(index, *f, mesh, *facing)?;
+                }
             }
-            actions.push(action.id() as i32);
-            if let Some(renders) = renders.as_mut().filter(|_| f % render_every == 0) {
-                renders.frame(index, f, &mesh, &teacher)?;
-            }
-            if options.preview && f == frames / 2 && index % PREVIEW_EVERY == 0 {
-                previews.push((mesh.positions, points, roots[f]));
-            }
-            teacher.step(action);
-            done += 1;
+            previews.extend(run.previews);
+            reach = reach.max(GroupNorm::reach(&run.bounds, &run.roots, GROUP, ANCHOR));
+            let frames = run.actions.len();
+            let file = format!("clips/clip_{index:03}.safetensors");
+            let flat_roots: Vec<f32> = run.roots.iter().flat_map(|r| r.to_array()).collect();
+            tensors::write(
+                &out.join(&file),
+                &[
+                    ("skin", TensorData::f32(&[frames, bones, 3, 4], &run.skin)),
+                    ("actions", TensorData::i32(&[frames], &run.actions)),
+                    ("root", TensorData::f32(&[frames, 3], &flat_roots)),
+                ],
+            )?;
+            clips.push(ClipInfo {
+                file,
+                frames,
+                first,
+                second,
+                switch_frame: first_frames,
+            });
+            done += frames;
             progress(done as u64, total as u64);
         }
-        reach = reach.max(GroupNorm::reach(&bounds, &roots, GROUP, ANCHOR));
-        let file = format!("clips/clip_{index:03}.safetensors");
-        let bones = start.character.rig.bones.len();
-        let flat_roots: Vec<f32> = roots.iter().flat_map(|r| r.to_array()).collect();
-        tensors::write(
-            &out.join(&file),
-            &[
-                ("skin", TensorData::f32(&[frames, bones, 3, 4], &skin)),
-                ("actions", TensorData::i32(&[frames], &actions)),
-                ("root", TensorData::f32(&[frames, 3], &flat_roots)),
-            ],
-        )?;
-        clips.push(ClipInfo {
-            file,
-            frames,
-            first,
-            second,
-            switch_frame: first_frames,
-        });
     }
     if let Some(renders) = renders {
         renders.finish(render_every)?;
@@ -230,6 +238,71 @@ pub fn bake(
     Ok(manifest)
 }
 
+/// What a clip's run should keep beyond the dataset: meshes to render (every this many
+/// frames) and the middle frame for the preview.
+struct ClipWants {
+    render_every: Option<usize>,
+    preview: bool,
+}
+
+/// One clip's teacher run: the dataset's tensors (flat skinning matrices, actions, roots),
+/// each frame's bounds, and the frames to render (frame, mesh, facing) and preview.
+struct ClipRun {
+    skin: Vec<f32>,
+    actions: Vec<i32>,
+    roots: Vec<Vec3>,
+    bounds: Vec<(Vec3, Vec3)>,
+    renders: Vec<(usize, Mesh, f32)>,
+    previews: Vec<(Vec<Vec3>, Vec<Vec3>, Vec3)>,
+}
+
+/// Runs the teacher from `start` through one clip of the plan.
+fn run_clip(
+    start: &Teacher,
+    reference: &Reference,
+    index: usize,
+    (first, second, first_frames, second_frames): (Action, Action, usize, usize),
+    wanted: &ClipWants,
+) -> ClipRun {
+    let mut teacher = start.clone();
+    let frames = first_frames + second_frames;
+    let mesh_indices = &start.character.skinned.bind.indices;
+    let mut run = ClipRun {
+        skin: Vec::new(),
+        actions: Vec::new(),
+        roots: Vec::new(),
+        bounds: Vec::new(),
+        renders: Vec::new(),
+        previews: Vec::new(),
+    };
+    for f in 0..frames {
+        let action = if f < first_frames { first } else { second };
+        // Frame f is the pose before step f; its action moves it to frame f + 1.
+        let mesh = teacher.mesh();
+        let points = reference.gather(&mesh.positions, mesh_indices);
+        let root = GroupNorm::root(&points, &reference.waist);
+        run.roots.push(root);
+        run.bounds.push(points.iter().fold(
+            (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+        ));
+        for m in teacher.skin_matrices() {
+            run.skin
+                .extend_from_slice(&m.transpose().to_cols_array()[..12]);
+        }
+        run.actions.push(action.id() as i32);
+        let preview = wanted.preview && f == frames / 2 && index % PREVIEW_EVERY == 0;
+        if preview {
+            run.previews.push((mesh.positions.clone(), points, root));
+        }
+        if wanted.render_every.is_some_and(|every| f % every == 0) {
+            run.renders.push((f, mesh, teacher.locomotion.yaw));
+        }
+        teacher.step(action);
+    }
+    run
+}
+
 /// Writes the ground-truth RGB renders: RGBA PNGs (alpha = coverage, so black and white
 /// backgrounds are both a composite away) from four cameras around the character (front,
 /// right, back, left in its own frame) with a light fixed in its frame, and 50 cameras
@@ -239,6 +312,62 @@ struct GroundTruth {
     dir: PathBuf,
     extent: f32,
     cameras: Vec<serde_json::Value>,
+    writer: PngWriter,
+}
+
+/// Encodes and writes PNGs on every core but one while the GPU draws the next: a 512²
+/// render encodes in about as long as it takes to draw on a GPU. Errors come back at
+/// [`PngWriter::finish`] (the first one, naming its file).
+struct PngWriter {
+    queue: Option<std::sync::mpsc::SyncSender<(PathBuf, image::RgbaImage)>>,
+    workers: Vec<std::thread::JoinHandle<Result<(), crate::files::WriteError>>>,
+}
+
+impl PngWriter {
+    fn new() -> Self {
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let count = cores.saturating_sub(1).max(1);
+        let (queue, jobs) = std::sync::mpsc::sync_channel::<(PathBuf, image::RgbaImage)>(2 * count);
+        let jobs = std::sync::Arc::new(std::sync::Mutex::new(jobs));
+        let workers = (0..count)
+            .map(|_| {
+                let jobs = jobs.clone();
+                std::thread::spawn(move || loop {
+                    let job = jobs.lock().expect("the PNG queue").recv();
+                    let Ok((path, image)) = job else {
+                        return Ok(());
+                    };
+                    write_png_atomic(&path, &image)?;
+                })
+            })
+            .collect();
+        Self {
+            queue: Some(queue),
+            workers,
+        }
+    }
+
+    fn write(&self, path: PathBuf, image: image::RgbaImage) -> anyhow::Result<()> {
+        let queue = self.queue.as_ref().expect("writing before finish");
+        if queue.send((path, image)).is_err() {
+            // A worker stopped on an error: finish() reports it.
+            anyhow::bail!("a PNG could not be written (see the next error)");
+        }
+        Ok(())
+    }
+
+    /// Waits for every PNG; the first error, if any.
+    fn finish(mut self) -> anyhow::Result<()> {
+        drop(self.queue.take());
+        let mut first = Ok(());
+        for worker in self.workers.drain(..) {
+            let result = worker.join().expect("a PNG writer panicked");
+            if first.is_ok() {
+                first = result;
+            }
+        }
+        Ok(first?)
+    }
 }
 
 impl GroundTruth {
@@ -251,6 +380,7 @@ impl GroundTruth {
             dir,
             extent: (hi - lo).max_element(),
             cameras: Vec::new(),
+            writer: PngWriter::new(),
         };
         let centre = (lo + hi) * 0.5;
         for k in 0..REST_CAMERAS {
@@ -291,7 +421,7 @@ impl GroundTruth {
             std::fs::create_dir_all(folder)
                 .map_err(|e| anyhow::anyhow!("{}: {e}", folder.display()))?;
         }
-        write_png_atomic(&path, &image)?;
+        self.writer.write(path, image)?;
         self.cameras.push(serde_json::json!({
             "file": file,
             "clip_frame": frame,
@@ -301,14 +431,7 @@ impl GroundTruth {
         Ok(())
     }
 
-    fn frame(
-        &mut self,
-        clip: usize,
-        frame: usize,
-        mesh: &Mesh,
-        teacher: &Teacher,
-    ) -> anyhow::Result<()> {
-        let facing = teacher.locomotion.yaw;
+    fn frame(&mut self, clip: usize, frame: usize, mesh: &Mesh, facing: f32) -> anyhow::Result<()> {
         let light = crate::render::scene::character_light(facing);
         let (lo, hi) = mesh.bounds().expect("a character has vertices");
         for (view, name) in ["front", "right", "back", "left"].iter().enumerate() {
@@ -327,6 +450,7 @@ impl GroundTruth {
     }
 
     fn finish(self, every: usize) -> anyhow::Result<()> {
+        self.writer.finish()?;
         let json =
             serde_json::json!({ "size": RENDER_SIZE, "every": every, "cameras": self.cameras });
         write_atomic(

@@ -72,3 +72,19 @@ def test_make_quick_writes_a_bundle_that_loads_and_continues_where_it_stopped(tm
     assert metrics["views"] > 0, metrics
     for name in ("base", "refined"):
         assert 0.0 < metrics[name]["coverage"] <= 1.0 and metrics[name]["psnr"] > 10, metrics
+
+
+def test_make_quick_on_two_processes_plays_in_the_engine(tmp_path):
+    # `--gpus 2` on the CPU: the geometry model and the refiner train data-parallel in two
+    # gloo processes under torchrun, on the same samples in half the steps.
+    out = tmp_path / "two"
+    log = make(out, "--gpus", "2", "--until", "distil")
+    assert log.count("parameters in sync across 2 processes") == 2, log
+    assert "step 5/5" in log, log  # the refiner's 10 frames in 5 steps of 2
+    config = json.loads((out / "geometry" / "config.json").read_text())
+    assert (config["vae_steps"], config["unet_steps"], config["stage2_steps"]) == (10, 10, 5), config
+    render = subprocess.run([str(BINARY), "render", "--bundle", str(out / "bundle"), "--keys", "3W", "--out",
+                             str(tmp_path / "frames"), "--size", "32", "--views", "1"], cwd=ROOT, capture_output=True, text=True)
+    assert render.returncode == 0, render.stderr[-3000:]
+    manifest = json.loads((tmp_path / "frames" / "manifest.json").read_text())
+    assert len(manifest["frames"]) == 3, manifest

@@ -482,7 +482,7 @@ def train(args) -> dict:
         cfg.steps, cfg.samples = args.steps, 0
     if args.samples is not None:
         cfg.samples = args.samples
-    rank, world = distributed()
+    rank, world = distributed(args.device)
     device = device_of(args.device, world)
     if device.type == "cuda":
         torch.cuda.set_device(device)

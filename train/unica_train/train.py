@@ -78,6 +78,20 @@ class TrainConfig:
     # at the pace of its first 30 steps (unet_schedule.json records the steps run).
     unet_minutes: float = 0.0
     seed: int = 0
+    # > 0: a stage's schedule in samples (training groups seen) instead of steps: each
+    # step sees a batch on each data-parallel process, so the steps are
+    # samples / (batch x processes), and a larger batch or more processes see the same
+    # data in fewer steps.
+    vae_samples: int = 0
+    unet_samples: int = 0
+    stage2_samples: int = 0
+
+    def resolve_samples(self, processes: int) -> None:
+        """Sets each stage's steps from its samples, where given."""
+        for stage, batch in (("vae", self.vae_batch), ("unet", self.unet_batch), ("stage2", self.unet_batch)):
+            samples = getattr(self, f"{stage}_samples")
+            if samples > 0:
+                setattr(self, f"{stage}_steps", math.ceil(samples / (batch * processes)))
 
 
 def bar(step: int, total: int, width: int = 24) -> str:
@@ -94,13 +108,14 @@ def parse_keys(text: str, frames: int) -> list[int]:
     return (out + [0] * frames)[:frames]
 
 
-def distributed() -> tuple[int, int]:
-    """(rank, world size): under torchrun the process group is set up (NCCL on GPUs,
-    gloo on CPUs); a plain run is rank 0 of 1."""
+def distributed(device: str = "auto") -> tuple[int, int]:
+    """(rank, world size): under torchrun the process group is set up (NCCL for CUDA,
+    gloo for the CPU; `device` as the trainers' --device); a plain run is rank 0 of 1."""
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if world <= 1:
         return 0, 1
-    torch.distributed.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+    cuda = device == "cuda" or (device == "auto" and torch.cuda.is_available())
+    torch.distributed.init_process_group("nccl" if cuda else "gloo")
     return torch.distributed.get_rank(), world
 
 
@@ -541,10 +556,12 @@ def main(argv=None):
         cfg = TrainConfig(**(json.loads(args.config.read_text()) if args.config else {}))
     except (bundle.BundleError, OSError, ValueError, TypeError) as e:
         raise SystemExit(f"unica_train.train: {e}") from None
-    rank, world = distributed()
+    rank, world = distributed(args.device)
+    cfg.resolve_samples(world)
     device = torch.device("cuda" if args.device == "auto" and torch.cuda.is_available() else ("cpu" if args.device == "auto" else args.device))
     if device.type == "cuda" and world > 1:
         device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+        torch.cuda.set_device(device)
     (args.out / "checkpoints").mkdir(parents=True, exist_ok=True)
     if rank == 0:
         (args.out / "config.json").write_text(json.dumps(asdict(cfg), indent=2) + "\n")
