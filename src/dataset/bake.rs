@@ -291,7 +291,7 @@ fn run_clip(
                 .extend_from_slice(&m.transpose().to_cols_array()[..12]);
         }
         run.actions.push(action.id() as i32);
-        let preview = wanted.preview && f == frames / 2 && index % PREVIEW_EVERY == 0;
+        let preview = wanted.preview && f == frames / 2 && index.is_multiple_of(PREVIEW_EVERY);
         if preview {
             run.previews.push((mesh.positions.clone(), points, root));
         }
@@ -332,12 +332,14 @@ impl PngWriter {
         let workers = (0..count)
             .map(|_| {
                 let jobs = jobs.clone();
-                std::thread::spawn(move || loop {
-                    let job = jobs.lock().expect("the PNG queue").recv();
-                    let Ok((path, image)) = job else {
-                        return Ok(());
-                    };
-                    write_png_atomic(&path, &image)?;
+                std::thread::spawn(move || {
+                    loop {
+                        let job = jobs.lock().expect("the PNG queue").recv();
+                        let Ok((path, image)) = job else {
+                            return Ok(());
+                        };
+                        write_png_atomic(&path, &image)?;
+                    }
                 })
             })
             .collect();
