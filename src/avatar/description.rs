@@ -11,6 +11,7 @@ use glam::Vec3;
 use super::Character;
 use super::character::{CharacterError, fail};
 use super::clip::Clip;
+use super::hanging::hanging_parts;
 
 /// Descriptions shipped with unica, by lower-case character file stem.
 const SHIPPED: &[(&str, &str)] = &[(
@@ -246,7 +247,7 @@ impl Description {
     /// pelvis; foot or ankle), else from the skeleton ([`legs`]); each clip role from clip
     /// names (containing idle/walk/run), else from the motion ([`assign_roles`] on each
     /// clip's [`stance_speed`]); loose parts (with leg colliders) for rigid meshes that
-    /// hang from a joint ([`super::loose::infer_loose_parts`]). `inferred` says what was
+    /// hang from a joint ([`hanging_loose_parts`]). `inferred` says what was
     /// inferred, in one line.
     pub fn infer(character: &Character) -> Result<Self, CharacterError> {
         if character.clips.is_empty() {
@@ -367,7 +368,7 @@ impl Description {
                 .collect();
         }
         let [idle, walk, run] = roles.map(|r| r.expect("every role is assigned"));
-        let (loose_parts, colliders) = super::loose::infer_loose_parts(character, waist, &feet);
+        let (loose_parts, colliders) = hanging_loose_parts(character, waist, &feet);
         let node_name = |n: usize| rig.nodes[n].name.clone();
         let shown = |clip: &str| {
             let speed = speeds
@@ -418,6 +419,63 @@ impl Description {
             inferred: Some(inferred),
         })
     }
+}
+
+/// Loose parts for the rigid meshes that hang from a joint ([`hanging_parts`]): five
+/// spring chains side by side across a flat one (`sheet`), eight around one that wraps
+/// around its axis (`ring`), four segments each; with any, colliders on the legs (each
+/// bone from the waist to a foot, a capsule to the joint below it) and at the waist, so
+/// that the part swings around them. Each part is named by its mesh and hangs from the
+/// mesh's own node.
+fn hanging_loose_parts(
+    character: &Character,
+    waist: usize,
+    feet: &[usize],
+) -> (Vec<LoosePart>, Vec<ColliderSpec>) {
+    let parts: Vec<LoosePart> = hanging_parts(character)
+        .into_iter()
+        .map(|h| {
+            let (kind, chains) = if h.flat {
+                (ChainLayout::Sheet, 5)
+            } else {
+                (ChainLayout::Ring, 8)
+            };
+            LoosePart {
+                name: h.mesh.clone(),
+                kind,
+                mesh: Some(h.mesh.clone()),
+                materials: Vec::new(),
+                parent_bone: h.mesh,
+                chains,
+                segments: 4,
+                arc_degrees: full_circle(),
+                stiffness: default_stiffness(),
+                drag: default_drag(),
+                gravity: default_gravity(),
+            }
+        })
+        .collect();
+    if parts.is_empty() {
+        return (parts, Vec::new());
+    }
+    let rig = &character.rig;
+    let mut colliders = vec![ColliderSpec {
+        bone: rig.nodes[waist].name.clone(),
+        to: None,
+        radius: None,
+    }];
+    for &foot in feet {
+        let mut below = foot;
+        while let Some(above) = rig.nodes[below].parent.filter(|&a| a != waist) {
+            colliders.push(ColliderSpec {
+                bone: rig.nodes[above].name.clone(),
+                to: Some(rig.nodes[below].name.clone()),
+                radius: None,
+            });
+            below = above;
+        }
+    }
+    (parts, colliders)
 }
 
 /// Per rig node: whether it is the node of a bone that carries skin weight on some vertex.

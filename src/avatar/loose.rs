@@ -8,7 +8,8 @@ use glam::{Mat4, Vec3};
 
 use super::Character;
 use super::character::{CharacterError, fail};
-use super::description::{ChainLayout, ColliderSpec, Description, LoosePart, SpringChain};
+use super::description::{ChainLayout, Description, LoosePart, SpringChain};
+use super::hanging::horizontal_spread;
 use super::locomotion::{angle_difference, heading};
 use super::rig::{Bone, Node, Transform};
 use super::springs::{Chain, Collider, SpringParams, SpringSystem, median_radius};
@@ -392,129 +393,6 @@ fn ring(points: &[Vec3], part: &LoosePart, back: f32) -> Layout {
     }
 }
 
-/// Below its parent joint by more than this share of the character's height, a rigid part
-/// hangs (a cape does; a helmet or a shoulder pad does not).
-const HANGS: f32 = 0.25;
-
-/// Across over along its widest direction, in standard deviations, under which a part is
-/// a sheet (a cape: 0.2) rather than a ring around its axis (a skirt: about 1).
-const FLAT: f32 = 0.5;
-
-/// Loose parts inferred from the file: a mesh that is not skinned but hangs from a skin
-/// joint it is parented to (KayKit's capes are such meshes, following their joint
-/// rigidly) gets spring chains, laid as a sheet or a ring by its shape. With any, the
-/// legs (waist to each foot) and the waist get colliders so that the part swings around
-/// them. Each part is named by its mesh.
-pub fn infer_loose_parts(
-    character: &Character,
-    waist: usize,
-    feet: &[usize],
-) -> (Vec<LoosePart>, Vec<ColliderSpec>) {
-    let rig = &character.rig;
-    let rest = rig.world(&rig.rest_pose(), Mat4::IDENTITY);
-    let rest_mesh = character.rest_mesh();
-    let height = rest_mesh.height();
-    let skinned = &character.skinned;
-    let is_joint = |n: usize| rig.bones.iter().any(|b| b.node == n);
-    let mut parts = Vec::new();
-    let mut names: Vec<&str> = skinned.parts.iter().map(|p| p.mesh.as_str()).collect();
-    names.dedup();
-    for name in names {
-        let vertices = skinned.select(Some(name), &[]);
-        // Rigid: every vertex wholly on the bone of the mesh's own node.
-        let Some(node) = vertices
-            .first()
-            .map(|&v| rig.bones[skinned.joints[v][0] as usize].node)
-        else {
-            continue;
-        };
-        let rigid = rig.nodes[node].name == name
-            && vertices.iter().all(|&v| {
-                skinned.weights[v][0] == 1.0
-                    && rig.bones[skinned.joints[v][0] as usize].node == node
-            });
-        let Some(parent) = rig.nodes[node].parent.filter(|&p| rigid && is_joint(p)) else {
-            continue;
-        };
-        let points: Vec<Vec3> = vertices.iter().map(|&v| rest_mesh.positions[v]).collect();
-        let bottom = points.iter().map(|p| p.y).fold(f32::MAX, f32::min);
-        if rest[parent].w_axis.y - bottom < HANGS * height {
-            continue;
-        }
-        let (_, _, along, across) = horizontal_spread(&points);
-        let (kind, chains) = if across < FLAT * along {
-            (ChainLayout::Sheet, 5)
-        } else {
-            (ChainLayout::Ring, 8)
-        };
-        parts.push(LoosePart {
-            name: name.to_string(),
-            kind,
-            mesh: Some(name.to_string()),
-            materials: Vec::new(),
-            parent_bone: name.to_string(),
-            chains,
-            segments: 4,
-            arc_degrees: 360.0,
-            stiffness: 1.0,
-            drag: 0.4,
-            gravity: 0.5,
-        });
-    }
-    if parts.is_empty() {
-        return (parts, Vec::new());
-    }
-    let mut colliders = vec![ColliderSpec {
-        bone: rig.nodes[waist].name.clone(),
-        to: None,
-        radius: None,
-    }];
-    for &foot in feet {
-        // Each leg bone from the foot up to (not including) the waist, as a capsule to
-        // the joint below it.
-        let mut below = foot;
-        while let Some(above) = rig.nodes[below].parent.filter(|&a| a != waist) {
-            colliders.push(ColliderSpec {
-                bone: rig.nodes[above].name.clone(),
-                to: Some(rig.nodes[below].name.clone()),
-                radius: None,
-            });
-            below = above;
-        }
-    }
-    (parts, colliders)
-}
-
-/// The horizontal centre of `points` and their widest horizontal direction (unit, in xz),
-/// with the standard deviations along it and across it.
-pub(crate) fn horizontal_spread(points: &[Vec3]) -> (Vec3, Vec3, f32, f32) {
-    let n = points.len().max(1) as f32;
-    let centre = points
-        .iter()
-        .map(|p| Vec3::new(p.x, 0.0, p.z))
-        .sum::<Vec3>()
-        / n;
-    let (mut xx, mut xz, mut zz) = (0.0f32, 0.0f32, 0.0f32);
-    for p in points {
-        let (x, z) = (p.x - centre.x, p.z - centre.z);
-        xx += x * x / n;
-        xz += x * z / n;
-        zz += z * z / n;
-    }
-    // The larger eigenvalue of [[xx, xz], [xz, zz]] and its eigenvector.
-    let half_trace = (xx + zz) / 2.0;
-    let root = (((xx - zz) / 2.0).powi(2) + xz * xz).sqrt();
-    let (major, minor) = (half_trace + root, (half_trace - root).max(0.0));
-    let axis = if xz.abs() > 1e-12 {
-        Vec3::new(xz, 0.0, major - xx).normalize()
-    } else if xx >= zz {
-        Vec3::X
-    } else {
-        Vec3::Z
-    };
-    (centre, axis, major.sqrt(), minor.sqrt())
-}
-
 /// Chains side by side across the part's widest horizontal direction, each from its top
 /// to its bottom; each joint sits at the mean depth of the part's vertices near it.
 fn sheet(points: &[Vec3], part: &LoosePart) -> Layout {
@@ -705,33 +583,6 @@ fn measured_radius(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn horizontal_spread_finds_the_widest_direction() {
-        // Points on a line at 45° between +x and +z, 1 m either side of (2, *, 3), with
-        // heights that must not count: the spread along is sqrt(mean(t²)), across 0.
-        let t = [-1.0f32, -0.5, 0.0, 0.5, 1.0];
-        let points: Vec<Vec3> = t
-            .iter()
-            .enumerate()
-            .map(|(i, &t)| Vec3::new(2.0 + t / 2f32.sqrt(), i as f32, 3.0 + t / 2f32.sqrt()))
-            .collect();
-        let (centre, axis, along, across) = horizontal_spread(&points);
-        assert!(
-            centre.abs_diff_eq(Vec3::new(2.0, 0.0, 3.0), 1e-5),
-            "{centre}"
-        );
-        let diagonal = Vec3::new(1.0, 0.0, 1.0).normalize();
-        assert!(axis.dot(diagonal).abs() > 1.0 - 1e-5, "{axis}");
-        let expected = (t.iter().map(|t| t * t).sum::<f32>() / 5.0).sqrt();
-        assert!(
-            (along - expected).abs() < 1e-5 && across < 1e-3,
-            "{along} {across}"
-        );
-        // Along an axis: the axis itself.
-        let flat = [Vec3::new(-1.0, 0.0, 0.0), Vec3::new(1.0, 5.0, 0.0)];
-        assert_eq!(horizontal_spread(&flat).1, Vec3::X);
-    }
 
     #[test]
     fn a_sheet_hangs_its_chains_evenly_across_the_part() {

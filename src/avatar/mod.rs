@@ -6,6 +6,7 @@ pub mod clip;
 pub mod description;
 pub mod gait;
 pub mod gltf_check;
+pub mod hanging;
 pub mod humanoid;
 pub mod load_error;
 pub mod locomotion;
