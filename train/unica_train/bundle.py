@@ -3,10 +3,10 @@ versioned `manifest.json` with the full model config, action names, normalisatio
 the position-map layout, per-pixel colours and the initial context of a standing start.
 Loading checks every tensor's name, shape and dtype and names the first that is wrong.
 The network weights and the PCA basis are stored as float16 (`HALF`), and of them the
-10-step UNet's weight arrays and the PCA basis as 8-bit integers with a float16 scale per
-group of 32 values (`QUANTISED`): the Witch's bundle is 43 MB in float32, 22 MB in float16,
-17 MB so. The VAE and the one-pass student stay float16: as int8 the Witch no longer
-stops (docs/experiments/int8-storage.md). Every reader widens them to float32 before use;
+10-step UNet's weight arrays, the VAE decoder's basis and the PCA basis as 8-bit integers
+with a float16 scale per group of 32 values (`QUANTISED`): the Witch's bundle is 43 MB in
+float32, 22 MB in float16, 14.5 MB so. The VAE's encoder and the one-pass student stay
+float16: as int8 the Witch no longer stops (docs/experiments/int8-storage.md). Every reader widens them to float32 before use;
 positions (`pca.mean`, `context.latents`) and colours stay float32. Quantising is
 idempotent (reading and writing a bundle again stores the same bytes), so the stages that
 rewrite a bundle lose nothing.
@@ -45,11 +45,12 @@ class BundleError(ValueError):
 HALF = ("vae.", "unet.", "student.", "refiner.", "pca.basis")
 # Of those, arrays of 2 or more dimensions stored as int8 with a float16 scale per group of
 # QUANT_GROUP consecutive values, in the tensor `<name>:scale` (src/tensors.rs reads them).
-# Not the VAE nor the one-pass student: as int8 they make the Witch creep after a release
-# (2 seeds x 4 stops: 8 of 8 stops never came, slide 0.17 m, against 13 of 24 and 0.057 m
-# in float16; docs/experiments/int8-storage.md). The PCA basis only shapes the drawn
-# points, and the 10-step UNet runs only with --steps N.
-QUANTISED = ("unet.", "pca.basis")
+# Not the VAE's encoder nor the one-pass student: as int8 the encoder makes the Witch
+# creep after a release (2 seeds x 4 stops: 8 of 8 stops never came, slide 0.16 m, against
+# 13 of 24 and 0.057 m in float16; docs/experiments/int8-storage.md), and the student
+# leaves some of that. The decoder's basis (its linear head to the map), the PCA basis
+# and the 10-step UNet as int8 stop as float16 does.
+QUANTISED = ("unet.", "pca.basis", "vae.decoder.basis")
 QUANT_GROUP = 32
 SCALE = ":scale"
 
