@@ -194,13 +194,13 @@ impl Shown {
         }
     }
 
-    /// The neural avatar of the bundle `dir`, loading on its worker; the teacher of
-    /// `character` beside it when that file loads.
     /// The bundle folder of the neural avatar shown, if any.
     pub fn bundle(&self) -> Option<&Path> {
         self.neural.as_ref().map(|n| n.dir.as_path())
     }
 
+    /// The neural avatar of the bundle `dir`, loading on its worker; the teacher of
+    /// `character` beside it when that file loads.
     pub fn neural(
         gpu: &GpuContext,
         renderer: &SceneRenderer,

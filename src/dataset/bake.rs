@@ -147,16 +147,15 @@ pub fn bake(
         render_every: renders.as_ref().map(|_| render_every),
         preview: options.preview,
     };
-    for batch in plan.chunks(workers).enumerate() {
-        let (b, entries) = batch;
+    for (b, entries) in plan.chunks(workers).enumerate() {
+        let first_index = b * workers;
         let runs: Vec<ClipRun> = std::thread::scope(|scope| {
             let handles: Vec<_> = entries
                 .iter()
                 .enumerate()
                 .map(|(k, &entry)| {
                     let (start, reference, wanted) = (&start, &reference, &wanted);
-                    let index = b * workers + k;
-                    scope.spawn(move || run_clip(start, reference, index, entry, wanted))
+                    scope.spawn(move || run_clip(start, reference, first_index + k, entry, wanted))
                 })
                 .collect();
             handles
@@ -164,9 +163,10 @@ pub fn bake(
                 .map(|h| h.join().expect("a clip's teacher run panicked"))
                 .collect()
         });
-        for (k, run) in runs.into_iter().enumerate() {
-            let index = b * workers + k;
-            let (first, second, first_frames, _) = entries[k];
+        for (k, (run, &(first, second, first_frames, _))) in
+            runs.into_iter().zip(entries).enumerate()
+        {
+            let index = first_index + k;
             if let Some(renders) = renders.as_mut() {
                 for (f, mesh, facing) in &run.renders {
                     renders.frame(index, *f, mesh, *facing)?;

@@ -211,17 +211,13 @@ def add_colors(directory: str | Path, data: str | Path) -> None:
     write_weights(d, tensors, json.loads((d / "manifest.json").read_text()))
 
 
-def standing_start(directory: str | Path, tensors: dict | None = None, seed: int = 0) -> dict[str, torch.Tensor]:
+def standing_start(directory: str | Path, seed: int = 0) -> dict[str, torch.Tensor]:
     """The bundle's first generated position map [6*3, H, W] from its standing start under
     Forward, with the teacher sampler (`ddim`) and, where it has one, the one-pass student
-    (`one_pass`), from the noise of `seed`; `tensors` replaces the stored weights."""
+    (`one_pass`), from the noise of `seed`."""
     from .diffusion import Schedule, sample_next, sampler_options
 
     vae, unet, extra, manifest = load(directory)
-    if tensors is not None:
-        vae.load_state_dict({k[4:]: v for k, v in tensors.items() if k.startswith("vae.")})
-        unet.load_state_dict({k[5:]: v for k, v in tensors.items() if k.startswith("unet.")})
-        extra = {k: v for k, v in tensors.items() if not k.startswith(("vae.", "unet."))}
     sampler, scale = manifest["sampler"], manifest["latent_scale"]
     context = extra["context.latents"][None]
     noise = torch.randn(context.shape[:1] + context.shape[2:], generator=torch.Generator().manual_seed(seed))
@@ -244,18 +240,16 @@ def store(directory: str | Path) -> list[str]:
     d = Path(directory)
     before = standing_start(d)
     tensors = read_weights(d / "weights.safetensors")
-    stored = {k: dequantise(*quantise(v)) if quantised(k, v) else (v.half().float() if k.startswith(HALF) and v.is_floating_point() else v)
-              for k, v in tensors.items()}
-    after = standing_start(d, stored)
     manifest = json.loads((d / "manifest.json").read_text())
-    pixels = stored["map.pixels"].long()
+    write_weights(d, tensors, manifest)
+    after = standing_start(d)
+    pixels = tensors["map.pixels"].long()
     mm = 1000 / manifest["normalisation"]["scale"]
     lines = []
     for name in before:
         change = (before[name] - after[name]).flatten(1)[:, pixels].abs()
         lines.append(f"{name}: standing-start map moved by at most {change.max():.2e} ({change.max() * mm:.2f} mm), "
                      f"mean {change.mean():.2e} ({change.mean() * mm:.3f} mm)")
-    write_weights(d, tensors, manifest)
     return lines
 
 

@@ -24,7 +24,6 @@ import argparse
 import csv
 import json
 import math
-import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -335,6 +334,7 @@ class Frames:
         self.keys = sorted(self.views)
         self.dir = Path(data) / "renders"
         self.size = size
+        self.device = torch.device("cpu")  # where `to` moved what a step reads
         self.unit, self.root = {}, {}
         mean, basis = extra["pca.mean"], extra["pca.basis"]
         with torch.no_grad():
@@ -384,7 +384,7 @@ class Frames:
         rgba = F.avg_pool2d(rgba.permute(2, 0, 1)[None], factor)[0].permute(1, 2, 0)
         k = view["camera"]
         cam = splats.Camera.orbit(k["target"], k["yaw"], k["pitch"], k["distance"], self.size, self.size)
-        rgba = rgba.to(getattr(self, "device", rgba.device))
+        rgba = rgba.to(self.device)
         return cam, torch.cat([splats.linear(rgba[..., :3]) * rgba[..., 3:], rgba[..., 3:]], -1)
 
 
@@ -463,19 +463,8 @@ def frame_generator(bundle: Path, data: Path, cfg: RefinerTrainConfig):
     return lambda clip, f, gen: teacher_forced(avatar, clip, f, gen)[0]
 
 
-def device_of(name: str, world: int) -> torch.device:
-    """The device a run trains on: `auto` is CUDA when PyTorch sees a GPU; under torchrun
-    each process takes the GPU of its LOCAL_RANK."""
-    if name == "auto":
-        name = "cuda" if torch.cuda.is_available() else "cpu"
-    device = torch.device(name)
-    if device.type == "cuda" and world > 1:
-        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
-    return device
-
-
 def train(args) -> dict:
-    from .train import distributed
+    from .train import distributed, leave_process_group, training_device
 
     cfg = train_config(args.config)
     if args.steps is not None:
@@ -483,11 +472,7 @@ def train(args) -> dict:
     if args.samples is not None:
         cfg.samples = args.samples
     rank, world = distributed(args.device)
-    device = device_of(args.device, world)
-    if device.type == "cuda":
-        torch.cuda.set_device(device)
-        torch.backends.cuda.matmul.allow_tf32 = False
-        torch.backends.cudnn.allow_tf32 = False
+    device = training_device(args.device, world)
     steps = cfg.total_steps(world)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
@@ -582,10 +567,7 @@ def train(args) -> dict:
         if done % cfg.checkpoint_every == 0 or done == steps:
             checkpoint_file.save({"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "gen": gen.get_state(), "step": done}, ckpt)
     if world > 1:
-        from .train import leave_process_group
-
-        if not leave_process_group(rank, world, model):
-            return {}
+        leave_process_group(rank, world, model)
     model = model.cpu().eval()
     frames.to(torch.device("cpu"))
     level = drawn_level(frames, cfg)
@@ -685,8 +667,7 @@ def main(argv=None):
                         help="no training: evaluate --bundle's own refiner on the held-out frames at the config's image size and splat level (OUT/refiner_eval.json)")
     args = parser.parse_args(argv)
     metrics = evaluate_bundle(args) if args.eval_only else train(args)
-    if metrics:
-        print(json.dumps(metrics, indent=2))
+    print(json.dumps(metrics, indent=2))
 
 
 if __name__ == "__main__":

@@ -119,14 +119,31 @@ def distributed(device: str = "auto") -> tuple[int, int]:
     return torch.distributed.get_rank(), world
 
 
+def training_device(name: str, world: int) -> torch.device:
+    """The device a trainer runs on (`name` as its --device; `auto` is CUDA when PyTorch
+    sees a GPU); under torchrun each process takes the GPU of its LOCAL_RANK. On CUDA,
+    full fp32 where no autocast is asked for: the encoder's latents are the UNet's targets
+    and the engine computes in fp32."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    device = torch.device(name)
+    if device.type == "cuda":
+        if world > 1:
+            device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+            torch.cuda.set_device(device)
+        torch.backends.cuda.matmul.allow_tf32 = False
+        torch.backends.cudnn.allow_tf32 = False
+    return device
+
+
 def checksum(module: torch.nn.Module) -> float:
     return float(sum(p.detach().double().sum() for p in module.parameters()))
 
 
-def leave_process_group(rank: int, world: int, *modules: torch.nn.Module) -> bool:
+def leave_process_group(rank: int, world: int, *modules: torch.nn.Module) -> None:
     """After data-parallel training: checks that every process ends with the same
-    parameters, leaves the process group, and returns True on the first process only
-    (which writes the results); the others should return."""
+    parameters and leaves the process group; only the first process (which writes the
+    results) returns, the others exit here."""
     sums = [None] * world
     torch.distributed.all_gather_object(sums, [checksum(m) for m in modules])
     if any(s != sums[0] for s in sums):
@@ -142,7 +159,6 @@ def leave_process_group(rank: int, world: int, *modules: torch.nn.Module) -> boo
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(0)
-    return True
 
 
 def extra_clips(main: BakedDataset, more: BakedDataset) -> list[dict]:
@@ -558,19 +574,11 @@ def main(argv=None):
         raise SystemExit(f"unica_train.train: {e}") from None
     rank, world = distributed(args.device)
     cfg.resolve_samples(world)
-    device = torch.device("cuda" if args.device == "auto" and torch.cuda.is_available() else ("cpu" if args.device == "auto" else args.device))
-    if device.type == "cuda" and world > 1:
-        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
-        torch.cuda.set_device(device)
+    device = training_device(args.device, world)
     (args.out / "checkpoints").mkdir(parents=True, exist_ok=True)
     if rank == 0:
         (args.out / "config.json").write_text(json.dumps(asdict(cfg), indent=2) + "\n")
     torch.manual_seed(cfg.seed)  # the same initial weights on every rank
-    if device.type == "cuda":
-        # Full fp32 where no autocast is asked for: the encoder's latents are the UNet's
-        # targets and the engine computes them in fp32.
-        torch.backends.cuda.matmul.allow_tf32 = False
-        torch.backends.cudnn.allow_tf32 = False
     try:
         run = Run(args.data, args.out, cfg, device, rank, world, init, args.extra_data)
     except DatasetError as e:
