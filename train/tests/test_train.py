@@ -5,6 +5,7 @@ import json
 
 import pytest
 import torch
+from safetensors.torch import load_file
 
 from unica_train import bundle
 from unica_train.train import main, parse_keys
@@ -60,7 +61,15 @@ def test_training_with_a_pca_head_decoder_writes_its_basis(quick_dataset_dir, tm
     assert manifest["vae"]["decoder"] == "pca" and manifest["vae"]["components"] == 6
     assert torch.equal(vae.decoder.pixels, extra["map.pixels"])
     basis = vae.decoder.basis
-    torch.testing.assert_close(basis @ basis.T, torch.eye(6), atol=1e-4, rtol=0)
+    # Stored as int8: each value is within half its group's step of the orthonormal basis
+    # the trainer made, so row i moves at most r_i = |half steps of row i| and
+    # |B B^T - I|_ij <= r_i + r_j + r_i r_j.
+    scale = load_file(str(tmp_path / "run" / "bundle" / "weights.safetensors"))["vae.decoder.basis" + bundle.SCALE]
+    step = scale.float().repeat_interleave(bundle.QUANT_GROUP)[: basis.numel()].reshape(basis.shape)
+    r = (step / 2).square().sum(1).sqrt()
+    bound = r[:, None] + r[None, :] + r[:, None] * r[None, :]
+    assert ((basis @ basis.T - torch.eye(6)).abs() <= bound + 1e-6).all()
+    assert bound.max() < 0.02, "the int8 steps are too coarse to call this basis orthonormal"
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert metrics["vae_decoder_gflop"] > 2 * basis.numel() / 1e9
 
