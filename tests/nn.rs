@@ -481,7 +481,7 @@ fn action(f: &Fixture) -> usize {
 #[test]
 fn a_whole_unet_step_matches_pytorch() {
     for precision in precisions() {
-        let mut f = Fixture::open("unet_step", precision);
+        let mut f = Fixture::open("tiny_unet", precision);
         let (x, t, a) = (f.input("io.in.x"), f.stored("io.in.t").0, action(&f));
         let (mut r, w) = f.recorder();
         let unet = UNet::load(&w, &UNetConfig::TINY).unwrap();
@@ -495,7 +495,7 @@ fn a_whole_unet_step_matches_pytorch() {
 #[test]
 fn the_cached_context_path_gives_the_whole_groups_target_noise() {
     // Context frames once, then the target alone, against PyTorch's full 4-frame pass.
-    let mut f = Fixture::open("unet_step", Precision::F32);
+    let mut f = Fixture::open("tiny_unet", Precision::F32);
     let (x, shape) = f.stored("io.in.x");
     let frame = x.len() / 4;
     let context = Tensor::upload(
@@ -545,7 +545,7 @@ fn the_schedule_matches_pytorch() {
 #[test]
 fn a_ddim_step_with_classifier_free_guidance_matches_pytorch() {
     for precision in precisions() {
-        let mut f = Fixture::open("ddim_cfg_step", precision);
+        let mut f = Fixture::open("tiny_unet", precision);
         let (x, shape) = f.stored("io.in.x");
         let frame = x.len() / 4;
         let context = Tensor::upload(
@@ -582,7 +582,7 @@ fn a_ddim_step_with_classifier_free_guidance_matches_pytorch() {
         let x_prev = r.axpby(ca, &target, 0, cb, &eps, 0, &target.shape).unwrap();
         r.submit();
         let tolerance = tolerances(precision).1;
-        f.assert_close(&eps, "io.out.eps", tolerance);
+        f.assert_close(&eps, "io.out.guided_eps", tolerance);
         f.assert_close(&x_prev, "io.out.x_prev", tolerance);
     }
 }
@@ -590,7 +590,7 @@ fn a_ddim_step_with_classifier_free_guidance_matches_pytorch() {
 #[test]
 fn a_four_step_ddim_sample_matches_pytorch() {
     for precision in precisions() {
-        let mut f = Fixture::open("ddim_sample_4", precision);
+        let mut f = Fixture::open("tiny_unet", precision);
         let (context, noise, a) = (f.input("io.in.context"), f.input("io.in.noise"), action(&f));
         let sampling = Sampling::new(
             f.scalar("io.in.steps") as usize,
@@ -731,7 +731,7 @@ fn the_recorded_flops_agree_with_the_trainers_counter() {
     // its output, which depend only on the timesteps: they run once when the work is
     // recorded (2·32·32 twice, and 2·32·(16+32+32+32+32+16), per frame: 57,344 for 4
     // frames). The decoder agrees exactly.
-    let mut f = Fixture::open("unet_step", Precision::F32);
+    let mut f = Fixture::open("tiny_unet", Precision::F32);
     let (x, t, a) = (f.input("io.in.x"), f.stored("io.in.t").0, action(&f));
     let (mut r, w) = f.recorder();
     let unet = UNet::load(&w, &UNetConfig::TINY).unwrap();

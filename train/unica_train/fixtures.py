@@ -1,8 +1,8 @@
 """Parity fixtures for the WGSL engine: for a tiny random-weight configuration, the inputs,
 weights and outputs of every module kind (VAE encoder and decoder, each UNet block kind,
-the timestep embedding, a whole UNet step, a DDIM step with CFG, a 4-step DDIM sample from
-fixed noise, the PCA projection) as small safetensors files; and one generated frame of
-the shipped Witch bundle (assets/witch/bundle) with its sampler defaults, so the engine is
+the timestep embedding, a whole UNet step, a DDIM step with CFG and a 4-step DDIM sample
+from fixed noise (one file, `tiny_unet`), the PCA projection) as small safetensors files;
+and one generated frame of the shipped Witch bundle (assets/witch/bundle) with its sampler defaults, so the engine is
 pinned on real weights too.
 
     python -m unica_train.fixtures --out tests/fixtures/nn
@@ -78,11 +78,13 @@ def build() -> dict[str, dict[str, torch.Tensor]]:
         noise = rand(1, 4, 16, 16)
         sample = sample_next(unet, schedule, x[:, :3], action, steps=4, cfg_scale=2.0, noise=noise)
     weights = unet.state_dict()
-    files["unet_step"] = {"io.in.x": x, "io.in.t": t.float(), "io.in.action": action.float(), "io.out.eps": eps, **weights}
-    files["ddim_cfg_step"] = {"io.in.x": x, "io.in.t": t.float(), "io.in.action": action.float(), "io.in.cfg_scale": torch.tensor([2.0]),
-                              "io.in.t_prev": torch.tensor([600.0]), "io.out.eps": guided, "io.out.x_prev": stepped, **weights}
-    files["ddim_sample_4"] = {"io.in.context": x[:, :3], "io.in.noise": noise, "io.in.action": action.float(), "io.in.cfg_scale": torch.tensor([2.0]),
-                              "io.in.steps": torch.tensor([4.0]), "io.out.x0": sample, **weights}
+    # One file for the tiny UNet's three fixtures, so its weights are stored once: a
+    # step's eps; a DDIM step with CFG (its guided eps and x_prev); a 4-step sample.
+    files["tiny_unet"] = {"io.in.x": x, "io.in.t": t.float(), "io.in.action": action.float(), "io.out.eps": eps,
+                          "io.in.cfg_scale": torch.tensor([2.0]), "io.in.t_prev": torch.tensor([600.0]),
+                          "io.out.guided_eps": guided, "io.out.x_prev": stepped,
+                          "io.in.context": x[:, :3].clone(), "io.in.noise": noise, "io.in.steps": torch.tensor([4.0]),
+                          "io.out.x0": sample, **weights}
     data = rand(40, 30)
     mean, basis = pca.fit(data, 5)
     query = rand(3, 30)
