@@ -2,8 +2,9 @@
 //! reading checks each tensor's dtype and shape and names the file and tensor when wrong.
 //! A float tensor stored as F16, or as I8 with an F16 scale per group of [`QUANT_GROUP`]
 //! consecutive values (the last group shorter) in the tensor `<name>:scale` (the shipped
-//! bundles' weights, to fit two avatars in the clone), is read as f32: every stage
-//! computes in f32 from the widened values.
+//! bundles' weights, to fit two avatars in the clone), or as an I8 difference from another
+//! tensor ([`DELTA_OF`]), is read as f32: every stage computes in f32 from the widened
+//! values.
 
 use std::path::{Path, PathBuf};
 
@@ -17,6 +18,24 @@ pub const QUANT_GROUP: usize = 32;
 /// The name of an I8 tensor's scales.
 pub fn scale_name(name: &str) -> String {
     format!("{name}:scale")
+}
+
+/// Tensors stored as an I8 difference from another (prefix, its base's prefix): the
+/// one-pass student's from the 10-step UNet's array of the same name, its scales in
+/// `<name>:delta` (`DELTA_OF` in `train/unica_train/bundle.py`).
+pub const DELTA_OF: &[(&str, &str)] = &[("student.", "unet.")];
+
+/// The name of an I8 difference's scales.
+pub fn delta_name(name: &str) -> String {
+    format!("{name}:delta")
+}
+
+/// The tensor that `name` is stored as a difference from, if any.
+fn delta_base(name: &str) -> Option<String> {
+    DELTA_OF.iter().find_map(|(prefix, base)| {
+        name.strip_prefix(prefix)
+            .map(|rest| format!("{base}{rest}"))
+    })
 }
 
 /// A tensor to write: dtype, shape and little-endian bytes.
@@ -178,7 +197,8 @@ impl TensorFile {
         Ok((view.data().to_vec(), view.dtype(), found.to_vec()))
     }
 
-    /// An F32 tensor, or an F16 one widened to f32, or an I8 one times its scales.
+    /// An F32 tensor, or an F16 one widened to f32, or an I8 one times its scales (added
+    /// to its base where it is stored as a difference, [`DELTA_OF`]).
     pub fn f32(
         &self,
         name: &str,
@@ -190,14 +210,29 @@ impl TensorFile {
             Dtype::F16 => widen(&bytes),
             Dtype::I8 => {
                 let groups = bytes.len().div_ceil(QUANT_GROUP);
-                let (scales, _) = self
-                    .read_any(&scale_name(name), &[Dtype::F16], &[Some(groups)])
-                    .map(|(b, _, f)| (widen(&b), f))?;
-                bytes
+                let delta = self.contains(&delta_name(name));
+                let scales_of = if delta {
+                    delta_name(name)
+                } else {
+                    scale_name(name)
+                };
+                let scales = widen(&self.read_any(&scales_of, &[Dtype::F16], &[Some(groups)])?.0);
+                let mut values: Vec<f32> = bytes
                     .iter()
                     .enumerate()
                     .map(|(i, &q)| f32::from(q as i8) * scales[i / QUANT_GROUP])
-                    .collect()
+                    .collect();
+                if delta {
+                    let base = delta_base(name).ok_or_else(|| {
+                        self.fail(format!(
+                            "tensor '{name}' is stored as a difference from nothing"
+                        ))
+                    })?;
+                    let wanted: Vec<_> = found.iter().map(|&n| Some(n)).collect();
+                    let (base, _) = self.f32(&base, &wanted)?;
+                    values.iter_mut().zip(base).for_each(|(v, b)| *v += b);
+                }
+                values
             }
             _ => bytemuck::pod_collect_to_vec(&bytes),
         };
@@ -348,5 +383,56 @@ mod tests {
                 .to_string()
                 .contains("not a safetensors file")
         );
+    }
+
+    #[test]
+    fn a_difference_is_added_to_its_base() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("d.safetensors");
+        let int8 = |q: &[i8]| TensorData {
+            dtype: Dtype::I8,
+            shape: vec![2, 16],
+            data: bytemuck::cast_slice(q).to_vec(),
+        };
+        // One group of 32; 0x3800 = 0.5 and 0x3400 = 0.25.
+        let half = |h: u16| TensorData {
+            dtype: Dtype::F16,
+            shape: vec![1],
+            data: bytemuck::cast_slice(&[h]).to_vec(),
+        };
+        let base: Vec<i8> = vec![2; 32];
+        let diff: Vec<i8> = (0..32).map(|i| if i % 2 == 0 { 1 } else { -3 }).collect();
+        write(
+            &path,
+            &[
+                ("unet.w", int8(&base)),
+                ("unet.w:scale", half(0x3800)),
+                ("student.w", int8(&diff)),
+                ("student.w:delta", half(0x3400)),
+            ],
+        )
+        .unwrap();
+        let file = TensorFile::open(&path).unwrap();
+        let (values, shape) = file.f32("student.w", &[Some(2), Some(16)]).unwrap();
+        assert_eq!(shape, vec![2, 16]);
+        let expected: Vec<f32> = (0..32)
+            .map(|i| if i % 2 == 0 { 1.25 } else { 0.25 })
+            .collect();
+        assert_eq!(values, expected);
+        // Without its base, the error names the missing tensor.
+        write(
+            &path,
+            &[
+                ("student.w", int8(&diff)),
+                ("student.w:delta", half(0x3400)),
+            ],
+        )
+        .unwrap();
+        let e = TensorFile::open(&path)
+            .unwrap()
+            .f32("student.w", &[None, None])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("'unet.w' is missing"), "{e}");
     }
 }

@@ -5,8 +5,9 @@ Loading checks every tensor's name, shape and dtype and names the first that is 
 The network weights and the PCA basis are stored as float16 (`HALF`), and of them the
 10-step UNet's weight arrays, the VAE decoder's basis and the PCA basis as 8-bit integers
 with a float16 scale per group of 32 values (`QUANTISED`): the Witch's bundle is 43 MB in
-float32, 22 MB in float16, 14.5 MB so. The VAE's encoder and the one-pass student stay
-float16: as int8 the Witch no longer stops (docs/experiments/int8-storage.md). Every reader widens them to float32 before use;
+float32, 22 MB in float16, 14.5 MB so. The VAE's encoder stays float16: as int8 the Witch no longer stops
+(docs/experiments/int8-storage.md). The one-pass student's weight arrays are int8 too, as
+their difference from the UNet's (`DELTA_OF`). Every reader widens them to float32 before use;
 positions (`pca.mean`, `context.latents`) and colours stay float32. Quantising is
 idempotent (reading and writing a bundle again stores the same bytes), so the stages that
 rewrite a bundle lose nothing.
@@ -24,11 +25,13 @@ standing-start frame moved."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import torch
 import torch.nn.functional as F
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
+from safetensors.torch import save as safetensors_bytes
 
 from .unet import UNet, UNetConfig
 from .vae import PositionVae, VaeConfig
@@ -47,12 +50,27 @@ HALF = ("vae.", "unet.", "student.", "refiner.", "pca.basis")
 # QUANT_GROUP consecutive values, in the tensor `<name>:scale` (src/tensors.rs reads them).
 # Not the VAE's encoder nor the one-pass student: as int8 the encoder makes the Witch
 # creep after a release (2 seeds x 4 stops: 8 of 8 stops never came, slide 0.16 m, against
-# 13 of 24 and 0.057 m in float16; docs/experiments/int8-storage.md), and the student
-# leaves some of that. The decoder's basis (its linear head to the map), the PCA basis
+# 13 of 24 and 0.057 m in float16; docs/experiments/int8-storage.md), and the student's
+# own values as int8 leave some of that (its difference from the UNet is stored instead:
+# `DELTA_OF`). The decoder's basis (its linear head to the map), the PCA basis
 # and the 10-step UNet as int8 stop as float16 does.
 QUANTISED = ("unet.", "pca.basis", "vae.decoder.basis")
 QUANT_GROUP = 32
 SCALE = ":scale"
+# The one-pass student is distilled from the 10-step UNet and differs from it by 1.5 % of
+# its weights (the Witch), so its weight arrays are stored as int8 of their difference
+# from the UNet's array of the same name as read back, with the scales in `NAME:delta`:
+# that difference's int8 step is far finer than the student's own would be.
+DELTA_OF = {"student.": "unet."}
+DELTA = ":delta"
+
+
+def delta_base(name: str) -> str | None:
+    """The tensor a `DELTA_OF` tensor is stored as a difference from, else None."""
+    for prefix, base in DELTA_OF.items():
+        if name.startswith(prefix):
+            return base + name[len(prefix):]
+    return None
 
 
 def _groups(flat: torch.Tensor) -> torch.Tensor:
@@ -82,17 +100,30 @@ def quantised(name: str, v: torch.Tensor) -> bool:
 
 
 def read_weights(path: str | Path) -> dict:
-    """A bundle's tensors, float16 and int8 ones widened to float32."""
+    """A bundle's tensors, float16 and int8 ones widened to float32 (a difference stored
+    under `DELTA` added to its base)."""
     raw = load_file(str(path))
     out = {}
-    for k, v in raw.items():
-        if k.endswith(SCALE):
-            continue
-        if v.dtype == torch.int8:
+
+    def read(k: str) -> torch.Tensor:
+        if k in out:
+            return out[k]
+        v = raw[k]
+        if v.dtype == torch.int8 and k + DELTA in raw:
+            base = delta_base(k)
+            if base is None or base not in raw or raw[base].shape != v.shape:
+                raise BundleError(f"{path}: tensor '{k}' is stored as a difference but has no base of its shape")
+            v = read(base) + dequantise(v, raw[k + DELTA])
+        elif v.dtype == torch.int8:
             if k + SCALE not in raw:
                 raise BundleError(f"{path}: tensor '{k}{SCALE}' is missing")
             v = dequantise(v, raw[k + SCALE])
         out[k] = v.float() if v.dtype == torch.float16 else v
+        return out[k]
+
+    for k in raw:
+        if not k.endswith((SCALE, DELTA)):
+            read(k)
     return out
 
 
@@ -109,12 +140,33 @@ def write_weights(directory: str | Path, tensors: dict, manifest: dict) -> None:
             stored[k] = v.half()
         else:
             stored[k] = v
+    for k, v in tensors.items():
+        base = delta_base(k)
+        if base in stored and k + SCALE not in stored and v.dim() >= 2 and stored[base].shape == v.shape:
+            stored[k], stored[k + DELTA] = quantise(v.float() - _read_back(base, stored))
     stored = {k: v.detach().contiguous().cpu() for k, v in stored.items()}
     manifest = dict(manifest)
     manifest["tensors"] = {k: {"shape": list(v.shape), "dtype": str(v.dtype).removeprefix("torch.")}
                            for k, v in sorted(stored.items())}
-    save_file(stored, str(d / "weights.safetensors"))
-    (d / "manifest.json").write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+    _replace(d / "weights.safetensors", safetensors_bytes(stored))
+    _replace(d / "manifest.json", (json.dumps(manifest, indent=2, sort_keys=True) + "\n").encode())
+
+
+def _read_back(name: str, stored: dict) -> torch.Tensor:
+    """A tensor as a reader will widen it from `stored` (no difference: bases are not)."""
+    v = stored[name]
+    return dequantise(v, stored[name + SCALE]) if v.dtype == torch.int8 else v.float()
+
+
+def _replace(path: Path, data: bytes) -> None:
+    """Writes `data` to a synced temporary file beside `path` and renames it over `path`,
+    so a reader sees the old file or the new one, never half of one."""
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
 
 
 def _tensors(vae: PositionVae, unet: UNet, extra: dict) -> dict:
