@@ -650,7 +650,14 @@ fn the_shipped_witch_bundle_generates_and_decodes_what_pytorch_does() {
             .unwrap();
         let map = bundle.decode(&mut r, &z).unwrap();
         r.submit();
-        let tolerance = tolerances(precision).1;
+        // In f16 storage a trained model's frame is further off than the tiny models':
+        // its latents are ~3 in size and the student's weights (an int8 difference added
+        // to the UNet's) are rounded to 11 bits on upload. Measured on lavapipe: z 0.4e-3
+        // to 5.2e-3, map 3e-4. 1e-2 is still 100x below an indexing error.
+        let tolerance = match precision {
+            Precision::F32 => tolerances(precision).1,
+            Precision::F16 => 1e-2,
+        };
         f.assert_close(&z, "io.out.z", tolerance);
         f.assert_close(&map, "io.out.map", tolerance);
     }
