@@ -218,6 +218,11 @@ def test_export_import_round_trip(tmp_path):
     assert {"encoder.embed.0.weight", "encoder.latents", "encoder.cross.kv.weight", "encoder.self.qkv.bias", "decoder.tok_emb",
             "decoder.pos_emb", "decoder.blocks.1.mlp.fc2.weight", "decoder.head.bias"} <= keys
     assert rig.load(tmp_path, "skeleton")[0].decoder.tok_emb.equal(model.decoder.tok_emb)
+    # As shipped: float16, read back widened to float32.
+    rig.export(model, tmp_path, "skeleton", {}, half=True)
+    assert load_file(str(tmp_path / "skeleton.safetensors"))["decoder.tok_emb"].dtype == torch.float16
+    loaded = rig.load(tmp_path, "skeleton")[0].decoder.tok_emb
+    assert loaded.dtype == torch.float32 and loaded.equal(model.decoder.tok_emb.half().float())
 
 
 def test_committed_autorig_fixtures_are_current():

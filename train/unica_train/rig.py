@@ -344,10 +344,13 @@ def build(kind: str, arch: dict) -> nn.Module:
     return SkeletonModel(SkeletonConfig(**arch)) if kind == "skeleton" else SkinModel(SkinConfig(**arch))
 
 
-def export(model: nn.Module, run: Path, kind: str, extra: dict) -> None:
-    """RUN/{kind}.safetensors (f32) and RUN/{kind}_config.json (architecture at the top
-    level, where the Rust loader reads it, plus `extra`)."""
-    weights = {k: v.detach().float().cpu().contiguous() for k, v in model.state_dict().items()}
+def export(model: nn.Module, run: Path, kind: str, extra: dict, half: bool = False) -> None:
+    """RUN/{kind}.safetensors (f32, or f16 with `half`: what ships, half the size, and
+    `unica rig` writes the Witch's rig with the same stretches either way) and
+    RUN/{kind}_config.json (architecture at the top level, where the Rust loader reads
+    it, plus `extra`). Both loaders widen f16 to f32."""
+    dtype = torch.float16 if half else torch.float32
+    weights = {k: v.detach().to(dtype).cpu().contiguous() for k, v in model.state_dict().items()}
     save_file(weights, str(run / f"{kind}.safetensors"))
     (run / f"{kind}_config.json").write_text(json.dumps({"kind": kind, **asdict(model.cfg), **extra}, indent=2) + "\n")
 
@@ -510,7 +513,7 @@ def train(args) -> dict:
                       + f" ({rate:.2f} steps/s, {(args.steps - done) / rate / 60:.1f} min left)", flush=True)
             if done % CHECKPOINT_EVERY == 0 or done == args.steps:
                 checkpoint_file.save({"model": model.state_dict(), "opt": opt.state_dict(), "gen": gen.get_state(), "step": done, "extra": extra}, checkpoint)
-    export(model, run, kind, extra)
+    export(model, run, kind, extra, half=True)
     write_curve(losses, run / f"{kind}_curve.png")
     result = {}
     if held_idx:
