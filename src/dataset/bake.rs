@@ -349,17 +349,22 @@ impl PngWriter {
         }
     }
 
-    fn write(&self, path: PathBuf, image: image::RgbaImage) -> anyhow::Result<()> {
+    fn write(&mut self, path: PathBuf, image: image::RgbaImage) -> anyhow::Result<()> {
         let queue = self.queue.as_ref().expect("writing before finish");
         if queue.send((path, image)).is_err() {
-            // A worker stopped on an error: finish() reports it.
-            anyhow::bail!("a PNG could not be written (see the next error)");
+            // Every worker stopped, on an error: report the first, naming its file.
+            self.join()?;
+            anyhow::bail!("the PNG writers stopped");
         }
         Ok(())
     }
 
     /// Waits for every PNG; the first error, if any.
     fn finish(mut self) -> anyhow::Result<()> {
+        Ok(self.join()?)
+    }
+
+    fn join(&mut self) -> Result<(), crate::files::WriteError> {
         drop(self.queue.take());
         let mut first = Ok(());
         for worker in self.workers.drain(..) {
@@ -368,7 +373,7 @@ impl PngWriter {
                 first = result;
             }
         }
-        Ok(first?)
+        first
     }
 }
 
