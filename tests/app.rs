@@ -401,6 +401,35 @@ fn recording_into_an_unusable_folder_fails_a_scripted_run() {
 }
 
 #[test]
+fn recording_onto_a_full_disk_fails_a_scripted_run_and_keeps_whole_frames() {
+    // A 1280×800 frame is a few hundred KB: a 1 MB tmpfs fills after a few.
+    let disk = common::SmallDisk::mount("1m");
+    let frames = disk.path.join("rec");
+    let witch = witch();
+    let out = unica(
+        &[
+            "--character",
+            witch.to_str().unwrap(),
+            "--keys",
+            "40W",
+            "--record",
+            "--record-dir",
+            frames.to_str().unwrap(),
+            "--exit-after",
+            "40",
+        ],
+        &[],
+    );
+    assert_scripted_failure(&out, "No space left on device");
+    assert!(common::error_line(&out).contains(&disk.path.display().to_string()));
+    let files = common::assert_all_whole(&frames);
+    assert!(
+        files > 1,
+        "some frames should be written before the disk fills"
+    );
+}
+
+#[test]
 fn a_bundle_whose_weights_fail_to_load_fails_a_scripted_run() {
     let dir = tempfile::tempdir().unwrap();
     let bundle = dir.path().join("bundle");

@@ -43,3 +43,77 @@ pub fn error_line(out: &std::process::Output) -> String {
     assert_eq!(ours.len(), 1, "{err}");
     ours[0].to_string()
 }
+
+/// A tmpfs of `size` mounted on a fresh folder, unmounted when dropped.
+pub struct SmallDisk {
+    _parent: tempfile::TempDir,
+    pub path: PathBuf,
+}
+
+impl SmallDisk {
+    pub fn mount(size: &str) -> Self {
+        let parent = tempfile::tempdir().unwrap();
+        let path = parent.path().join("disk");
+        std::fs::create_dir(&path).unwrap();
+        let out = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={size}"), "tmpfs"])
+            .arg(&path)
+            .output()
+            .expect("mount runs");
+        assert!(
+            out.status.success(),
+            "these tests mount a small tmpfs and need root (CI runs as root): {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        Self {
+            _parent: parent,
+            path,
+        }
+    }
+}
+
+impl Drop for SmallDisk {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount")
+            .arg(&self.path)
+            .status();
+    }
+}
+
+/// Every file under `dir` is whole: none is a temporary, and each PNG, JSON and
+/// safetensors file reads. Returns how many files there are.
+pub fn assert_all_whole(dir: &Path) -> usize {
+    let mut count = 0;
+    let mut folders = vec![dir.to_path_buf()];
+    while let Some(folder) = folders.pop() {
+        for entry in std::fs::read_dir(&folder).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                folders.push(path);
+                continue;
+            }
+            count += 1;
+            let name = path.display().to_string();
+            assert!(!name.ends_with(".tmp"), "a temporary was left: {name}");
+            match path.extension().and_then(|e| e.to_str()) {
+                Some("png") => {
+                    image::open(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+                }
+                Some("json") => {
+                    let text = std::fs::read_to_string(&path).unwrap();
+                    serde_json::from_str::<serde_json::Value>(&text)
+                        .unwrap_or_else(|e| panic!("{name}: {e}"));
+                }
+                Some("safetensors") => {
+                    unica::tensors::TensorFile::open(&path)
+                        .unwrap_or_else(|e| panic!("{name}: {e}"));
+                }
+                Some("ply") => {
+                    unica::splat::ply::read(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+                }
+                _ => {}
+            }
+        }
+    }
+    count
+}
