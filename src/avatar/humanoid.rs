@@ -163,6 +163,27 @@ pub fn find(rig: &Rig, vrm: Option<&Vrm>, template: &str) -> Option<usize> {
     find_all(rig, vrm, &[template])[0]
 }
 
+/// As [`find`], then, where that finds nothing, the first node whose name equals one of
+/// the bone's names with `.`, `-` and spaces read as `_` (a Rigify-style `hand.l` is
+/// Unreal's `hand_l`). For lookups that only place something, such as a crop.
+pub fn find_loosely(rig: &Rig, vrm: Option<&Vrm>, template: &str) -> Option<usize> {
+    let loose = |name: &str| plain(name).replace(['.', '-', ' '], "_");
+    find(rig, vrm, template).or_else(|| {
+        let names = table().into_iter().find(|n| n.template == template)?;
+        let wanted: Vec<String> = [
+            Some(names.template),
+            names.vrm,
+            Some(names.mixamo),
+            names.unreal,
+        ]
+        .iter()
+        .flatten()
+        .map(|n| loose(n))
+        .collect();
+        (0..rig.nodes.len()).find(|&n| wanted.contains(&loose(&rig.nodes[n].name)))
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -181,6 +202,19 @@ mod tests {
                 .collect(),
             bones: Vec::new(),
         }
+    }
+
+    #[test]
+    fn a_loose_lookup_reads_dots_as_underscores() {
+        // Rigify-style names: `wrist.l` is the template's `Wrist.L` and `hand.l` is
+        // Unreal's `hand_l`, read loosely; the template's own name comes first.
+        let r = rig(&["root", "hips", "wrist.l", "hand.l", "head"]);
+        assert_eq!(find(&r, None, "Wrist.L"), None);
+        assert_eq!(find_loosely(&r, None, "Wrist.L"), Some(2));
+        let r = rig(&["root", "hips", "hand.l", "head"]);
+        assert_eq!(find_loosely(&r, None, "Wrist.L"), Some(2));
+        assert_eq!(find_loosely(&r, None, "Head"), Some(3));
+        assert_eq!(find_loosely(&r, None, "Wrist.R"), None);
     }
 
     #[test]

@@ -216,14 +216,13 @@ pub fn run(
     let mut teacher = Teacher::new(loaded, description)?;
     let reference = Reference::new(&teacher)?;
     let find = |name: &str| {
-        humanoid::find(&teacher.character.rig, teacher.character.vrm.as_ref(), name).ok_or_else(
-            || {
+        humanoid::find_loosely(&teacher.character.rig, teacher.character.vrm.as_ref(), name)
+            .ok_or_else(|| {
                 anyhow::anyhow!(
                     "{}: no {name} joint found for the face and hand crops",
                     options.character.display()
                 )
-            },
-        )
+            })
     };
     let joints = [find("Head")?, find("Wrist.L")?, find("Wrist.R")?];
     let indices = teacher.character.skinned.bind.indices.clone();
