@@ -244,6 +244,40 @@ fn the_neural_witch_is_generated_and_drawn_while_the_window_yields() {
 }
 
 #[test]
+fn the_shipped_knight_plays_beside_its_teacher() {
+    // The second shipped avatar, as View → Avatar opens it: its bundle plays beside its
+    // teacher, is generated and drawn, and covers part of the viewport.
+    let dir = tempfile::tempdir().unwrap();
+    let shot = dir.path().join("knight.png");
+    let bundle = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/knight/bundle");
+    let out = unica(
+        &[
+            "--bundle",
+            bundle.to_str().unwrap(),
+            "--keys",
+            "2I 100W",
+            "--screenshot",
+            shot.to_str().unwrap(),
+            "--exit-after-seconds",
+            "30",
+        ],
+        &[],
+    );
+    let stdout = check(&out);
+    assert!(
+        stdout.contains("; teacher Knight beside;"),
+        "the shipped Knight plays without its teacher: {stdout}"
+    );
+    assert!(!stdout.contains("; 0 generated frames"), "{stdout}");
+    let (_, covered) = viewport_stats(&shot);
+    assert!(
+        covered > 0.02,
+        "the avatars cover only {:.2}% of the viewport",
+        covered * 100.0
+    );
+}
+
+#[test]
 fn view_shows_a_3dgs_file_written_by_another_program() {
     // An ASCII PLY in another property order with doubles and extra SH coefficients:
     // a 10 × 10 × 10 grid of grey-blue splats 1 m across.
