@@ -8,16 +8,12 @@ import subprocess
 import sys
 import time
 
+from test_train import TINY
 from unica_train import bundle
 
-# A tiny model with enough steps (checkpoints every 5) that a kill can land in each stage.
-SMALL = {
-    "vae": {"channels": [16, 12, 8, 8], "latent": 4, "kl_weight": 1e-6},
-    "unet": {"latent": 4, "channels": [16, 32], "embed": 32, "heads": 2, "frames": 4, "actions": 5},
-    "vae_steps": 20, "vae_batch": 2, "unet_steps": 20, "stage2_steps": 5, "unet_batch": 2,
-    "pca_components": 8, "pca_frames": 20, "held_out_clips": [2], "rollout_frames": 3,
-    "ddim_steps": 2, "checkpoint_every": 5,
-}
+# test_train's tiny model with enough steps (checkpoints every 5) that a kill can land in
+# each stage.
+SMALL = {**TINY, "vae_steps": 20, "unet_steps": 20, "stage2_steps": 5, "checkpoint_every": 5}
 
 
 def command(data, out, config, resume=False):

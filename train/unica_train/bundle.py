@@ -148,8 +148,8 @@ def write_weights(directory: str | Path, tensors: dict, manifest: dict) -> None:
     manifest = dict(manifest)
     manifest["tensors"] = {k: {"shape": list(v.shape), "dtype": str(v.dtype).removeprefix("torch.")}
                            for k, v in sorted(stored.items())}
-    _replace(d / "weights.safetensors", safetensors_bytes(stored))
-    _replace(d / "manifest.json", (json.dumps(manifest, indent=2, sort_keys=True) + "\n").encode())
+    write_file_atomic(d / "weights.safetensors", safetensors_bytes(stored))
+    write_file_atomic(d / "manifest.json", (json.dumps(manifest, indent=2, sort_keys=True) + "\n").encode())
 
 
 def _read_back(name: str, stored: dict) -> torch.Tensor:
@@ -158,7 +158,7 @@ def _read_back(name: str, stored: dict) -> torch.Tensor:
     return dequantise(v, stored[name + SCALE]) if v.dtype == torch.int8 else v.float()
 
 
-def _replace(path: Path, data: bytes) -> None:
+def write_file_atomic(path: Path, data: bytes) -> None:
     """Writes `data` to a synced temporary file beside `path` and renames it over `path`,
     so a reader sees the old file or the new one, never half of one."""
     tmp = path.with_name(path.name + ".tmp")

@@ -48,7 +48,8 @@ import time
 from pathlib import Path
 
 import torch
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
+from safetensors.torch import save as safetensors_bytes
 
 from . import bundle as bundle_io
 from . import checkpoint as checkpoint_file
@@ -73,20 +74,11 @@ class DistilError(ValueError):
 
 def write_atomic(path: Path, tensors: dict) -> None:
     """safetensors written to a temporary name, synced, then renamed over `path`."""
-    tmp = path.with_name(path.name + ".tmp")
-    save_file({k: v.detach().contiguous().cpu() for k, v in tensors.items()}, str(tmp))
-    with open(tmp, "rb") as f:
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    bundle_io.write_file_atomic(path, safetensors_bytes({k: v.detach().contiguous().cpu() for k, v in tensors.items()}))
 
 
 def write_text_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    bundle_io.write_file_atomic(path, text.encode())
 
 
 def one_pass(student, schedule: Schedule, context, action, noise):
