@@ -6,7 +6,6 @@
 
 mod common;
 
-use std::path::Path;
 use std::process::{Command, Output};
 
 use common::{SmallDisk, assert_all_whole};
@@ -21,38 +20,40 @@ fn unica(args: &[&str]) -> Output {
         .expect("the unica binary runs")
 }
 
-/// The run failed cleanly on the full disk: exit 1, one error line naming a path on it
-/// and saying it is full.
-fn assert_full_disk_error(out: &Output, disk: &Path) {
+/// Runs unica with `args` and `--out DISK/out` on a fresh tmpfs of `size`, which fills
+/// part-way: asserts that it failed cleanly (exit 1, one error line naming a path on the
+/// disk and saying it is full) and that every file left reads whole; returns how many.
+fn run_until_full(size: &str, args: &[&str]) -> usize {
+    let disk = SmallDisk::mount(size);
+    let out_path = disk.path.join("out");
+    let out = unica(&[args, &["--out", out_path.to_str().unwrap()]].concat());
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "should fail cleanly: {err}");
-    let line = common::error_line(out);
+    let line = common::error_line(&out);
     assert!(
-        line.contains(&disk.display().to_string()) && line.contains("No space left on device"),
+        line.contains(&disk.path.display().to_string()) && line.contains("No space left on device"),
         "the error should name a path on the full disk and say why: {line}"
     );
+    assert_all_whole(&disk.path)
 }
 
 #[test]
 fn render_on_a_full_disk_stops_with_a_line_and_keeps_whole_frames() {
     // 2 views of 96² teacher frames, ~10 KB each: 48 frames fill 256 KB part-way.
-    let disk = SmallDisk::mount("256k");
-    let out_dir = disk.path.join("render");
-    let out = unica(&[
-        "render",
-        "--teacher",
-        "assets/witch/source/Witch.gltf",
-        "--keys",
-        "120W",
-        "--size",
-        "96",
-        "--views",
-        "2",
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
-    assert_full_disk_error(&out, &disk.path);
-    let files = assert_all_whole(&out_dir);
+    let files = run_until_full(
+        "256k",
+        &[
+            "render",
+            "--teacher",
+            "assets/witch/source/Witch.gltf",
+            "--keys",
+            "120W",
+            "--size",
+            "96",
+            "--views",
+            "2",
+        ],
+    );
     assert!(
         files > 2,
         "the disk should fill part-way through ({files} files)"
@@ -62,35 +63,23 @@ fn render_on_a_full_disk_stops_with_a_line_and_keeps_whole_frames() {
 #[test]
 fn bake_on_a_full_disk_stops_with_a_line_and_keeps_whole_files() {
     // A quick bake writes about 4 MB (its reference alone 0.95 MB).
-    let disk = SmallDisk::mount("2m");
-    let out_dir = disk.path.join("data");
-    let out = unica(&[
-        "bake",
-        "assets/witch/source/Witch.gltf",
-        "--quick",
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
-    assert_full_disk_error(&out, &disk.path);
-    let files = assert_all_whole(&out_dir);
+    let files = run_until_full("2m", &["bake", "assets/witch/source/Witch.gltf", "--quick"]);
     assert!(files > 0, "the disk should fill part-way through");
 }
 
 #[test]
 fn export_on_a_full_disk_stops_with_a_line_and_leaves_no_file() {
     // A level-128 PLY of the Witch is several MB: it cannot fit 256 KB.
-    let disk = SmallDisk::mount("256k");
-    let file = disk.path.join("witch.ply");
-    let out = unica(&[
-        "export",
-        "ply",
-        "--bundle",
-        "assets/witch/bundle",
-        "--splat-level",
-        "128",
-        "--out",
-        file.to_str().unwrap(),
-    ]);
-    assert_full_disk_error(&out, &disk.path);
-    assert_eq!(assert_all_whole(&disk.path), 0, "nothing should be left");
+    let files = run_until_full(
+        "256k",
+        &[
+            "export",
+            "ply",
+            "--bundle",
+            "assets/witch/bundle",
+            "--splat-level",
+            "128",
+        ],
+    );
+    assert_eq!(files, 0, "nothing should be left");
 }

@@ -4,13 +4,13 @@ the position-map layout, per-pixel colours and the initial context of a standing
 Loading checks every tensor's name, shape and dtype and names the first that is wrong.
 The network weights and the PCA basis are stored as float16 (`HALF`), and of them the
 10-step UNet's weight arrays, the VAE decoder's basis and the PCA basis as 8-bit integers
-with a float16 scale per group of 32 values (`QUANTISED`): the Witch's bundle is 43 MB in
-float32, 22 MB in float16, 14.5 MB so. The VAE's encoder stays float16: as int8 the Witch no longer stops
-(docs/experiments/int8-storage.md). The one-pass student's weight arrays are int8 too, as
-their difference from the UNet's (`DELTA_OF`). Every reader widens them to float32 before use;
-positions (`pca.mean`, `context.latents`) and colours stay float32. Quantising is
-idempotent (reading and writing a bundle again stores the same bytes), so the stages that
-rewrite a bundle lose nothing.
+with a float16 scale per group of 32 values (`QUANTISED`), and the one-pass student's
+weight arrays as an 8-bit difference from the UNet's (`DELTA_OF`): the Witch's bundle is
+43 MB in float32, 22 MB in float16, 12.2 MB so. The VAE's encoder stays float16: as int8
+the Witch no longer stops (docs/experiments/int8-storage.md). Every reader widens them to
+float32 before use; positions (`pca.mean`, `context.latents`) and colours stay float32.
+Quantising is idempotent (reading and writing a bundle again stores the same bytes), so
+the stages that rewrite a bundle lose nothing.
 
     python -m unica_train.bundle add-colors --bundle DIR --data DATASET
 
@@ -25,7 +25,6 @@ standing-start frame moved."""
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import torch
@@ -33,6 +32,7 @@ import torch.nn.functional as F
 from safetensors.torch import load_file
 from safetensors.torch import save as safetensors_bytes
 
+from .checkpoint import write_file_atomic
 from .unet import UNet, UNetConfig
 from .vae import PositionVae, VaeConfig
 
@@ -156,17 +156,6 @@ def _read_back(name: str, stored: dict) -> torch.Tensor:
     """A tensor as a reader will widen it from `stored` (no difference: bases are not)."""
     v = stored[name]
     return dequantise(v, stored[name + SCALE]) if v.dtype == torch.int8 else v.float()
-
-
-def write_file_atomic(path: Path, data: bytes) -> None:
-    """Writes `data` to a synced temporary file beside `path` and renames it over `path`,
-    so a reader sees the old file or the new one, never half of one."""
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def _tensors(vae: PositionVae, unet: UNet, extra: dict) -> dict:

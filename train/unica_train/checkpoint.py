@@ -10,6 +10,7 @@ saving leaves the previous checkpoint whole."""
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 
@@ -35,10 +36,18 @@ def load(path: str | os.PathLike, map_location=None):
 
 def save(state, path: str | os.PathLike) -> None:
     """Writes `state` to `path` through a synced temporary file renamed over it."""
-    path = Path(path)
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
+    write_file_atomic(Path(path), buffer.getvalue())
+
+
+def write_file_atomic(path: Path, data: bytes) -> None:
+    """Writes `data` to a synced temporary file beside `path` and renames it over `path`,
+    so a reader sees the old file or the new one, never half of one (every file the
+    trainers write that a rerun or the engine reads: checkpoints, bundles)."""
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:
-        torch.save(state, f)
+        f.write(data)
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)

@@ -74,11 +74,11 @@ class DistilError(ValueError):
 
 def write_atomic(path: Path, tensors: dict) -> None:
     """safetensors written to a temporary name, synced, then renamed over `path`."""
-    bundle_io.write_file_atomic(path, safetensors_bytes({k: v.detach().contiguous().cpu() for k, v in tensors.items()}))
+    checkpoint_file.write_file_atomic(path, safetensors_bytes({k: v.detach().contiguous().cpu() for k, v in tensors.items()}))
 
 
 def write_text_atomic(path: Path, text: str) -> None:
-    bundle_io.write_file_atomic(path, text.encode())
+    checkpoint_file.write_file_atomic(path, text.encode())
 
 
 def one_pass(student, schedule: Schedule, context, action, noise):
