@@ -22,11 +22,6 @@ pub mod render;
 pub mod splat;
 pub mod tensors;
 
-/// Every WGSL snippet (helper functions shared by shaders of a stage).
-pub fn snippets() -> Vec<gpu::shaders::Snippet> {
-    [nn::ops::snippets(), engine::kernels::SNIPPETS.to_vec()].concat()
-}
-
 /// Every WGSL shader of the crate, gathered from the stages that own them (tests check
 /// that this covers every file under `shaders/` and that each parses and validates).
 pub fn shaders() -> Vec<gpu::shaders::Shader> {

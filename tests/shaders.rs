@@ -1,4 +1,4 @@
-//! Every WGSL file is registered, parses and validates with naga (no device needed) in
+//! Every WGSL file is registered or imported, parses and validates with naga (no device needed) in
 //! every precision variant it has, and every shared struct has the same size and field
 //! offsets in WGSL as in Rust.
 
@@ -103,20 +103,44 @@ fn every_file_in_shaders_is_registered_once() {
         "a shader is registered twice"
     );
     let unique: BTreeSet<String> = all().iter().map(|s| s.file.to_string()).collect();
-    let snippets: BTreeSet<String> = unica::snippets()
+    // Every other file is imported by a shader (`#import`, src/gpu/shaders.rs::expand),
+    // and no shader's entry file is imported by another.
+    let imported: BTreeSet<String> = all()
         .iter()
-        .map(|s| s.file.to_string())
+        .flat_map(|s| s.imports().unwrap_or_else(|e| panic!("{e}")))
+        .map(String::from)
         .collect();
     assert!(
-        unique.is_disjoint(&snippets),
-        "a file is both a shader and a snippet"
+        unique.is_disjoint(&imported),
+        "a file is both a shader and an import: {:?}",
+        unique.intersection(&imported).collect::<Vec<_>>()
     );
-    let used: BTreeSet<String> = all()
+    assert_eq!(
+        on_disk,
+        &unique | &imported,
+        "every file under shaders/ is a shader or imported"
+    );
+    let embedded: BTreeSet<String> = unica::gpu::shaders::files()
         .iter()
-        .flat_map(|s| s.snippets.iter().map(|n| n.file.to_string()))
+        .map(|(name, _)| name.to_string())
         .collect();
-    assert_eq!(used, snippets, "every snippet registered and used");
-    assert_eq!(on_disk, &unique | &snippets);
+    assert_eq!(
+        on_disk, embedded,
+        "build.rs embeds every file under shaders/"
+    );
+}
+
+#[test]
+fn every_import_resolves_and_leaves_no_directive() {
+    for shader in &all() {
+        let text =
+            unica::gpu::shaders::expand(shader.file, shader.body).unwrap_or_else(|e| panic!("{e}"));
+        assert!(
+            !text.contains("#import"),
+            "{}: a directive was left",
+            shader.file
+        );
+    }
 }
 
 #[test]

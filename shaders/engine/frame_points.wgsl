@@ -3,6 +3,8 @@
 // there are no components), then (v - 0.5) / scale + the world root. One thread per
 // four values, read as texels (src/gpu/texels.rs; basis rows padded to whole texels).
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: PostParams;
 @group(0) @binding(1) var unit: texture_2d<f32>;
 @group(0) @binding(2) var mean: texture_2d<f32>;
@@ -11,14 +13,15 @@
 @group(0) @binding(5) var coefficients: texture_2d<f32>;
 @group(0) @binding(6) var<storage, read_write> points: array<f32>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let q = linear_index(invocation);
+fn count() -> u32 {
     let d = 3u * p.points;
     let quads = (d + 3u) / 4u;
-    if q >= quads {
-        return;
-    }
+    return quads;
+}
+
+fn each(q: u32) {
+    let d = 3u * p.points;
+    let quads = (d + 3u) / 4u;
     // Value 4q + c is on axis (q + c) % 3 (4 ≡ 1 mod 3).
     let axes = (vec4<u32>(q) + vec4<u32>(0u, 1u, 2u, 3u)) % 3u;
     let shift = vec4<f32>(state.shift[axes.x], state.shift[axes.y], state.shift[axes.z], state.shift[axes.w]);

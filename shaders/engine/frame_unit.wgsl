@@ -9,6 +9,8 @@
 // (root - lowest) / scale above it. One workgroup; every thread clamps a strided share of
 // the points.
 
+#import engine/quarter_turn.wgsl
+
 @group(0) @binding(0) var<uniform> p: PostParams;
 @group(0) @binding(1) var<storage, read> map: array<Elem>;
 @group(0) @binding(2) var<storage, read> pixels: array<u32>;

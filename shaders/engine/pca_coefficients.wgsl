@@ -1,39 +1,11 @@
-// The PCA coefficients of a frame: c_k = Σ_d basis[k, d] · (unit[d] - shift[d % 3] -
-// mean[d]), one thread per component (the frame centred on its own root:
-// docs/architecture.md, The live loop), summed over d in order. The frame, the mean and
-// the basis are read as texels (src/gpu/texels.rs), four values a fetch; each basis row
-// is padded with zeros to whole texels, so the padding adds exact zeros.
+// The PCA coefficients of a frame (engine/pca_terms.wgsl), one thread per component,
+// summed over the frame's texels in order.
 
-@group(0) @binding(0) var<uniform> p: PostParams;
-@group(0) @binding(1) var unit: texture_2d<f32>;
-@group(0) @binding(2) var mean: texture_2d<f32>;
-@group(0) @binding(3) var basis: texture_2d<f32>;
-@group(0) @binding(4) var<storage, read> state: FrameState;
-@group(0) @binding(5) var<storage, read_write> coefficients: array<f32>;
+#import gpu/for_each.wgsl
+#import engine/pca_terms.wgsl
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let k = linear_index(invocation);
-    if k >= p.components {
-        return;
-    }
-    let quads = (3u * p.points + 3u) / 4u;
-    let row = k * quads;
-    // Value 4j + c is on axis (j + c) % 3 (4 ≡ 1 mod 3): the shifts of texel j by j % 3.
-    let s = state.shift;
-    let s0 = vec4<f32>(s[0], s[1], s[2], s[0]);
-    let s1 = vec4<f32>(s[1], s[2], s[0], s[1]);
-    let s2 = vec4<f32>(s[2], s[0], s[1], s[2]);
-    var c = 0.0;
-    for (var j = 0u; j < quads; j++) {
-        let phase = j % 3u;
-        let shift = select(select(s0, s1, phase == 1u), s2, phase == 2u);
-        let b = texel(basis, row + j);
-        let v = texel(unit, j) - shift - texel(mean, j);
-        c += b.x * v.x;
-        c += b.y * v.y;
-        c += b.z * v.z;
-        c += b.w * v.w;
-    }
-    coefficients[k] = c;
+fn count() -> u32 { return p.components; }
+
+fn each(k: u32) {
+    coefficients[k] = pca_terms(k, 0u, 1u, frame_texels());
 }

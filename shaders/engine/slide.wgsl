@@ -3,6 +3,8 @@
 // -shift, background 0 (the engine encodes the result into the next context latents).
 // Thread 0 also moves the world root by the root motion / scale and counts the frame.
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: PostParams;
 @group(0) @binding(1) var<storage, read> maps: array<Elem>;
 @group(0) @binding(2) var<storage, read> unit: array<f32>;
@@ -10,13 +12,13 @@
 @group(0) @binding(4) var<storage, read_write> state: FrameState;
 @group(0) @binding(5) var<storage, read_write> next: array<Elem>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let per_frame = 3u * p.plane;
-    if i >= p.frames * per_frame {
-        return;
-    }
+    return p.frames * per_frame;
+}
+
+fn each(i: u32) {
+    let per_frame = 3u * p.plane;
     let shift = state.shift;
     let frame = i / per_frame;
     let axis = (i / p.plane) % 3u;

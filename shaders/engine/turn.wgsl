@@ -2,19 +2,23 @@
 // `heading.to_model` quarter turns about the vertical through the centre
 // (`quarter_turn`), background 0 (the engine then encodes them into the context latents).
 
+#import gpu/for_each.wgsl
+
+#import engine/quarter_turn.wgsl
+
 @group(0) @binding(0) var<uniform> p: PostParams;
 @group(0) @binding(1) var<storage, read> maps: array<Elem>;
 @group(0) @binding(2) var<storage, read> point_of: array<u32>;
 @group(0) @binding(3) var<storage, read> heading: HeadingTurns;
 @group(0) @binding(4) var<storage, read_write> out: array<Elem>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let per_frame = 3u * p.plane;
-    if i >= p.frames * per_frame {
-        return;
-    }
+    return p.frames * per_frame;
+}
+
+fn each(i: u32) {
+    let per_frame = 3u * p.plane;
     let pixel = i % p.plane;
     var v = 0.0;
     if point_of[pixel] != BACKGROUND {

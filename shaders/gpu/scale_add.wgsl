@@ -2,15 +2,14 @@
 // computed in f32. Dispatched on a 2-D grid (see gpu::kernel::Grid) so any length fits
 // the workgroup limit.
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> params: ElementwiseParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read_write> y: array<Elem>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
-    if i >= params.len {
-        return;
-    }
+fn count() -> u32 { return params.len; }
+
+fn each(i: u32) {
     y[i] = Elem(params.scale * f32(x[i]) + params.bias);
 }

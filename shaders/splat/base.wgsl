@@ -4,6 +4,8 @@
 // normal), σ from the footprints, the bundle's colour; with `features`, the refiner's 11
 // inputs too.
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: SplatParams;
 @group(0) @binding(1) var<storage, read> points: array<f32>;
 @group(0) @binding(2) var<storage, read> neighbours: array<vec4<i32>>;
@@ -89,12 +91,9 @@ fn quat_from_frame(x: vec3<f32>, y: vec3<f32>, z: vec3<f32>) -> vec4<f32> {
     return q * (1.0 / l);
 }
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
-    if i >= p.points {
-        return;
-    }
+fn count() -> u32 { return p.points; }
+
+fn each(i: u32) {
     let median = frame[3];
     let limit = 3.0 * median;
     let c = point(i);

@@ -5,18 +5,17 @@
 // invocation reads them all, and lavapipe fetches a texel as one vector gather where a
 // storage load is a loop over lanes.
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: SplatParams;
 @group(0) @binding(1) var codes: texture_2d<u32>;
 @group(0) @binding(2) var<storage, read_write> sort: array<u32>;
 @group(0) @binding(3) var<storage, read_write> unsort: array<u32>;
 @group(0) @binding(4) var<storage, read_write> groups_out: array<u32>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
-    if i >= p.points {
-        return;
-    }
+fn count() -> u32 { return p.points; }
+
+fn each(i: u32) {
     // The curve's codes as vec4s (codes.wgsl pads each curve to a multiple of 4 with the
     // largest u32, which no code reaches, so padding never counts).
     let quads = (p.points + 3u) / 4u;

@@ -2,6 +2,8 @@
 // per splat: mean offset tanh-bounded by `bound`, colour, log-scale, rotation, opacity
 // logit), as base.rs's refine; written where the rasterizer reads them.
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: SplatParams;
 @group(0) @binding(1) var<storage, read> base: array<GpuSplat>;
 @group(0) @binding(2) var<storage, read> residuals: array<f32>;
@@ -12,12 +14,9 @@ fn bounded(x: f32) -> f32 {
     return tanh(clamp(x, -15.0, 15.0));
 }
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
-    if i >= p.points {
-        return;
-    }
+fn count() -> u32 { return p.points; }
+
+fn each(i: u32) {
     var s = base[i];
     if p.residuals != 0u {
         let o = 14u * i;

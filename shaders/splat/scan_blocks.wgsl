@@ -9,12 +9,9 @@
 var<workgroup> temp: array<u32, 256>;
 
 @compute @workgroup_size(256)
-fn main(
-    @builtin(workgroup_id) group: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) lane: u32,
-) {
-    let block = group.x + group.y * groups.x;
+fn main(invocation: Invocation) {
+    let block = group_index(invocation);
+    let lane = invocation.lane;
     let i = block * 256u + lane;
     var value = 0u;
     if i < p.len {

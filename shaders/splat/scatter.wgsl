@@ -2,17 +2,16 @@
 // the end are 0) into a [3, size, size] map at the points' pixels; the background keeps
 // what it has (0).
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: SplatParams;
 @group(0) @binding(1) var<storage, read> rows: array<f32>;
 @group(0) @binding(2) var<storage, read> pixels: array<u32>;
 @group(0) @binding(3) var<storage, read_write> map: array<f32>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
-    if i >= p.points {
-        return;
-    }
+fn count() -> u32 { return p.points; }
+
+fn each(i: u32) {
     for (var k = 0u; k < 3u; k++) {
         var v = 0.0;
         if p.first + k < p.channels {

@@ -2,17 +2,16 @@
 // order as u32): pass 0 counts the high 16 bits of every distance, pass 1 the low 16
 // bits of those whose high bits are the bin pass 0 picked (select[0]).
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: SplatParams;
 @group(0) @binding(1) var<storage, read> distances: array<f32>;
 @group(0) @binding(2) var<storage, read> select: array<u32>;
 @group(0) @binding(3) var<storage, read_write> histogram: array<atomic<u32>>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let m = linear_index(invocation);
-    if m >= p.pairs {
-        return;
-    }
+fn count() -> u32 { return p.pairs; }
+
+fn each(m: u32) {
     let bits = bitcast<u32>(distances[m]);
     if p.round == 0u {
         atomicAdd(&histogram[bits >> 16u], 1u);

@@ -2,6 +2,8 @@
 // splat's index, written at the splat's scanned offset (tiles in row-major order).
 // Entries past the capacity are dropped; info = [entries kept, entries wanted].
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> f: RasterView;
 @group(0) @binding(1) var<storage, read> projected: array<ProjectedSplat>;
 @group(0) @binding(2) var<storage, read> touched: array<u32>;
@@ -10,12 +12,9 @@
 @group(0) @binding(5) var<storage, read_write> values: array<u32>;
 @group(0) @binding(6) var<storage, read_write> info: array<u32>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
-    if i >= f.splats {
-        return;
-    }
+fn count() -> u32 { return f.splats; }
+
+fn each(i: u32) {
     if i == f.splats - 1u {
         let wanted = offsets[i] + touched[i];
         info[0] = min(wanted, f.capacity);

@@ -2,6 +2,8 @@
 // Σ' = J W Σ Wᵀ Jᵀ + 0.3 I, the conic, a 3σ radius padded like 3DGS, the covered tiles,
 // and how many tiles it touches (0 when culled).
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> f: RasterView;
 @group(0) @binding(1) var<storage, read> splats: array<GpuSplat>;
 @group(0) @binding(2) var<storage, read_write> projected: array<ProjectedSplat>;
@@ -17,12 +19,9 @@ fn rotation(q: vec4<f32>) -> mat3x3<f32> {
     );
 }
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
-    if i >= f.splats {
-        return;
-    }
+fn count() -> u32 { return f.splats; }
+
+fn each(i: u32) {
     touched[i] = 0u;
     let s = splats[i];
     let t = (f.view * vec4<f32>(s.position_opacity.xyz, 1.0)).xyz;

@@ -1,16 +1,18 @@
 // Each tile's run [start, end) in the sorted entries (ranges cleared to 0 beforehand).
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<storage, read> keys: array<u32>;
 @group(0) @binding(1) var<storage, read> info: array<u32>;
 @group(0) @binding(2) var<storage, read_write> ranges: array<vec2<u32>>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let count = info[0];
-    if i >= count {
-        return;
-    }
+    return count;
+}
+
+fn each(i: u32) {
+    let count = info[0];
     let tile = keys[i] >> 16u;
     if i == 0u || (keys[i - 1u] >> 16u) != tile {
         ranges[tile].x = i;

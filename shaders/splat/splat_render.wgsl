@@ -15,12 +15,9 @@ var<workgroup> finished: atomic<u32>;
 var<workgroup> all_finished: u32;
 
 @compute @workgroup_size(16, 16)
-fn main(
-    @builtin(workgroup_id) group: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) lane: u32,
-) {
-    let tile = group.x + group.y * groups.x;
+fn main(invocation: Invocation) {
+    let tile = group_index(invocation);
+    let lane = invocation.lane;
     let tiles = f.tiles_x * f.tiles_y;
     let valid_tile = tile < tiles;
     let tx = tile % f.tiles_x;

@@ -3,20 +3,23 @@
 // values divided by the interpolated mask; pixels whose interpolated mask is at most 0.25
 // are background (values and mask 0). One thread per output pixel.
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: UpscaleParams;
 @group(0) @binding(1) var<storage, read> map: array<f32>;
 @group(0) @binding(2) var<storage, read> mask: array<f32>;
 @group(0) @binding(3) var<storage, read_write> out_map: array<f32>;
 @group(0) @binding(4) var<storage, read_write> out_mask: array<f32>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let w_out = p.width * p.factor;
     let h_out = p.height * p.factor;
-    if i >= w_out * h_out {
-        return;
-    }
+    return w_out * h_out;
+}
+
+fn each(i: u32) {
+    let w_out = p.width * p.factor;
+    let h_out = p.height * p.factor;
     let ox = i % w_out;
     let oy = i / w_out;
     let sx = clamp((f32(ox) + 0.5) / f32(p.factor) - 0.5, 0.0, f32(p.width - 1u));

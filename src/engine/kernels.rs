@@ -7,9 +7,9 @@
 //! is in `shaders/engine/`. CPU references of the same arithmetic are in this module's
 //! tests and in `tests/engine.rs`.
 
-use crate::gpu::shaders::{Shader, Snippet};
+use crate::gpu::shaders::Shader;
 use crate::gpu_struct;
-use crate::{wgsl_shader, wgsl_snippet};
+use crate::wgsl_shader;
 
 /// Threads of the one workgroup of `frame_unit.wgsl` (`@workgroup_size` there).
 pub const UNIT_THREADS: u32 = 256;
@@ -82,20 +82,13 @@ impl HeadingTurns {
     }
 }
 
-const QUARTER_TURN: Snippet = wgsl_snippet!("engine/quarter_turn.wgsl");
-
-/// The engine stage's snippets.
-pub const SNIPPETS: &[Snippet] = &[QUARTER_TURN];
-
 pub const FRAME_UNIT: Shader = wgsl_shader!(
     "engine/frame_unit.wgsl",
     [PostParams, FrameState, HeadingTurns],
     elem
-)
-.with_snippets(&[QUARTER_TURN]);
+);
 pub const TURN: Shader = wgsl_shader!("engine/turn.wgsl", [PostParams, HeadingTurns], elem)
-    .with_uints(&[("BACKGROUND", super::recentre::BACKGROUND)])
-    .with_snippets(&[QUARTER_TURN]);
+    .with_uints(&[("BACKGROUND", super::recentre::BACKGROUND)]);
 pub const PCA_COEFFICIENTS: Shader = wgsl_shader!("engine/pca_coefficients.wgsl", [PostParams, FrameState], f16: false, subgroups: false);
 /// `PCA_COEFFICIENTS` for GPUs: a workgroup per component, its threads splitting the sum.
 pub const PCA_COEFFICIENTS_SPLIT: Shader = wgsl_shader!("engine/pca_coefficients_split.wgsl", [PostParams, FrameState], f16: false, subgroups: false);

@@ -104,33 +104,82 @@ pub struct Shader {
     pub constants: &'static [(&'static str, f32)],
     /// Rust constants declared as WGSL `const NAME: u32` before the file.
     pub uints: &'static [(&'static str, u32)],
-    /// Helper functions shared with other shaders of the stage, before the file.
-    pub snippets: &'static [Snippet],
 }
 
-/// WGSL helper functions shared by several shaders of a stage (a file of `shaders/` with
-/// no entry point), declared after the shared structs and before a shader's own file;
-/// what they read (parameters, bindings) the shader declares. See [`wgsl_snippet!`].
-#[derive(Clone, Copy, Debug)]
-pub struct Snippet {
-    pub file: &'static str,
-    pub text: &'static str,
+mod files {
+    include!(concat!(env!("OUT_DIR"), "/shader_files.rs"));
 }
 
-/// Declares a [`Snippet`] from a file under `shaders/`.
-#[macro_export]
-macro_rules! wgsl_snippet {
-    ($file:literal) => {
-        $crate::gpu::shaders::Snippet {
-            file: $file,
-            text: include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/shaders/", $file)),
+/// Every file under `shaders/` (embedded by `build.rs`): its path there and its text.
+pub fn files() -> &'static [(&'static str, &'static str)] {
+    files::FILES
+}
+
+/// The text of the file at `path` under `shaders/`, if there is one.
+pub fn file(path: &str) -> Option<&'static str> {
+    files::FILES
+        .iter()
+        .find(|(name, _)| *name == path)
+        .map(|(_, text)| *text)
+}
+
+/// The WGSL preprocessor: `text` with every line `#import PATH` (a file under `shaders/`,
+/// at the start of its line) replaced by that file, itself expanded the same way. A file
+/// is included once per shader, where it is first named (WGSL declarations may come in
+/// any order), so two files may import a third and imports may not loop. An unknown
+/// path is an error naming it and the file that asks for it.
+pub fn expand(file_name: &str, text: &str) -> Result<String, String> {
+    expand_with(file_name, text, &|path| file(path))
+}
+
+/// [`expand`] over any file table (`lookup`), for tests.
+pub fn expand_with(
+    file_name: &str,
+    text: &str,
+    lookup: &dyn Fn(&str) -> Option<&'static str>,
+) -> Result<String, String> {
+    fn walk(
+        name: &str,
+        text: &str,
+        lookup: &dyn Fn(&str) -> Option<&'static str>,
+        seen: &mut Vec<String>,
+        out: &mut String,
+    ) -> Result<(), String> {
+        for line in text.lines() {
+            match line.strip_prefix("#import ") {
+                Some(path) => {
+                    let path = path.trim();
+                    if seen.iter().any(|s| s == path) {
+                        continue;
+                    }
+                    seen.push(path.to_string());
+                    let imported = lookup(path).ok_or_else(|| {
+                        format!("{name}: #import {path}: no such file in shaders/")
+                    })?;
+                    walk(path, imported, lookup, seen, out)?;
+                }
+                None => {
+                    out.push_str(line);
+                    out.push('\n');
+                }
+            }
         }
-    };
+        Ok(())
+    }
+    let mut out = String::new();
+    walk(
+        file_name,
+        text,
+        lookup,
+        &mut vec![file_name.to_string()],
+        &mut out,
+    )?;
+    Ok(out)
 }
 
 /// What every shader starts with (after its `enable` and `Elem` lines): the workgroup
 /// size of the 1-D kernels from [`WORKGROUP_SIZE`], the
-/// entry point's builtins with the linear index of a 2-D dispatch grid
+/// entry point's builtins with the workgroup's and the invocation's index in a 2-D grid
 /// (see [`Grid`](super::kernel::Grid)), and the fetch of one texel of a flat array held
 /// as [`Texels`](super::texels::Texels), so no kernel repeats them.
 pub fn prelude() -> String {
@@ -141,9 +190,13 @@ struct Invocation {{
     @builtin(num_workgroups) groups: vec3<u32>,
     @builtin(local_invocation_index) lane: u32,
 }}
+// The workgroup's index in the 2-D grid, and its first invocation's when every
+// workgroup has WORKGROUP invocations.
+fn group_index(invocation: Invocation) -> u32 {{
+    return invocation.group.x + invocation.group.y * invocation.groups.x;
+}}
 fn linear_index(invocation: Invocation) -> u32 {{
-    return (invocation.group.x + invocation.group.y * invocation.groups.x) * WORKGROUP
-        + invocation.lane;
+    return group_index(invocation) * WORKGROUP + invocation.lane;
 }}
 const TEXEL_ROW: u32 = {}u;
 // Texel `i` (values 4i … 4i + 3) of a flat array held as texels (src/gpu/texels.rs).
@@ -163,11 +216,6 @@ impl Shader {
     /// This shader with `constants` declared in its prelude.
     pub const fn with_constants(self, constants: &'static [(&'static str, f32)]) -> Self {
         Self { constants, ..self }
-    }
-
-    /// This shader with `snippets` declared before its file.
-    pub const fn with_snippets(self, snippets: &'static [Snippet]) -> Self {
-        Self { snippets, ..self }
     }
 
     /// This shader with integer `uints` declared in its prelude.
@@ -205,11 +253,27 @@ impl Shader {
         for s in self.structs {
             out.push_str(&(s.wgsl)());
         }
-        for snippet in self.snippets {
-            out.push_str(snippet.text);
+        // An import that does not resolve is left as it stands, so that naga's error
+        // shows it (the shader tests expand every file and name the missing path).
+        match expand(self.file, self.body) {
+            Ok(body) => out.push_str(&body),
+            Err(_) => out.push_str(self.body),
         }
-        out.push_str(self.body);
         out
+    }
+
+    /// The files this shader's text imports, directly or through others, or the error
+    /// naming an import that does not resolve.
+    pub fn imports(&self) -> Result<Vec<&'static str>, String> {
+        let seen = std::cell::RefCell::new(Vec::new());
+        expand_with(self.file, self.body, &|path| {
+            let found = files::FILES.iter().find(|(name, _)| *name == path);
+            if let Some((name, _)) = found {
+                seen.borrow_mut().push(*name);
+            }
+            found.map(|(_, text)| *text)
+        })?;
+        Ok(seen.into_inner())
     }
 
     /// The group-0 bindings of the variant for `precision` as naga reflects them:
@@ -258,7 +322,61 @@ macro_rules! wgsl_shader {
             elem: $elem,
             constants: &[],
             uints: &[],
-            snippets: &[],
         }
     };
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn table(path: &str) -> Option<&'static str> {
+        match path {
+            "a.wgsl" => Some("#import c.wgsl\nfn a() {}\n"),
+            "b.wgsl" => Some("#import c.wgsl\nfn b() {}\n"),
+            "c.wgsl" => Some("fn c() {}\n"),
+            "loop.wgsl" => Some("#import loop.wgsl\nfn l() {}\n"),
+            _ => None,
+        }
+    }
+
+    #[test]
+    fn an_import_is_replaced_by_its_file_once_where_first_named() {
+        let out = expand_with(
+            "s.wgsl",
+            "#import a.wgsl\n#import b.wgsl\nfn main() {}",
+            &table,
+        );
+        assert_eq!(
+            out.unwrap(),
+            "fn c() {}\nfn a() {}\nfn b() {}\nfn main() {}\n"
+        );
+    }
+
+    #[test]
+    fn a_file_that_imports_itself_is_included_once() {
+        let out = expand_with("s.wgsl", "#import loop.wgsl\n", &table);
+        assert_eq!(out.unwrap(), "fn l() {}\n");
+    }
+
+    #[test]
+    fn an_unknown_import_names_the_path_and_the_file_that_asks() {
+        let err = expand_with("s.wgsl", "#import a.wgsl\n#import nope.wgsl\n", &table);
+        assert_eq!(
+            err.unwrap_err(),
+            "s.wgsl: #import nope.wgsl: no such file in shaders/"
+        );
+    }
+
+    #[test]
+    fn only_a_line_that_starts_with_the_directive_imports() {
+        let text = "// #import a.wgsl\n  #import_not\nfn f() {}\n";
+        assert_eq!(expand_with("s.wgsl", text, &table).unwrap(), text);
+    }
+
+    #[test]
+    fn the_embedded_table_holds_every_shader_file() {
+        assert!(file("gpu/scale_add.wgsl").is_some_and(|t| t.contains("fn main")));
+        assert!(file("gpu/none.wgsl").is_none());
+    }
 }

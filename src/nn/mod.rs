@@ -1,6 +1,6 @@
 //! The geometry model on the GPU: tensors in storage buffers, the WGSL kernels, the VAE
 //! and the action-conditioned UNet loaded from a bundle, and the DDIM sampler with
-//! classifier-free guidance — pinned to the PyTorch trainer by parity tests (tests/nn.rs).
+//! classifier-free guidance — pinned to the PyTorch trainer by parity tests (tests/nn/).
 
 pub mod bundle;
 pub mod layers;

@@ -3,16 +3,15 @@
 // trailing broadcast (b repeated over the leading axes) with per_value = 1; b_offset
 // picks a part of b (some rows of a table).
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: AddParams;
 @group(0) @binding(1) var<storage, read> a: array<Elem>;
 @group(0) @binding(2) var<storage, read> b: array<Elem>;
 @group(0) @binding(3) var<storage, read_write> y: array<Elem>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
-    if i >= p.len {
-        return;
-    }
+fn count() -> u32 { return p.len; }
+
+fn each(i: u32) {
     y[i] = Elem(f32(a[i]) + f32(b[p.b_offset + (i / p.per_value) % p.b_len]));
 }

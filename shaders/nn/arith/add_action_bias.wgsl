@@ -3,18 +3,17 @@
 // single key is exactly 1, so its output is a per-action vector (UNet::load tabulates
 // it with the same kernels; the sums here are the same additions as the layer's).
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: ActionBiasParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read> table: array<Elem>;
 @group(0) @binding(3) var<storage, read> ids: array<u32>;
 @group(0) @binding(4) var<storage, read_write> y: array<Elem>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
-    if i >= p.len {
-        return;
-    }
+fn count() -> u32 { return p.len; }
+
+fn each(i: u32) {
     let channel = (i / p.hw) % p.channels;
     let sample = i / (p.hw * p.channels * p.frames);
     y[i] = Elem(f32(x[i]) + f32(table[ids[sample] * p.channels + channel]));

@@ -1,16 +1,15 @@
 // y[i] = alpha · x[x_offset + i] + beta · z[z_offset + i] for i < len: the DDIM update
 // and classifier-free guidance (conditional and null halves of one batch), in f32.
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: AxpbyParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read> z: array<Elem>;
 @group(0) @binding(3) var<storage, read_write> y: array<Elem>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
-    if i >= p.len {
-        return;
-    }
+fn count() -> u32 { return p.len; }
+
+fn each(i: u32) {
     y[i] = Elem(p.alpha * f32(x[p.x_offset + i]) + p.beta * f32(z[p.z_offset + i]));
 }

@@ -1,17 +1,19 @@
 // Sinusoidal timestep embedding: for each timestep t and k < half, out[k] = cos(t f_k) and
 // out[half + k] = sin(t f_k) with f_k = exp(-ln(10000) k / half) — the trainer's order.
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: EmbeddingParams;
 @group(0) @binding(1) var<storage, read> t: array<Elem>;
 @group(0) @binding(2) var<storage, read_write> y: array<Elem>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let half = p.dim / 2u;
-    if i >= p.count * half {
-        return;
-    }
+    return p.count * half;
+}
+
+fn each(i: u32) {
+    let half = p.dim / 2u;
     let k = i % half;
     let row = i / half;
     let freq = exp(-log(10000.0) * f32(k) / f32(half));

@@ -9,6 +9,9 @@
 // of `kv`: the same keys in the same order as one concatenated buffer. With `rows` set,
 // self-attention runs over consecutive runs of rows cut at row `rows` (a shorter last run).
 
+#import gpu/for_each.wgsl
+#import nn/attention/query.wgsl
+
 @group(0) @binding(0) var<uniform> p: AttentionParams;
 @group(0) @binding(1) var<storage, read> q: array<Elem>;
 @group(0) @binding(2) var<storage, read> prefix: array<Elem>;
@@ -23,46 +26,26 @@ fn key_value(cached: bool, at: u32) -> f32 {
     return f32(kv[at]);
 }
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let id = linear_index(invocation);
-    if id >= p.sequences * p.heads * p.queries {
+fn count() -> u32 { return p.sequences * p.heads * p.queries; }
+
+fn each(id: u32) {
+    let a = attention_query(id);
+    if !a.live {
         return;
     }
-    let i = id % p.queries;
-    let h = (id / p.queries) % p.heads;
-    let s = id / (p.queries * p.heads);
-    let d = p.channels / p.heads;
-    let scale = inverseSqrt(f32(d));
-    let q_row = (s * p.queries + i) * p.q_stride + p.q_offset + h * d;
-    let kv_sequence = s / p.kv_share;
-    var keys = p.keys;
-    if p.causal != 0u {
-        keys = min(keys, i + 1u + p.keys - p.queries);
-    }
-    if p.rows != 0u {
-        // Runs of `queries` rows that end at row p.rows: the last one is shorter.
-        let first = s * p.queries;
-        if first + i >= p.rows {
-            return;
-        }
-        keys = min(keys, p.rows - first);
-    }
+    let d = a.d;
+    let q_row = (a.s * p.queries + a.i) * p.q_stride + p.q_offset + a.h * d;
     var acc: array<f32, MAX_HEAD_SIZE>;
     var best = -3.0e38;
     var total = 0.0;
-    let fresh = p.keys - p.prefix_keys;
-    for (var j = 0u; j < keys; j++) {
+    for (var j = 0u; j < a.keys; j++) {
         let cached = j < p.prefix_keys;
-        var row = (kv_sequence * fresh + j - p.prefix_keys) * p.kv_stride + h * d;
-        if cached {
-            row = (kv_sequence * p.prefix_keys + j) * p.kv_stride + h * d;
-        }
+        let row = key_row(a, j);
         var dot = 0.0;
         for (var e = 0u; e < d; e++) {
             dot += f32(q[q_row + e]) * key_value(cached, row + p.k_offset + e);
         }
-        let score = dot * scale;
+        let score = dot * a.scale;
         let new_best = max(best, score);
         let rescale = exp(best - new_best);
         let weight = exp(score - new_best);
@@ -72,7 +55,7 @@ fn main(invocation: Invocation) {
         }
         best = new_best;
     }
-    let o_row = (s * p.queries + i) * p.channels + h * d;
+    let o_row = (a.s * p.queries + a.i) * p.channels + a.h * d;
     for (var e = 0u; e < d; e++) {
         out[o_row + e] = Elem(acc[e] / total);
     }

@@ -7,38 +7,28 @@
 // over lanes). Dot products sum in vec4 chunks (snippets/online_softmax.wgsl). The first
 // `prefix_keys` keys come from `prefix`, as in attention.wgsl.
 
+#import gpu/for_each.wgsl
+
+#import nn/attention/online_softmax.wgsl
+#import nn/attention/query.wgsl
+
 @group(0) @binding(0) var<uniform> p: AttentionParams;
 @group(0) @binding(1) var q_in: texture_2d<f32>;
 @group(0) @binding(2) var prefix: texture_2d<f32>;
 @group(0) @binding(3) var kv: texture_2d<f32>;
 @group(0) @binding(4) var<storage, read_write> out: array<vec4<Elem>>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let id = linear_index(invocation);
-    if id >= p.sequences * p.heads * p.queries {
+fn count() -> u32 { return p.sequences * p.heads * p.queries; }
+
+fn each(id: u32) {
+    let a = attention_query(id);
+    if !a.live {
         return;
     }
-    let i = id % p.queries;
-    let h = (id / p.queries) % p.heads;
-    let s = id / (p.queries * p.heads);
-    let d = p.channels / p.heads;
-    let chunks = d / 4u;
-    let scale = inverseSqrt(f32(d));
-    let q_row = ((s * p.queries + i) * p.q_stride + p.q_offset + h * d) / 4u;
-    let kv_sequence = s / p.kv_share;
-    var keys = p.keys;
-    if p.causal != 0u {
-        keys = min(keys, i + 1u + p.keys - p.queries);
-    }
-    if p.rows != 0u {
-        // Runs of `queries` rows that end at row p.rows: the last one is shorter.
-        let first = s * p.queries;
-        if first + i >= p.rows {
-            return;
-        }
-        keys = min(keys, p.rows - first);
-    }
+    let chunks = a.d / 4u;
+    let scale = a.scale;
+    let keys = a.keys;
+    let q_row = ((a.s * p.queries + a.i) * p.q_stride + p.q_offset + a.h * a.d) / 4u;
 
     // q in registers, zero past the head (so the padding chunks add exact zeros).
     var q0 = vec4<f32>(0.0);
@@ -62,27 +52,26 @@ fn main(invocation: Invocation) {
     // heads of up to 16 values apart from wider ones: a CPU driver runs both sides of a
     // branch under a lane mask, so a branch per key would fetch from both textures and
     // all 8 chunks for every key.
-    let fresh = p.keys - p.prefix_keys;
     let cached = min(keys, p.prefix_keys);
     let wide = chunks > 4u;
     if wide {
         for (var j = 0u; j < cached; j++) {
-            let row = (kv_sequence * p.prefix_keys + j) * p.kv_stride + h * d;
+            let row = key_row(a, j);
             o = take_row(o, score8(prefix, (row + p.k_offset) / 4u, q0, q1, q2, q3, q4, q5, q6, q7), prefix, (row + p.v_offset) / 4u, true);
         }
         for (var j = cached; j < keys; j++) {
-            let row = (kv_sequence * fresh + j - p.prefix_keys) * p.kv_stride + h * d;
+            let row = key_row(a, j);
             o = take_row(o, score8(kv, (row + p.k_offset) / 4u, q0, q1, q2, q3, q4, q5, q6, q7), kv, (row + p.v_offset) / 4u, true);
         }
     } else {
         for (var j = 0u; j < cached; j++) {
-            let row = (kv_sequence * p.prefix_keys + j) * p.kv_stride + h * d;
+            let row = key_row(a, j);
             o = take_row(o, score4(prefix, (row + p.k_offset) / 4u, q0, q1, q2, q3), prefix, (row + p.v_offset) / 4u, false);
         }
         for (var j = cached; j < keys; j++) {
-            let row = (kv_sequence * fresh + j - p.prefix_keys) * p.kv_stride + h * d;
+            let row = key_row(a, j);
             o = take_row(o, score4(kv, (row + p.k_offset) / 4u, q0, q1, q2, q3), kv, (row + p.v_offset) / 4u, false);
         }
     }
-    store_online(o, ((s * p.queries + i) * p.channels + h * d) / 4u, chunks);
+    store_online(o, ((a.s * p.queries + a.i) * p.channels + a.h * a.d) / 4u, chunks);
 }

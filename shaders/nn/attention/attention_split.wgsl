@@ -12,6 +12,8 @@
 // self-attention runs over consecutive runs of rows cut at row `rows`. Head size at most
 // MAX_HEAD_SIZE (host-checked).
 
+#import nn/attention/query.wgsl
+
 @group(0) @binding(0) var<uniform> p: AttentionParams;
 @group(0) @binding(1) var<storage, read> q: array<Elem>;
 @group(0) @binding(2) var<storage, read> prefix: array<Elem>;
@@ -35,44 +37,23 @@ fn key_value(cached: bool, at: u32) -> f32 {
 
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {
-    let id = invocation.group.x + invocation.group.y * invocation.groups.x;
+    let id = group_index(invocation);
     let t = invocation.lane;
-    var live = id < p.sequences * p.heads * p.queries;
-    let i = id % p.queries;
-    let h = (id / p.queries) % p.heads;
-    let s = id / (p.queries * p.heads);
-    let d = p.channels / p.heads;
-    let scale = inverseSqrt(f32(d));
-    let q_row = (s * p.queries + i) * p.q_stride + p.q_offset + h * d;
-    let kv_sequence = s / p.kv_share;
-    var keys = p.keys;
-    if p.causal != 0u {
-        keys = min(keys, i + 1u + p.keys - p.queries);
-    }
-    if p.rows != 0u {
-        // Runs of `queries` rows that end at row p.rows: the last one is shorter.
-        let first = s * p.queries;
-        live = live && first + i < p.rows;
-        keys = min(keys, p.rows - min(first, p.rows));
-    }
-    if !live {
-        keys = 0u;
-    }
+    let a = attention_query(id);
+    let live = a.live;
+    let d = a.d;
+    let q_row = (a.s * p.queries + a.i) * p.q_stride + p.q_offset + a.h * d;
     var acc: array<f32, MAX_HEAD_SIZE>;
     var best = -3.0e38;
     var total = 0.0;
-    let fresh = p.keys - p.prefix_keys;
-    for (var j = t; j < keys; j += WORKGROUP) {
+    for (var j = t; j < a.keys; j += WORKGROUP) {
         let cached = j < p.prefix_keys;
-        var row = (kv_sequence * fresh + j - p.prefix_keys) * p.kv_stride + h * d;
-        if cached {
-            row = (kv_sequence * p.prefix_keys + j) * p.kv_stride + h * d;
-        }
+        let row = key_row(a, j);
         var dot = 0.0;
         for (var e = 0u; e < d; e++) {
             dot += f32(q[q_row + e]) * key_value(cached, row + p.k_offset + e);
         }
-        let score = dot * scale;
+        let score = dot * a.scale;
         let new_best = max(best, score);
         let rescale = exp(best - new_best);
         let weight = exp(score - new_best);
@@ -103,5 +84,5 @@ fn main(invocation: Invocation) {
         sum += acc_of[k * ROW + t] * rescale;
         weights += total_of[k] * rescale;
     }
-    out[(s * p.queries + i) * p.channels + h * d + t] = Elem(sum / weights);
+    out[(a.s * p.queries + a.i) * p.channels + a.h * d + t] = Elem(sum / weights);
 }

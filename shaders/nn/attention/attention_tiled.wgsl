@@ -26,7 +26,7 @@ var<workgroup> values_of: array<vec4<f32>, CHUNK * QUADS>;
 fn main(invocation: Invocation) {
     let t = invocation.lane;
     let blocks = (p.queries + WORKGROUP - 1u) / WORKGROUP;
-    let id = invocation.group.x + invocation.group.y * invocation.groups.x;
+    let id = group_index(invocation);
     // The few workgroups past the end load and store nothing.
     if id >= p.sequences * p.heads * blocks {
         return;

@@ -10,6 +10,10 @@
 // the parameters are the separate attention's (queries = 1, prefix_keys cached keys).
 // Inputs, weights and the cache are read as texels (src/gpu/texels.rs).
 
+#import gpu/for_each.wgsl
+
+#import nn/attention/online_softmax.wgsl
+
 @group(0) @binding(0) var<uniform> p: AttentionParams;
 // [sequences, channels] token rows.
 @group(0) @binding(1) var x: texture_2d<f32>;
@@ -82,12 +86,9 @@ fn project(q0: u32, j: u32, row: u32, quads: u32) -> Chunk {
     return out;
 }
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let id = linear_index(invocation);
-    if id >= p.sequences * p.heads {
-        return;
-    }
+fn count() -> u32 { return p.sequences * p.heads; }
+
+fn each(id: u32) {
     let h = id % p.heads;
     let s = id / p.heads;
     let c = p.channels;

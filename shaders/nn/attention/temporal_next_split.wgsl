@@ -25,7 +25,7 @@ var<workgroup> qkv: array<f32, 3u * MAX_HEAD_SIZE>;
 
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {
-    let id = invocation.group.x + invocation.group.y * invocation.groups.x;
+    let id = group_index(invocation);
     let t = invocation.lane;
     let live = id < p.sequences * p.heads;
     let h = id % p.heads;

@@ -5,6 +5,9 @@
 // multiply-adds. Planes of a multiple of 4 pixels (host-checked). Each output sums the
 // same terms in the same order (bias, then c_in) as conv2d.wgsl. Optional bias [c_out].
 
+#import nn/conv/conv_bias.wgsl
+#import nn/conv/conv1x1_tile.wgsl
+
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
 @group(0) @binding(1) var<storage, read> x: array<vec4<Elem>>;
 @group(0) @binding(2) var<storage, read> weight: array<vec4<f32>>;

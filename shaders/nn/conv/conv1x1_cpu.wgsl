@@ -4,6 +4,9 @@
 // is a loop over lanes): 4 texels per input channel for 64 multiply-adds. Planes of a
 // multiple of 4 pixels (host-checked). Optional bias [c_out].
 
+#import nn/conv/conv_bias.wgsl
+#import nn/conv/conv1x1_tile.wgsl
+
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
 @group(0) @binding(1) var x: texture_2d<f32>;
 @group(0) @binding(2) var weight: texture_2d<f32>;

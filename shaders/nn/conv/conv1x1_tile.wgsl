@@ -4,6 +4,8 @@
 // `y: array<vec4<Elem>>`: tiles of 8 neighbouring pixels of a plane × 8 output channels;
 // each output sums the same terms in the same order (bias, then c_in) as conv2d.wgsl.
 
+#import gpu/for_each.wgsl
+
 // Output channel `co` at the 4 pixels starting at vec4 `quad` of the plane, when both
 // exist.
 fn store(n: u32, co: u32, quad: u32, v: vec4<f32>) {
@@ -13,15 +15,17 @@ fn store(n: u32, co: u32, quad: u32, v: vec4<f32>) {
     }
 }
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let blocks = (p.c_out + 7u) / 8u;
     let quads = p.h_in * p.w_in / 4u;
     let tiles = (quads + 1u) / 2u;
-    if i >= p.batch * blocks * tiles {
-        return;
-    }
+    return p.batch * blocks * tiles;
+}
+
+fn each(i: u32) {
+    let blocks = (p.c_out + 7u) / 8u;
+    let quads = p.h_in * p.w_in / 4u;
+    let tiles = (quads + 1u) / 2u;
     let q0 = (i % tiles) * 2u;
     let q1 = min(q0 + 1u, quads - 1u);
     let block = (i / tiles) % blocks;

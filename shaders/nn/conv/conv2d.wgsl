@@ -2,19 +2,21 @@
 // k, k], optional bias [c_out], zero padding. One thread per output pixel and block of 8
 // output channels: each input value is loaded once for eight accumulators.
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read> weight: array<Elem>;
 @group(0) @binding(3) var<storage, read> bias: array<Elem>;
 @group(0) @binding(4) var<storage, read_write> y: array<Elem>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let blocks = (p.c_out + 7u) / 8u;
-    if i >= p.batch * blocks * p.h_out * p.w_out {
-        return;
-    }
+    return p.batch * blocks * p.h_out * p.w_out;
+}
+
+fn each(i: u32) {
+    let blocks = (p.c_out + 7u) / 8u;
     let ox = i % p.w_out;
     let oy = (i / p.w_out) % p.h_out;
     let block = (i / (p.w_out * p.h_out)) % blocks;

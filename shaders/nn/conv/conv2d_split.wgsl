@@ -20,7 +20,7 @@ var<workgroup> partial: array<vec4<f32>, 8u * WORKGROUP>;
 fn main(invocation: Invocation) {
     // The tile: the workgroup's linear index (the few past the end compute and store
     // nothing, and take part in the barrier).
-    let i = invocation.group.x + invocation.group.y * invocation.groups.x;
+    let i = group_index(invocation);
     let t = invocation.lane;
     let blocks = (p.c_out + 7u) / 8u;
     let tiles = (p.w_out + 3u) / 4u;

@@ -4,20 +4,23 @@
 // an exact zero, so each output sums the same terms in the same order (bias, then
 // c_in, ky, kx) as conv2d.wgsl. Weights [c_out, c_in, k, k], optional bias [c_out].
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read> weight: array<Elem>;
 @group(0) @binding(3) var<storage, read> bias: array<Elem>;
 @group(0) @binding(4) var<storage, read_write> y: array<Elem>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let blocks = (p.c_out + 7u) / 8u;
     let tiles = (p.w_out + 3u) / 4u;
-    if i >= p.batch * blocks * p.h_out * tiles {
-        return;
-    }
+    return p.batch * blocks * p.h_out * tiles;
+}
+
+fn each(i: u32) {
+    let blocks = (p.c_out + 7u) / 8u;
+    let tiles = (p.w_out + 3u) / 4u;
     let ox0 = (i % tiles) * 4u;
     let oy = (i / tiles) % p.h_out;
     let block = (i / (tiles * p.h_out)) % blocks;

@@ -12,6 +12,9 @@
 // separate add.wgsl exactly). With `upsample`, the input is read upsampled ×2
 // (upsample_nearest.wgsl fused into the loads).
 
+#import nn/conv/conv_bias.wgsl
+#import nn/conv/conv_store.wgsl
+
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read> weight: array<vec4<f32>>;
@@ -41,7 +44,7 @@ var<workgroup> total: array<f32, 64>;
 fn main(invocation: Invocation) {
     // The tile: the workgroup's linear index (the few past the end compute and store
     // nothing, and take part in the barriers).
-    let i = invocation.group.x + invocation.group.y * invocation.groups.x;
+    let i = group_index(invocation);
     let t = invocation.lane;
     let blocks = (p.c_out + 7u) / 8u;
     let tiles = (p.w_out + 7u) / 8u;

@@ -12,6 +12,11 @@
 // then each value read is normalised, SiLU'd and rounded to Elem, as that kernel's
 // stores would have been.
 
+#import nn/conv/pick.wgsl
+#import nn/conv/conv_bias.wgsl
+#import nn/conv/conv_store.wgsl
+#import nn/norm/texel_stats.wgsl
+
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
 @group(0) @binding(1) var x: texture_2d<f32>;
 @group(0) @binding(2) var weight: texture_2d<f32>;

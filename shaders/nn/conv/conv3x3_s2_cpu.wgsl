@@ -6,6 +6,12 @@
 // output sums bias, then c_in, ky, kx in order; taps outside the input add an exact zero
 // (as conv3x3.wgsl). Optional bias [c_out].
 
+#import gpu/for_each.wgsl
+
+#import nn/conv/pick.wgsl
+#import nn/conv/conv_bias.wgsl
+#import nn/conv/conv_store.wgsl
+
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
 @group(0) @binding(1) var x: texture_2d<f32>;
 @group(0) @binding(2) var weight: texture_2d<f32>;
@@ -15,14 +21,15 @@
 @group(0) @binding(5) var<storage, read> residual: array<Elem>;
 @group(0) @binding(6) var<storage, read_write> y: array<Elem>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let blocks = (p.c_out + 7u) / 8u;
     let tiles = (p.w_out + 3u) / 4u;
-    if i >= p.batch * blocks * p.h_out * tiles {
-        return;
-    }
+    return p.batch * blocks * p.h_out * tiles;
+}
+
+fn each(i: u32) {
+    let blocks = (p.c_out + 7u) / 8u;
+    let tiles = (p.w_out + 3u) / 4u;
     let ox0 = (i % tiles) * 4u;
     let oy = (i / tiles) % p.h_out;
     let block = (i / (tiles * p.h_out)) % blocks;

@@ -2,18 +2,20 @@
 // y [outer, a_inner + b_inner] (channels of NCHW: inner = C·H·W per sample; frames of
 // [B, HW, F, C] rows: inner = F·C).
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: ConcatParams;
 @group(0) @binding(1) var<storage, read> a: array<Elem>;
 @group(0) @binding(2) var<storage, read> b: array<Elem>;
 @group(0) @binding(3) var<storage, read_write> y: array<Elem>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let row = p.a_inner + p.b_inner;
-    if i >= p.outer * row {
-        return;
-    }
+    return p.outer * row;
+}
+
+fn each(i: u32) {
+    let row = p.a_inner + p.b_inner;
     let o = i / row;
     let k = i % row;
     if k < p.a_inner {

@@ -3,18 +3,20 @@
 // gather on lavapipe, where a storage load is a loop over lanes). Rows of a multiple of
 // 4 values (host-checked).
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: GatherParams;
 @group(0) @binding(1) var<storage, read> index: array<u32>;
 @group(0) @binding(2) var x: texture_2d<f32>;
 @group(0) @binding(3) var<storage, read_write> y: array<Elem>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let quads = p.width / 4u;
-    if i >= p.rows * quads {
-        return;
-    }
+    return p.rows * quads;
+}
+
+fn each(i: u32) {
+    let quads = p.width / 4u;
     let v = texel(x, index[i / quads] * quads + i % quads);
     y[4u * i] = Elem(v.x);
     y[4u * i + 1u] = Elem(v.y);

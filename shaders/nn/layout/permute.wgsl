@@ -4,6 +4,8 @@
 // Each addend is added to the sum rounded to Elem, as add.wgsl and add_action_bias.wgsl
 // would add it after a plain permute (see PermuteParams).
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: PermuteParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read> a: array<Elem>;
@@ -12,13 +14,13 @@
 @group(0) @binding(5) var<storage, read> ids: array<u32>;
 @group(0) @binding(6) var<storage, read_write> y: array<Elem>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let s = p.shape;
-    if i >= s.x * s.y * s.z * s.w {
-        return;
-    }
+    return s.x * s.y * s.z * s.w;
+}
+
+fn each(i: u32) {
+    let s = p.shape;
     let in_stride = vec4<u32>(s.y * s.z * s.w, s.z * s.w, s.w, 1u);
     let out_shape = vec4<u32>(s[p.perm.x], s[p.perm.y], s[p.perm.z], s[p.perm.w]);
     var rest = i;

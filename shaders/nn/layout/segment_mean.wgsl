@@ -1,17 +1,18 @@
 // Strided pooling (Elem storage, f32 sums): y[g, :] is the mean of rows g·stride ..
 // min((g + 1)·stride, rows) of x, summed in row order (the last group may be shorter).
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: SegmentParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read_write> y: array<Elem>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let segments = (p.rows + p.stride - 1u) / p.stride;
-    if i >= segments * p.width {
-        return;
-    }
+    return segments * p.width;
+}
+
+fn each(i: u32) {
     let g = i / p.width;
     let c = i % p.width;
     let end = min((g + 1u) * p.stride, p.rows);

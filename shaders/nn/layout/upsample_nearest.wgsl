@@ -1,17 +1,20 @@
 // Nearest-neighbour ×2 upsampling, NCHW: out[n, c, y, x] = in[n, c, y / 2, x / 2].
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: UpsampleParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read_write> y: array<Elem>;
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let w_out = 2u * p.w_in;
     let h_out = 2u * p.h_in;
-    if i >= p.planes * h_out * w_out {
-        return;
-    }
+    return p.planes * h_out * w_out;
+}
+
+fn each(i: u32) {
+    let w_out = 2u * p.w_in;
+    let h_out = 2u * p.h_in;
     let ox = i % w_out;
     let oy = (i / w_out) % h_out;
     let plane = i / (w_out * h_out);

@@ -1,6 +1,8 @@
 // Fully connected layer (Elem storage, f32 sums): y[b, o] = sum_i act(x[b, i]) * weight[o, i] + bias[o], where
 // act is SiLU when `input_silu` is set (the embedding projections) and identity otherwise.
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: LinearParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read> weight: array<Elem>;
@@ -17,12 +19,9 @@ fn finish(at: u32, v: f32) -> Elem {
     return Elem(v);
 }
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
-    if i >= p.rows * p.outputs {
-        return;
-    }
+fn count() -> u32 { return p.rows * p.outputs; }
+
+fn each(i: u32) {
     let o = i % p.outputs;
     let row = i / p.outputs;
     var acc = f32(bias[o]);

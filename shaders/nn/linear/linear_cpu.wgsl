@@ -10,6 +10,10 @@
 // NCHW residual and an optional action-table row): the attention layers' output
 // projection and the permute back, in one pass (see LinearParams).
 
+#import gpu/for_each.wgsl
+
+#import nn/norm/texel_stats.wgsl
+
 @group(0) @binding(0) var<uniform> p: LinearParams;
 @group(0) @binding(1) var x: texture_2d<f32>;
 @group(0) @binding(2) var weight: texture_2d<f32>;
@@ -89,14 +93,14 @@ fn store(row: u32, o0: u32, v: vec4<f32>) {
     }
 }
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let out_tiles = (p.outputs + 7u) / 8u;
     let row_tiles = (p.rows + 7u) / 8u;
-    if i >= out_tiles * row_tiles {
-        return;
-    }
+    return out_tiles * row_tiles;
+}
+
+fn each(i: u32) {
+    let out_tiles = (p.outputs + 7u) / 8u;
     let o0 = (i % out_tiles) * 8u;
     let r0 = (i / out_tiles) * 8u;
     let last_o = vec4<u32>(p.outputs - 1u);

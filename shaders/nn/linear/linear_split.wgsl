@@ -43,7 +43,7 @@ fn act(v: f32) -> f32 {
 fn main(invocation: Invocation) {
     // The tile: the workgroup's linear index (those past the end compute nothing and
     // take part in the barrier).
-    let i = invocation.group.x + invocation.group.y * invocation.groups.x;
+    let i = group_index(invocation);
     let t = invocation.lane;
     let out_tiles = (p.outputs + 3u) / 4u;
     let row_tiles = (p.rows + 3u) / 4u;

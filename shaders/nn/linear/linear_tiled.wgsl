@@ -5,6 +5,8 @@
 // from the bias, as linear.wgsl's do. Rows and outputs past the end are clamped for the
 // loads and not stored.
 
+#import gpu/for_each.wgsl
+
 @group(0) @binding(0) var<uniform> p: LinearParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read> weight: array<Elem>;
@@ -28,14 +30,14 @@ fn act(v: f32) -> f32 {
     return v;
 }
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let i = linear_index(invocation);
+fn count() -> u32 {
     let out_tiles = (p.outputs + 3u) / 4u;
     let row_tiles = (p.rows + 3u) / 4u;
-    if i >= out_tiles * row_tiles {
-        return;
-    }
+    return out_tiles * row_tiles;
+}
+
+fn each(i: u32) {
+    let out_tiles = (p.outputs + 3u) / 4u;
     let o0 = (i % out_tiles) * 4u;
     let r0 = (i / out_tiles) * 4u;
     let last_o = p.outputs - 1u;

@@ -30,12 +30,9 @@ fn reduce(lane: u32, value: f32) -> f32 {
 }
 
 @compute @workgroup_size(THREADS)
-fn main(
-    @builtin(workgroup_id) group: vec3<u32>,
-    @builtin(num_workgroups) groups: vec3<u32>,
-    @builtin(local_invocation_index) lane: u32,
-) {
-    let id = group.x + group.y * groups.x;
+fn main(invocation: Invocation) {
+    let id = group_index(invocation);
+    let lane = invocation.lane;
     if id >= p.batch * p.groups {
         return;
     }

@@ -11,6 +11,10 @@
 // texels (src/gpu/texels.rs: a vector gather on lavapipe, where a storage load is a
 // loop over lanes).
 
+#import gpu/for_each.wgsl
+
+#import nn/norm/texel_stats.wgsl
+
 @group(0) @binding(0) var<uniform> p: GroupNormParams;
 @group(0) @binding(1) var x: texture_2d<f32>;
 @group(0) @binding(2) var<storage, read> gamma: array<Elem>;
@@ -31,12 +35,9 @@ fn store4(at: u32, v: vec4<f32>) {
     y[at + 3u] = Elem(v.w);
 }
 
-@compute @workgroup_size(WORKGROUP)
-fn main(invocation: Invocation) {
-    let id = linear_index(invocation);
-    if id >= p.batch * p.groups {
-        return;
-    }
+fn count() -> u32 { return p.batch * p.groups; }
+
+fn each(id: u32) {
     let per_group = p.channels / p.groups;
     let count = per_group * p.hw;
     let base = id * count / 4u; // (n, g) blocks are contiguous in NCHW

@@ -3,15 +3,11 @@
 //! [`Kernels`] variant.
 
 use super::{Kernels, Recorder};
-use crate::gpu::shaders::{Shader, Snippet};
+use crate::gpu::shaders::Shader;
 use crate::gpu::{Bound, GpuError};
 use crate::gpu_struct;
 use crate::nn::Tensor;
 use crate::wgsl_shader as shader;
-use crate::wgsl_snippet as snippet;
-
-/// `Online`, `take`, `store_online`: the CPU-driver attention's running softmax.
-pub const ONLINE_SOFTMAX: Snippet = snippet!("nn/attention/online_softmax.wgsl");
 
 pub const ATTENTION: Shader = shader!("nn/attention/attention.wgsl", [AttentionParams], elem)
     .with_uints(&[("MAX_HEAD_SIZE", MAX_HEAD_SIZE as u32)]);
@@ -26,8 +22,7 @@ pub const ATTENTION_TILED: Shader =
         .with_uints(&[("TILE_HEAD", TILE_HEAD_SIZE as u32)]);
 /// Attention for CPU drivers: heads of at most 32 values in named vec4 registers.
 pub const ATTENTION_CPU: Shader =
-    shader!("nn/attention/attention_cpu.wgsl", [AttentionParams], elem)
-        .with_snippets(&[ONLINE_SOFTMAX]);
+    shader!("nn/attention/attention_cpu.wgsl", [AttentionParams], elem);
 /// A temporal layer's projection and attention for one new frame, for GPUs.
 pub const TEMPORAL_NEXT_SPLIT: Shader = shader!(
     "nn/attention/temporal_next_split.wgsl",
@@ -37,8 +32,7 @@ pub const TEMPORAL_NEXT_SPLIT: Shader = shader!(
 .with_uints(&[("MAX_HEAD_SIZE", MAX_HEAD_SIZE as u32)]);
 /// A temporal layer's projection and attention for one new frame, for CPU drivers.
 pub const TEMPORAL_NEXT: Shader =
-    shader!("nn/attention/temporal_next.wgsl", [AttentionParams], elem)
-        .with_snippets(&[ONLINE_SOFTMAX]);
+    shader!("nn/attention/temporal_next.wgsl", [AttentionParams], elem);
 
 /// Every shader of this file (see [`super::shaders`]).
 pub const SHADERS: &[Shader] = &[
@@ -49,8 +43,6 @@ pub const SHADERS: &[Shader] = &[
     TEMPORAL_NEXT_SPLIT,
     TEMPORAL_NEXT,
 ];
-/// Every snippet of this file.
-pub const SNIPPETS: &[Snippet] = &[ONLINE_SOFTMAX];
 
 gpu_struct! {
     /// Multi-head attention over `sequences` independent sequences (see attention.wgsl).

@@ -2,25 +2,15 @@
 //! convolution from repacked weights (with a folded input norm, an addend, a residual, an
 //! upsampled input), the 3×3 stride-2 one and the 1×1 one, in every [`Kernels`] variant.
 
-use super::norm::{GROUP_NORM_EPS, GroupNormParams, InputNorm, NORM_STATS, TEXEL_STATS};
+use super::norm::{GROUP_NORM_EPS, GroupNormParams, InputNorm, NORM_STATS};
 use super::{Broadcast, Kernels, Recorder, nchw};
 use crate::gpu::kernel::{Grid, Precision};
-use crate::gpu::shaders::{Shader, Snippet};
+use crate::gpu::shaders::Shader;
 use crate::gpu::texels::Texels;
 use crate::gpu::{Bound, GpuContext, GpuError};
 use crate::gpu_struct;
 use crate::nn::Tensor;
 use crate::wgsl_shader as shader;
-use crate::wgsl_snippet as snippet;
-
-/// `pick`: a run of values read as texels that starts anywhere in a texel.
-pub const PICK: Snippet = snippet!("nn/conv/pick.wgsl");
-/// `bias_lanes`: a convolution tile's starting sums.
-pub const CONV_BIAS: Snippet = snippet!("nn/conv/conv_bias.wgsl");
-/// `finish` and `store`: the 3×3 convolutions' epilogue.
-pub const CONV_STORE: Snippet = snippet!("nn/conv/conv_store.wgsl");
-/// The 1×1 convolution's tile (its entry point), for the buffer and the texel forms.
-pub const CONV1X1_TILE: Snippet = snippet!("nn/conv/conv1x1_tile.wgsl");
 
 pub const CONV2D: Shader = shader!("nn/conv/conv2d.wgsl", [Conv2dParams], elem);
 /// The convolution in register tiles of 4 output pixels × 8 channels.
@@ -29,27 +19,21 @@ pub const CONV2D_TILED: Shader = shader!("nn/conv/conv2d_tiled.wgsl", [Conv2dPar
 pub const CONV2D_SPLIT: Shader = shader!("nn/conv/conv2d_split.wgsl", [Conv2dParams], elem);
 /// The 3×3 stride-1 convolution in register tiles of 8 pixels × 8 channels, from
 /// repacked f32 weights (`ops::PackedConv`).
-pub const CONV3X3: Shader =
-    shader!("nn/conv/conv3x3.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV_STORE]);
+pub const CONV3X3: Shader = shader!("nn/conv/conv3x3.wgsl", [Conv2dParams], elem);
 /// `CONV3X3` for CPU drivers: the input and the weights read as texels.
 pub const CONV3X3_CPU: Shader = shader!("nn/conv/conv3x3_cpu.wgsl", [Conv2dParams], elem)
-    .with_snippets(&[PICK, CONV_BIAS, CONV_STORE, TEXEL_STATS])
     .with_uints(&[("NORM_STATS", NORM_STATS as u32), ("NORMED", 0)]);
 /// `CONV3X3_CPU` that group-normalises its input as it loads it (`Recorder::normed_conv3x3`):
 /// the same file built with `NORMED` set, so the plain form carries none of it.
 pub const CONV3X3_NORMED_CPU: Shader = shader!("nn/conv/conv3x3_cpu.wgsl", [Conv2dParams], elem)
-    .with_snippets(&[PICK, CONV_BIAS, CONV_STORE, TEXEL_STATS])
     .with_uints(&[("NORM_STATS", NORM_STATS as u32), ("NORMED", 1)]);
 /// The 1×1 convolution in register tiles of 8 pixels × 8 channels, from repacked f32
 /// weights (`ops::PackedConv`).
 /// The 3×3 stride-2 convolution for CPU drivers: input and packed weights as texels.
-pub const CONV3X3_S2_CPU: Shader = shader!("nn/conv/conv3x3_s2_cpu.wgsl", [Conv2dParams], elem)
-    .with_snippets(&[PICK, CONV_BIAS, CONV_STORE]);
-pub const CONV1X1: Shader =
-    shader!("nn/conv/conv1x1.wgsl", [Conv2dParams], elem).with_snippets(&[CONV_BIAS, CONV1X1_TILE]);
+pub const CONV3X3_S2_CPU: Shader = shader!("nn/conv/conv3x3_s2_cpu.wgsl", [Conv2dParams], elem);
+pub const CONV1X1: Shader = shader!("nn/conv/conv1x1.wgsl", [Conv2dParams], elem);
 /// `CONV1X1` for CPU drivers: the input and the weights read as texels.
-pub const CONV1X1_CPU: Shader = shader!("nn/conv/conv1x1_cpu.wgsl", [Conv2dParams], elem)
-    .with_snippets(&[CONV_BIAS, CONV1X1_TILE]);
+pub const CONV1X1_CPU: Shader = shader!("nn/conv/conv1x1_cpu.wgsl", [Conv2dParams], elem);
 
 /// Every shader of this file (see [`super::shaders`]).
 pub const SHADERS: &[Shader] = &[
@@ -63,8 +47,6 @@ pub const SHADERS: &[Shader] = &[
     CONV1X1,
     CONV1X1_CPU,
 ];
-/// Every snippet of this file.
-pub const SNIPPETS: &[Snippet] = &[PICK, CONV_BIAS, CONV_STORE, CONV1X1_TILE];
 
 gpu_struct! {
     /// Shapes of one 2-D convolution (NCHW, square kernel, zero padding).
@@ -235,7 +217,7 @@ impl Recorder<'_> {
         // splitting the terms. Otherwise register tiles of 4 output pixels × 8 channels
         // where a row has 4 pixels, and one thread per output pixel and block of 8
         // channels where not; these two sum in the same order. All three are
-        // parity-tested (tests/nn.rs).
+        // parity-tested (tests/nn/).
         if self.kernels == Kernels::Gpu {
             let tiles = n * c_out.div_ceil(8) * h_out * w_out.div_ceil(4);
             let grid = self.workgroups(tiles);

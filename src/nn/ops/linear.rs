@@ -1,7 +1,7 @@
 //! Linear layers over rows: plain, with a residual, an action table or a layer norm
 //! folded in, into NCHW images, in every [`Kernels`] variant.
 
-use super::norm::{GROUP_NORM_EPS, TEXEL_STATS};
+use super::norm::GROUP_NORM_EPS;
 use super::{Indices, Kernels, Recorder};
 use crate::gpu::shaders::Shader;
 use crate::gpu::{Bound, GpuError};
@@ -15,8 +15,7 @@ pub const LINEAR_TILED: Shader = shader!("nn/linear/linear_tiled.wgsl", [LinearP
 /// The linear layer for GPUs: a workgroup per 4 × 4 tile, its threads splitting the inputs.
 pub const LINEAR_SPLIT: Shader = shader!("nn/linear/linear_split.wgsl", [LinearParams], elem);
 /// The tiled linear layer for CPU drivers: vec4 loads along the inputs.
-pub const LINEAR_CPU: Shader =
-    shader!("nn/linear/linear_cpu.wgsl", [LinearParams], elem).with_snippets(&[TEXEL_STATS]);
+pub const LINEAR_CPU: Shader = shader!("nn/linear/linear_cpu.wgsl", [LinearParams], elem);
 
 /// Every shader of this file (see [`super::shaders`]).
 pub const SHADERS: &[Shader] = &[LINEAR, LINEAR_TILED, LINEAR_SPLIT, LINEAR_CPU];
@@ -121,7 +120,7 @@ impl Recorder<'_> {
         // table equals the cross-attention it replaces bit for bit). Otherwise register
         // tiles of 4 rows × 4 outputs where there are rows to share a tile, one
         // invocation per output for fewer rows (the timestep and action embeddings):
-        // both sum in the same order. All are parity-tested (tests/nn.rs).
+        // both sum in the same order. All are parity-tested (tests/nn/).
         let rows = x.len() / inputs;
         if self.kernels == Kernels::Gpu {
             self.linear_split(&params, [x, weight, bias, residual], None, &y);

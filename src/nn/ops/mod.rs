@@ -25,7 +25,7 @@ pub use norm::{GROUP_NORM_EPS, GroupNormParams, InputNorm, NORM_STATS, SERIAL_NO
 use super::Tensor;
 use crate::gpu::kernel::{Grid, PipelineCache, Precision};
 pub use crate::gpu::plan::{Builder, Plan};
-use crate::gpu::shaders::{Shader, Snippet};
+use crate::gpu::shaders::Shader;
 use crate::gpu::texels::Texels;
 use crate::gpu::{GpuContext, GpuError};
 
@@ -40,11 +40,6 @@ pub fn shaders() -> Vec<Shader> {
         arith::SHADERS,
     ]
     .concat()
-}
-
-/// Every WGSL snippet of the model's shaders.
-pub fn snippets() -> Vec<Snippet> {
-    [conv::SNIPPETS, norm::SNIPPETS, attention::SNIPPETS].concat()
 }
 
 /// Row indices in a u32 storage buffer (for [`Recorder::gather`]); rewritable in place
@@ -93,7 +88,7 @@ enum Mode {
 }
 
 /// Which variant of each kernel a [`Recorder`] records. Every variant computes the same
-/// thing and is parity-tested against PyTorch (tests/nn.rs).
+/// thing and is parity-tested against PyTorch (tests/nn/).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kernels {
     /// One output per invocation everywhere: the reference forms.

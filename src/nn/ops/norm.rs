@@ -2,16 +2,12 @@
 //! layers' token rows, in every [`Kernels`] variant.
 
 use super::{Kernels, Recorder};
-use crate::gpu::shaders::{Shader, Snippet};
+use crate::gpu::shaders::Shader;
 use crate::gpu::texels::Texels;
 use crate::gpu::{Bound, GpuError};
 use crate::gpu_struct;
 use crate::nn::Tensor;
 use crate::wgsl_shader as shader;
-use crate::wgsl_snippet as snippet;
-
-/// `texel_stats`: every CPU-driver norm's (mean, 1 / std), one summation order.
-pub const TEXEL_STATS: Snippet = snippet!("nn/norm/texel_stats.wgsl");
 
 pub const GROUP_NORM: Shader =
     shader!("nn/norm/group_norm.wgsl", [GroupNormParams], elem).with_uints(&[("THREADS", 64)]);
@@ -20,13 +16,10 @@ pub const GROUP_NORM_WIDE: Shader =
     shader!("nn/norm/group_norm.wgsl", [GroupNormParams], elem).with_uints(&[("THREADS", 256)]);
 /// Group norm for CPU drivers: one invocation per (sample, group), no barriers.
 pub const GROUP_NORM_SERIAL: Shader =
-    shader!("nn/norm/group_norm_serial.wgsl", [GroupNormParams], elem)
-        .with_snippets(&[TEXEL_STATS]);
+    shader!("nn/norm/group_norm_serial.wgsl", [GroupNormParams], elem);
 
 /// Every shader of this file (see [`super::shaders`]).
 pub const SHADERS: &[Shader] = &[GROUP_NORM, GROUP_NORM_WIDE, GROUP_NORM_SERIAL];
-/// Every snippet of this file.
-pub const SNIPPETS: &[Snippet] = &[TEXEL_STATS];
 
 gpu_struct! {
     /// Group normalisation of `batch` samples of `channels` × `hw` values.
