@@ -142,33 +142,24 @@ fn a_huge_accessor_count_is_named_not_reported_as_a_missing_position() {
 }
 
 #[test]
-fn an_index_accessor_overrunning_its_buffer_is_an_error() {
-    let err = gltf_error(&triangle_bin(GOOD, 1.0), |doc| {
-        doc["accessors"][1]["count"] = json!(300);
-    });
-    assert!(
-        err.contains("accessor 1") && err.contains("overrun buffer view 1"),
-        "{err}"
-    );
-}
-
-#[test]
-fn an_inverse_bind_accessor_overrunning_its_buffer_is_an_error() {
-    let err = gltf_error(&triangle_bin(GOOD, 1.0), |doc| {
-        doc["accessors"][4]["count"] = json!(2);
-    });
-    assert!(
-        err.contains("accessor 4") && err.contains("overrun"),
-        "{err}"
-    );
-}
-
-#[test]
-fn an_index_count_that_is_not_a_multiple_of_3_is_an_error() {
-    let err = gltf_error(&triangle_bin(GOOD, 1.0), |doc| {
-        doc["accessors"][1]["count"] = json!(2);
-    });
-    assert!(err.contains("2 indices, not a multiple of 3"), "{err}");
+fn an_accessor_whose_count_does_not_fit_is_an_error_naming_it() {
+    // (accessor, the count it is made to declare, what the error must say): the indices
+    // overrunning their buffer view, the inverse bind matrices overrunning theirs, and an
+    // index count that is not a multiple of 3.
+    let cases: [(usize, u64, &[&str]); 3] = [
+        (1, 300, &["accessor 1", "overrun buffer view 1"]),
+        (4, 2, &["accessor 4", "overrun"]),
+        (1, 2, &["2 indices, not a multiple of 3"]),
+    ];
+    for (accessor, count, says) in cases {
+        let err = gltf_error(&triangle_bin(GOOD, 1.0), |doc| {
+            doc["accessors"][accessor]["count"] = json!(count);
+        });
+        assert!(
+            says.iter().all(|s| err.contains(s)),
+            "accessor {accessor} declaring {count}: {err}"
+        );
+    }
 }
 
 #[test]

@@ -3,6 +3,7 @@
 
 mod common;
 
+use std::path::Path;
 use std::process::{Command, Output};
 
 fn unica(args: &[&str], env: &[(&str, &str)]) -> Output {
@@ -271,7 +272,7 @@ fn bench_prints_its_table() {
     );
     // The model rows: the FLOPs the engine runs (tiny UNet, batch 2 for CFG): the
     // trainer's count less the cross-attention, tabled at load, and the timestep
-    // embedding's projections, made once per recording (see tests/nn.rs):
+    // embedding's projections, made once per recording (see tests/nn/):
     // 2 × (121,053,184 − 3,293,184 − 57,344).
     let group = text
         .lines()
@@ -301,24 +302,16 @@ fn export_writes_the_neural_avatars_splats_and_view_refuses_bad_files() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("witch.ply");
     let bundle = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/witch/bundle");
-    let run = unica(
-        &[
-            "export",
-            "ply",
-            "--bundle",
-            bundle,
-            "--keys",
-            "1W",
-            "--steps",
-            "1",
-            "--splat-level",
-            "128",
-            "--out",
-            out.to_str().unwrap(),
-        ],
-        &[],
-    );
-    assert!(run.status.success(), "{}", stderr(&run));
+    // One frame of the shipped bundle, exported as `format` to `to` with `extra`.
+    let export = |format: &str, to: &Path, extra: &[&str]| {
+        let head = [
+            "export", format, "--bundle", bundle, "--keys", "1W", "--steps", "1",
+        ];
+        let tail = ["--splat-level", "128", "--out", to.to_str().unwrap()];
+        let run = unica(&[&head[..], &tail, extra].concat(), &[]);
+        assert!(run.status.success(), "{}", stderr(&run));
+    };
+    export("ply", &out, &[]);
     let splats = unica::splat::ply::read(&out).unwrap();
     assert_eq!(splats.len(), 4414, "one splat per pixel of the 128² map");
     let (lo, hi) = splats.iter().fold(
@@ -335,26 +328,7 @@ fn export_writes_the_neural_avatars_splats_and_view_refuses_bad_files() {
     // 1e-5); colour (clamped to 0..1) and opacity 8-bit truncated (within 1/255);
     // rotations 8-bit per component (|q·q'| > 1 − 2e-4).
     let splat_out = dir.path().join("witch.splat");
-    let run = unica(
-        &[
-            "export",
-            "splat",
-            "--bundle",
-            bundle,
-            "--keys",
-            "1W",
-            "--steps",
-            "1",
-            "--splat-level",
-            "128",
-            "--up",
-            "z",
-            "--out",
-            splat_out.to_str().unwrap(),
-        ],
-        &[],
-    );
-    assert!(run.status.success(), "{}", stderr(&run));
+    export("splat", &splat_out, &["--up", "z"]);
     use unica::splat::files::{Up, read};
     let z_up = read(&splat_out, Up::Y).unwrap().splats;
     let (lo_z, hi_z) = z_up.iter().fold(

@@ -720,7 +720,7 @@ fn the_gpu_kernel_variant_makes_the_frames_of_the_cpu_variant() {
     // The frame plan recorded with the GPU kernels (convolutions, linear layers,
     // attention and PCA sums split over workgroups) against the CPU kernels, on the
     // shipped bundle's one-pass sampler, same seed and keys, with the refined splats.
-    // Both are parity-tested layer by layer (tests/nn.rs); here the whole frame, the
+    // Both are parity-tested layer by layer (tests/nn/); here the whole frame, the
     // engine's own GPU-variant kernel (pca_coefficients_split.wgsl) included, over four
     // frames that feed each other. They differ only in summation order; tolerance 1e-4 m
     // (0.1 mm) on every world point.

@@ -56,24 +56,23 @@ fn capabilities_follow_the_adapter() {
 fn scale_add_f32_matches_the_cpu_on_both_paths() {
     let x = ramp(10_000);
     for fallback in [false, true] {
-        let gpu = device(fallback);
-        let y = kernel::scale_add(
-            &gpu,
-            &mut PipelineCache::default(),
-            &x,
-            1.5,
-            -0.25,
-            Precision::F32,
-        )
-        .unwrap();
-        for (i, (&got, &xi)) in y.iter().zip(&x).enumerate() {
-            let want = 1.5 * xi - 0.25;
-            // One rounding (fused or not): within 1 ulp-ish of the exact value.
-            assert!(
-                (got - want).abs() <= 1e-6 * want.abs().max(1.0),
-                "fallback {fallback}, [{i}]: {got} vs {want}"
-            );
-        }
+        // One rounding (fused or not): within 1 ulp-ish of the exact value.
+        let what = format!("fallback {fallback}");
+        assert_scale_add(&device(fallback), &x, Precision::F32, 1e-6, &what);
+    }
+}
+
+/// `kernel::scale_add(x, 1.5, -0.25)` in `precision` within `relative` of the exact
+/// value (relative to max(1, |value|)) everywhere.
+fn assert_scale_add(gpu: &GpuContext, x: &[f32], precision: Precision, relative: f32, what: &str) {
+    let mut pipelines = PipelineCache::default();
+    let y = kernel::scale_add(gpu, &mut pipelines, x, 1.5, -0.25, precision).unwrap();
+    for (i, (&got, &xi)) in y.iter().zip(x).enumerate() {
+        let want = 1.5 * xi - 0.25;
+        assert!(
+            (got - want).abs() <= relative * want.abs().max(1.0),
+            "{what}, [{i}]: {got} vs {want}"
+        );
     }
 }
 
@@ -88,23 +87,8 @@ fn scale_add_f16_path_matches_within_half_precision() {
     }
     assert_eq!(Precision::preferred(&gpu), Precision::F16);
     let x = ramp(4_097); // odd length: the f16 buffer is padded
-    let y = kernel::scale_add(
-        &gpu,
-        &mut PipelineCache::default(),
-        &x,
-        1.5,
-        -0.25,
-        Precision::F16,
-    )
-    .unwrap();
-    for (i, (&got, &xi)) in y.iter().zip(&x).enumerate() {
-        let want = 1.5 * xi - 0.25;
-        // Input, product and sum each round to 11 significant bits: 3 half-ulps of 2^-11.
-        assert!(
-            (got - want).abs() <= 3.0 * 2f32.powi(-11) * want.abs().max(1.0),
-            "[{i}]: {got} vs {want}"
-        );
-    }
+    // Input, product and sum each round to 11 significant bits: 3 half-ulps of 2^-11.
+    assert_scale_add(&gpu, &x, Precision::F16, 3.0 * 2f32.powi(-11), "f16");
 }
 
 #[test]

@@ -6,32 +6,18 @@ use std::process::Command;
 
 #[test]
 fn the_teacher_session_follows_the_keys() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("session");
     let witch = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/source/Witch.gltf");
-    let run = Command::new(env!("CARGO_BIN_EXE_unica"))
-        .args([
-            "render",
-            "--teacher",
-            witch.to_str().unwrap(),
-            "--keys",
-            "30W 30D",
-            "--out",
-            out.to_str().unwrap(),
-            "--size",
-            "64",
-            "--views",
-            "2",
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    let manifest: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("manifest.json")).unwrap()).unwrap();
+    let (dir, manifest) = render(&[
+        "--teacher",
+        witch.to_str().unwrap(),
+        "--keys",
+        "30W 30D",
+        "--size",
+        "64",
+        "--views",
+        "2",
+    ]);
+    let out = dir.path();
     let frames = manifest["frames"].as_array().unwrap();
     assert_eq!(frames.len(), 60);
     for frame in frames {
@@ -80,13 +66,12 @@ fn render_needs_exactly_one_source() {
     );
 }
 
-/// Runs `unica render --bundle assets/witch/bundle` with `args` into a new folder; returns
-/// the folder and its manifest.
-fn render_bundle(args: &[&str]) -> (tempfile::TempDir, serde_json::Value) {
+/// Runs `unica render` with `args` into a new folder; returns the folder and its
+/// manifest.
+fn render(args: &[&str]) -> (tempfile::TempDir, serde_json::Value) {
     let dir = tempfile::tempdir().unwrap();
-    let bundle = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle");
     let run = Command::new(env!("CARGO_BIN_EXE_unica"))
-        .args(["render", "--bundle", bundle.to_str().unwrap(), "--out"])
+        .args(["render", "--out"])
         .arg(dir.path())
         .args(args)
         .output()
@@ -99,6 +84,12 @@ fn render_bundle(args: &[&str]) -> (tempfile::TempDir, serde_json::Value) {
     let manifest =
         serde_json::from_slice(&std::fs::read(dir.path().join("manifest.json")).unwrap()).unwrap();
     (dir, manifest)
+}
+
+/// `render` of the shipped Witch bundle.
+fn render_bundle(args: &[&str]) -> (tempfile::TempDir, serde_json::Value) {
+    let bundle = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle");
+    render(&[&["--bundle", bundle.to_str().unwrap()], args].concat())
 }
 
 #[test]
