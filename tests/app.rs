@@ -58,6 +58,46 @@ fn unica(args: &[&str], env: &[(&str, &str)]) -> Output {
     cmd.output().expect("the unica binary runs")
 }
 
+/// The luma variance of `shot`'s viewport, after checking that `what` covers over 2 % of
+/// it.
+fn assert_covers(shot: &Path, what: &str) -> f64 {
+    let (variance, covered) = viewport_stats(shot);
+    eprintln!(
+        "{what}: luma variance {variance:.1}, {:.1}% of the viewport covered",
+        covered * 100.0
+    );
+    assert!(
+        covered > 0.02,
+        "{what} cover only {:.2}% of the viewport",
+        covered * 100.0
+    );
+    variance
+}
+
+/// A bundle shipped in assets/.
+fn shipped(name: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("assets/{name}/bundle"))
+}
+
+/// The window on a shipped bundle, driven by the key script `keys` for `seconds`, with
+/// a screenshot to `shot` and `extra` arguments: its stdout, after checking it succeeded.
+fn play(name: &str, keys: &str, shot: &Path, seconds: u32, extra: &[&str]) -> String {
+    let bundle = shipped(name);
+    let seconds = seconds.to_string();
+    let mut args = vec![
+        "--bundle",
+        bundle.to_str().unwrap(),
+        "--keys",
+        keys,
+        "--screenshot",
+        shot.to_str().unwrap(),
+        "--exit-after-seconds",
+        &seconds,
+    ];
+    args.extend_from_slice(extra);
+    check(&unica(&args, &[]))
+}
+
 fn check(out: &Output) -> String {
     let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(
@@ -131,16 +171,7 @@ fn the_witch_window_screenshot_is_not_blank_and_keys_drive_the_action() {
         stdout.contains("30 frames rendered; action Forward; character Witch"),
         "{stdout}"
     );
-    let (variance, covered) = viewport_stats(&shot);
-    eprintln!(
-        "witch viewport: luma variance {variance:.1}, {:.1}% covered",
-        covered * 100.0
-    );
-    assert!(
-        covered > 0.02,
-        "the avatar covers only {:.2}% of the viewport",
-        covered * 100.0
-    );
+    let variance = assert_covers(&shot, "the witch");
     assert!(
         variance > 20.0,
         "viewport looks blank: variance {variance:.1}"
@@ -156,26 +187,15 @@ fn the_neural_witch_is_generated_and_drawn_while_the_window_yields() {
     // generated frames, not window frames.
     let dir = tempfile::tempdir().unwrap();
     let shot = dir.path().join("neural.png");
-    let bundle = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle");
-    let out = unica(
-        &[
-            "--bundle",
-            bundle.to_str().unwrap(),
-            "--keys",
-            "2I 100W 10000D",
-            "--screenshot",
-            shot.to_str().unwrap(),
-            "--record",
-            "--record-fps",
-            "2",
-            "--record-dir",
-            dir.path().join("rec").to_str().unwrap(),
-            "--exit-after-seconds",
-            "45",
-        ],
-        &[],
-    );
-    let stdout = check(&out);
+    let record = dir.path().join("rec");
+    let extra = [
+        "--record",
+        "--record-fps",
+        "2",
+        "--record-dir",
+        record.to_str().unwrap(),
+    ];
+    let stdout = play("witch", "2I 100W 10000D", &shot, 45, &extra);
     let generated: u64 = stdout
         .split("; ")
         .find_map(|part| part.trim_end().strip_suffix(" generated frames"))
@@ -231,16 +251,7 @@ fn the_neural_witch_is_generated_and_drawn_while_the_window_yields() {
             "the camera stayed while the avatar ran"
         );
     }
-    let (variance, covered) = viewport_stats(&shot);
-    eprintln!(
-        "neural viewport: luma variance {variance:.1}, {:.1}% covered",
-        covered * 100.0
-    );
-    assert!(
-        covered > 0.02,
-        "the avatar covers only {:.2}% of the viewport",
-        covered * 100.0
-    );
+    assert_covers(&shot, "the neural witch and her teacher");
 }
 
 #[test]
@@ -249,32 +260,13 @@ fn the_shipped_knight_plays_beside_its_teacher() {
     // teacher, is generated and drawn, and covers part of the viewport.
     let dir = tempfile::tempdir().unwrap();
     let shot = dir.path().join("knight.png");
-    let bundle = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/knight/bundle");
-    let out = unica(
-        &[
-            "--bundle",
-            bundle.to_str().unwrap(),
-            "--keys",
-            "2I 100W",
-            "--screenshot",
-            shot.to_str().unwrap(),
-            "--exit-after-seconds",
-            "30",
-        ],
-        &[],
-    );
-    let stdout = check(&out);
+    let stdout = play("knight", "2I 100W", &shot, 30, &[]);
     assert!(
         stdout.contains("; teacher Knight beside;"),
         "the shipped Knight plays without its teacher: {stdout}"
     );
     assert!(!stdout.contains("; 0 generated frames"), "{stdout}");
-    let (_, covered) = viewport_stats(&shot);
-    assert!(
-        covered > 0.02,
-        "the avatars cover only {:.2}% of the viewport",
-        covered * 100.0
-    );
+    assert_covers(&shot, "the Knight and his teacher");
 }
 
 #[test]
@@ -314,12 +306,7 @@ fn view_shows_a_3dgs_file_written_by_another_program() {
     );
     let stdout = check(&out);
     assert!(stdout.contains("(1000 splats)"), "{stdout}");
-    let (_, covered) = viewport_stats(&shot);
-    assert!(
-        covered > 0.02,
-        "the splats cover only {:.2}% of the viewport",
-        covered * 100.0
-    );
+    assert_covers(&shot, "the splats");
 }
 
 #[test]
@@ -468,8 +455,8 @@ fn a_bundle_whose_weights_fail_to_load_fails_a_scripted_run() {
     let dir = tempfile::tempdir().unwrap();
     let bundle = dir.path().join("bundle");
     std::fs::create_dir(&bundle).unwrap();
-    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle");
-    std::fs::copy(shipped.join("manifest.json"), bundle.join("manifest.json")).unwrap();
+    let manifest = shipped("witch").join("manifest.json");
+    std::fs::copy(manifest, bundle.join("manifest.json")).unwrap();
     std::fs::write(bundle.join("weights.safetensors"), b"not tensors").unwrap();
     let out = unica(
         &["--bundle", bundle.to_str().unwrap(), "--exit-after", "50"],
