@@ -376,7 +376,7 @@ mod tests {
 
     #[test]
     fn the_embedded_table_holds_every_shader_file() {
-        assert!(file("gpu/scale_add.wgsl").is_some_and(|t| t.contains("fn main")));
+        assert!(file("gpu/for_each.wgsl").is_some_and(|t| t.contains("fn main")));
         assert!(file("gpu/none.wgsl").is_none());
     }
 }
