@@ -13,11 +13,7 @@
 @group(0) @binding(5) var coefficients: texture_2d<f32>;
 @group(0) @binding(6) var<storage, read_write> points: array<f32>;
 
-fn count() -> u32 {
-    let d = 3u * p.points;
-    let quads = (d + 3u) / 4u;
-    return quads;
-}
+fn count() -> u32 { return (3u * p.points + 3u) / 4u; }
 
 fn each(q: u32) {
     let d = 3u * p.points;

@@ -12,10 +12,7 @@
 @group(0) @binding(4) var<storage, read_write> state: FrameState;
 @group(0) @binding(5) var<storage, read_write> next: array<Elem>;
 
-fn count() -> u32 {
-    let per_frame = 3u * p.plane;
-    return p.frames * per_frame;
-}
+fn count() -> u32 { return p.frames * (3u * p.plane); }
 
 fn each(i: u32) {
     let per_frame = 3u * p.plane;

@@ -12,10 +12,7 @@
 @group(0) @binding(3) var<storage, read> heading: HeadingTurns;
 @group(0) @binding(4) var<storage, read_write> out: array<Elem>;
 
-fn count() -> u32 {
-    let per_frame = 3u * p.plane;
-    return p.frames * per_frame;
-}
+fn count() -> u32 { return p.frames * (3u * p.plane); }
 
 fn each(i: u32) {
     let per_frame = 3u * p.plane;

@@ -6,10 +6,7 @@
 @group(0) @binding(1) var<storage, read> info: array<u32>;
 @group(0) @binding(2) var<storage, read_write> ranges: array<vec2<u32>>;
 
-fn count() -> u32 {
-    let count = info[0];
-    return count;
-}
+fn count() -> u32 { return info[0]; }
 
 fn each(i: u32) {
     let count = info[0];

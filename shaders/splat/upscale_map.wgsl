@@ -11,11 +11,7 @@
 @group(0) @binding(3) var<storage, read_write> out_map: array<f32>;
 @group(0) @binding(4) var<storage, read_write> out_mask: array<f32>;
 
-fn count() -> u32 {
-    let w_out = p.width * p.factor;
-    let h_out = p.height * p.factor;
-    return w_out * h_out;
-}
+fn count() -> u32 { return (p.width * p.factor) * (p.height * p.factor); }
 
 fn each(i: u32) {
     let w_out = p.width * p.factor;

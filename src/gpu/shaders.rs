@@ -123,12 +123,20 @@ pub fn file(path: &str) -> Option<&'static str> {
         .map(|(_, text)| *text)
 }
 
+/// A shader's text with its imports expanded, and the files it included.
+#[derive(Debug, PartialEq)]
+pub struct Expanded {
+    pub text: String,
+    /// Every file imported, directly or through others, in the order first named.
+    pub imports: Vec<String>,
+}
+
 /// The WGSL preprocessor: `text` with every line `#import PATH` (a file under `shaders/`,
 /// at the start of its line) replaced by that file, itself expanded the same way. A file
 /// is included once per shader, where it is first named (WGSL declarations may come in
 /// any order), so two files may import a third and imports may not loop. An unknown
 /// path is an error naming it and the file that asks for it.
-pub fn expand(file_name: &str, text: &str) -> Result<String, String> {
+pub fn expand(file_name: &str, text: &str) -> Result<Expanded, String> {
     expand_with(file_name, text, &|path| file(path))
 }
 
@@ -137,7 +145,7 @@ pub fn expand_with(
     file_name: &str,
     text: &str,
     lookup: &dyn Fn(&str) -> Option<&'static str>,
-) -> Result<String, String> {
+) -> Result<Expanded, String> {
     fn walk(
         name: &str,
         text: &str,
@@ -167,14 +175,13 @@ pub fn expand_with(
         Ok(())
     }
     let mut out = String::new();
-    walk(
-        file_name,
-        text,
-        lookup,
-        &mut vec![file_name.to_string()],
-        &mut out,
-    )?;
-    Ok(out)
+    let mut seen = vec![file_name.to_string()];
+    walk(file_name, text, lookup, &mut seen, &mut out)?;
+    seen.remove(0);
+    Ok(Expanded {
+        text: out,
+        imports: seen,
+    })
 }
 
 /// What every shader starts with (after its `enable` and `Elem` lines): the workgroup
@@ -256,7 +263,7 @@ impl Shader {
         // An import that does not resolve is left as it stands, so that naga's error
         // shows it (the shader tests expand every file and name the missing path).
         match expand(self.file, self.body) {
-            Ok(body) => out.push_str(&body),
+            Ok(expanded) => out.push_str(&expanded.text),
             Err(_) => out.push_str(self.body),
         }
         out
@@ -264,16 +271,8 @@ impl Shader {
 
     /// The files this shader's text imports, directly or through others, or the error
     /// naming an import that does not resolve.
-    pub fn imports(&self) -> Result<Vec<&'static str>, String> {
-        let seen = std::cell::RefCell::new(Vec::new());
-        expand_with(self.file, self.body, &|path| {
-            let found = files::FILES.iter().find(|(name, _)| *name == path);
-            if let Some((name, _)) = found {
-                seen.borrow_mut().push(*name);
-            }
-            found.map(|(_, text)| *text)
-        })?;
-        Ok(seen.into_inner())
+    pub fn imports(&self) -> Result<Vec<String>, String> {
+        expand(self.file, self.body).map(|expanded| expanded.imports)
     }
 
     /// The group-0 bindings of the variant for `precision` as naga reflects them:
@@ -347,16 +346,21 @@ mod tests {
             "#import a.wgsl\n#import b.wgsl\nfn main() {}",
             &table,
         );
-        assert_eq!(
-            out.unwrap(),
-            "fn c() {}\nfn a() {}\nfn b() {}\nfn main() {}\n"
-        );
+        let expected = Expanded {
+            text: "fn c() {}\nfn a() {}\nfn b() {}\nfn main() {}\n".into(),
+            imports: vec!["a.wgsl".into(), "c.wgsl".into(), "b.wgsl".into()],
+        };
+        assert_eq!(out.unwrap(), expected);
     }
 
     #[test]
     fn a_file_that_imports_itself_is_included_once() {
         let out = expand_with("s.wgsl", "#import loop.wgsl\n", &table);
-        assert_eq!(out.unwrap(), "fn l() {}\n");
+        let out = out.unwrap();
+        assert_eq!(
+            (out.text.as_str(), out.imports),
+            ("fn l() {}\n", vec!["loop.wgsl".into()])
+        );
     }
 
     #[test]
@@ -371,7 +375,8 @@ mod tests {
     #[test]
     fn only_a_line_that_starts_with_the_directive_imports() {
         let text = "// #import a.wgsl\n  #import_not\nfn f() {}\n";
-        assert_eq!(expand_with("s.wgsl", text, &table).unwrap(), text);
+        let out = expand_with("s.wgsl", text, &table).unwrap();
+        assert_eq!((out.text.as_str(), out.imports.len()), (text, 0));
     }
 
     #[test]

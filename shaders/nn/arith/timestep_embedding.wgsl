@@ -7,10 +7,7 @@
 @group(0) @binding(1) var<storage, read> t: array<Elem>;
 @group(0) @binding(2) var<storage, read_write> y: array<Elem>;
 
-fn count() -> u32 {
-    let half = p.dim / 2u;
-    return p.count * half;
-}
+fn count() -> u32 { return p.count * (p.dim / 2u); }
 
 fn each(i: u32) {
     let half = p.dim / 2u;

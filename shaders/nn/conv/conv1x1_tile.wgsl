@@ -5,6 +5,7 @@
 // each output sums the same terms in the same order (bias, then c_in) as conv2d.wgsl.
 
 #import gpu/for_each.wgsl
+#import nn/conv/tile.wgsl
 
 // Output channel `co` at the 4 pixels starting at vec4 `quad` of the plane, when both
 // exist.
@@ -15,17 +16,17 @@ fn store(n: u32, co: u32, quad: u32, v: vec4<f32>) {
     }
 }
 
-fn count() -> u32 {
-    let blocks = (p.c_out + 7u) / 8u;
-    let quads = p.h_in * p.w_in / 4u;
-    let tiles = (quads + 1u) / 2u;
-    return p.batch * blocks * tiles;
+// Tiles of 8 pixels (2 vec4 quads) in a plane.
+fn plane_tiles() -> u32 {
+    return (p.h_in * p.w_in / 4u + 1u) / 2u;
 }
 
+fn count() -> u32 { return p.batch * channel_blocks() * plane_tiles(); }
+
 fn each(i: u32) {
-    let blocks = (p.c_out + 7u) / 8u;
+    let blocks = channel_blocks();
     let quads = p.h_in * p.w_in / 4u;
-    let tiles = (quads + 1u) / 2u;
+    let tiles = plane_tiles();
     let q0 = (i % tiles) * 2u;
     let q1 = min(q0 + 1u, quads - 1u);
     let block = (i / tiles) % blocks;

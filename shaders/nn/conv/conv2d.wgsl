@@ -2,6 +2,8 @@
 // k, k], optional bias [c_out], zero padding. One thread per output pixel and block of 8
 // output channels: each input value is loaded once for eight accumulators.
 
+#import nn/conv/tile.wgsl
+#import nn/conv/conv_bias.wgsl
 #import gpu/for_each.wgsl
 
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
@@ -10,41 +12,31 @@
 @group(0) @binding(3) var<storage, read> bias: array<Elem>;
 @group(0) @binding(4) var<storage, read_write> y: array<Elem>;
 
-fn count() -> u32 {
-    let blocks = (p.c_out + 7u) / 8u;
-    return p.batch * blocks * p.h_out * p.w_out;
-}
+fn count() -> u32 { return tile_count(1u); }
 
 fn each(i: u32) {
-    let blocks = (p.c_out + 7u) / 8u;
-    let ox = i % p.w_out;
-    let oy = (i / p.w_out) % p.h_out;
-    let block = (i / (p.w_out * p.h_out)) % blocks;
-    let n = i / (p.w_out * p.h_out * blocks);
+    let tile = tile_at(i, 1u);
     // Channels past c_out (the last block) read the last channel and are not written.
     let last = p.c_out - 1u;
-    let co = min(vec4<u32>(8u * block) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
+    let co = min(vec4<u32>(8u * tile.block) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
     let co2 = min(co + vec4<u32>(4u), vec4<u32>(last));
-    var acc = vec4<f32>(0.0);
-    var acc2 = vec4<f32>(0.0);
-    if p.has_bias != 0u {
-        acc = vec4<f32>(f32(bias[co.x]), f32(bias[co.y]), f32(bias[co.z]), f32(bias[co.w]));
-        acc2 = vec4<f32>(f32(bias[co2.x]), f32(bias[co2.y]), f32(bias[co2.z]), f32(bias[co2.w]));
-    }
+    let start = bias_lanes(tile.block);
+    var acc = start.lo;
+    var acc2 = start.hi;
     let taps = p.kernel * p.kernel;
     let w_base = co * (p.c_in * taps);
     let w_base2 = co2 * (p.c_in * taps);
     for (var ci = 0u; ci < p.c_in; ci++) {
-        let x_base = (n * p.c_in + ci) * p.h_in * p.w_in;
+        let x_base = (tile.n * p.c_in + ci) * p.h_in * p.w_in;
         let w_ci = w_base + vec4<u32>(ci * taps);
         let w_ci2 = w_base2 + vec4<u32>(ci * taps);
         for (var ky = 0u; ky < p.kernel; ky++) {
-            let iy = i32(oy * p.stride + ky) - i32(p.pad);
+            let iy = i32(tile.oy * p.stride + ky) - i32(p.pad);
             if iy < 0 || iy >= i32(p.h_in) {
                 continue;
             }
             for (var kx = 0u; kx < p.kernel; kx++) {
-                let ix = i32(ox * p.stride + kx) - i32(p.pad);
+                let ix = i32(tile.ox0 * p.stride + kx) - i32(p.pad);
                 if ix < 0 || ix >= i32(p.w_in) {
                     continue;
                 }
@@ -58,12 +50,12 @@ fn each(i: u32) {
         }
     }
     let plane = p.h_out * p.w_out;
-    let out = (n * p.c_out + 8u * block) * plane + oy * p.w_out + ox;
+    let out = (tile.n * p.c_out + 8u * tile.block) * plane + tile.oy * p.w_out + tile.ox0;
     for (var j = 0u; j < 4u; j++) {
-        if 8u * block + j < p.c_out {
+        if 8u * tile.block + j < p.c_out {
             y[out + j * plane] = Elem(acc[j]);
         }
-        if 8u * block + 4u + j < p.c_out {
+        if 8u * tile.block + 4u + j < p.c_out {
             y[out + (4u + j) * plane] = Elem(acc2[j]);
         }
     }

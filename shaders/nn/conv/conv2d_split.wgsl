@@ -7,6 +7,8 @@
 // stride-2 convolutions: 305 µs a convolution (docs/gpu). Taps outside the input add
 // nothing. Weights [c_out, c_in, k, k], optional bias [c_out] added to the summed tile.
 
+#import nn/conv/tile.wgsl
+
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read> weight: array<Elem>;
@@ -22,15 +24,10 @@ fn main(invocation: Invocation) {
     // nothing, and take part in the barrier).
     let i = group_index(invocation);
     let t = invocation.lane;
-    let blocks = (p.c_out + 7u) / 8u;
-    let tiles = (p.w_out + 3u) / 4u;
-    let live = i < p.batch * blocks * p.h_out * tiles;
-    let ox0 = (i % tiles) * 4u;
-    let oy = (i / tiles) % p.h_out;
-    let block = (i / (tiles * p.h_out)) % blocks;
-    let n = i / (tiles * p.h_out * blocks);
+    let live = i < tile_count(4u);
+    let tile = tile_at(i, 4u);
     let last = p.c_out - 1u;
-    let co = min(vec4<u32>(8u * block) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
+    let co = min(vec4<u32>(8u * tile.block) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
     let co2 = min(co + vec4<u32>(4u), vec4<u32>(last));
     let taps = p.kernel * p.kernel;
     let terms = select(0u, p.c_in * taps, live);
@@ -43,14 +40,14 @@ fn main(invocation: Invocation) {
     var b1 = vec4<f32>(0.0);
     var b2 = vec4<f32>(0.0);
     var b3 = vec4<f32>(0.0);
-    let left = i32(ox0 * p.stride) - i32(p.pad);
+    let left = i32(tile.ox0 * p.stride) - i32(p.pad);
     let step = i32(p.stride);
     for (var r = t; r < terms; r += WORKGROUP) {
         let ci = r / taps;
         let tap = r % taps;
         let ky = tap / p.kernel;
         let kx = tap % p.kernel;
-        let iy = i32(oy * p.stride + ky) - i32(p.pad);
+        let iy = i32(tile.oy * p.stride + ky) - i32(p.pad);
         if iy < 0 || iy >= i32(p.h_in) {
             continue;
         }
@@ -58,7 +55,7 @@ fn main(invocation: Invocation) {
         let w2 = co2 * (p.c_in * taps) + vec4<u32>(r);
         let wa = vec4<f32>(f32(weight[w.x]), f32(weight[w.y]), f32(weight[w.z]), f32(weight[w.w]));
         let wb = vec4<f32>(f32(weight[w2.x]), f32(weight[w2.y]), f32(weight[w2.z]), f32(weight[w2.w]));
-        let row = ((n * p.c_in + ci) * p.h_in + u32(iy)) * p.w_in;
+        let row = ((tile.n * p.c_in + ci) * p.h_in + u32(iy)) * p.w_in;
         let ix = vec4<i32>(left + i32(kx)) + step * vec4<i32>(0, 1, 2, 3);
         let inside = ix >= vec4<i32>(0) & ix < vec4<i32>(i32(p.w_in));
         let at = vec4<u32>(clamp(ix, vec4<i32>(0), vec4<i32>(i32(p.w_in) - 1))) + vec4<u32>(row);
@@ -94,13 +91,13 @@ fn main(invocation: Invocation) {
     for (var k = 0u; k < WORKGROUP; k++) {
         sum += partial[8u * k + q][c % 4u];
     }
-    let channel = 8u * block + c;
-    let ox = ox0 + j;
+    let channel = 8u * tile.block + c;
+    let ox = tile.ox0 + j;
     if channel >= p.c_out || ox >= p.w_out {
         return;
     }
     if p.has_bias != 0u {
         sum = f32(bias[channel]) + sum;
     }
-    y[((n * p.c_out + channel) * p.h_out + oy) * p.w_out + ox] = Elem(sum);
+    y[((tile.n * p.c_out + channel) * p.h_out + tile.oy) * p.w_out + ox] = Elem(sum);
 }

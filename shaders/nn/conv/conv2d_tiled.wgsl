@@ -4,6 +4,8 @@
 // an exact zero, so each output sums the same terms in the same order (bias, then
 // c_in, ky, kx) as conv2d.wgsl. Weights [c_out, c_in, k, k], optional bias [c_out].
 
+#import nn/conv/tile.wgsl
+#import nn/conv/conv_bias.wgsl
 #import gpu/for_each.wgsl
 
 @group(0) @binding(0) var<uniform> p: Conv2dParams;
@@ -12,28 +14,16 @@
 @group(0) @binding(3) var<storage, read> bias: array<Elem>;
 @group(0) @binding(4) var<storage, read_write> y: array<Elem>;
 
-fn count() -> u32 {
-    let blocks = (p.c_out + 7u) / 8u;
-    let tiles = (p.w_out + 3u) / 4u;
-    return p.batch * blocks * p.h_out * tiles;
-}
+fn count() -> u32 { return tile_count(4u); }
 
 fn each(i: u32) {
-    let blocks = (p.c_out + 7u) / 8u;
-    let tiles = (p.w_out + 3u) / 4u;
-    let ox0 = (i % tiles) * 4u;
-    let oy = (i / tiles) % p.h_out;
-    let block = (i / (tiles * p.h_out)) % blocks;
-    let n = i / (tiles * p.h_out * blocks);
+    let tile = tile_at(i, 4u);
     let last = p.c_out - 1u;
-    let co = min(vec4<u32>(8u * block) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
+    let co = min(vec4<u32>(8u * tile.block) + vec4<u32>(0u, 1u, 2u, 3u), vec4<u32>(last));
     let co2 = min(co + vec4<u32>(4u), vec4<u32>(last));
-    var b = vec4<f32>(0.0);
-    var b2 = vec4<f32>(0.0);
-    if p.has_bias != 0u {
-        b = vec4<f32>(f32(bias[co.x]), f32(bias[co.y]), f32(bias[co.z]), f32(bias[co.w]));
-        b2 = vec4<f32>(f32(bias[co2.x]), f32(bias[co2.y]), f32(bias[co2.z]), f32(bias[co2.w]));
-    }
+    let start = bias_lanes(tile.block);
+    let b = start.lo;
+    let b2 = start.hi;
     // Accumulators: pixel j's first and second four channels.
     var a = array<vec4<f32>, 4>(b, b, b, b);
     var a2 = array<vec4<f32>, 4>(b2, b2, b2, b2);
@@ -41,11 +31,11 @@ fn each(i: u32) {
     let w_base = co * (p.c_in * taps);
     let w_base2 = co2 * (p.c_in * taps);
     for (var ci = 0u; ci < p.c_in; ci++) {
-        let x_base = (n * p.c_in + ci) * p.h_in * p.w_in;
+        let x_base = (tile.n * p.c_in + ci) * p.h_in * p.w_in;
         let w_ci = w_base + vec4<u32>(ci * taps);
         let w_ci2 = w_base2 + vec4<u32>(ci * taps);
         for (var ky = 0u; ky < p.kernel; ky++) {
-            let iy = i32(oy * p.stride + ky) - i32(p.pad);
+            let iy = i32(tile.oy * p.stride + ky) - i32(p.pad);
             if iy < 0 || iy >= i32(p.h_in) {
                 continue;
             }
@@ -57,7 +47,7 @@ fn each(i: u32) {
                 let wv = vec4<f32>(f32(weight[w.x]), f32(weight[w.y]), f32(weight[w.z]), f32(weight[w.w]));
                 let wv2 = vec4<f32>(f32(weight[w2.x]), f32(weight[w2.y]), f32(weight[w2.z]), f32(weight[w2.w]));
                 for (var j = 0u; j < 4u; j++) {
-                    let ix = i32((ox0 + j) * p.stride + kx) - i32(p.pad);
+                    let ix = i32((tile.ox0 + j) * p.stride + kx) - i32(p.pad);
                     if ix < 0 || ix >= i32(p.w_in) {
                         continue;
                     }
@@ -70,16 +60,16 @@ fn each(i: u32) {
     }
     let plane = p.h_out * p.w_out;
     for (var j = 0u; j < 4u; j++) {
-        let ox = ox0 + j;
+        let ox = tile.ox0 + j;
         if ox >= p.w_out {
             break;
         }
-        let out = (n * p.c_out + 8u * block) * plane + oy * p.w_out + ox;
+        let out = (tile.n * p.c_out + 8u * tile.block) * plane + tile.oy * p.w_out + ox;
         for (var c = 0u; c < 4u; c++) {
-            if 8u * block + c < p.c_out {
+            if 8u * tile.block + c < p.c_out {
                 y[out + c * plane] = Elem(a[j][c]);
             }
-            if 8u * block + 4u + c < p.c_out {
+            if 8u * tile.block + 4u + c < p.c_out {
                 y[out + (4u + c) * plane] = Elem(a2[j][c]);
             }
         }

@@ -12,6 +12,7 @@
 // separate add.wgsl exactly). With `upsample`, the input is read upsampled ×2
 // (upsample_nearest.wgsl fused into the loads).
 
+#import nn/conv/tile.wgsl
 #import nn/conv/conv_bias.wgsl
 #import nn/conv/conv_store.wgsl
 
@@ -46,13 +47,8 @@ fn main(invocation: Invocation) {
     // nothing, and take part in the barriers).
     let i = group_index(invocation);
     let t = invocation.lane;
-    let blocks = (p.c_out + 7u) / 8u;
-    let tiles = (p.w_out + 7u) / 8u;
-    let live = i < p.batch * blocks * p.h_out * tiles;
-    let ox0 = (i % tiles) * 8u;
-    let oy = (i / tiles) % p.h_out;
-    let block = (i / (tiles * p.h_out)) % blocks;
-    let n = i / (tiles * p.h_out * blocks);
+    let live = i < tile_count(8u);
+    let tile = tile_at(i, 8u);
     let lo = vec4<f32>(0.0);
     let hi = vec4<f32>(0.0);
     // Pixel j's first four channels in aj, its second four in bj: written out, not
@@ -73,13 +69,13 @@ fn main(invocation: Invocation) {
     var b5 = hi;
     var b6 = hi;
     var b7 = hi;
-    let quads = 2u * blocks;
-    let left = i32(ox0) - 1;
+    let quads = 2u * channel_blocks();
+    let left = i32(tile.ox0) - 1;
     let c_end = select(0u, p.c_in, live);
     for (var ci = t; ci < c_end; ci += WORKGROUP) {
-        let plane = (n * p.c_in + ci) * p.h_in * p.w_in;
+        let plane = (tile.n * p.c_in + ci) * p.h_in * p.w_in;
         for (var ky = 0u; ky < 3u; ky++) {
-            let iy = i32(oy + ky) - 1;
+            let iy = i32(tile.oy + ky) - 1;
             if iy < 0 || iy >= i32(p.h_out) {
                 continue;
             }
@@ -94,7 +90,7 @@ fn main(invocation: Invocation) {
             let v7 = column(row, left + 7);
             let v8 = column(row, left + 8);
             let v9 = column(row, left + 9);
-            var w = (ci * 3u + ky) * 3u * quads + 2u * block;
+            var w = (ci * 3u + ky) * 3u * quads + 2u * tile.block;
             // kx = 0
             let wa0 = weight[w];
             let wb0 = weight[w + 1u];
@@ -185,10 +181,10 @@ fn main(invocation: Invocation) {
     }
     workgroupBarrier();
     if live && t < 8u {
-        let start = bias_lanes(block);
+        let start = bias_lanes(tile.block);
         let a = vec4<f32>(total[4u * t], total[4u * t + 1u], total[4u * t + 2u], total[4u * t + 3u]);
         let q = 4u * (8u + t);
         let b = vec4<f32>(total[q], total[q + 1u], total[q + 2u], total[q + 3u]);
-        store(n, block, oy, ox0 + t, start.lo + a, start.hi + b);
+        store(tile.n, tile.block, tile.oy, tile.ox0 + t, start.lo + a, start.hi + b);
     }
 }

@@ -12,6 +12,7 @@
 // then each value read is normalised, SiLU'd and rounded to Elem, as that kernel's
 // stores would have been.
 
+#import nn/conv/tile.wgsl
 #import nn/conv/pick.wgsl
 #import nn/conv/conv_bias.wgsl
 #import nn/conv/conv_store.wgsl
@@ -51,25 +52,20 @@ fn main(invocation: Invocation) {
         workgroupBarrier();
     }
     let i = linear_index(invocation);
-    let blocks = (p.c_out + 7u) / 8u;
-    let tiles = (p.w_out + 7u) / 8u;
-    if i >= p.batch * blocks * p.h_out * tiles {
+    if i >= tile_count(8u) {
         return;
     }
-    let ox0 = (i % tiles) * 8u;
-    let oy = (i / tiles) % p.h_out;
-    let block = (i / (tiles * p.h_out)) % blocks;
-    let n = i / (tiles * p.h_out * blocks);
-    let start = bias_lanes(block);
+    let tile = tile_at(i, 8u);
+    let start = bias_lanes(tile.block);
     let lo = start.lo;
     let hi = start.hi;
     // Seen column ox0 - 1 + j is inside the image for j < inside (and j > 0 or ox0 > 0).
-    let inside = p.w_out + 1u - ox0;
-    let m0 = vec4<bool>(ox0 > 0u, 1u < inside, 2u < inside, 3u < inside);
+    let inside = p.w_out + 1u - tile.ox0;
+    let m0 = vec4<bool>(tile.ox0 > 0u, 1u < inside, 2u < inside, 3u < inside);
     let m1 = vec4<bool>(4u < inside, 5u < inside, 6u < inside, 7u < inside);
     let m2 = vec4<bool>(8u < inside, 9u < inside, false, false);
     // The first source column the tile reads, relative to its row (+1: never negative).
-    let first = select(ox0, ox0 >> 1u, p.upsample != 0u);
+    let first = select(tile.ox0, tile.ox0 >> 1u, p.upsample != 0u);
     var a0 = lo;
     var a1 = lo;
     var a2 = lo;
@@ -86,20 +82,20 @@ fn main(invocation: Invocation) {
     var b5 = hi;
     var b6 = hi;
     var b7 = hi;
-    let quads = 2u * blocks;
+    let quads = 2u * channel_blocks();
     for (var ci = 0u; ci < p.c_in; ci++) {
-        let plane = (n * p.c_in + ci) * p.h_in * p.w_in;
+        let plane = (tile.n * p.c_in + ci) * p.h_in * p.w_in;
         var mean = 0.0;
         var scale = 1.0;
         var shift = 0.0;
         if NORMED != 0u {
-            let stats = norm_stats[n * p.norm_groups + ci / (p.c_in / p.norm_groups)];
+            let stats = norm_stats[tile.n * p.norm_groups + ci / (p.c_in / p.norm_groups)];
             mean = stats.x;
             scale = stats.y * f32(norm_gamma[ci]);
             shift = f32(norm_beta[ci]);
         }
         for (var ky = 0u; ky < 3u; ky++) {
-            let iy = i32(oy + ky) - 1;
+            let iy = i32(tile.oy + ky) - 1;
             if iy < 0 || iy >= i32(p.h_out) {
                 continue;
             }
@@ -144,7 +140,7 @@ fn main(invocation: Invocation) {
             let v7 = u1.w;
             let v8 = u2.x;
             let v9 = u2.y;
-            var w = (ci * 3u + ky) * 3u * quads + 2u * block;
+            var w = (ci * 3u + ky) * 3u * quads + 2u * tile.block;
             // kx = 0
             let wa0 = texel(weight, w);
             let wb0 = texel(weight, w + 1u);
@@ -206,12 +202,12 @@ fn main(invocation: Invocation) {
             b7 += v9 * wb2;
         }
     }
-    store(n, block, oy, ox0 + 0u, a0, b0);
-    store(n, block, oy, ox0 + 1u, a1, b1);
-    store(n, block, oy, ox0 + 2u, a2, b2);
-    store(n, block, oy, ox0 + 3u, a3, b3);
-    store(n, block, oy, ox0 + 4u, a4, b4);
-    store(n, block, oy, ox0 + 5u, a5, b5);
-    store(n, block, oy, ox0 + 6u, a6, b6);
-    store(n, block, oy, ox0 + 7u, a7, b7);
+    store(tile.n, tile.block, tile.oy, tile.ox0 + 0u, a0, b0);
+    store(tile.n, tile.block, tile.oy, tile.ox0 + 1u, a1, b1);
+    store(tile.n, tile.block, tile.oy, tile.ox0 + 2u, a2, b2);
+    store(tile.n, tile.block, tile.oy, tile.ox0 + 3u, a3, b3);
+    store(tile.n, tile.block, tile.oy, tile.ox0 + 4u, a4, b4);
+    store(tile.n, tile.block, tile.oy, tile.ox0 + 5u, a5, b5);
+    store(tile.n, tile.block, tile.oy, tile.ox0 + 6u, a6, b6);
+    store(tile.n, tile.block, tile.oy, tile.ox0 + 7u, a7, b7);
 }

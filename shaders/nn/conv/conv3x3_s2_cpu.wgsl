@@ -6,6 +6,7 @@
 // output sums bias, then c_in, ky, kx in order; taps outside the input add an exact zero
 // (as conv3x3.wgsl). Optional bias [c_out].
 
+#import nn/conv/tile.wgsl
 #import gpu/for_each.wgsl
 
 #import nn/conv/pick.wgsl
@@ -21,25 +22,16 @@
 @group(0) @binding(5) var<storage, read> residual: array<Elem>;
 @group(0) @binding(6) var<storage, read_write> y: array<Elem>;
 
-fn count() -> u32 {
-    let blocks = (p.c_out + 7u) / 8u;
-    let tiles = (p.w_out + 3u) / 4u;
-    return p.batch * blocks * p.h_out * tiles;
-}
+fn count() -> u32 { return tile_count(4u); }
 
 fn each(i: u32) {
-    let blocks = (p.c_out + 7u) / 8u;
-    let tiles = (p.w_out + 3u) / 4u;
-    let ox0 = (i % tiles) * 4u;
-    let oy = (i / tiles) % p.h_out;
-    let block = (i / (tiles * p.h_out)) % blocks;
-    let n = i / (tiles * p.h_out * blocks);
-    let start = bias_lanes(block);
+    let tile = tile_at(i, 4u);
+    let start = bias_lanes(tile.block);
     let lo = start.lo;
     let hi = start.hi;
     // Input column 2·ox0 - 1 + m is inside for m < inside (and m > 0 or ox0 > 0).
-    let inside = p.w_in + 1u - 2u * ox0;
-    let m0 = vec4<bool>(ox0 > 0u, 1u < inside, 2u < inside, 3u < inside);
+    let inside = p.w_in + 1u - 2u * tile.ox0;
+    let m0 = vec4<bool>(tile.ox0 > 0u, 1u < inside, 2u < inside, 3u < inside);
     let m1 = vec4<bool>(4u < inside, 5u < inside, 6u < inside, 7u < inside);
     let m8 = 8u < inside;
     var a0 = lo;
@@ -50,16 +42,16 @@ fn each(i: u32) {
     var b1 = hi;
     var b2 = hi;
     var b3 = hi;
-    let quads = 2u * blocks;
+    let quads = 2u * channel_blocks();
     for (var ci = 0u; ci < p.c_in; ci++) {
-        let plane = (n * p.c_in + ci) * p.h_in * p.w_in;
+        let plane = (tile.n * p.c_in + ci) * p.h_in * p.w_in;
         for (var ky = 0u; ky < 3u; ky++) {
-            let iy = i32(2u * oy + ky) - 1;
+            let iy = i32(2u * tile.oy + ky) - 1;
             if iy < 0 || iy >= i32(p.h_in) {
                 continue;
             }
             // Flat index + 4 of column 2·ox0 - 1 (never negative).
-            let start4 = plane + u32(iy) * p.w_in + 2u * ox0 + 3u;
+            let start4 = plane + u32(iy) * p.w_in + 2u * tile.ox0 + 3u;
             let t = i32(start4 >> 2u) - 1;
             let s = start4 & 3u;
             let q0 = texel(x, u32(max(t, 0)));
@@ -68,7 +60,7 @@ fn each(i: u32) {
             let u0 = select(vec4<f32>(0.0), pick(q0, q1, s), m0);
             let u1 = select(vec4<f32>(0.0), pick(q1, q2, s), m1);
             let u8 = select(0.0, pick(q2, q2, s).x, m8);
-            var w = (ci * 3u + ky) * 3u * quads + 2u * block;
+            var w = (ci * 3u + ky) * 3u * quads + 2u * tile.block;
             // kx = 0: columns 0, 2, 4, 6
             let wa0 = texel(weight, w);
             let wb0 = texel(weight, w + 1u);
@@ -106,8 +98,8 @@ fn each(i: u32) {
             b3 += u8 * wb2;
         }
     }
-    store(n, block, oy, ox0, a0, b0);
-    store(n, block, oy, ox0 + 1u, a1, b1);
-    store(n, block, oy, ox0 + 2u, a2, b2);
-    store(n, block, oy, ox0 + 3u, a3, b3);
+    store(tile.n, tile.block, tile.oy, tile.ox0, a0, b0);
+    store(tile.n, tile.block, tile.oy, tile.ox0 + 1u, a1, b1);
+    store(tile.n, tile.block, tile.oy, tile.ox0 + 2u, a2, b2);
+    store(tile.n, tile.block, tile.oy, tile.ox0 + 3u, a3, b3);
 }

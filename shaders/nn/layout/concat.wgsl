@@ -9,10 +9,7 @@
 @group(0) @binding(2) var<storage, read> b: array<Elem>;
 @group(0) @binding(3) var<storage, read_write> y: array<Elem>;
 
-fn count() -> u32 {
-    let row = p.a_inner + p.b_inner;
-    return p.outer * row;
-}
+fn count() -> u32 { return p.outer * (p.a_inner + p.b_inner); }
 
 fn each(i: u32) {
     let row = p.a_inner + p.b_inner;

@@ -10,10 +10,7 @@
 @group(0) @binding(2) var x: texture_2d<f32>;
 @group(0) @binding(3) var<storage, read_write> y: array<Elem>;
 
-fn count() -> u32 {
-    let quads = p.width / 4u;
-    return p.rows * quads;
-}
+fn count() -> u32 { return p.rows * (p.width / 4u); }
 
 fn each(i: u32) {
     let quads = p.width / 4u;

@@ -14,10 +14,7 @@
 @group(0) @binding(5) var<storage, read> ids: array<u32>;
 @group(0) @binding(6) var<storage, read_write> y: array<Elem>;
 
-fn count() -> u32 {
-    let s = p.shape;
-    return s.x * s.y * s.z * s.w;
-}
+fn count() -> u32 { return p.shape.x * p.shape.y * p.shape.z * p.shape.w; }
 
 fn each(i: u32) {
     let s = p.shape;

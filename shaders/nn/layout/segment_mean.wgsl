@@ -7,10 +7,7 @@
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read_write> y: array<Elem>;
 
-fn count() -> u32 {
-    let segments = (p.rows + p.stride - 1u) / p.stride;
-    return segments * p.width;
-}
+fn count() -> u32 { return ((p.rows + p.stride - 1u) / p.stride) * p.width; }
 
 fn each(i: u32) {
     let g = i / p.width;

@@ -6,11 +6,7 @@
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read_write> y: array<Elem>;
 
-fn count() -> u32 {
-    let w_out = 2u * p.w_in;
-    let h_out = 2u * p.h_in;
-    return p.planes * h_out * w_out;
-}
+fn count() -> u32 { return p.planes * (2u * p.h_in) * (2u * p.w_in); }
 
 fn each(i: u32) {
     let w_out = 2u * p.w_in;

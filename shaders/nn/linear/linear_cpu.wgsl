@@ -10,6 +10,7 @@
 // NCHW residual and an optional action-table row): the attention layers' output
 // projection and the permute back, in one pass (see LinearParams).
 
+#import nn/linear/tile.wgsl
 #import gpu/for_each.wgsl
 
 #import nn/norm/texel_stats.wgsl
@@ -93,16 +94,12 @@ fn store(row: u32, o0: u32, v: vec4<f32>) {
     }
 }
 
-fn count() -> u32 {
-    let out_tiles = (p.outputs + 7u) / 8u;
-    let row_tiles = (p.rows + 7u) / 8u;
-    return out_tiles * row_tiles;
-}
+fn count() -> u32 { return linear_tile_count(8u); }
 
 fn each(i: u32) {
-    let out_tiles = (p.outputs + 7u) / 8u;
-    let o0 = (i % out_tiles) * 8u;
-    let r0 = (i / out_tiles) * 8u;
+    let first = linear_tile_at(i, 8u);
+    let o0 = first.x;
+    let r0 = first.y;
     let last_o = vec4<u32>(p.outputs - 1u);
     let last_r = vec4<u32>(p.rows - 1u);
     let quads = p.inputs / 4u;

@@ -9,6 +9,8 @@
 // optional action-table row), stored as linear_cpu.wgsl stores them: the attention
 // layers' output projection and the permute back, in one pass (see LinearParams).
 
+#import nn/linear/tile.wgsl
+
 @group(0) @binding(0) var<uniform> p: LinearParams;
 @group(0) @binding(1) var<storage, read> x: array<Elem>;
 @group(0) @binding(2) var<storage, read> weight: array<Elem>;
@@ -45,11 +47,10 @@ fn main(invocation: Invocation) {
     // take part in the barrier).
     let i = group_index(invocation);
     let t = invocation.lane;
-    let out_tiles = (p.outputs + 3u) / 4u;
-    let row_tiles = (p.rows + 3u) / 4u;
-    let live = i < out_tiles * row_tiles;
-    let o0 = (i % out_tiles) * 4u;
-    let r0 = (i / out_tiles) * 4u;
+    let live = i < linear_tile_count(4u);
+    let first = linear_tile_at(i, 4u);
+    let o0 = first.x;
+    let r0 = first.y;
     let last_o = p.outputs - 1u;
     let last_r = p.rows - 1u;
     let wo = vec4<u32>(min(o0, last_o), min(o0 + 1u, last_o), min(o0 + 2u, last_o), min(o0 + 3u, last_o)) * p.inputs;

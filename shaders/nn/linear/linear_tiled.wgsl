@@ -5,6 +5,7 @@
 // from the bias, as linear.wgsl's do. Rows and outputs past the end are clamped for the
 // loads and not stored.
 
+#import nn/linear/tile.wgsl
 #import gpu/for_each.wgsl
 
 @group(0) @binding(0) var<uniform> p: LinearParams;
@@ -30,16 +31,12 @@ fn act(v: f32) -> f32 {
     return v;
 }
 
-fn count() -> u32 {
-    let out_tiles = (p.outputs + 3u) / 4u;
-    let row_tiles = (p.rows + 3u) / 4u;
-    return out_tiles * row_tiles;
-}
+fn count() -> u32 { return linear_tile_count(4u); }
 
 fn each(i: u32) {
-    let out_tiles = (p.outputs + 3u) / 4u;
-    let o0 = (i % out_tiles) * 4u;
-    let r0 = (i / out_tiles) * 4u;
+    let first = linear_tile_at(i, 4u);
+    let o0 = first.x;
+    let r0 = first.y;
     let last_o = p.outputs - 1u;
     let last_r = p.rows - 1u;
     let wo = vec4<u32>(min(o0, last_o), min(o0 + 1u, last_o), min(o0 + 2u, last_o), min(o0 + 3u, last_o)) * p.inputs;
