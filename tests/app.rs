@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::witch;
+use common::{shipped_bundle, witch};
 
 use std::io::{BufRead, BufReader};
 use std::path::Path;
@@ -74,15 +74,10 @@ fn assert_covers(shot: &Path, what: &str) -> f64 {
     variance
 }
 
-/// A bundle shipped in assets/.
-fn shipped(name: &str) -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("assets/{name}/bundle"))
-}
-
 /// The window on a shipped bundle, driven by the key script `keys` for `seconds`, with
 /// a screenshot to `shot` and `extra` arguments: its stdout, after checking it succeeded.
 fn play(name: &str, keys: &str, shot: &Path, seconds: u32, extra: &[&str]) -> String {
-    let bundle = shipped(name);
+    let bundle = shipped_bundle(name);
     let seconds = seconds.to_string();
     let mut args = vec![
         "--bundle",
@@ -455,7 +450,7 @@ fn a_bundle_whose_weights_fail_to_load_fails_a_scripted_run() {
     let dir = tempfile::tempdir().unwrap();
     let bundle = dir.path().join("bundle");
     std::fs::create_dir(&bundle).unwrap();
-    let manifest = shipped("witch").join("manifest.json");
+    let manifest = shipped_bundle("witch").join("manifest.json");
     std::fs::copy(manifest, bundle.join("manifest.json")).unwrap();
     std::fs::write(bundle.join("weights.safetensors"), b"not tensors").unwrap();
     let out = unica(

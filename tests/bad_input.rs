@@ -11,10 +11,7 @@ use serde_json::{Value, json};
 use unica::avatar::character::load_character;
 
 fn unica(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_unica"))
-        .args(args)
-        .env_remove("DISPLAY")
-        .env_remove("WAYLAND_DISPLAY")
+    common::unica_command(args)
         .output()
         .expect("the unica binary runs")
 }
@@ -409,16 +406,13 @@ fn validate_refuses_a_manifest_without_clips_and_a_nan_reference() {
 
 // ---------- bundles ----------
 
-fn witch_bundle() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle")
-}
-
 /// The manifest error after `edit`.
 fn manifest_error(edit: impl FnOnce(&mut Value)) -> String {
     let dir = tempfile::tempdir().unwrap();
-    let mut json: Value =
-        serde_json::from_slice(&std::fs::read(witch_bundle().join("manifest.json")).unwrap())
-            .unwrap();
+    let mut json: Value = serde_json::from_slice(
+        &std::fs::read(common::shipped_bundle("witch").join("manifest.json")).unwrap(),
+    )
+    .unwrap();
     edit(&mut json);
     let path = dir.path().join("manifest.json");
     std::fs::write(&path, serde_json::to_vec(&json).unwrap()).unwrap();
@@ -471,7 +465,11 @@ fn witch_bundle_copy(dir: &Path) -> PathBuf {
     let bundle = dir.join("bundle");
     std::fs::create_dir(&bundle).unwrap();
     for file in ["manifest.json", "weights.safetensors"] {
-        std::fs::copy(witch_bundle().join(file), bundle.join(file)).unwrap();
+        std::fs::copy(
+            common::shipped_bundle("witch").join(file),
+            bundle.join(file),
+        )
+        .unwrap();
     }
     bundle
 }

@@ -6,16 +6,12 @@
 
 mod common;
 
-use std::process::{Command, Output};
+use std::process::Output;
 
 use common::{SmallDisk, assert_all_whole};
 
 fn unica(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_unica"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env_remove("DISPLAY")
-        .env_remove("WAYLAND_DISPLAY")
+    common::unica_command(args)
         .output()
         .expect("the unica binary runs")
 }

@@ -10,12 +10,8 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 fn command(args: &[&str]) -> Command {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_unica"));
-    cmd.args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .env_remove("DISPLAY")
-        .env_remove("WAYLAND_DISPLAY")
-        .stdout(std::process::Stdio::null())
+    let mut cmd = common::unica_command(args);
+    cmd.stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null());
     cmd
 }

@@ -1,12 +1,13 @@
 //! `unica render --teacher`: a scripted headless session writes every view of every frame
 //! and a manifest whose root path follows the keys (W toward +Z, then D turns it to -X).
 
-use std::path::Path;
+mod common;
+
 use std::process::Command;
 
 #[test]
 fn the_teacher_session_follows_the_keys() {
-    let witch = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/source/Witch.gltf");
+    let witch = common::witch();
     let (dir, manifest) = render(&[
         "--teacher",
         witch.to_str().unwrap(),
@@ -88,7 +89,7 @@ fn render(args: &[&str]) -> (tempfile::TempDir, serde_json::Value) {
 
 /// `render` of the shipped Witch bundle.
 fn render_bundle(args: &[&str]) -> (tempfile::TempDir, serde_json::Value) {
-    let bundle = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/bundle");
+    let bundle = common::shipped_bundle("witch");
     render(&[&["--bundle", bundle.to_str().unwrap()], args].concat())
 }
 

@@ -10,25 +10,49 @@ pub fn witch() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/witch/source/Witch.gltf")
 }
 
-/// Every file under `dir` with its path relative to `dir`, sorted.
-pub fn files(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
-    fn walk(root: &Path, dir: &Path, out: &mut Vec<(PathBuf, Vec<u8>)>) {
-        for entry in std::fs::read_dir(dir).unwrap() {
+/// The unica binary with `args`, run from the repository without a display (so a
+/// command that would open a window fails instead).
+pub fn unica_command(args: &[&str]) -> std::process::Command {
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_unica"));
+    cmd.args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY");
+    cmd
+}
+
+/// A neural avatar's bundle shipped in assets/ (`witch`, `knight`).
+pub fn shipped_bundle(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("assets/{name}/bundle"))
+}
+
+/// Every file under `dir` (in its subfolders too), sorted.
+pub fn paths(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut folders = vec![dir.to_path_buf()];
+    while let Some(folder) = folders.pop() {
+        for entry in std::fs::read_dir(&folder).unwrap() {
             let path = entry.unwrap().path();
             if path.is_dir() {
-                walk(root, &path, out);
+                folders.push(path);
             } else {
-                out.push((
-                    path.strip_prefix(root).unwrap().to_path_buf(),
-                    std::fs::read(&path).unwrap(),
-                ));
+                out.push(path);
             }
         }
     }
-    let mut out = Vec::new();
-    walk(dir, dir, &mut out);
     out.sort();
     out
+}
+
+/// Every file under `dir` with its path relative to `dir`, sorted.
+pub fn files(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    paths(dir)
+        .into_iter()
+        .map(|path| {
+            let bytes = std::fs::read(&path).unwrap();
+            (path.strip_prefix(dir).unwrap().to_path_buf(), bytes)
+        })
+        .collect()
 }
 
 /// The single `unica: error:` line of a failed run's stderr, asserting that nothing
@@ -83,37 +107,27 @@ impl Drop for SmallDisk {
 /// Every file under `dir` is whole: none is a temporary, and each PNG, JSON and
 /// safetensors file reads. Returns how many files there are.
 pub fn assert_all_whole(dir: &Path) -> usize {
-    let mut count = 0;
-    let mut folders = vec![dir.to_path_buf()];
-    while let Some(folder) = folders.pop() {
-        for entry in std::fs::read_dir(&folder).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                folders.push(path);
-                continue;
+    let paths = paths(dir);
+    for path in &paths {
+        let name = path.display().to_string();
+        assert!(!name.ends_with(".tmp"), "a temporary was left: {name}");
+        match path.extension().and_then(|e| e.to_str()) {
+            Some("png") => {
+                image::open(path).unwrap_or_else(|e| panic!("{name}: {e}"));
             }
-            count += 1;
-            let name = path.display().to_string();
-            assert!(!name.ends_with(".tmp"), "a temporary was left: {name}");
-            match path.extension().and_then(|e| e.to_str()) {
-                Some("png") => {
-                    image::open(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
-                }
-                Some("json") => {
-                    let text = std::fs::read_to_string(&path).unwrap();
-                    serde_json::from_str::<serde_json::Value>(&text)
-                        .unwrap_or_else(|e| panic!("{name}: {e}"));
-                }
-                Some("safetensors") => {
-                    unica::tensors::TensorFile::open(&path)
-                        .unwrap_or_else(|e| panic!("{name}: {e}"));
-                }
-                Some("ply") => {
-                    unica::splat::ply::read(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
-                }
-                _ => {}
+            Some("json") => {
+                let text = std::fs::read_to_string(path).unwrap();
+                serde_json::from_str::<serde_json::Value>(&text)
+                    .unwrap_or_else(|e| panic!("{name}: {e}"));
             }
+            Some("safetensors") => {
+                unica::tensors::TensorFile::open(path).unwrap_or_else(|e| panic!("{name}: {e}"));
+            }
+            Some("ply") => {
+                unica::splat::ply::read(path).unwrap_or_else(|e| panic!("{name}: {e}"));
+            }
+            _ => {}
         }
     }
-    count
+    paths.len()
 }

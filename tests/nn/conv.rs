@@ -52,24 +52,10 @@ fn every_variant_of_the_group_norm_and_the_packed_convolutions_agrees_on_odd_sha
     // The simple kernels are the PyTorch-tested reference here.
     let f = Fixture::open("down", Precision::F32);
     let mut pipelines = PipelineCache::default();
-    let x = Tensor::upload(
-        &f.gpu,
-        "x",
-        &[1, 12, 160, 160],
-        &wave(12 * 160 * 160, 0.37),
-        Precision::F32,
-    )
-    .unwrap();
-    let gamma = Tensor::upload(&f.gpu, "g", &[12], &wave(12, 1.3), Precision::F32).unwrap();
-    let beta = Tensor::upload(&f.gpu, "b", &[12], &wave(12, 0.7), Precision::F32).unwrap();
-    let x2 = Tensor::upload(
-        &f.gpu,
-        "x2",
-        &[2, 5, 11, 13],
-        &wave(2 * 5 * 11 * 13, 0.11),
-        Precision::F32,
-    )
-    .unwrap();
+    let x = f.wave("x", &[1, 12, 160, 160], 0.37);
+    let gamma = f.wave("g", &[12], 1.3);
+    let beta = f.wave("b", &[12], 0.7);
+    let x2 = f.wave("x2", &[2, 5, 11, 13], 0.11);
     let weights = unica::nn::ops::PackedConv::new(
         &f.gpu,
         "w",
@@ -80,14 +66,7 @@ fn every_variant_of_the_group_norm_and_the_packed_convolutions_agrees_on_odd_sha
     .unwrap();
     // A 1×1 convolution over planes of 12 × 13 = 156 pixels: 39 vec4s, so the last
     // 8-pixel tile is half full.
-    let x3 = Tensor::upload(
-        &f.gpu,
-        "x3",
-        &[2, 5, 12, 13],
-        &wave(2 * 5 * 12 * 13, 0.13),
-        Precision::F32,
-    )
-    .unwrap();
+    let x3 = f.wave("x3", &[2, 5, 12, 13], 0.13);
     let pointwise = unica::nn::ops::PackedConv::new(
         &f.gpu,
         "w1",
@@ -96,9 +75,9 @@ fn every_variant_of_the_group_norm_and_the_packed_convolutions_agrees_on_odd_sha
         Precision::F32,
     )
     .unwrap();
-    let bias = Tensor::upload(&f.gpu, "bias", &[12], &wave(12, 0.5), Precision::F32).unwrap();
+    let bias = f.wave("bias", &[12], 0.5);
     // A per-image addend for the 3×3 convolution's two images (a ResBlock's embedding).
-    let extra = Tensor::upload(&f.gpu, "extra", &[2, 12], &wave(24, 0.9), Precision::F32).unwrap();
+    let extra = f.wave("extra", &[2, 12], 0.9);
     let run = |kernels: Kernels, pipelines: &mut PipelineCache| {
         let mut r = Recorder::new(&f.gpu, pipelines, Precision::F32);
         r.set_kernels(kernels);

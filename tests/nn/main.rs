@@ -111,8 +111,7 @@ impl Fixture {
 
     /// A tensor of `shape` holding [`wave`] values in the fixture's precision.
     fn wave(&self, name: &str, shape: &[usize], k: f32) -> Tensor {
-        let n = shape.iter().product();
-        Tensor::upload(&self.gpu, name, shape, &wave(n, k), self.precision).unwrap()
+        wave_tensor(&self.gpu, name, shape, k, self.precision)
     }
 
     fn scalar(&self, name: &str) -> f32 {
@@ -172,6 +171,18 @@ enum Scope {
 /// Smooth deterministic test values: sin(k·i).
 fn wave(n: usize, k: f32) -> Vec<f32> {
     (0..n).map(|i| (i as f32 * k).sin()).collect()
+}
+
+/// A tensor of `shape` holding [`wave`] values in `precision`.
+fn wave_tensor(
+    gpu: &GpuContext,
+    name: &str,
+    shape: &[usize],
+    k: f32,
+    precision: Precision,
+) -> Tensor {
+    let n = shape.iter().product();
+    Tensor::upload(gpu, name, shape, &wave(n, k), precision).unwrap()
 }
 
 /// A fused kernel against the ops it fuses: every value of `a` within four units in the
@@ -289,8 +300,7 @@ impl Variant {
 
     /// A tensor of `shape` holding [`wave`] values in this precision.
     fn wave(&self, name: &str, shape: &[usize], k: f32) -> Tensor {
-        let n = shape.iter().product();
-        Tensor::upload(&self.gpu, name, shape, &wave(n, k), self.precision).unwrap()
+        wave_tensor(&self.gpu, name, shape, k, self.precision)
     }
 
     fn read(&self, t: &Tensor) -> Vec<f32> {

@@ -18,25 +18,7 @@ fn a_whole_unet_step_matches_pytorch() {
 fn the_cached_context_path_gives_the_whole_groups_target_noise() {
     // Context frames once, then the target alone, against PyTorch's full 4-frame pass.
     let mut f = Fixture::open("tiny_unet", Precision::F32);
-    let (x, shape) = f.stored("io.in.x");
-    let frame = x.len() / 4;
-    let context = Tensor::upload(
-        &f.gpu,
-        "context",
-        &[1, 3, 4, 16, 16],
-        &x[..3 * frame],
-        Precision::F32,
-    )
-    .unwrap();
-    let target = Tensor::upload(
-        &f.gpu,
-        "target",
-        &[1, 4, 16, 16],
-        &x[3 * frame..],
-        Precision::F32,
-    )
-    .unwrap();
-    assert_eq!(shape, [1, 4, 4, 16, 16]);
+    let (context, target) = context_and_target(&f);
     let (t, a) = (f.stored("io.in.t").0, action(&f));
     let (mut r, w) = f.recorder();
     let unet = UNet::load(&w, &UNetConfig::TINY).unwrap();
@@ -44,9 +26,25 @@ fn the_cached_context_path_gives_the_whole_groups_target_noise() {
     let eps = unet.next(&mut r, &target, t[3], &cache).unwrap();
     r.submit();
     let got = eps.read(&f.gpu).unwrap();
-    let want = &f.stored("io.out.eps").0[3 * frame..];
+    let want = f.stored("io.out.eps").0;
+    let want = &want[3 * want.len() / 4..];
     let error = relative_error(&got, want);
     assert!(error <= 1e-4, "{error}");
+}
+
+/// The tiny UNet fixture's input [1, 4 frames, 4, 16, 16] as its 3 context frames and
+/// its target frame, in the fixture's precision.
+fn context_and_target(f: &Fixture) -> (Tensor, Tensor) {
+    let (x, shape) = f.stored("io.in.x");
+    assert_eq!(shape, [1, 4, 4, 16, 16]);
+    let frame = x.len() / 4;
+    let upload = |name: &str, shape: &[usize], values: &[f32]| {
+        Tensor::upload(&f.gpu, name, shape, values, f.precision).unwrap()
+    };
+    (
+        upload("context", &[1, 3, 4, 16, 16], &x[..3 * frame]),
+        upload("target", &[1, 4, 16, 16], &x[3 * frame..]),
+    )
 }
 
 fn schedule() -> Schedule {
@@ -68,25 +66,7 @@ fn the_schedule_matches_pytorch() {
 fn a_ddim_step_with_classifier_free_guidance_matches_pytorch() {
     for precision in precisions() {
         let mut f = Fixture::open("tiny_unet", precision);
-        let (x, shape) = f.stored("io.in.x");
-        let frame = x.len() / 4;
-        let context = Tensor::upload(
-            &f.gpu,
-            "context",
-            &[1, 3, 4, 16, 16],
-            &x[..3 * frame],
-            precision,
-        )
-        .unwrap();
-        let target = Tensor::upload(
-            &f.gpu,
-            "target",
-            &[1, 4, 16, 16],
-            &x[3 * frame..],
-            precision,
-        )
-        .unwrap();
-        assert_eq!(shape[1], 4);
+        let (context, target) = context_and_target(&f);
         let (a, scale, t_prev) = (
             action(&f),
             f.scalar("io.in.cfg_scale"),
