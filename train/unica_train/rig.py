@@ -33,6 +33,7 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 from safetensors.torch import load_file, save_file
+from safetensors.torch import save as safetensors_bytes
 from torch import nn
 
 from . import checkpoint as checkpoint_file
@@ -351,8 +352,10 @@ def export(model: nn.Module, run: Path, kind: str, extra: dict, half: bool = Fal
     it, plus `extra`). Both loaders widen f16 to f32."""
     dtype = torch.float16 if half else torch.float32
     weights = {k: v.detach().to(dtype).cpu().contiguous() for k, v in model.state_dict().items()}
-    save_file(weights, str(run / f"{kind}.safetensors"))
-    (run / f"{kind}_config.json").write_text(json.dumps({"kind": kind, **asdict(model.cfg), **extra}, indent=2) + "\n")
+    # Written whole or not at all (the model `unica rig` loads), as checkpoints are.
+    checkpoint_file.write_file_atomic(run / f"{kind}.safetensors", safetensors_bytes(weights))
+    config = json.dumps({"kind": kind, **asdict(model.cfg), **extra}, indent=2) + "\n"
+    checkpoint_file.write_file_atomic(run / f"{kind}_config.json", config.encode())
 
 
 def load(run: Path, kind: str) -> tuple[nn.Module, dict]:
