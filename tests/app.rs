@@ -393,26 +393,30 @@ fn assert_scripted_failure(out: &Output, needle: &str) {
     assert!(line.contains(needle), "expected '{needle}' in {line}");
 }
 
+/// The teacher Witch running W for `frames` frames, recorded into `dir`.
+fn record_witch(frames: u32, dir: &Path) -> Output {
+    let (witch, frames) = (witch(), frames.to_string());
+    let keys = format!("{frames}W");
+    let args = [
+        "--character",
+        witch.to_str().unwrap(),
+        "--keys",
+        &keys,
+        "--record",
+        "--record-dir",
+        dir.to_str().unwrap(),
+        "--exit-after",
+        &frames,
+    ];
+    unica(&args, &[])
+}
+
 #[test]
 fn recording_into_an_unusable_folder_fails_a_scripted_run() {
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("not_a_folder");
     std::fs::write(&file, b"x").unwrap();
-    let witch = witch();
-    let out = unica(
-        &[
-            "--character",
-            witch.to_str().unwrap(),
-            "--keys",
-            "5W",
-            "--record",
-            "--record-dir",
-            file.to_str().unwrap(),
-            "--exit-after",
-            "5",
-        ],
-        &[],
-    );
+    let out = record_witch(5, &file);
     assert_scripted_failure(&out, "cannot record: could not write");
 }
 
@@ -421,21 +425,7 @@ fn recording_onto_a_full_disk_fails_a_scripted_run_and_keeps_whole_frames() {
     // A 1280×800 frame is a few hundred KB: a 1 MB tmpfs fills after a few.
     let disk = common::SmallDisk::mount("1m");
     let frames = disk.path.join("rec");
-    let witch = witch();
-    let out = unica(
-        &[
-            "--character",
-            witch.to_str().unwrap(),
-            "--keys",
-            "40W",
-            "--record",
-            "--record-dir",
-            frames.to_str().unwrap(),
-            "--exit-after",
-            "40",
-        ],
-        &[],
-    );
+    let out = record_witch(40, &frames);
     assert_scripted_failure(&out, "No space left on device");
     assert!(common::error_line(&out).contains(&disk.path.display().to_string()));
     let files = common::assert_all_whole(&frames);

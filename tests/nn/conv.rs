@@ -1,4 +1,24 @@
 use super::*;
+use unica::nn::ops::PackedConv;
+
+/// Packed convolution weights `[c_out, c_in, k]` holding [`wave`] values.
+fn packed_wave(
+    gpu: &GpuContext,
+    name: &str,
+    shape: [usize; 3],
+    k: f32,
+    precision: Precision,
+) -> PackedConv {
+    let [c_out, c_in, size] = shape;
+    PackedConv::new(
+        gpu,
+        name,
+        &wave(c_out * c_in * size * size, k),
+        shape,
+        precision,
+    )
+    .unwrap()
+}
 
 #[test]
 fn a_residual_block_over_a_concatenation_equals_the_block_over_the_concatenated_tensor() {
@@ -56,25 +76,11 @@ fn every_variant_of_the_group_norm_and_the_packed_convolutions_agrees_on_odd_sha
     let gamma = f.wave("g", &[12], 1.3);
     let beta = f.wave("b", &[12], 0.7);
     let x2 = f.wave("x2", &[2, 5, 11, 13], 0.11);
-    let weights = unica::nn::ops::PackedConv::new(
-        &f.gpu,
-        "w",
-        &wave(12 * 5 * 9, 0.23),
-        [12, 5, 3],
-        Precision::F32,
-    )
-    .unwrap();
+    let weights = packed_wave(&f.gpu, "w", [12, 5, 3], 0.23, Precision::F32);
     // A 1×1 convolution over planes of 12 × 13 = 156 pixels: 39 vec4s, so the last
     // 8-pixel tile is half full.
     let x3 = f.wave("x3", &[2, 5, 12, 13], 0.13);
-    let pointwise = unica::nn::ops::PackedConv::new(
-        &f.gpu,
-        "w1",
-        &wave(12 * 5, 0.29),
-        [12, 5, 1],
-        Precision::F32,
-    )
-    .unwrap();
+    let pointwise = packed_wave(&f.gpu, "w1", [12, 5, 1], 0.29, Precision::F32);
     let bias = f.wave("bias", &[12], 0.5);
     // A per-image addend for the 3×3 convolution's two images (a ResBlock's embedding).
     let extra = f.wave("extra", &[2, 12], 0.9);
@@ -119,14 +125,7 @@ fn the_convolution_with_its_residual_equals_a_separate_add_bit_for_bit() {
         let skip = v.wave("skip", &[2, 12, 11, 13], 0.17);
         let bias = v.wave("bias", &[12], 0.5);
         let extra = v.wave("extra", &[2, 12], 0.9);
-        let weights = unica::nn::ops::PackedConv::new(
-            &v.gpu,
-            "w",
-            &wave(12 * 5 * 9, 0.23),
-            [12, 5, 3],
-            v.precision,
-        )
-        .unwrap();
+        let weights = packed_wave(&v.gpu, "w", [12, 5, 3], 0.23, v.precision);
         // The fused form is one dispatch (the simple variant: conv2d and two adds).
         let mut c = Recorder::capture(&v.gpu, &mut v.pipelines, v.precision);
         c.set_kernels(v.kernels);
@@ -156,14 +155,7 @@ fn the_upsampled_convolution_equals_upsample_then_convolution_bit_for_bit() {
     // rows: a partial 8-pixel tile) and 3 × 3 ones (6-pixel rows: the two-op fallback).
     for mut v in Variant::all() {
         let bias = v.wave("b", &[12], 0.5);
-        let weights = unica::nn::ops::PackedConv::new(
-            &v.gpu,
-            "w",
-            &wave(12 * 5 * 9, 0.23),
-            [12, 5, 3],
-            v.precision,
-        )
-        .unwrap();
+        let weights = packed_wave(&v.gpu, "w", [12, 5, 3], 0.23, v.precision);
         for (h, w) in [(5, 6), (3, 3)] {
             let x = v.wave("x", &[2, 5, h, w], 0.11);
             let mut r = v.recorder();
@@ -197,14 +189,7 @@ fn the_convolution_of_a_normed_input_equals_the_norm_then_the_convolution() {
             let bias = f.wave("bias", &[c_out], 0.5);
             let extra = f.wave("extra", &[n, c_out], 0.9);
             let skip = f.wave("skip", &[n, c_out, h, w], 0.17);
-            let weights = unica::nn::ops::PackedConv::new(
-                &f.gpu,
-                "w",
-                &wave(c_out * c * 9, 0.23),
-                [c_out, c, 3],
-                precision,
-            )
-            .unwrap();
+            let weights = packed_wave(&f.gpu, "w", [c_out, c, 3], 0.23, precision);
             let norm = unica::nn::ops::InputNorm {
                 gamma: &gamma,
                 beta: &beta,
