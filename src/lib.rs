@@ -31,6 +31,7 @@ pub fn shaders() -> Vec<gpu::shaders::Shader> {
         &splat::shaders(),
         engine::kernels::ALL,
         render::scene::ALL,
+        render::composite::SHADERS,
     ]
     .concat()
 }

@@ -46,6 +46,12 @@ const RULES: &[Rule] = &[
         why: "nn and splat meet only in src/engine",
     },
     Rule {
+        from: &["src/splat/"],
+        except: &[],
+        to: &["render"],
+        why: "render draws splats over the scene; splat knows no render target or camera",
+    },
+    Rule {
         from: &["src/"],
         except: &["src/app/", "src/cli/", "src/main.rs", "src/lib.rs"],
         to: &["app"],

@@ -46,7 +46,7 @@ fn camera(width: u32, height: u32) -> SplatCamera {
         pitch: 0.3,
         distance: 3.5,
     };
-    SplatCamera::new(&orbit, width, height)
+    orbit.splat_camera(width, height)
 }
 
 /// Renders on the GPU; returns the image and [entries kept, entries wanted]. With

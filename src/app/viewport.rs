@@ -9,10 +9,9 @@ use crate::gpu::GpuContext;
 use std::time::Instant;
 
 use crate::gpu::timing::StageTiming;
+use crate::render::composite::Compositor;
 use crate::render::scene::{COLOR_FORMAT, DrawOptions};
 use crate::render::{GpuMesh, OrbitCamera, RenderTarget, SceneRenderer};
-use crate::splat::composite::Compositor;
-use crate::splat::project::SplatCamera;
 use crate::splat::raster::Rasterizer;
 
 /// A stage's CPU recording time since `clock` (the window waits for no GPU work).
@@ -220,8 +219,9 @@ impl Viewport {
             let fresh = cached.as_ref().is_some_and(|c| c.key == key);
             if !(fresh && (full || moving)) {
                 let divisor = if moving { MOVING_DIVISOR } else { 1 };
-                let camera =
-                    SplatCamera::new(&self.camera, w.div_ceil(divisor), h.div_ceil(divisor));
+                let camera = self
+                    .camera
+                    .splat_camera(w.div_ceil(divisor), h.div_ceil(divisor));
                 match rasterizer.record(gpu, &mut encoder, buffer, count, &camera, glam::Vec3::ZERO)
                 {
                     Ok(raster) => {

@@ -126,7 +126,6 @@ pub fn frame_stages(
     use crate::action::Action;
     use crate::engine::{Engine, EngineOptions};
     use crate::render::OrbitCamera;
-    use crate::splat::project::SplatCamera;
     use crate::splat::raster::Rasterizer;
     let options = EngineOptions {
         sampling,
@@ -161,7 +160,7 @@ pub fn frame_stages(
             target: engine.root(),
             ..OrbitCamera::default()
         };
-        let camera = SplatCamera::new(&orbit, 1280, 720);
+        let camera = orbit.splat_camera(1280, 720);
         let (buffer, count) = engine.splats().expect("splats asked for");
         let clock = Instant::now();
         let mut encoder = gpu.device.create_command_encoder(&Default::default());

@@ -98,7 +98,6 @@ fn raster(
 ) -> anyhow::Result<()> {
     use crate::render::OrbitCamera;
     use crate::splat::ply::Splat;
-    use crate::splat::project::SplatCamera;
     use crate::splat::raster::Rasterizer;
     use glam::{Quat, Vec3};
     writeln!(
@@ -135,7 +134,7 @@ fn raster(
     };
     let mut rasterizer = Rasterizer::default();
     for (width, height) in [(1280, 720), (1920, 1080)] {
-        let camera = SplatCamera::new(&orbit, width, height);
+        let camera = orbit.splat_camera(width, height);
         let mut ms = Vec::new();
         let mut entries = 0;
         for run in 0..=repeat.max(1) {

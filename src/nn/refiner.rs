@@ -2,7 +2,7 @@
 //! transformer (PTv3-style) that predicts 14 residuals per base splat. Serialisation
 //! orders and pooling groups come from [`super::serialise`] on the CPU; the network —
 //! linear layers, layer norms, attention inside patches of each order, strided pooling
-//! and unpooling — runs as WGSL kernels, pinned to train/unica_train/refiner.py by parity
+//! and unpooling — runs as WGSL kernels, pinned to train/unica_train/refiner/model.py by parity
 //! tests.
 
 use glam::Vec3;

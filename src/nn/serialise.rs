@@ -1,6 +1,6 @@
 //! Point serialisation for the refiner (PTv3): positions in the unit cube quantised to
 //! 1024 cells per axis and ordered along a z-order or Hilbert curve, or their transposes
-//! (x and y swapped). The same arithmetic as train/unica_train/refiner.py; orders are
+//! (x and y swapped). The same arithmetic as train/unica_train/refiner/model.py; orders are
 //! computed on the CPU and uploaded as row indices.
 
 use glam::Vec3;

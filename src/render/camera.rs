@@ -3,6 +3,8 @@
 
 use glam::{Mat4, Vec3};
 
+use crate::splat::project::SplatCamera;
+
 /// Vertical field of view in radians.
 pub const FOV_Y: f32 = 0.8;
 const MIN_DISTANCE: f32 = 0.2;
@@ -40,6 +42,20 @@ impl OrbitCamera {
 
     pub fn view(&self) -> Mat4 {
         glam::camera::rh::view::look_at_mat4(self.eye(), self.target, Vec3::Y)
+    }
+
+    /// The splat rasterizer's pinhole camera for this view at `width` × `height` pixels.
+    pub fn splat_camera(&self, width: u32, height: u32) -> SplatCamera {
+        let projection = self.projection(width as f32 / height as f32);
+        SplatCamera {
+            view: self.view(),
+            fx: 0.5 * width as f32 * projection.x_axis.x,
+            fy: 0.5 * height as f32 * projection.y_axis.y,
+            width,
+            height,
+            near: (self.distance * 0.01).max(0.01),
+            depth_range: 4.0 * self.distance,
+        }
     }
 
     /// Projection with depth in [0, 1] and y up (the WebGPU convention).

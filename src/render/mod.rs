@@ -2,6 +2,7 @@
 //! off-screen target that the viewport shows, the recorder saves and headless renders read.
 
 pub mod camera;
+pub mod composite;
 pub mod offscreen;
 pub mod scene;
 

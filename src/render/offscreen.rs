@@ -5,10 +5,9 @@
 use crate::gpu::{GpuContext, GpuError, readback};
 use crate::mesh::Mesh;
 
+use super::composite::Compositor;
 use super::scene::{COLOR_FORMAT, DrawOptions};
 use super::{GpuMesh, OrbitCamera, RenderTarget, SceneRenderer};
-use crate::splat::composite::Compositor;
-use crate::splat::project::SplatCamera;
 use crate::splat::raster::Rasterizer;
 
 pub struct Offscreen {
@@ -61,7 +60,7 @@ impl Offscreen {
             options,
             None,
         );
-        let splat_camera = SplatCamera::new(camera, w, h);
+        let splat_camera = camera.splat_camera(w, h);
         let raster = rasterizer.record(
             &self.gpu,
             &mut encoder,

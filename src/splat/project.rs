@@ -8,7 +8,6 @@
 use glam::{Mat3, Mat4, Vec2, Vec3};
 
 use super::ply::Splat;
-use crate::render::OrbitCamera;
 
 /// Tile size of the rasterizer, pixels.
 pub const TILE: u32 = 16;
@@ -27,19 +26,6 @@ pub struct SplatCamera {
 }
 
 impl SplatCamera {
-    pub fn new(camera: &OrbitCamera, width: u32, height: u32) -> Self {
-        let projection = camera.projection(width as f32 / height as f32);
-        Self {
-            view: camera.view(),
-            fx: 0.5 * width as f32 * projection.x_axis.x,
-            fy: 0.5 * height as f32 * projection.y_axis.y,
-            width,
-            height,
-            near: (camera.distance * 0.01).max(0.01),
-            depth_range: 4.0 * camera.distance,
-        }
-    }
-
     pub fn tiles(&self) -> (u32, u32) {
         (self.width.div_ceil(TILE), self.height.div_ceil(TILE))
     }
@@ -173,14 +159,22 @@ mod tests {
     use super::*;
     use glam::Quat;
 
+    /// A camera 4 m out on +Z looking at the origin, 64 × 48 pixels, 0.8 rad high.
     fn camera() -> SplatCamera {
-        let orbit = OrbitCamera {
-            target: Vec3::ZERO,
-            yaw: 0.0,
-            pitch: 0.0,
-            distance: 4.0,
-        };
-        SplatCamera::new(&orbit, 64, 48)
+        let fy = 0.5 * 48.0 / (0.4f32).tan();
+        SplatCamera {
+            view: glam::camera::rh::view::look_at_mat4(
+                Vec3::new(0.0, 0.0, 4.0),
+                Vec3::ZERO,
+                Vec3::Y,
+            ),
+            fx: fy,
+            fy,
+            width: 64,
+            height: 48,
+            near: 0.04,
+            depth_range: 16.0,
+        }
     }
 
     fn splat(position: Vec3, scale: Vec3, rotation: Quat) -> Splat {

@@ -1,17 +1,17 @@
 //! Drawing rasterized splats into a render target over what is already there (the
-//! scene's grid and meshes): see shaders/splat_composite.wgsl.
+//! scene's grid and meshes): see shaders/render/splat_composite.wgsl.
 
+use super::RenderTarget;
 use crate::gpu::GpuContext;
 use crate::gpu::kernel::{Precision, uniform};
 use crate::gpu::shaders::Shader;
 use crate::gpu_struct;
-use crate::render::RenderTarget;
 use crate::wgsl_shader as shader;
 
 pub const SPLAT_COMPOSITE: Shader =
-    shader!("splat/splat_composite.wgsl", [CompositeParams], f16: false, subgroups: false);
+    shader!("render/splat_composite.wgsl", [CompositeParams], f16: false, subgroups: false);
 
-/// Every shader of this file (gathered by `splat::shaders`).
+/// Every shader of this file (gathered by `unica::shaders`).
 pub const SHADERS: &[Shader] = &[SPLAT_COMPOSITE];
 
 gpu_struct! {
