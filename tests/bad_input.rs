@@ -416,7 +416,7 @@ fn manifest_error(edit: impl FnOnce(&mut Value)) -> String {
     edit(&mut json);
     let path = dir.path().join("manifest.json");
     std::fs::write(&path, serde_json::to_vec(&json).unwrap()).unwrap();
-    let err = unica::nn::bundle::read_manifest(&path)
+    let err = unica::engine::bundle::read_manifest(&path)
         .expect_err("must fail")
         .to_string();
     assert!(err.contains("manifest.json"), "{err}");

@@ -8,13 +8,14 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 use unica::action::Action;
+use unica::engine::bundle::Bundle;
+use unica::engine::bundle::{Heading, RootMotion};
 use unica::engine::kernels::{self, FrameState, HeadingTurns, PostParams};
 use unica::engine::{Engine, EngineOptions, pca};
 use unica::gpu::kernel::{Grid, PipelineCache, Precision};
 use unica::gpu::{GpuContext, GpuOptions, readback};
-use unica::nn::bundle::{Heading, RootMotion};
 use unica::nn::sampler::{Sampling, idle_run};
-use unica::nn::{Bundle, Kernels, Recorder, Tensor};
+use unica::nn::{Kernels, Recorder, Tensor};
 use unica::random::Rng;
 use unica::splat::ply::Splat;
 

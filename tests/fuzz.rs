@@ -485,7 +485,7 @@ fn fuzz_bundle_manifest() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let seed = std::fs::read(root.join("assets/witch/bundle/manifest.json")).unwrap();
     fuzz("bundle_manifest", "manifest.json", &[seed], |p, _| {
-        unica::nn::bundle::read_manifest(p).is_ok()
+        unica::engine::bundle::read_manifest(p).is_ok()
     });
 }
 

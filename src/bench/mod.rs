@@ -9,13 +9,14 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
+use crate::engine::bundle::Bundle;
 use crate::gpu::kernel::{PipelineCache, Precision, ScaleAdd};
 use crate::gpu::timing::Profiler;
 use crate::gpu::{GpuContext, GpuError};
 use crate::nn::sampler::{self, Sampling, Schedule};
 use crate::nn::unet::{UNet, UNetConfig};
 use crate::nn::vae::{Decoder, VaeConfig};
-use crate::nn::{Bundle, Recorder, Tensor, Weights};
+use crate::nn::{Recorder, Tensor, Weights};
 
 mod live;
 

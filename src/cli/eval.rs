@@ -303,7 +303,7 @@ fn lenient(
     // The free-running rollout through the shipped engine path (the WGSL model, PCA
     // clean-up): each frame's drawn points, which the report compares with the teacher.
     let engine_dir = out.join("engine");
-    let manifest = crate::nn::bundle::read_manifest(&args.bundle.join("manifest.json"))?;
+    let manifest = crate::engine::bundle::read_manifest(&args.bundle.join("manifest.json"))?;
     let job = crate::headless::RenderJob {
         avatar: crate::headless::Avatar::Bundle {
             dir: args.bundle.clone(),

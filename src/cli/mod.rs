@@ -429,7 +429,7 @@ fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
     // one), or its teacher with --steps and --cfg-scale, with its Idle guidance and noise
     // scale.
     let bundled = |dir: &Path| -> anyhow::Result<crate::nn::sampler::Sampling> {
-        let manifest = crate::nn::bundle::read_manifest(&dir.join("manifest.json"))?;
+        let manifest = crate::engine::bundle::read_manifest(&dir.join("manifest.json"))?;
         Ok(manifest.sampler.chosen(args.steps, args.cfg_scale))
     };
     if let (Some(frames), Some(dir)) = (args.soak, &args.bundle) {
@@ -529,7 +529,7 @@ fn render(args: RenderArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
             description: args.avatar,
         },
         (None, Some(dir)) => {
-            let manifest = crate::nn::bundle::read_manifest(&dir.join("manifest.json"))?;
+            let manifest = crate::engine::bundle::read_manifest(&dir.join("manifest.json"))?;
             let sampling = manifest.sampler.chosen(args.steps, args.cfg_scale);
             sampling
                 .check(manifest.diffusion.steps)
@@ -593,7 +593,7 @@ fn parse_fps(text: &str) -> Result<f64, String> {
 fn export(args: ExportArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     let keys = KeyScript::parse(&args.keys).context("--keys")?;
     let gpu = GpuContext::headless(gpu)?;
-    let manifest = crate::nn::bundle::read_manifest(&args.bundle.join("manifest.json"))?;
+    let manifest = crate::engine::bundle::read_manifest(&args.bundle.join("manifest.json"))?;
     let options = crate::engine::EngineOptions {
         seed: args.seed,
         sampling: Some(manifest.sampler.chosen(args.steps, None)),
@@ -670,7 +670,7 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
     };
     if let Some(dir) = &bundle {
         // Refuse a broken bundle before the window opens (the worker loads it again).
-        crate::nn::bundle::read_manifest(&dir.join("manifest.json"))?;
+        crate::engine::bundle::read_manifest(&dir.join("manifest.json"))?;
     }
     let keys = cli
         .keys

@@ -5,9 +5,10 @@
 
 use glam::Vec3;
 
+use super::bundle::Bundle;
 use crate::gpu::kernel::{PipelineCache, Precision};
 use crate::gpu::{GpuContext, GpuError};
-use crate::nn::{Bundle, Recorder, Tensor};
+use crate::nn::{Recorder, Tensor};
 use crate::posmap::MAP_SIZE;
 use crate::splat::base::{self, RESIDUALS};
 use crate::splat::ply::Splat;

@@ -5,8 +5,8 @@
 
 use super::kernels::{self, PostParams};
 use super::{Engine, FramePlan, SPLIT_STEPS};
+use crate::engine::bundle::RootMotion;
 use crate::gpu::{Bound, GpuError};
-use crate::nn::bundle::RootMotion;
 use crate::nn::ops::Indices;
 use crate::nn::refiner::{Order, Orders};
 use crate::nn::sampler::Sampling;

@@ -60,7 +60,7 @@ gpu_struct! {
 
 gpu_struct! {
     /// The quarter turns about the vertical between the world's frame and the model's
-    /// (`nn::bundle::Heading`), written by the CPU before each frame: the window is turned
+    /// (`engine::bundle::Heading`), written by the CPU before each frame: the window is turned
     /// `to_model` before it is encoded, the new frame `to_world` after it is decoded
     /// (`to_model + to_world` is 0 mod 4).
     pub struct HeadingTurns {

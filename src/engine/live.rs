@@ -3,12 +3,13 @@
 
 use glam::Vec3;
 
+use super::bundle::Bundle;
 use super::kernels::{FrameState, HeadingTurns};
 use super::recentre::Start;
 use crate::gpu::kernel::Precision;
 use crate::gpu::texels::Texels;
 use crate::gpu::{GpuContext, GpuError};
-use crate::nn::{Bundle, Tensor};
+use crate::nn::Tensor;
 
 /// The loop's buffers, made once at load.
 pub(super) struct Live {

@@ -21,6 +21,7 @@
 //! frame's points into splats.
 
 pub mod appearance;
+pub mod bundle;
 mod capture;
 pub mod kernels;
 mod live;
@@ -38,14 +39,14 @@ use crate::action::Action;
 use crate::gpu::kernel::{PipelineCache, Precision};
 use crate::gpu::plan::{StageProfile, StepProfile};
 use crate::gpu::{GpuContext, GpuError, readback};
-use crate::nn::bundle::Heading;
+use crate::nn::LoadError;
 use crate::nn::ops::{Indices, Plan};
 use crate::nn::sampler::{Sampling, idle_run};
-use crate::nn::{Bundle, LoadError};
 use crate::random::Rng;
 use crate::splat::frame::SplatFrame;
 use crate::splat::ply::Splat;
 use crate::splat::raster::GpuSplat;
+use bundle::{Bundle, Heading};
 use kernels::{FrameState, HeadingTurns};
 use live::{Live, initial_state};
 use recentre::Start;

@@ -12,9 +12,10 @@
 //! frame. This module makes the window's starting maps: the standing-start context
 //! decoded, background 0.
 
+use super::bundle::Bundle;
 use crate::gpu::GpuContext;
 use crate::gpu::kernel::{PipelineCache, Precision};
-use crate::nn::{Bundle, LoadError, Recorder};
+use crate::nn::{LoadError, Recorder};
 
 /// Marks a background pixel in [`Start::point_of`].
 pub const BACKGROUND: u32 = u32::MAX;

@@ -184,7 +184,7 @@ fn random_values(name: &str, count: usize) -> Vec<f32> {
 
 /// Index values as u32, each checked to lie in 0..`bound`; otherwise what is wrong
 /// ("holds V, outside 0..B"), for the caller to name the tensor.
-pub(super) fn below(values: Vec<i32>, bound: usize) -> Result<Vec<u32>, String> {
+pub(crate) fn below(values: Vec<i32>, bound: usize) -> Result<Vec<u32>, String> {
     match values.iter().find(|&&v| v < 0 || v as usize >= bound) {
         Some(bad) => Err(format!("holds {bad}, outside 0..{bound}")),
         None => Ok(values.into_iter().map(|v| v as u32).collect()),

@@ -45,7 +45,8 @@ use unica::nn::unet::{UNet, UNetConfig};
 
 use unica::nn::vae::{Decoder, Encoder, VaeConfig};
 
-use unica::nn::{Bundle, Kernels, Recorder, Tensor, Weights};
+use unica::engine::bundle::Bundle;
+use unica::nn::{Kernels, Recorder, Tensor, Weights};
 
 use unica::tensors::TensorFile;
 

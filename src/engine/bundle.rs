@@ -7,17 +7,16 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
-use super::Tensor;
-use super::ops::Recorder;
-use super::refiner::{Refiner, RefinerConfig};
-use super::sampler::{self, DiffusionConfig, SamplerKind, Sampling, Schedule};
-use super::unet::{UNet, UNetConfig};
-use super::vae::{Decoder, Encoder, VaeConfig};
-use super::weights::{LoadError, Weights};
 use crate::action::Action;
 use crate::gpu::kernel::Precision;
 use crate::gpu::{GpuContext, GpuError};
-use crate::nn::ops::MAX_HEAD_SIZE;
+use crate::nn::Tensor;
+use crate::nn::ops::{Indices, MAX_HEAD_SIZE, Recorder};
+use crate::nn::refiner::{Refiner, RefinerConfig};
+use crate::nn::sampler::{self, DiffusionConfig, SamplerKind, Sampling, Schedule};
+use crate::nn::unet::{UNet, UNetConfig};
+use crate::nn::vae::{Decoder, Encoder, VaeConfig};
+use crate::nn::weights::{self, LoadError, Weights};
 use crate::tensors::TensorFile;
 
 pub const FORMAT: &str = "unica-bundle";
@@ -234,7 +233,7 @@ impl Bundle {
         &self,
         r: &mut Recorder,
         context: &Tensor,
-        actions: &super::ops::Indices,
+        actions: &Indices,
         noise: &Tensor,
         sampling: Sampling,
     ) -> Result<Tensor, GpuError> {
@@ -309,7 +308,7 @@ fn indices(file: &TensorFile, name: &str, bound: usize) -> Result<Vec<u32>, Load
             problem: format!("'{name}' is empty"),
         });
     }
-    super::weights::below(values, bound).map_err(|problem| LoadError::Manifest {
+    weights::below(values, bound).map_err(|problem| LoadError::Manifest {
         path: file.path().display().to_string(),
         problem: format!("'{name}' {problem}"),
     })
