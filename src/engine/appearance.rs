@@ -11,7 +11,9 @@ use crate::gpu::{GpuContext, GpuError};
 use crate::nn::{Recorder, Tensor};
 use crate::posmap::MAP_SIZE;
 use crate::splat::base::{self, RESIDUALS};
+use crate::splat::frame::FEATURES;
 use crate::splat::ply::Splat;
+use crate::splat::serialise;
 use crate::splat::upscale;
 
 use super::surface::COLOR;
@@ -142,8 +144,9 @@ impl Appearance {
             Some(refiner) => {
                 let features = base::features(&unit, &splats, &normals, t.median);
                 let mut r = Recorder::new(&self.gpu, &mut self.pipelines, self.precision);
-                let x = r.upload("refiner.features", &[unit.len(), 11], &features)?;
-                let y: Tensor = refiner.forward(&mut r, &x, &unit)?;
+                let x = r.upload("refiner.features", &[unit.len(), FEATURES], &features)?;
+                let o = serialise::host_orders(&unit, refiner.cfg.stride).upload(&self.gpu)?;
+                let y: Tensor = refiner.forward(&mut r, &x, &o.fine, &o.coarse, &o.groups)?;
                 r.submit();
                 Some((y.read(&self.gpu)?, refiner.cfg.mean_bound / self.scale))
             }

@@ -17,6 +17,8 @@ use crate::nn::sampler::{self, DiffusionConfig, SamplerKind, Sampling, Schedule}
 use crate::nn::unet::{UNet, UNetConfig};
 use crate::nn::vae::{Decoder, Encoder, VaeConfig};
 use crate::nn::weights::{self, LoadError, Weights};
+use crate::splat::base::RESIDUALS;
+use crate::splat::frame::FEATURES;
 use crate::tensors::TensorFile;
 
 pub const FORMAT: &str = "unica-bundle";
@@ -164,7 +166,7 @@ impl Bundle {
         let refiner = manifest
             .refiner
             .as_ref()
-            .map(|cfg| Refiner::load(&w.at("refiner"), cfg))
+            .map(|cfg| Refiner::load(&w.at("refiner"), cfg, FEATURES, RESIDUALS))
             .transpose()?;
         let decoder = Decoder::load(&w.at("vae.decoder"), vae)?;
         if decoder.pixels().is_some_and(|p| p != pixels) {

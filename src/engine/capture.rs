@@ -3,12 +3,10 @@
 //! points, the splats with the refiner, and the slide of the window — one captured
 //! [`Plan`](crate::gpu::plan::Plan) per sampler setting.
 
+use super::bundle::RootMotion;
 use super::kernels::{self, PostParams};
 use super::{Engine, FramePlan, SPLIT_STEPS};
-use crate::engine::bundle::RootMotion;
 use crate::gpu::{Bound, GpuError};
-use crate::nn::ops::Indices;
-use crate::nn::refiner::{Order, Orders};
 use crate::nn::sampler::Sampling;
 use crate::nn::{Recorder, Tensor};
 
@@ -134,30 +132,15 @@ impl Engine {
             let inputs = splats.record_coarse(r.steps(), &live.points);
             let residuals = match (inputs, &bundle.refiner) {
                 (Some(inputs), Some(refiner)) => {
-                    let order = |o: &crate::splat::frame::OrderBuffers, len: usize| Order {
-                        sort: Indices::from_buffer(&o.sort, len),
-                        unsort: Indices::from_buffer(&o.unsort, len),
-                    };
-                    let orders = Orders {
-                        fine: inputs
-                            .fine
-                            .iter()
-                            .map(|o| order(o, inputs.points))
-                            .collect(),
-                        coarse: inputs
-                            .coarse
-                            .iter()
-                            .map(|o| order(o, inputs.pooled))
-                            .collect(),
-                        groups: Indices::from_buffer(inputs.groups, inputs.points),
-                    };
                     let features = Tensor::from_buffer(
                         inputs.features.clone(),
                         &[inputs.points, crate::splat::frame::FEATURES],
                         self.precision,
                     );
                     r.stage("refiner");
-                    let residuals = refiner.forward_with(&mut r, &features, &orders)?;
+                    let o = inputs.orders;
+                    let residuals =
+                        refiner.forward(&mut r, &features, &o.fine, &o.coarse, &o.groups)?;
                     r.stage("splats");
                     Some(residuals)
                 }

@@ -219,10 +219,6 @@ pub struct Engine {
     frames: u64,
 }
 
-// The refiner (nn) and the splat stage meet here: their per-point sizes must agree.
-const _: () = assert!(crate::nn::refiner::RESIDUALS == crate::splat::base::RESIDUALS);
-const _: () = assert!(crate::nn::refiner::FEATURES == crate::splat::frame::FEATURES);
-
 /// Steps (dispatches and copies) per submission when a frame is submitted in parts beside
 /// a window. Each part waits for the queue, and so for the window's frame before it:
 /// beside a window on a 2-core CPU driver one part runs per window frame, so the count

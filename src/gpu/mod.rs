@@ -2,6 +2,7 @@
 //! Owns everything every other GPU module needs: the device, the queue and what it can do.
 
 pub mod counters;
+pub mod indices;
 pub mod kernel;
 pub mod plan;
 pub mod precision;
@@ -14,6 +15,7 @@ use std::fmt;
 use std::sync::Arc;
 
 pub use counters::{Counters, Counts};
+pub use indices::{Indices, Permutation};
 
 /// Environment variable that picks an adapter by (case-insensitive) substring of its name.
 pub const ADAPTER_ENV: &str = "WGPU_ADAPTER_NAME";

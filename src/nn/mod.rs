@@ -7,7 +7,6 @@ pub mod layers;
 pub mod ops;
 pub mod refiner;
 pub mod sampler;
-pub mod serialise;
 mod tensor;
 pub mod unet;
 pub mod vae;

@@ -1,24 +1,17 @@
-//! The splat refiner (docs/architecture.md, Appearance) on the GPU: a small point
-//! transformer (PTv3-style) that predicts 14 residuals per base splat. Serialisation
-//! orders and pooling groups come from [`super::serialise`] on the CPU; the network —
-//! linear layers, layer norms, attention inside patches of each order, strided pooling
-//! and unpooling — runs as WGSL kernels, pinned to train/unica_train/refiner/model.py by parity
-//! tests.
+//! The splat refiner's network (docs/architecture.md, Appearance) on the GPU: a small
+//! point transformer (PTv3-style) that predicts residuals per base splat. Its inputs, the
+//! serialisation orders and pooling groups come from the splat stage (`splat::frame` on
+//! the GPU, `splat::serialise` its host reference), and the engine passes them on; the
+//! network — linear layers, layer norms, attention inside patches of each order, strided
+//! pooling and unpooling — runs as WGSL kernels, pinned to
+//! train/unica_train/refiner/model.py by parity tests.
 
-use glam::Vec3;
 use serde::Deserialize;
 
 use super::layers::Linear;
-use super::ops::{AttentionParams, Indices, Recorder};
-use super::serialise::{self, ORDERS};
+use super::ops::{AttentionParams, Recorder};
 use super::{LoadError, Tensor, Weights};
-use crate::gpu::GpuError;
-
-/// Inputs per point (the splat stage's features; `engine` checks both sides agree).
-pub const FEATURES: usize = 11;
-/// Outputs per point: mean 3, colour 3, log-scale 3, rotation 4, opacity 1 (the splat
-/// stage's residuals; `engine` checks both sides agree).
-pub const RESIDUALS: usize = 14;
+use crate::gpu::{GpuError, Indices, Permutation};
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 pub struct RefinerConfig {
@@ -88,30 +81,6 @@ impl LayerNorm {
     }
 }
 
-/// One serialisation order on the GPU: the order and its inverse.
-pub struct Order {
-    pub sort: Indices,
-    pub unsort: Indices,
-}
-
-/// The orders of one frame's points: the four curves of the points and of the pooled
-/// points, and each point's pooled group. Made on the host from positions
-/// ([`Refiner::orders`]) or on the GPU by the splat stage (the engine wraps its buffers).
-pub struct Orders {
-    pub fine: Vec<Order>,
-    pub coarse: Vec<Order>,
-    pub groups: Indices,
-}
-
-impl Order {
-    fn new(r: &Recorder, order: &[u32]) -> Result<Self, GpuError> {
-        Ok(Self {
-            sort: r.indices("refiner.order", order)?,
-            unsort: r.indices("refiner.unsort", &serialise::inverse(order))?,
-        })
-    }
-}
-
 /// Attention inside patches along an order, then an MLP; both residual.
 struct Block {
     heads: usize,
@@ -140,7 +109,7 @@ impl Block {
         &self,
         r: &mut Recorder,
         x: &Tensor,
-        order: &Order,
+        order: &Permutation,
         patch: usize,
     ) -> Result<Tensor, GpuError> {
         // The norms and the serialisation gathers ride in the projections' loads (the
@@ -200,13 +169,20 @@ pub struct Refiner {
     decoder: Vec<Block>,
     norm: LayerNorm,
     head: Linear,
-    /// [pixel_residuals, 14]: each map pixel's own residuals.
+    /// [pixel_residuals, residuals]: each map pixel's own residuals.
     pixel: Option<Tensor>,
 }
 
 impl Refiner {
-    /// Loads the weights under `w` (the trainer's state-dict names).
-    pub fn load(w: &Weights, cfg: &RefinerConfig) -> Result<Self, LoadError> {
+    /// Loads the weights under `w` (the trainer's state-dict names) of a refiner that
+    /// reads `features` values per point and writes `residuals` (the splat stage's
+    /// `splat::frame::FEATURES` and `splat::base::RESIDUALS`).
+    pub fn load(
+        w: &Weights,
+        cfg: &RefinerConfig,
+        features: usize,
+        residuals: usize,
+    ) -> Result<Self, LoadError> {
         let [c0, c1] = cfg.channels;
         let blocks = |prefix: &str, count: usize, channels: usize, heads: usize| {
             (0..count)
@@ -214,67 +190,34 @@ impl Refiner {
                 .collect::<Result<Vec<_>, _>>()
         };
         Ok(Self {
-            embed: Linear::load(&w.at("embed"), FEATURES, c0)?,
+            embed: Linear::load(&w.at("embed"), features, c0)?,
             encoder: blocks("encoder", cfg.depths[0], c0, cfg.heads[0])?,
             down: Linear::load(&w.at("down"), c0, c1)?,
             middle: blocks("middle", cfg.depths[1], c1, cfg.heads[1])?,
             up: Linear::load(&w.at("up"), c1, c0)?,
             decoder: blocks("decoder", cfg.decoder_depth, c0, cfg.heads[0])?,
             norm: LayerNorm::load(&w.at("norm"), c0)?,
-            head: Linear::load(&w.at("head"), c0, RESIDUALS)?,
+            head: Linear::load(&w.at("head"), c0, residuals)?,
             pixel: match cfg.pixel_residuals {
                 0 => None,
-                rows => Some(w.tensor("pixel", &[rows, RESIDUALS])?),
+                rows => Some(w.tensor("pixel", &[rows, residuals])?),
             },
             cfg: cfg.clone(),
         })
     }
 
-    /// The serialisation orders of points at `unit` (normalised, root at 0.5), uploaded.
-    pub fn orders(&self, r: &Recorder, unit: &[Vec3]) -> Result<Orders, GpuError> {
-        let stride = self.cfg.stride;
-        let fine_orders: Vec<Vec<u32>> = ORDERS
-            .iter()
-            .map(|&curve| serialise::serialise(unit, curve))
-            .collect();
-        let coarse_unit = serialise::pooled_positions(unit, &fine_orders[0], stride);
-        Ok(Orders {
-            fine: fine_orders
-                .iter()
-                .map(|o| Order::new(r, o))
-                .collect::<Result<Vec<_>, _>>()?,
-            coarse: ORDERS
-                .iter()
-                .map(|&curve| Order::new(r, &serialise::serialise(&coarse_unit, curve)))
-                .collect::<Result<Vec<_>, _>>()?,
-            groups: r.indices(
-                "refiner.groups",
-                &serialise::groups(&fine_orders[0], stride),
-            )?,
-        })
-    }
-
-    /// Records the residuals [N, 14] of `features` [N, 11] for points at `unit`
-    /// (normalised, the frame's root at 0.5).
+    /// Records the residuals [N, residuals] of `features` [N, features] along the points'
+    /// four serialisation orders `fine`, the pooled points' `coarse` and each point's
+    /// pooled group `groups` (made by the splat stage: `splat::serialise`).
     pub fn forward(
         &self,
         r: &mut Recorder,
         features: &Tensor,
-        unit: &[Vec3],
-    ) -> Result<Tensor, GpuError> {
-        let orders = self.orders(r, unit)?;
-        self.forward_with(r, features, &orders)
-    }
-
-    /// Records the residuals [N, 14] of `features` [N, 11] with the points' `orders`.
-    pub fn forward_with(
-        &self,
-        r: &mut Recorder,
-        features: &Tensor,
-        orders: &Orders,
+        fine: &[Permutation],
+        coarse: &[Permutation],
+        groups: &Indices,
     ) -> Result<Tensor, GpuError> {
         let stride = self.cfg.stride;
-        let (fine, coarse, groups) = (&orders.fine, &orders.coarse, &orders.groups);
         let patch = self.cfg.patch;
         let mut block = 0;
         let mut x = self.embed.forward(r, features, false)?;
@@ -303,8 +246,7 @@ impl Refiner {
             // Each point's own residuals ride in the head's epilogue (no extra dispatch).
             Some(pixel) => {
                 assert_eq!(
-                    pixel.shape,
-                    [normed.shape[0], RESIDUALS],
+                    pixel.shape[0], normed.shape[0],
                     "the refiner's pixel residuals against its points"
                 );
                 self.head.forward_plus(r, &normed, false, pixel)

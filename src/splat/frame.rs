@@ -14,12 +14,13 @@ use glam::Vec3;
 use super::base::{self, OPACITY, RESIDUALS, SPREAD, THICKNESS};
 use super::ply::SH_C0;
 use super::raster::GpuSplat;
+use super::serialise::{ORDERS, SerialOrders};
 use super::upscale::UpscaleParams;
 use crate::gpu::kernel::{Grid, Precision};
 use crate::gpu::plan::Builder;
 use crate::gpu::shaders::Shader;
 use crate::gpu::texels::Texels;
-use crate::gpu::{Bound, GpuContext, GpuError};
+use crate::gpu::{Bound, GpuContext, GpuError, Indices, Permutation};
 use crate::gpu_struct;
 use crate::wgsl_shader;
 
@@ -119,12 +120,6 @@ pub const ALL: &[Shader] = &[
     GATHER_MAP,
     REFINE,
 ];
-
-/// One serialisation order on the GPU: sort (rank → point) and unsort (point → rank).
-pub struct OrderBuffers {
-    pub sort: wgpu::Buffer,
-    pub unsort: wgpu::Buffer,
-}
 
 /// The static layout and working buffers of one map level.
 struct Level {
@@ -290,12 +285,11 @@ struct Refining {
     codes_texels: Texels,
     /// Whether the ranks are counted by `rank_tiled.wgsl` (GPUs) rather than `rank.wgsl`.
     tiled_rank: bool,
-    fine: Vec<OrderBuffers>,
-    groups: wgpu::Buffer,
+    /// The orders of the points and of the pooled points, and each point's group.
+    orders: SerialOrders,
     pooled: wgpu::Buffer,
     pooled_codes: wgpu::Buffer,
     pooled_codes_texels: Texels,
-    coarse: Vec<OrderBuffers>,
     residuals: wgpu::Buffer,
 }
 
@@ -308,13 +302,13 @@ impl Refining {
         b: &mut Builder,
         p: &SplatParams,
         codes: (&wgpu::Buffer, &Texels),
-        order: &OrderBuffers,
+        order: &Permutation,
         grid: Grid,
     ) {
         let rest = [
-            Bound::Buffer(&order.sort),
-            Bound::Buffer(&order.unsort),
-            Bound::Buffer(&self.groups),
+            Bound::Buffer(order.sort.buffer()),
+            Bound::Buffer(order.unsort.buffer()),
+            Bound::Buffer(self.orders.groups.buffer()),
         ];
         if self.tiled_rank {
             let mut bound = vec![Bound::Buffer(codes.0)];
@@ -348,13 +342,10 @@ pub struct SplatFrame {
 pub struct RefinerInputs<'a> {
     /// [N, 11] features in the engine's precision.
     pub features: &'a wgpu::Buffer,
-    /// The four serialisation orders of the points and of the pooled points.
-    pub fine: &'a [OrderBuffers],
-    pub coarse: &'a [OrderBuffers],
-    /// Each point's pooled group.
-    pub groups: &'a wgpu::Buffer,
+    /// The four serialisation orders of the points and of the pooled points, and each
+    /// point's pooled group.
+    pub orders: &'a SerialOrders,
     pub points: usize,
-    pub pooled: usize,
 }
 
 impl SplatFrame {
@@ -382,14 +373,9 @@ impl SplatFrame {
         let n = pixels.len();
         let none = wgpu::BufferUsages::empty();
         let coarse = Level::new(gpu, COARSE, pixels, colors)?;
-        let orders = |label: &str, count: usize| -> Result<Vec<OrderBuffers>, GpuError> {
-            (0..4)
-                .map(|_| {
-                    Ok(OrderBuffers {
-                        sort: gpu.storage_buffer(label, 4 * count.max(1) as u64, none)?,
-                        unsort: gpu.storage_buffer(label, 4 * count.max(1) as u64, none)?,
-                    })
-                })
+        let orders = |label: &str, count: usize| -> Result<Vec<Permutation>, GpuError> {
+            (0..ORDERS.len())
+                .map(|_| Permutation::storage(gpu, label, count))
                 .collect()
         };
         let refining = match refiner {
@@ -412,8 +398,11 @@ impl SplatFrame {
                     )?,
                     codes_texels: Texels::new_u32(gpu, "splat.codes", 4 * n.next_multiple_of(4))?,
                     tiled_rank: for_gpus,
-                    fine: orders("splat.order", n)?,
-                    groups: gpu.storage_buffer("splat.groups", 4 * n.max(1) as u64, none)?,
+                    orders: SerialOrders {
+                        fine: orders("splat.order", n)?,
+                        coarse: orders("splat.pooled_order", pooled)?,
+                        groups: Indices::storage(gpu, "splat.groups", n)?,
+                    },
                     pooled: gpu.storage_buffer("splat.pooled", 12 * pooled.max(1) as u64, none)?,
                     pooled_codes: gpu.storage_buffer(
                         "splat.pooled_codes",
@@ -425,7 +414,6 @@ impl SplatFrame {
                         "splat.pooled_codes",
                         4 * pooled.next_multiple_of(4),
                     )?,
-                    coarse: orders("splat.pooled_order", pooled)?,
                     residuals: gpu.storage_buffer(
                         "splat.residuals",
                         4 * (RESIDUALS * n.max(1)) as u64,
@@ -559,29 +547,31 @@ impl SplatFrame {
         p.stride = r.stride as u32;
         let grid = b.grid(n);
         b.dispatch(&CODES, &p, &[&self.unit, &r.codes], grid);
-        for (curve, order) in r.fine.iter().enumerate() {
+        for (curve, order) in r.orders.fine.iter().enumerate() {
             p.curve = curve as u32;
             p.features = u32::from(curve == 0);
             r.record_rank(b, &p, (&r.codes, &r.codes_texels), order, grid);
         }
         let grid = b.grid(pooled);
-        b.dispatch(&POOLED, &p, &[&self.unit, &r.fine[0].sort, &r.pooled], grid);
+        b.dispatch(
+            &POOLED,
+            &p,
+            &[&self.unit, r.orders.fine[0].sort.buffer(), &r.pooled],
+            grid,
+        );
         let mut q = p;
         q.points = pooled as u32;
         q.features = 0;
         b.dispatch(&CODES, &q, &[&r.pooled, &r.pooled_codes], grid);
         let codes = (&r.pooled_codes, &r.pooled_codes_texels);
-        for (curve, order) in r.coarse.iter().enumerate() {
+        for (curve, order) in r.orders.coarse.iter().enumerate() {
             q.curve = curve as u32;
             r.record_rank(b, &q, codes, order, grid);
         }
         Some(RefinerInputs {
             features: &r.features,
-            fine: &r.fine,
-            coarse: &r.coarse,
-            groups: &r.groups,
+            orders: &r.orders,
             points: n,
-            pooled,
         })
     }
 

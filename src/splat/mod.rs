@@ -15,6 +15,7 @@ pub mod ply;
 pub mod ply_layout;
 pub mod project;
 pub mod raster;
+pub mod serialise;
 pub mod upscale;
 
 /// Every shader of the splat stage, from the files that dispatch them.

@@ -1,4 +1,17 @@
 use super::*;
+use unica::splat::base::RESIDUALS;
+use unica::splat::frame::FEATURES;
+use unica::splat::serialise::host_orders;
+
+/// The refiner's residuals of `features` for points at `unit`, serialised on the host.
+fn refine(r: &mut Recorder, refiner: &Refiner, features: &Tensor, unit: &[glam::Vec3]) -> Tensor {
+    let o = host_orders(unit, refiner.cfg.stride)
+        .upload(r.gpu())
+        .unwrap();
+    refiner
+        .forward(r, features, &o.fine, &o.coarse, &o.groups)
+        .unwrap()
+}
 
 /// Points of a fixture tensor [N, 3].
 fn points(f: &Fixture, name: &str) -> Vec<glam::Vec3> {
@@ -36,10 +49,8 @@ fn refiner_matches(fixture: &str, pixel_residuals: usize) {
         let features = f.input("io.in.features");
         let (mut r, w) = f.recorder();
         r.set_kernels(kernels);
-        let y = Refiner::load(&w, &cfg)
-            .unwrap()
-            .forward(&mut r, &features, &unit)
-            .unwrap();
+        let refiner = Refiner::load(&w, &cfg, FEATURES, RESIDUALS).unwrap();
+        let y = refine(&mut r, &refiner, &features, &unit);
         r.submit();
         f.assert_close(&y, "io.out.y", tolerances(precision).1);
     }
@@ -60,8 +71,8 @@ fn the_shipped_refiner_matches_pytorch_on_a_witch_frame() {
         let mut r = Recorder::new(&f.gpu, &mut f.pipelines, precision);
         r.set_kernels(kernels);
         let w = Weights::new(&file, &f.gpu, precision);
-        let refiner = Refiner::load(&w.at("refiner"), &cfg).unwrap();
-        let y = refiner.forward(&mut r, &features, &unit).unwrap();
+        let refiner = Refiner::load(&w.at("refiner"), &cfg, FEATURES, RESIDUALS).unwrap();
+        let y = refine(&mut r, &refiner, &features, &unit);
         r.submit();
         f.assert_close(&y, "io.out.y", tolerances(precision).1);
     }

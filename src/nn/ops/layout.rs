@@ -341,17 +341,7 @@ impl Recorder<'_> {
 
     /// Host row indices uploaded for [`Recorder::gather`].
     pub fn indices(&self, label: &str, values: &[u32]) -> Result<Indices, GpuError> {
-        let bytes = (values.len().max(1) * 4) as u64;
-        let buffer = self
-            .gpu
-            .storage_buffer(label, bytes, wgpu::BufferUsages::COPY_DST)?;
-        self.gpu
-            .queue
-            .write_buffer(&buffer, 0, bytemuck::cast_slice(values));
-        Ok(Indices {
-            buffer,
-            len: values.len(),
-        })
+        Indices::upload(self.gpu, label, values)
     }
 
     /// `y[i, :] = x[index[i], :]` for a [R, D] `x`; the caller keeps indices below R.

@@ -42,38 +42,7 @@ pub fn shaders() -> Vec<Shader> {
     .concat()
 }
 
-/// Row indices in a u32 storage buffer (for [`Recorder::gather`]); rewritable in place
-/// (e.g. the action ids of a captured [`Plan`]).
-#[derive(Clone, Debug)]
-pub struct Indices {
-    buffer: wgpu::Buffer,
-    len: usize,
-}
-
-impl Indices {
-    /// Indices already in a u32 storage buffer (e.g. written by another stage's kernel).
-    pub fn from_buffer(buffer: &wgpu::Buffer, len: usize) -> Self {
-        Self {
-            buffer: buffer.clone(),
-            len,
-        }
-    }
-
-    pub fn len(&self) -> usize {
-        self.len
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.len == 0
-    }
-
-    /// Overwrites the indices (same count) before the next submission that reads them.
-    pub fn write(&self, gpu: &GpuContext, values: &[u32]) {
-        assert_eq!(values.len(), self.len, "index count");
-        gpu.queue
-            .write_buffer(&self.buffer, 0, bytemuck::cast_slice(values));
-    }
-}
+pub use crate::gpu::Indices;
 
 /// What a [`Recorder`] does with its work.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -1,9 +1,13 @@
 //! Point serialisation for the refiner (PTv3): positions in the unit cube quantised to
 //! 1024 cells per axis and ordered along a z-order or Hilbert curve, or their transposes
-//! (x and y swapped). The same arithmetic as train/unica_train/refiner/model.py; orders are
-//! computed on the CPU and uploaded as row indices.
+//! (x and y swapped). The same arithmetic as train/unica_train/refiner/model.py. This is
+//! the host reference of the orders [`super::frame`] makes on the GPU; the CPU appearance
+//! path and the refiner's parity tests upload it ([`HostOrders::upload`]).
 
 use glam::Vec3;
+
+use crate::gpu::indices::inverse;
+use crate::gpu::{GpuContext, GpuError, Indices, Permutation};
 
 const BITS: u32 = 10;
 
@@ -95,15 +99,6 @@ pub fn serialise(points: &[Vec3], curve: Curve) -> Vec<u32> {
     order
 }
 
-/// The inverse permutation.
-pub fn inverse(order: &[u32]) -> Vec<u32> {
-    let mut out = vec![0; order.len()];
-    for (rank, &i) in order.iter().enumerate() {
-        out[i as usize] = rank as u32;
-    }
-    out
-}
-
 /// The mean position of each run of `stride` points along `order`, summed in order.
 pub fn pooled_positions(points: &[Vec3], order: &[u32], stride: usize) -> Vec<Vec3> {
     order
@@ -123,6 +118,49 @@ pub fn groups(order: &[u32], stride: usize) -> Vec<u32> {
         .into_iter()
         .map(|rank| rank / stride as u32)
         .collect()
+}
+
+/// The refiner's orders of one frame's points, on the host: the four curves of the points
+/// and of their pooled points (runs of `stride` along the first curve), and each point's
+/// pooled group.
+pub struct HostOrders {
+    pub fine: Vec<Vec<u32>>,
+    pub coarse: Vec<Vec<u32>>,
+    pub groups: Vec<u32>,
+}
+
+/// The refiner's orders of one frame's points on the GPU, as the refiner reads them.
+pub struct SerialOrders {
+    pub fine: Vec<Permutation>,
+    pub coarse: Vec<Permutation>,
+    pub groups: Indices,
+}
+
+/// The orders of points at `unit` (normalised, root at 0.5) pooled in runs of `stride`.
+pub fn host_orders(unit: &[Vec3], stride: usize) -> HostOrders {
+    let fine: Vec<Vec<u32>> = ORDERS.iter().map(|&c| serialise(unit, c)).collect();
+    let coarse_unit = pooled_positions(unit, &fine[0], stride);
+    HostOrders {
+        coarse: ORDERS.iter().map(|&c| serialise(&coarse_unit, c)).collect(),
+        groups: groups(&fine[0], stride),
+        fine,
+    }
+}
+
+impl HostOrders {
+    pub fn upload(&self, gpu: &GpuContext) -> Result<SerialOrders, GpuError> {
+        let permutations = |orders: &[Vec<u32>]| {
+            orders
+                .iter()
+                .map(|o| Permutation::upload(gpu, "refiner.order", o))
+                .collect::<Result<Vec<_>, _>>()
+        };
+        Ok(SerialOrders {
+            fine: permutations(&self.fine)?,
+            coarse: permutations(&self.coarse)?,
+            groups: Indices::upload(gpu, "refiner.groups", &self.groups)?,
+        })
+    }
 }
 
 #[cfg(test)]
@@ -187,6 +225,5 @@ mod tests {
             [Vec3::X * 0.5, (Vec3::Y + Vec3::Z) * 0.5, Vec3::ONE]
         );
         assert_eq!(groups(&order, 2), [0, 1, 1, 2, 0]);
-        assert_eq!(inverse(&order), [1, 2, 3, 4, 0]);
     }
 }
