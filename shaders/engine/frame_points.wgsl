@@ -5,13 +5,11 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: PostParams;
-@group(0) @binding(1) var unit: texture_2d<f32>;
-@group(0) @binding(2) var mean: texture_2d<f32>;
-@group(0) @binding(3) var basis: texture_2d<f32>;
-@group(0) @binding(4) var<storage, read> state: FrameState;
-@group(0) @binding(5) var coefficients: texture_2d<f32>;
-@group(0) @binding(6) var<storage, read_write> points: array<f32>;
+#bind p: uniform PostParams
+#bind unit, mean, basis: texture_2d<f32>
+#bind state: read FrameState
+#bind coefficients: texture_2d<f32>
+#bind points: read_write array<f32>
 
 fn count() -> u32 { return (3u * p.points + 3u) / 4u; }
 

@@ -11,14 +11,13 @@
 
 #import engine/quarter_turn.wgsl
 
-@group(0) @binding(0) var<uniform> p: PostParams;
-@group(0) @binding(1) var<storage, read> map: array<Elem>;
-@group(0) @binding(2) var<storage, read> pixels: array<u32>;
-@group(0) @binding(3) var<storage, read> waist: array<u32>;
-@group(0) @binding(4) var<storage, read_write> unit: array<f32>;
-@group(0) @binding(5) var<storage, read_write> state: FrameState;
-@group(0) @binding(6) var<storage, read> reference: array<Elem>;
-@group(0) @binding(7) var<storage, read> heading: HeadingTurns;
+#bind p: uniform PostParams
+#bind map: read array<Elem>
+#bind pixels, waist: read array<u32>
+#bind unit: read_write array<f32>
+#bind state: read_write FrameState
+#bind reference: read array<Elem>
+#bind heading: read HeadingTurns
 
 var<workgroup> clamped: atomic<u32>;
 // The lowest kept height, as the bits of a non-negative f32 (ordered as the values are).

@@ -4,12 +4,10 @@
 // and the basis are read as texels (src/gpu/texels.rs), four values a fetch; each basis
 // row is padded with zeros to whole texels, so the padding adds exact zeros.
 
-@group(0) @binding(0) var<uniform> p: PostParams;
-@group(0) @binding(1) var unit: texture_2d<f32>;
-@group(0) @binding(2) var mean: texture_2d<f32>;
-@group(0) @binding(3) var basis: texture_2d<f32>;
-@group(0) @binding(4) var<storage, read> state: FrameState;
-@group(0) @binding(5) var<storage, read_write> coefficients: array<f32>;
+#bind p: uniform PostParams
+#bind unit, mean, basis: texture_2d<f32>
+#bind state: read FrameState
+#bind coefficients: read_write array<f32>
 
 // Texels of one frame (and of one basis row).
 fn frame_texels() -> u32 {

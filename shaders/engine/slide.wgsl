@@ -5,12 +5,12 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: PostParams;
-@group(0) @binding(1) var<storage, read> maps: array<Elem>;
-@group(0) @binding(2) var<storage, read> unit: array<f32>;
-@group(0) @binding(3) var<storage, read> point_of: array<u32>;
-@group(0) @binding(4) var<storage, read_write> state: FrameState;
-@group(0) @binding(5) var<storage, read_write> next: array<Elem>;
+#bind p: uniform PostParams
+#bind maps: read array<Elem>
+#bind unit: read array<f32>
+#bind point_of: read array<u32>
+#bind state: read_write FrameState
+#bind next: read_write array<Elem>
 
 fn count() -> u32 { return p.frames * (3u * p.plane); }
 

@@ -6,11 +6,11 @@
 
 #import engine/quarter_turn.wgsl
 
-@group(0) @binding(0) var<uniform> p: PostParams;
-@group(0) @binding(1) var<storage, read> maps: array<Elem>;
-@group(0) @binding(2) var<storage, read> point_of: array<u32>;
-@group(0) @binding(3) var<storage, read> heading: HeadingTurns;
-@group(0) @binding(4) var<storage, read_write> out: array<Elem>;
+#bind p: uniform PostParams
+#bind maps: read array<Elem>
+#bind point_of: read array<u32>
+#bind heading: read HeadingTurns
+#bind out: read_write array<Elem>
 
 fn count() -> u32 { return p.frames * (3u * p.plane); }
 

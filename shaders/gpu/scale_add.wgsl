@@ -4,9 +4,9 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> params: ElementwiseParams;
-@group(0) @binding(1) var<storage, read> x: array<Elem>;
-@group(0) @binding(2) var<storage, read_write> y: array<Elem>;
+#bind params: uniform ElementwiseParams
+#bind x: read array<Elem>
+#bind y: read_write array<Elem>
 
 fn count() -> u32 { return params.len; }
 

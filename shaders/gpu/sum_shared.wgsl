@@ -1,9 +1,9 @@
 // Example reduction, portable path: one workgroup sums the array through shared memory.
 // Each of 256 threads strides over the input, then a tree reduction halves the partials.
 
-@group(0) @binding(0) var<uniform> params: ReduceParams;
-@group(0) @binding(1) var<storage, read> x: array<f32>;
-@group(0) @binding(2) var<storage, read_write> total: array<f32>;
+#bind params: uniform ReduceParams
+#bind x: read array<f32>
+#bind total: read_write array<f32>
 
 var<workgroup> partial: array<f32, 256>;
 

@@ -1,9 +1,9 @@
 // Example reduction, subgroup path: subgroupAdd inside each subgroup, then shared memory
 // across subgroups. Works for any subgroup size from 4 to 128.
 
-@group(0) @binding(0) var<uniform> params: ReduceParams;
-@group(0) @binding(1) var<storage, read> x: array<f32>;
-@group(0) @binding(2) var<storage, read_write> total: array<f32>;
+#bind params: uniform ReduceParams
+#bind x: read array<f32>
+#bind total: read_write array<f32>
 
 var<workgroup> partial: array<f32, 64>;
 

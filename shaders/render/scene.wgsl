@@ -1,7 +1,7 @@
 // Scene drawing: lit triangles (meshes) and unlit lines (ground grid), one vertex format.
 // Hemisphere ambient plus one directional light; both faces lit (skirts are single-sided).
 
-@group(0) @binding(0) var<uniform> scene: SceneUniforms;
+#bind scene: uniform SceneUniforms
 
 struct VertexIn {
     @location(0) position: vec3<f32>,

@@ -3,8 +3,8 @@
 // pipeline blends with (One, OneMinusSrcAlpha). The image may be smaller than the target
 // by `divisor` (a quick raster while the camera moves).
 
-@group(0) @binding(0) var<uniform> c: CompositeParams;
-@group(0) @binding(1) var<storage, read> image: array<vec4<f32>>;
+#bind c: uniform CompositeParams
+#bind image: read array<vec4<f32>>
 
 @vertex
 fn vs_main(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {

@@ -6,14 +6,12 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: SplatParams;
-@group(0) @binding(1) var<storage, read> points: array<f32>;
-@group(0) @binding(2) var<storage, read> neighbours: array<vec4<i32>>;
-@group(0) @binding(3) var<storage, read> colors: array<f32>;
-@group(0) @binding(4) var<storage, read> frame: array<f32>;
-@group(0) @binding(5) var<storage, read> unit: array<f32>;
-@group(0) @binding(6) var<storage, read_write> splats: array<GpuSplat>;
-@group(0) @binding(7) var<storage, read_write> features: array<Elem>;
+#bind p: uniform SplatParams
+#bind points: read array<f32>
+#bind neighbours: read array<vec4<i32>>
+#bind colors, frame, unit: read array<f32>
+#bind splats: read_write array<GpuSplat>
+#bind features: read_write array<Elem>
 
 fn point(i: u32) -> vec3<f32> {
     return vec3<f32>(points[3u * i], points[3u * i + 1u], points[3u * i + 2u]);

@@ -3,9 +3,9 @@
 // y swapped: codes[curve · stride + i], curves in the refiner's order (Z, Z transposed,
 // Hilbert, Hilbert transposed). 30 bits each.
 
-@group(0) @binding(0) var<uniform> p: SplatParams;
-@group(0) @binding(1) var<storage, read> unit: array<f32>;
-@group(0) @binding(2) var<storage, read_write> codes: array<u32>;
+#bind p: uniform SplatParams
+#bind unit: read array<f32>
+#bind codes: read_write array<u32>
 
 fn quantise(v: f32) -> u32 {
     return u32(clamp(floor(v * 1024.0), 0.0, 1023.0));

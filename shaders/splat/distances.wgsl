@@ -2,10 +2,10 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: SplatParams;
-@group(0) @binding(1) var<storage, read> points: array<f32>;
-@group(0) @binding(2) var<storage, read> pairs: array<vec2<u32>>;
-@group(0) @binding(3) var<storage, read_write> distances: array<f32>;
+#bind p: uniform SplatParams
+#bind points: read array<f32>
+#bind pairs: read array<vec2<u32>>
+#bind distances: read_write array<f32>
 
 fn point(i: u32) -> vec3<f32> {
     return vec3<f32>(points[3u * i], points[3u * i + 1u], points[3u * i + 2u]);

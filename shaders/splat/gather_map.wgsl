@@ -3,10 +3,10 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: SplatParams;
-@group(0) @binding(1) var<storage, read> map: array<f32>;
-@group(0) @binding(2) var<storage, read> pixels: array<u32>;
-@group(0) @binding(3) var<storage, read_write> rows: array<f32>;
+#bind p: uniform SplatParams
+#bind map: read array<f32>
+#bind pixels: read array<u32>
+#bind rows: read_write array<f32>
 
 fn count() -> u32 { return p.points; }
 

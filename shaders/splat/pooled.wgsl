@@ -1,10 +1,10 @@
 // The mean position of each run of `stride` points along an order (the last run may be
 // shorter), summed in order: the pooled points of the refiner's coarse stage.
 
-@group(0) @binding(0) var<uniform> p: SplatParams;
-@group(0) @binding(1) var<storage, read> unit: array<f32>;
-@group(0) @binding(2) var<storage, read> sort: array<u32>;
-@group(0) @binding(3) var<storage, read_write> pooled: array<f32>;
+#bind p: uniform SplatParams
+#bind unit: read array<f32>
+#bind sort: read array<u32>
+#bind pooled: read_write array<f32>
 
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {

@@ -2,10 +2,9 @@
 // keys and writes the counts digit-major (hist[digit · blocks + block]), so one exclusive
 // scan of `hist` gives every (digit, block) its first output position.
 
-@group(0) @binding(0) var<uniform> p: RadixParams;
-@group(0) @binding(1) var<storage, read> keys: array<u32>;
-@group(0) @binding(2) var<storage, read> info: array<u32>;
-@group(0) @binding(3) var<storage, read_write> hist: array<u32>;
+#bind p: uniform RadixParams
+#bind keys, info: read array<u32>
+#bind hist: read_write array<u32>
 
 var<workgroup> counts: array<atomic<u32>, 256>;
 

@@ -2,13 +2,9 @@
 // the earlier keys of its block with the same digit — a stable pass, so passes from the
 // lowest digit up sort by the whole key, equal keys keeping their order.
 
-@group(0) @binding(0) var<uniform> p: RadixParams;
-@group(0) @binding(1) var<storage, read> keys: array<u32>;
-@group(0) @binding(2) var<storage, read> values: array<u32>;
-@group(0) @binding(3) var<storage, read> info: array<u32>;
-@group(0) @binding(4) var<storage, read> hist: array<u32>;
-@group(0) @binding(5) var<storage, read_write> keys_out: array<u32>;
-@group(0) @binding(6) var<storage, read_write> values_out: array<u32>;
+#bind p: uniform RadixParams
+#bind keys, values, info, hist: read array<u32>
+#bind keys_out, values_out: read_write array<u32>
 
 var<workgroup> digits: array<u32, 256>;
 

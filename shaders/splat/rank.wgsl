@@ -7,11 +7,9 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: SplatParams;
-@group(0) @binding(1) var codes: texture_2d<u32>;
-@group(0) @binding(2) var<storage, read_write> sort: array<u32>;
-@group(0) @binding(3) var<storage, read_write> unsort: array<u32>;
-@group(0) @binding(4) var<storage, read_write> groups_out: array<u32>;
+#bind p: uniform SplatParams
+#bind codes: texture_2d<u32>
+#bind sort, unsort, groups_out: read_write array<u32>
 
 fn count() -> u32 { return p.points; }
 

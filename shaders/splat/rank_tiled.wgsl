@@ -3,11 +3,9 @@
 // the tile, then every thread counts against the whole tile). rank.wgsl's every thread
 // fetching every code as a texel took 168 µs a curve on an H200 (docs/gpu).
 
-@group(0) @binding(0) var<uniform> p: SplatParams;
-@group(0) @binding(1) var<storage, read> codes: array<vec4<u32>>;
-@group(0) @binding(2) var<storage, read_write> sort: array<u32>;
-@group(0) @binding(3) var<storage, read_write> unsort: array<u32>;
-@group(0) @binding(4) var<storage, read_write> groups_out: array<u32>;
+#bind p: uniform SplatParams
+#bind codes: read array<vec4<u32>>
+#bind sort, unsort, groups_out: read_write array<u32>
 
 var<workgroup> tile: array<vec4<u32>, WORKGROUP>;
 

@@ -4,10 +4,10 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: SplatParams;
-@group(0) @binding(1) var<storage, read> base: array<GpuSplat>;
-@group(0) @binding(2) var<storage, read> residuals: array<f32>;
-@group(0) @binding(3) var<storage, read_write> splats: array<GpuSplat>;
+#bind p: uniform SplatParams
+#bind base: read array<GpuSplat>
+#bind residuals: read array<f32>
+#bind splats: read_write array<GpuSplat>
 
 fn bounded(x: f32) -> f32 {
     // tanh of a clamped argument: exact to f32 (tanh(±15) rounds to ±1), never NaN.

@@ -1,10 +1,10 @@
 // The root of a frame's drawn points: the mean of its waist points (summed in order),
 // written to frame[0..3]. One thread.
 
-@group(0) @binding(0) var<uniform> p: SplatParams;
-@group(0) @binding(1) var<storage, read> points: array<f32>;
-@group(0) @binding(2) var<storage, read> waist: array<u32>;
-@group(0) @binding(3) var<storage, read_write> frame: array<f32>;
+#bind p: uniform SplatParams
+#bind points: read array<f32>
+#bind waist: read array<u32>
+#bind frame: read_write array<f32>
 
 @compute @workgroup_size(1)
 fn main() {

@@ -2,9 +2,9 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: SplatParams;
-@group(0) @binding(1) var<storage, read> x: array<Elem>;
-@group(0) @binding(2) var<storage, read_write> y: array<f32>;
+#bind p: uniform SplatParams
+#bind x: read array<Elem>
+#bind y: read_write array<f32>
 
 fn count() -> u32 { return p.points * p.channels; }
 

@@ -2,9 +2,8 @@
 // shared memory) and writes its total to `sums`; a second level scans the totals and
 // scan_add.wgsl adds them back. No workgroup waits on another.
 
-@group(0) @binding(0) var<uniform> p: ScanParams;
-@group(0) @binding(1) var<storage, read_write> data: array<u32>;
-@group(0) @binding(2) var<storage, read_write> sums: array<u32>;
+#bind p: uniform ScanParams
+#bind data, sums: read_write array<u32>
 
 var<workgroup> temp: array<u32, 256>;
 

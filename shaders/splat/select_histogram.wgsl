@@ -4,10 +4,10 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: SplatParams;
-@group(0) @binding(1) var<storage, read> distances: array<f32>;
-@group(0) @binding(2) var<storage, read> select: array<u32>;
-@group(0) @binding(3) var<storage, read_write> histogram: array<atomic<u32>>;
+#bind p: uniform SplatParams
+#bind distances: read array<f32>
+#bind select: read array<u32>
+#bind histogram: read_write array<atomic<u32>>
 
 fn count() -> u32 { return p.pairs; }
 

@@ -9,10 +9,9 @@
 // NVIDIA H200 (docs/gpu); this takes a few microseconds, and is cheap on lavapipe too
 // (four barriers).
 
-@group(0) @binding(0) var<uniform> p: SplatParams;
-@group(0) @binding(1) var<storage, read_write> histogram: array<u32>;
-@group(0) @binding(2) var<storage, read_write> select: array<u32>;
-@group(0) @binding(3) var<storage, read_write> frame: array<f32>;
+#bind p: uniform SplatParams
+#bind histogram, select: read_write array<u32>
+#bind frame: read_write array<f32>
 
 const CHUNK: u32 = 256u;
 

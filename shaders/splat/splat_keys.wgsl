@@ -4,13 +4,10 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> f: RasterView;
-@group(0) @binding(1) var<storage, read> projected: array<ProjectedSplat>;
-@group(0) @binding(2) var<storage, read> touched: array<u32>;
-@group(0) @binding(3) var<storage, read> offsets: array<u32>;
-@group(0) @binding(4) var<storage, read_write> keys: array<u32>;
-@group(0) @binding(5) var<storage, read_write> values: array<u32>;
-@group(0) @binding(6) var<storage, read_write> info: array<u32>;
+#bind f: uniform RasterView
+#bind projected: read array<ProjectedSplat>
+#bind touched, offsets: read array<u32>
+#bind keys, values, info: read_write array<u32>
 
 fn count() -> u32 { return f.splats; }
 

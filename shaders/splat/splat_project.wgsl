@@ -4,10 +4,10 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> f: RasterView;
-@group(0) @binding(1) var<storage, read> splats: array<GpuSplat>;
-@group(0) @binding(2) var<storage, read_write> projected: array<ProjectedSplat>;
-@group(0) @binding(3) var<storage, read_write> touched: array<u32>;
+#bind f: uniform RasterView
+#bind splats: read array<GpuSplat>
+#bind projected: read_write array<ProjectedSplat>
+#bind touched: read_write array<u32>
 
 fn rotation(q: vec4<f32>) -> mat3x3<f32> {
     let n = normalize(q);

@@ -2,9 +2,8 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<storage, read> keys: array<u32>;
-@group(0) @binding(1) var<storage, read> info: array<u32>;
-@group(0) @binding(2) var<storage, read_write> ranges: array<vec2<u32>>;
+#bind keys, info: read array<u32>
+#bind ranges: read_write array<vec2<u32>>
 
 fn count() -> u32 { return info[0]; }
 

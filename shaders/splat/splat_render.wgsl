@@ -4,11 +4,11 @@
 // its transmittance would fall below 1e-4; the workgroup stops when every pixel has.
 // Output: linear RGBA (alpha = coverage) over the background.
 
-@group(0) @binding(0) var<uniform> f: RasterView;
-@group(0) @binding(1) var<storage, read> projected: array<ProjectedSplat>;
-@group(0) @binding(2) var<storage, read> values: array<u32>;
-@group(0) @binding(3) var<storage, read> ranges: array<vec2<u32>>;
-@group(0) @binding(4) var<storage, read_write> image: array<vec4<f32>>;
+#bind f: uniform RasterView
+#bind projected: read array<ProjectedSplat>
+#bind values: read array<u32>
+#bind ranges: read array<vec2<u32>>
+#bind image: read_write array<vec4<f32>>
 
 var<workgroup> batch: array<ProjectedSplat, 256>;
 var<workgroup> finished: atomic<u32>;

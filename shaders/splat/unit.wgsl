@@ -2,10 +2,9 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: SplatParams;
-@group(0) @binding(1) var<storage, read> points: array<f32>;
-@group(0) @binding(2) var<storage, read> frame: array<f32>;
-@group(0) @binding(3) var<storage, read_write> unit: array<f32>;
+#bind p: uniform SplatParams
+#bind points, frame: read array<f32>
+#bind unit: read_write array<f32>
 
 fn count() -> u32 { return 3u * p.points; }
 

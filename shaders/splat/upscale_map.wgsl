@@ -5,11 +5,9 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: UpscaleParams;
-@group(0) @binding(1) var<storage, read> map: array<f32>;
-@group(0) @binding(2) var<storage, read> mask: array<f32>;
-@group(0) @binding(3) var<storage, read_write> out_map: array<f32>;
-@group(0) @binding(4) var<storage, read_write> out_mask: array<f32>;
+#bind p: uniform UpscaleParams
+#bind map, mask: read array<f32>
+#bind out_map, out_mask: read_write array<f32>
 
 fn count() -> u32 { return (p.width * p.factor) * (p.height * p.factor); }
 

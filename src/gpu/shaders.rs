@@ -131,11 +131,17 @@ pub struct Expanded {
     pub imports: Vec<String>,
 }
 
-/// The WGSL preprocessor: `text` with every line `#import PATH` (a file under `shaders/`,
-/// at the start of its line) replaced by that file, itself expanded the same way. A file
-/// is included once per shader, where it is first named (WGSL declarations may come in
-/// any order), so two files may import a third and imports may not loop. An unknown
-/// path is an error naming it and the file that asks for it.
+/// The WGSL preprocessor, two directives, each a line of its own:
+/// - `#import PATH` (a file under `shaders/`) is replaced by that file, itself expanded
+///   the same way. A file is included once per shader, where it is first named (WGSL
+///   declarations may come in any order), so two files may import a third and imports
+///   may not loop. An unknown path is an error naming it and the file that asks for it.
+/// - `#bind NAMES: ACCESS TYPE` declares a kernel's bindings in group 0, numbered in the
+///   order they appear in the expanded shader (the order the dispatch binds its buffers
+///   in): NAMES is one name or several, comma-separated; ACCESS is `uniform`, `read` or
+///   `read_write` (a storage buffer), or left out for a texture. `#bind x, y: read
+///   array<f32>` is `@group(0) @binding(0) var<storage, read> x: array<f32>;` and the
+///   same for `y` at binding 1.
 pub fn expand(file_name: &str, text: &str) -> Result<Expanded, String> {
     expand_with(file_name, text, &|path| file(path))
 }
@@ -146,42 +152,88 @@ pub fn expand_with(
     text: &str,
     lookup: &dyn Fn(&str) -> Option<&'static str>,
 ) -> Result<Expanded, String> {
+    struct State {
+        seen: Vec<String>,
+        out: String,
+        binding: u32,
+    }
     fn walk(
         name: &str,
         text: &str,
         lookup: &dyn Fn(&str) -> Option<&'static str>,
-        seen: &mut Vec<String>,
-        out: &mut String,
+        state: &mut State,
     ) -> Result<(), String> {
         for line in text.lines() {
+            if let Some(binds) = line.strip_prefix("#bind ") {
+                for declaration in bindings(binds, state.binding)
+                    .map_err(|problem| format!("{name}: #bind {binds}: {problem}"))?
+                {
+                    state.out.push_str(&declaration);
+                    state.out.push('\n');
+                    state.binding += 1;
+                }
+                continue;
+            }
             match line.strip_prefix("#import ") {
                 Some(path) => {
                     let path = path.trim();
-                    if seen.iter().any(|s| s == path) {
+                    if state.seen.iter().any(|s| s == path) {
                         continue;
                     }
-                    seen.push(path.to_string());
+                    state.seen.push(path.to_string());
                     let imported = lookup(path).ok_or_else(|| {
                         format!("{name}: #import {path}: no such file in shaders/")
                     })?;
-                    walk(path, imported, lookup, seen, out)?;
+                    walk(path, imported, lookup, state)?;
                 }
                 None => {
-                    out.push_str(line);
-                    out.push('\n');
+                    state.out.push_str(line);
+                    state.out.push('\n');
                 }
             }
         }
         Ok(())
     }
-    let mut out = String::new();
-    let mut seen = vec![file_name.to_string()];
-    walk(file_name, text, lookup, &mut seen, &mut out)?;
-    seen.remove(0);
+    let mut state = State {
+        seen: vec![file_name.to_string()],
+        out: String::new(),
+        binding: 0,
+    };
+    walk(file_name, text, lookup, &mut state)?;
+    state.seen.remove(0);
     Ok(Expanded {
-        text: out,
-        imports: seen,
+        text: state.out,
+        imports: state.seen,
     })
+}
+
+/// The declarations of one `#bind` line's text (`NAMES: ACCESS TYPE`), the first at
+/// binding `first`.
+fn bindings(text: &str, first: u32) -> Result<Vec<String>, String> {
+    let (names, kind) = text.split_once(':').ok_or("expected NAMES: ACCESS TYPE")?;
+    let kind = kind.trim();
+    let (access, rest) = kind.split_once(' ').unwrap_or((kind, ""));
+    let (space, ty) = match access {
+        "uniform" => ("<uniform>", rest.trim()),
+        "read" => ("<storage, read>", rest.trim()),
+        "read_write" => ("<storage, read_write>", rest.trim()),
+        _ if kind.starts_with("texture") => ("", kind),
+        _ => {
+            return Err(
+                "the access must be uniform, read or read_write (or none, for a texture)".into(),
+            );
+        }
+    };
+    let names: Vec<&str> = names.split(',').map(str::trim).collect();
+    let word = |w: &str| !w.is_empty() && w.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+    if ty.is_empty() || !names.iter().all(|n| word(n)) {
+        return Err("expected NAMES: ACCESS TYPE".into());
+    }
+    Ok(names
+        .iter()
+        .zip(first..)
+        .map(|(name, binding)| format!("@group(0) @binding({binding}) var{space} {name}: {ty};"))
+        .collect())
 }
 
 /// What every shader starts with (after its `enable` and `Elem` lines): the workgroup
@@ -377,6 +429,42 @@ mod tests {
         let text = "// #import a.wgsl\n  #import_not\nfn f() {}\n";
         let out = expand_with("s.wgsl", text, &table).unwrap();
         assert_eq!((out.text.as_str(), out.imports.len()), (text, 0));
+    }
+
+    #[test]
+    fn bindings_are_numbered_in_order_across_imports() {
+        let lookup = |path: &str| match path {
+            "shared.wgsl" => Some("#bind t: texture_2d<f32>\n"),
+            _ => None,
+        };
+        let text = "#bind p: uniform Params\n#import shared.wgsl\n// y\n#bind x, y: read_write array<Elem>\n";
+        let out = expand_with("s.wgsl", text, &lookup).unwrap();
+        assert_eq!(
+            out.text,
+            "@group(0) @binding(0) var<uniform> p: Params;\n\
+             @group(0) @binding(1) var t: texture_2d<f32>;\n\
+             // y\n\
+             @group(0) @binding(2) var<storage, read_write> x: array<Elem>;\n\
+             @group(0) @binding(3) var<storage, read_write> y: array<Elem>;\n"
+        );
+    }
+
+    #[test]
+    fn a_bind_line_that_cannot_be_read_names_the_file_and_the_line() {
+        for (line, problem) in [
+            ("#bind x array<f32>", "expected NAMES: ACCESS TYPE"),
+            ("#bind x: write array<f32>", "the access must be uniform"),
+            ("#bind x y: read array<f32>", "expected NAMES: ACCESS TYPE"),
+            ("#bind x: read ", "expected NAMES: ACCESS TYPE"),
+            ("#bind : read array<f32>", "expected NAMES: ACCESS TYPE"),
+        ] {
+            let err = expand_with("s.wgsl", line, &table).unwrap_err();
+            let rest = line.strip_prefix("#bind ").unwrap();
+            assert!(
+                err.starts_with(&format!("s.wgsl: #bind {rest}: {problem}")),
+                "{line}: {err}"
+            );
+        }
     }
 
     #[test]

@@ -5,10 +5,9 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: AddParams;
-@group(0) @binding(1) var<storage, read> a: array<Elem>;
-@group(0) @binding(2) var<storage, read> b: array<Elem>;
-@group(0) @binding(3) var<storage, read_write> y: array<Elem>;
+#bind p: uniform AddParams
+#bind a, b: read array<Elem>
+#bind y: read_write array<Elem>
 
 fn count() -> u32 { return p.len; }
 

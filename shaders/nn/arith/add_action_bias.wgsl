@@ -5,11 +5,10 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: ActionBiasParams;
-@group(0) @binding(1) var<storage, read> x: array<Elem>;
-@group(0) @binding(2) var<storage, read> table: array<Elem>;
-@group(0) @binding(3) var<storage, read> ids: array<u32>;
-@group(0) @binding(4) var<storage, read_write> y: array<Elem>;
+#bind p: uniform ActionBiasParams
+#bind x, table: read array<Elem>
+#bind ids: read array<u32>
+#bind y: read_write array<Elem>
 
 fn count() -> u32 { return p.len; }
 

@@ -3,10 +3,9 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: AxpbyParams;
-@group(0) @binding(1) var<storage, read> x: array<Elem>;
-@group(0) @binding(2) var<storage, read> z: array<Elem>;
-@group(0) @binding(3) var<storage, read_write> y: array<Elem>;
+#bind p: uniform AxpbyParams
+#bind x, z: read array<Elem>
+#bind y: read_write array<Elem>
 
 fn count() -> u32 { return p.len; }
 

@@ -12,11 +12,9 @@
 #import gpu/for_each.wgsl
 #import nn/attention/query.wgsl
 
-@group(0) @binding(0) var<uniform> p: AttentionParams;
-@group(0) @binding(1) var<storage, read> q: array<Elem>;
-@group(0) @binding(2) var<storage, read> prefix: array<Elem>;
-@group(0) @binding(3) var<storage, read> kv: array<Elem>;
-@group(0) @binding(4) var<storage, read_write> out: array<Elem>;
+#bind p: uniform AttentionParams
+#bind q, prefix, kv: read array<Elem>
+#bind out: read_write array<Elem>
 
 // Value `at` of key j's rows: from the prefix for the first prefix_keys keys.
 fn key_value(cached: bool, at: u32) -> f32 {

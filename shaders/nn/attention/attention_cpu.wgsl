@@ -12,11 +12,9 @@
 #import nn/attention/online_softmax.wgsl
 #import nn/attention/query.wgsl
 
-@group(0) @binding(0) var<uniform> p: AttentionParams;
-@group(0) @binding(1) var q_in: texture_2d<f32>;
-@group(0) @binding(2) var prefix: texture_2d<f32>;
-@group(0) @binding(3) var kv: texture_2d<f32>;
-@group(0) @binding(4) var<storage, read_write> out: array<vec4<Elem>>;
+#bind p: uniform AttentionParams
+#bind q_in, prefix, kv: texture_2d<f32>
+#bind out: read_write array<vec4<Elem>>
 
 fn count() -> u32 { return p.sequences * p.heads * p.queries; }
 

@@ -14,11 +14,9 @@
 
 #import nn/attention/query.wgsl
 
-@group(0) @binding(0) var<uniform> p: AttentionParams;
-@group(0) @binding(1) var<storage, read> q: array<Elem>;
-@group(0) @binding(2) var<storage, read> prefix: array<Elem>;
-@group(0) @binding(3) var<storage, read> kv: array<Elem>;
-@group(0) @binding(4) var<storage, read_write> out: array<Elem>;
+#bind p: uniform AttentionParams
+#bind q, prefix, kv: read array<Elem>
+#bind out: read_write array<Elem>
 
 // Each thread's running maximum, total and weighted values (rows of MAX_HEAD_SIZE + 1,
 // so the threads' writes fall in different banks).

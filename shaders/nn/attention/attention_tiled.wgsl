@@ -10,11 +10,9 @@
 // registers. Row layout, `kv_share`, `causal`, `prefix_keys` and `rows` as
 // attention_split.wgsl.
 
-@group(0) @binding(0) var<uniform> p: AttentionParams;
-@group(0) @binding(1) var<storage, read> q: array<Elem>;
-@group(0) @binding(2) var<storage, read> prefix: array<Elem>;
-@group(0) @binding(3) var<storage, read> kv: array<Elem>;
-@group(0) @binding(4) var<storage, read_write> out: array<Elem>;
+#bind p: uniform AttentionParams
+#bind q, prefix, kv: read array<Elem>
+#bind out: read_write array<Elem>
 
 const QUADS: u32 = TILE_HEAD / 4u;
 const CHUNK: u32 = 32u;

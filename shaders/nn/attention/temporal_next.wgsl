@@ -14,15 +14,15 @@
 
 #import nn/attention/online_softmax.wgsl
 
-@group(0) @binding(0) var<uniform> p: AttentionParams;
+#bind p: uniform AttentionParams
 // [sequences, channels] token rows.
-@group(0) @binding(1) var x: texture_2d<f32>;
+#bind x: texture_2d<f32>
 // The qkv projection's weight [3 · channels, channels] and bias.
-@group(0) @binding(2) var weight: texture_2d<f32>;
-@group(0) @binding(3) var<storage, read> bias: array<Elem>;
+#bind weight: texture_2d<f32>
+#bind bias: read array<Elem>
 // [sequences, prefix_keys, 3 · channels]: the cached rows.
-@group(0) @binding(4) var prefix: texture_2d<f32>;
-@group(0) @binding(5) var<storage, read_write> out: array<vec4<Elem>>;
+#bind prefix: texture_2d<f32>
+#bind out: read_write array<vec4<Elem>>
 
 // Four outputs' weights at texel rows `rows` + k, as columns (input 4k + j of the four
 // outputs in column j), as linear_cpu.wgsl's transposed().

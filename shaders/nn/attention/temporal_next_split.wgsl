@@ -10,15 +10,14 @@
 // on one thread there). The parameters are the separate attention's (queries = 1,
 // prefix_keys cached keys, at most WORKGROUP keys; host-checked).
 
-@group(0) @binding(0) var<uniform> p: AttentionParams;
+#bind p: uniform AttentionParams
 // [sequences, channels] token rows.
-@group(0) @binding(1) var<storage, read> x: array<Elem>;
+#bind x: read array<Elem>
 // The qkv projection's weight [3 · channels, channels] and bias.
-@group(0) @binding(2) var<storage, read> weight: array<Elem>;
-@group(0) @binding(3) var<storage, read> bias: array<Elem>;
+#bind weight, bias: read array<Elem>
 // [sequences, prefix_keys, 3 · channels]: the cached rows.
-@group(0) @binding(4) var<storage, read> prefix: array<Elem>;
-@group(0) @binding(5) var<storage, read_write> out: array<Elem>;
+#bind prefix: read array<Elem>
+#bind out: read_write array<Elem>
 
 // The head's projected q, k and v (value e of each at e, d + e, 2d + e), as stored.
 var<workgroup> qkv: array<f32, 3u * MAX_HEAD_SIZE>;

@@ -8,11 +8,11 @@
 #import nn/conv/conv_bias.wgsl
 #import nn/conv/conv1x1_tile.wgsl
 
-@group(0) @binding(0) var<uniform> p: Conv2dParams;
-@group(0) @binding(1) var<storage, read> x: array<vec4<Elem>>;
-@group(0) @binding(2) var<storage, read> weight: array<vec4<f32>>;
-@group(0) @binding(3) var<storage, read> bias: array<Elem>;
-@group(0) @binding(4) var<storage, read_write> y: array<vec4<Elem>>;
+#bind p: uniform Conv2dParams
+#bind x: read array<vec4<Elem>>
+#bind weight: read array<vec4<f32>>
+#bind bias: read array<Elem>
+#bind y: read_write array<vec4<Elem>>
 
 fn x_quad(i: u32) -> vec4<f32> {
     return vec4<f32>(x[i]);

@@ -7,11 +7,10 @@
 #import nn/conv/conv_bias.wgsl
 #import nn/conv/conv1x1_tile.wgsl
 
-@group(0) @binding(0) var<uniform> p: Conv2dParams;
-@group(0) @binding(1) var x: texture_2d<f32>;
-@group(0) @binding(2) var weight: texture_2d<f32>;
-@group(0) @binding(3) var<storage, read> bias: array<Elem>;
-@group(0) @binding(4) var<storage, read_write> y: array<vec4<Elem>>;
+#bind p: uniform Conv2dParams
+#bind x, weight: texture_2d<f32>
+#bind bias: read array<Elem>
+#bind y: read_write array<vec4<Elem>>
 
 fn x_quad(i: u32) -> vec4<f32> {
     return texel(x, i);

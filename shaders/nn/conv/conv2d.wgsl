@@ -6,11 +6,9 @@
 #import nn/conv/conv_bias.wgsl
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: Conv2dParams;
-@group(0) @binding(1) var<storage, read> x: array<Elem>;
-@group(0) @binding(2) var<storage, read> weight: array<Elem>;
-@group(0) @binding(3) var<storage, read> bias: array<Elem>;
-@group(0) @binding(4) var<storage, read_write> y: array<Elem>;
+#bind p: uniform Conv2dParams
+#bind x, weight, bias: read array<Elem>
+#bind y: read_write array<Elem>
 
 fn count() -> u32 { return tile_count(1u); }
 

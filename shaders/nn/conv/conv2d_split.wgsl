@@ -9,11 +9,9 @@
 
 #import nn/conv/tile.wgsl
 
-@group(0) @binding(0) var<uniform> p: Conv2dParams;
-@group(0) @binding(1) var<storage, read> x: array<Elem>;
-@group(0) @binding(2) var<storage, read> weight: array<Elem>;
-@group(0) @binding(3) var<storage, read> bias: array<Elem>;
-@group(0) @binding(4) var<storage, read_write> y: array<Elem>;
+#bind p: uniform Conv2dParams
+#bind x, weight, bias: read array<Elem>
+#bind y: read_write array<Elem>
 
 // Each thread's partial tile: pixel j's channels 0-3 at 8t + j, 4-7 at 8t + 4 + j.
 var<workgroup> partial: array<vec4<f32>, 8u * WORKGROUP>;

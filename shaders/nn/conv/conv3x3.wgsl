@@ -16,15 +16,15 @@
 #import nn/conv/conv_bias.wgsl
 #import nn/conv/conv_store.wgsl
 
-@group(0) @binding(0) var<uniform> p: Conv2dParams;
-@group(0) @binding(1) var<storage, read> x: array<Elem>;
-@group(0) @binding(2) var<storage, read> weight: array<vec4<f32>>;
-@group(0) @binding(3) var<storage, read> bias: array<Elem>;
+#bind p: uniform Conv2dParams
+#bind x: read array<Elem>
+#bind weight: read array<vec4<f32>>
+#bind bias: read array<Elem>
 // With `p.has_extra` set: [N, c_out] added to each image's channels after the sums.
-@group(0) @binding(4) var<storage, read> extra: array<Elem>;
+#bind extra: read array<Elem>
 // With `p.has_residual` set: [N, c_out, H, W] added last.
-@group(0) @binding(5) var<storage, read> residual: array<Elem>;
-@group(0) @binding(6) var<storage, read_write> y: array<Elem>;
+#bind residual: read array<Elem>
+#bind y: read_write array<Elem>
 
 // The image the taps see is w_out × h_out ("same" padding): x itself, or with
 // `p.upsample` x upsampled ×2 (nearest), read from its source pixels.

@@ -18,18 +18,16 @@
 #import nn/conv/conv_store.wgsl
 #import nn/norm/texel_stats.wgsl
 
-@group(0) @binding(0) var<uniform> p: Conv2dParams;
-@group(0) @binding(1) var x: texture_2d<f32>;
-@group(0) @binding(2) var weight: texture_2d<f32>;
-@group(0) @binding(3) var<storage, read> bias: array<Elem>;
+#bind p: uniform Conv2dParams
+#bind x, weight: texture_2d<f32>
+#bind bias: read array<Elem>
 // With `p.has_extra` set: [N, c_out] added to each image's channels after the sums.
-@group(0) @binding(4) var<storage, read> extra: array<Elem>;
+#bind extra: read array<Elem>
 // With `p.has_residual` set: [N, c_out, H, W] added last.
-@group(0) @binding(5) var<storage, read> residual: array<Elem>;
-@group(0) @binding(6) var<storage, read_write> y: array<Elem>;
+#bind residual: read array<Elem>
+#bind y: read_write array<Elem>
 // With `p.norm_groups` set: the norm's per-channel affine, [c_in] each.
-@group(0) @binding(7) var<storage, read> norm_gamma: array<Elem>;
-@group(0) @binding(8) var<storage, read> norm_beta: array<Elem>;
+#bind norm_gamma, norm_beta: read array<Elem>
 
 // (mean, 1/std) of (sample n, group g) at n·G + g, with `p.norm_groups` set.
 var<workgroup> norm_stats: array<vec2<f32>, NORM_STATS>;

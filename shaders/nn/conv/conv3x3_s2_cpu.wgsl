@@ -13,14 +13,12 @@
 #import nn/conv/conv_bias.wgsl
 #import nn/conv/conv_store.wgsl
 
-@group(0) @binding(0) var<uniform> p: Conv2dParams;
-@group(0) @binding(1) var x: texture_2d<f32>;
-@group(0) @binding(2) var weight: texture_2d<f32>;
-@group(0) @binding(3) var<storage, read> bias: array<Elem>;
+#bind p: uniform Conv2dParams
+#bind x, weight: texture_2d<f32>
+#bind bias: read array<Elem>
 // Unread (the shared epilogue's addend and residual; `p` says there are none).
-@group(0) @binding(4) var<storage, read> extra: array<Elem>;
-@group(0) @binding(5) var<storage, read> residual: array<Elem>;
-@group(0) @binding(6) var<storage, read_write> y: array<Elem>;
+#bind extra, residual: read array<Elem>
+#bind y: read_write array<Elem>
 
 fn count() -> u32 { return tile_count(4u); }
 

@@ -3,10 +3,10 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: GatherParams;
-@group(0) @binding(1) var<storage, read> index: array<u32>;
-@group(0) @binding(2) var<storage, read> x: array<Elem>;
-@group(0) @binding(3) var<storage, read_write> y: array<Elem>;
+#bind p: uniform GatherParams
+#bind index: read array<u32>
+#bind x: read array<Elem>
+#bind y: read_write array<Elem>
 
 fn count() -> u32 { return p.rows * p.width; }
 

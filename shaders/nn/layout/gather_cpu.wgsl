@@ -5,10 +5,10 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: GatherParams;
-@group(0) @binding(1) var<storage, read> index: array<u32>;
-@group(0) @binding(2) var x: texture_2d<f32>;
-@group(0) @binding(3) var<storage, read_write> y: array<Elem>;
+#bind p: uniform GatherParams
+#bind index: read array<u32>
+#bind x: texture_2d<f32>
+#bind y: read_write array<Elem>
 
 fn count() -> u32 { return p.rows * (p.width / 4u); }
 

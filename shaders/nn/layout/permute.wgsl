@@ -6,13 +6,10 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: PermuteParams;
-@group(0) @binding(1) var<storage, read> x: array<Elem>;
-@group(0) @binding(2) var<storage, read> a: array<Elem>;
-@group(0) @binding(3) var<storage, read> rows: array<Elem>;
-@group(0) @binding(4) var<storage, read> table: array<Elem>;
-@group(0) @binding(5) var<storage, read> ids: array<u32>;
-@group(0) @binding(6) var<storage, read_write> y: array<Elem>;
+#bind p: uniform PermuteParams
+#bind x, a, rows, table: read array<Elem>
+#bind ids: read array<u32>
+#bind y: read_write array<Elem>
 
 fn count() -> u32 { return p.shape.x * p.shape.y * p.shape.z * p.shape.w; }
 

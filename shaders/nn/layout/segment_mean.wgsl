@@ -3,9 +3,9 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: SegmentParams;
-@group(0) @binding(1) var<storage, read> x: array<Elem>;
-@group(0) @binding(2) var<storage, read_write> y: array<Elem>;
+#bind p: uniform SegmentParams
+#bind x: read array<Elem>
+#bind y: read_write array<Elem>
 
 fn count() -> u32 { return ((p.rows + p.stride - 1u) / p.stride) * p.width; }
 

@@ -2,9 +2,9 @@
 
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: UpsampleParams;
-@group(0) @binding(1) var<storage, read> x: array<Elem>;
-@group(0) @binding(2) var<storage, read_write> y: array<Elem>;
+#bind p: uniform UpsampleParams
+#bind x: read array<Elem>
+#bind y: read_write array<Elem>
 
 fn count() -> u32 { return p.planes * (2u * p.h_in) * (2u * p.w_in); }
 

@@ -15,21 +15,19 @@
 
 #import nn/norm/texel_stats.wgsl
 
-@group(0) @binding(0) var<uniform> p: LinearParams;
-@group(0) @binding(1) var x: texture_2d<f32>;
-@group(0) @binding(2) var weight: texture_2d<f32>;
-@group(0) @binding(3) var<storage, read> bias: array<Elem>;
+#bind p: uniform LinearParams
+#bind x, weight: texture_2d<f32>
+#bind bias: read array<Elem>
 // With `p.has_residual`: added to the rounded result (rows × outputs, or NCHW images
 // with `p.images`).
-@group(0) @binding(4) var<storage, read> residual: array<Elem>;
+#bind residual: read array<Elem>
 // With `p.has_table`: an action table [A, outputs] and the samples' action ids.
-@group(0) @binding(5) var<storage, read> table: array<Elem>;
+#bind table: read array<Elem>
 // The action ids (with `p.has_table`), or the input rows (with `p.gather_rows`).
-@group(0) @binding(6) var<storage, read> ids: array<u32>;
+#bind ids: read array<u32>
 // With `p.norm_rows`: the layer norm's gamma and beta.
-@group(0) @binding(7) var gamma: texture_2d<f32>;
-@group(0) @binding(8) var beta: texture_2d<f32>;
-@group(0) @binding(9) var<storage, read_write> y: array<Elem>;
+#bind gamma, beta: texture_2d<f32>
+#bind y: read_write array<Elem>
 
 // Output `at`: the sum rounded to Elem, plus its residual when there is one.
 fn finish(at: u32, v: f32) -> Elem {

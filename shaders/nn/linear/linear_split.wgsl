@@ -11,17 +11,15 @@
 
 #import nn/linear/tile.wgsl
 
-@group(0) @binding(0) var<uniform> p: LinearParams;
-@group(0) @binding(1) var<storage, read> x: array<Elem>;
-@group(0) @binding(2) var<storage, read> weight: array<Elem>;
-@group(0) @binding(3) var<storage, read> bias: array<Elem>;
+#bind p: uniform LinearParams
+#bind x, weight, bias: read array<Elem>
 // With `p.has_residual`: added to the rounded result (rows × outputs, or NCHW images
 // with `p.images`).
-@group(0) @binding(4) var<storage, read> residual: array<Elem>;
+#bind residual: read array<Elem>
 // With `p.has_table`: an action table [A, outputs] and the samples' action ids.
-@group(0) @binding(5) var<storage, read> table: array<Elem>;
-@group(0) @binding(6) var<storage, read> ids: array<u32>;
-@group(0) @binding(7) var<storage, read_write> y: array<Elem>;
+#bind table: read array<Elem>
+#bind ids: read array<u32>
+#bind y: read_write array<Elem>
 
 // Each thread's partial tile (row r at 4t + r).
 var<workgroup> partial: array<vec4<f32>, 4u * WORKGROUP>;

@@ -8,13 +8,11 @@
 #import nn/linear/tile.wgsl
 #import gpu/for_each.wgsl
 
-@group(0) @binding(0) var<uniform> p: LinearParams;
-@group(0) @binding(1) var<storage, read> x: array<Elem>;
-@group(0) @binding(2) var<storage, read> weight: array<Elem>;
-@group(0) @binding(3) var<storage, read> bias: array<Elem>;
+#bind p: uniform LinearParams
+#bind x, weight, bias: read array<Elem>
 // With `p.has_residual`: added to the rounded result (rows × outputs).
-@group(0) @binding(4) var<storage, read> residual: array<Elem>;
-@group(0) @binding(5) var<storage, read_write> y: array<Elem>;
+#bind residual: read array<Elem>
+#bind y: read_write array<Elem>
 
 // Output `at`: the sum rounded to Elem, plus its residual when there is one.
 fn finish(at: u32, v: f32) -> Elem {

@@ -5,13 +5,11 @@
 // positions, as group_norm_serial.wgsl stores them: the attention layers' permute, done
 // by the stores (see GroupNormParams).
 
-@group(0) @binding(0) var<uniform> p: GroupNormParams;
-@group(0) @binding(1) var<storage, read> x: array<Elem>;
-@group(0) @binding(2) var<storage, read> gamma: array<Elem>;
-@group(0) @binding(3) var<storage, read> beta: array<Elem>;
+#bind p: uniform GroupNormParams
+#bind x, gamma, beta: read array<Elem>
 // With `p.has_rows`: frame positions added to the token rows.
-@group(0) @binding(4) var<storage, read> rows: array<Elem>;
-@group(0) @binding(5) var<storage, read_write> y: array<Elem>;
+#bind rows: read array<Elem>
+#bind y: read_write array<Elem>
 
 var<workgroup> partial: array<f32, THREADS>;
 

@@ -15,13 +15,12 @@
 
 #import nn/norm/texel_stats.wgsl
 
-@group(0) @binding(0) var<uniform> p: GroupNormParams;
-@group(0) @binding(1) var x: texture_2d<f32>;
-@group(0) @binding(2) var<storage, read> gamma: array<Elem>;
-@group(0) @binding(3) var<storage, read> beta: array<Elem>;
+#bind p: uniform GroupNormParams
+#bind x: texture_2d<f32>
+#bind gamma, beta: read array<Elem>
 // With `p.has_rows`: frame positions added to the token rows.
-@group(0) @binding(4) var<storage, read> rows: array<Elem>;
-@group(0) @binding(5) var<storage, read_write> y: array<Elem>;
+#bind rows: read array<Elem>
+#bind y: read_write array<Elem>
 
 fn silu(v: vec4<f32>) -> vec4<f32> {
     return v / (1.0 + exp(-v));
