@@ -11,10 +11,10 @@ use crate::action::Action;
 use crate::gpu::kernel::Precision;
 use crate::gpu::{GpuContext, GpuError};
 use crate::nn::Tensor;
-use crate::nn::ops::{Indices, MAX_HEAD_SIZE, Recorder};
+use crate::nn::ops::{MAX_HEAD_SIZE, Recorder};
 use crate::nn::refiner::{Refiner, RefinerConfig};
 use crate::nn::sampler::{self, DiffusionConfig, SamplerKind, Sampling, Schedule};
-use crate::nn::unet::{UNet, UNetConfig};
+use crate::nn::unet::{ActionIds, UNet, UNetConfig};
 use crate::nn::vae::{Decoder, Encoder, VaeConfig};
 use crate::nn::weights::{self, LoadError, Weights};
 use crate::splat::base::RESIDUALS;
@@ -214,28 +214,22 @@ impl Bundle {
         noise: &Tensor,
         sampling: Sampling,
     ) -> Result<Tensor, GpuError> {
-        sampler::sample_next(
-            r,
-            self.unet_for(sampling)?,
-            &self.schedule,
-            context,
-            &[action],
-            noise,
-            if action == Action::Idle.id() as usize {
-                sampling.for_action(Action::Idle)
-            } else {
-                sampling
-            },
-        )
+        let sampling = if action == Action::Idle.id() as usize {
+            sampling.for_action(Action::Idle)
+        } else {
+            sampling
+        };
+        self.generate_with(r, context, &[action], noise, sampling)
     }
 
-    /// [`Bundle::generate`] with the batch's action ids on the GPU (the action, then the
-    /// null action when `sampling` is guided), so a captured plan takes new actions.
-    pub fn generate_with(
+    /// [`Bundle::generate`] with the batch's action ids given as they are: on the host,
+    /// or on the GPU (the action, then the null action when `sampling` is guided) so that
+    /// a captured plan takes new actions.
+    pub fn generate_with<'a>(
         &self,
         r: &mut Recorder,
         context: &Tensor,
-        actions: &Indices,
+        actions: impl Into<ActionIds<'a>>,
         noise: &Tensor,
         sampling: Sampling,
     ) -> Result<Tensor, GpuError> {

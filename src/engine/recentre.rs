@@ -76,11 +76,7 @@ impl Start {
 
 /// Each of `plane` pixels' index in `pixels` (the foreground list), or [`BACKGROUND`].
 pub fn point_of(pixels: &[u32], plane: usize) -> Vec<u32> {
-    let mut out = vec![BACKGROUND; plane];
-    for (point, &p) in pixels.iter().enumerate() {
-        out[p as usize] = point as u32;
-    }
-    out
+    crate::gpu::indices::places(pixels, plane, BACKGROUND)
 }
 
 #[cfg(test)]

@@ -89,11 +89,17 @@ impl Permutation {
 
 /// The inverse of a permutation of 0..n: `inverse(order)[order[i]] = i`.
 pub fn inverse(order: &[u32]) -> Vec<u32> {
-    let mut unsort = vec![0; order.len()];
+    places(order, order.len(), u32::MAX)
+}
+
+/// Each of 0..len's place in `order` (distinct values below `len`), or `missing` where
+/// `order` does not hold it: `places(order, len, missing)[order[i]] = i`.
+pub fn places(order: &[u32], len: usize, missing: u32) -> Vec<u32> {
+    let mut out = vec![missing; len];
     for (i, &p) in order.iter().enumerate() {
-        unsort[p as usize] = i as u32;
+        out[p as usize] = i as u32;
     }
-    unsort
+    out
 }
 
 #[cfg(test)]
@@ -108,5 +114,6 @@ mod tests {
         for (i, &p) in order.iter().enumerate() {
             assert_eq!(unsort[p as usize] as usize, i);
         }
+        assert_eq!(places(&[3, 0], 5, 9), [1, 9, 9, 0, 9]);
     }
 }

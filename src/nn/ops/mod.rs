@@ -49,9 +49,6 @@ pub use crate::gpu::Indices;
 enum Mode {
     /// Submitted in one submission by [`Recorder::submit`].
     Once,
-    /// Submitted at every [`Recorder::boundary`] (so other work on the queue, such as the
-    /// window's frames, waits for at most one part).
-    Split,
     /// Kept as a [`Plan`] by [`Recorder::finish`].
     Capture,
 }
@@ -110,36 +107,19 @@ pub struct Recorder<'a> {
 }
 
 impl<'a> Recorder<'a> {
-    fn with_mode(
-        gpu: &'a GpuContext,
-        pipelines: &'a mut PipelineCache,
-        precision: Precision,
-        mode: Mode,
-    ) -> Self {
-        Self {
-            gpu,
-            steps: Builder::new(gpu, pipelines, precision),
-            flops: 0,
-            mode,
-            kernels: Kernels::for_adapter(gpu),
-        }
-    }
-
+    /// A recorder whose work [`Recorder::submit`] submits at once.
     pub fn new(
         gpu: &'a GpuContext,
         pipelines: &'a mut PipelineCache,
         precision: Precision,
     ) -> Self {
-        Self::with_mode(gpu, pipelines, precision, Mode::Once)
-    }
-
-    /// A recorder that submits its work in parts, at every [`Recorder::boundary`].
-    pub fn split(
-        gpu: &'a GpuContext,
-        pipelines: &'a mut PipelineCache,
-        precision: Precision,
-    ) -> Self {
-        Self::with_mode(gpu, pipelines, precision, Mode::Split)
+        Self {
+            gpu,
+            steps: Builder::new(gpu, pipelines, precision),
+            flops: 0,
+            mode: Mode::Once,
+            kernels: Kernels::for_adapter(gpu),
+        }
     }
 
     /// A recorder whose work is kept as a [`Plan`] ([`Recorder::finish`]).
@@ -148,15 +128,18 @@ impl<'a> Recorder<'a> {
         pipelines: &'a mut PipelineCache,
         precision: Precision,
     ) -> Self {
-        Self::with_mode(gpu, pipelines, precision, Mode::Capture)
+        let once = Self::new(gpu, pipelines, precision);
+        Self {
+            mode: Mode::Capture,
+            ..once
+        }
     }
 
-    /// A point between stages (e.g. denoising steps): a split recorder submits what it
-    /// has recorded so far; a capturing one starts a new part; nothing is read back.
+    /// A point between stages (e.g. denoising steps): a capturing recorder starts a new
+    /// part of its plan (submitted in parts beside a window); nothing is read back.
     pub fn boundary(&mut self) {
         match self.mode {
             Mode::Once => {}
-            Mode::Split => self.steps.submit(),
             Mode::Capture => self.steps.boundary(),
         }
     }
