@@ -835,9 +835,9 @@ fn splat_differences(a: &[Splat], b: &[Splat]) -> [f32; 5] {
 
 #[test]
 fn the_gpu_splats_equal_the_cpu_appearance_on_the_shipped_bundle() {
-    // A generated frame's points through today's CPU appearance stage (base splats, the
-    // refiner fed host orders, upscale, fine splats) and through the frame plan's splat
-    // kernels, at level 128 and 256, with and without the refiner. Tolerances (f32): the
+    // The standing start's and a generated frame's points through the CPU appearance
+    // stage (base splats, the refiner fed host orders, upscale, fine splats) and through
+    // the frame plan's splat kernels (`draw_standing` runs them alone), at level 128 and 256, with and without the refiner. Tolerances (f32): the
     // two sides differ only in summation order and fused multiply-adds (lengths,
     // logarithms, the refiner's inputs), so positions within 1e-5 m, scales within 1e-3
     // relative, rotations within 1e-4 of |q·q'| = 1, opacity and colour within 1e-3.
@@ -856,24 +856,30 @@ fn the_gpu_splats_equal_the_cpu_appearance_on_the_shipped_bundle() {
         options.refine = refine;
         options.kernels = kernels;
         let mut engine = Engine::new(&gpu, &witch_bundle(), &options).unwrap();
-        let frame = engine.step(Action::Forward).unwrap();
-        let got = engine.read_splats().unwrap();
         let mut look = Appearance::new(&gpu, &engine.bundle, Precision::F32, level).unwrap();
         look.refine = refine;
+        // The standing start drawn alone (before any frame), then a generated frame.
+        engine.draw_standing().unwrap();
+        let standing = engine.read_splats().unwrap();
+        let want = look
+            .splats(&engine.bundle, &engine.standing_points())
+            .unwrap();
+        let case = format!("level {level} refiner {refine} kernels {kernels:?}");
+        assert_close_splats(&standing, &want, &format!("{case}, standing"));
+        let frame = engine.step(Action::Forward).unwrap();
+        let got = engine.read_splats().unwrap();
         let want = look.splats(&engine.bundle, &frame.points).unwrap();
-        let d = splat_differences(&got, &want);
-        eprintln!(
-            "level {level} refiner {refine} kernels {kernels:?}: {} splats, worst {d:?}",
-            got.len()
-        );
-        assert!(
-            d[0] < 1e-5,
-            "level {level} refine {refine}: positions {d:?}"
-        );
-        assert!(d[1] < 1e-3, "scales {d:?}");
-        assert!(d[2] < 1e-4, "rotations {d:?}");
-        assert!(d[3] < 1e-3 && d[4] < 1e-3, "opacity, colour {d:?}");
+        assert_close_splats(&got, &want, &case);
     }
+}
+
+fn assert_close_splats(got: &[Splat], want: &[Splat], case: &str) {
+    let d = splat_differences(got, want);
+    eprintln!("{case}: {} splats, worst {d:?}", got.len());
+    assert!(d[0] < 1e-5, "{case}: positions {d:?}");
+    assert!(d[1] < 1e-3, "{case}: scales {d:?}");
+    assert!(d[2] < 1e-4, "{case}: rotations {d:?}");
+    assert!(d[3] < 1e-3 && d[4] < 1e-3, "{case}: opacity, colour {d:?}");
 }
 
 #[test]

@@ -18,12 +18,11 @@ use glam::Vec3;
 
 use crate::action::{Action, KeyScript};
 use crate::avatar::locomotion::FRAME_RATE;
-use crate::engine::appearance::{self, Appearance};
+use crate::engine::appearance;
 use crate::engine::surface::MapSurface;
 use crate::engine::{Engine, EngineOptions};
 use crate::gpu::GpuContext;
 use crate::nn::sampler::Sampling;
-use crate::splat::raster::Rasterizer;
 
 /// What the UI may change while the avatar runs.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -313,7 +312,7 @@ impl Worker {
             level,
         };
         let standing = engine.standing_points();
-        standing_splats(&self.gpu, &engine, &standing, level, settings.refine)?;
+        engine.draw_standing()?;
         let ready = Update::Ready {
             surface: Box::new(engine.surface()),
             splats: engine.splats().map(|(b, n)| (b.clone(), n)),
@@ -382,30 +381,4 @@ impl Worker {
         }
         Ok(())
     }
-}
-
-/// The standing start's splats (CPU path, once at load) into the engine's splat buffer,
-/// so the avatar is drawn before the first generated frame.
-fn standing_splats(
-    gpu: &GpuContext,
-    engine: &Engine,
-    standing: &[Vec3],
-    level: usize,
-    refine: bool,
-) -> anyhow::Result<()> {
-    let Some((buffer, count)) = engine.splats() else {
-        return Ok(());
-    };
-    let mut look = Appearance::new(
-        gpu,
-        &engine.bundle,
-        crate::gpu::kernel::Precision::F32,
-        level,
-    )?;
-    look.refine = refine;
-    let splats = look.splats(&engine.bundle, standing)?;
-    if splats.len() == count {
-        Rasterizer::write(gpu, buffer, &splats);
-    }
-    Ok(())
 }

@@ -305,33 +305,40 @@ struct Row {
 
 /// Times `record` (recording, one submission, waiting for the GPU) `repeat` times after
 /// a warm-up; the FLOPs are those it recorded.
-fn time(
-    gpu: &GpuContext,
-    pipelines: &mut PipelineCache,
+/// Times recorded work on one adapter: the median of `repeat` runs after a warm-up.
+struct Timer<'a> {
+    gpu: &'a GpuContext,
+    pipelines: &'a mut PipelineCache,
     precision: Precision,
     repeat: usize,
-    what: String,
-    record: impl Fn(&mut Recorder) -> Result<(), GpuError>,
-) -> Result<Row, GpuError> {
-    let mut ms = Vec::new();
-    let mut flops = 0;
-    for run in 0..=repeat.max(1) {
-        let start = Instant::now();
-        let mut r = Recorder::new(gpu, pipelines, precision);
-        record(&mut r)?;
-        flops = r.flops();
-        r.submit();
-        gpu.wait_idle();
-        if run > 0 {
-            ms.push(start.elapsed().as_secs_f64() * 1e3);
+}
+
+impl Timer<'_> {
+    fn time(
+        &mut self,
+        what: String,
+        record: impl Fn(&mut Recorder) -> Result<(), GpuError>,
+    ) -> Result<Row, GpuError> {
+        let mut ms = Vec::new();
+        let mut flops = 0;
+        for run in 0..=self.repeat.max(1) {
+            let start = Instant::now();
+            let mut r = Recorder::new(self.gpu, self.pipelines, self.precision);
+            record(&mut r)?;
+            flops = r.flops();
+            r.submit();
+            self.gpu.wait_idle();
+            if run > 0 {
+                ms.push(start.elapsed().as_secs_f64() * 1e3);
+            }
         }
+        ms.sort_by(f64::total_cmp);
+        Ok(Row {
+            what,
+            flops,
+            ms: ms[ms.len() / 2],
+        })
     }
-    ms.sort_by(f64::total_cmp);
-    Ok(Row {
-        what,
-        flops,
-        ms: ms[ms.len() / 2],
-    })
 }
 
 fn model_rows(
@@ -363,39 +370,33 @@ fn model_rows(
     {
         *t = 700.0;
     }
-    let repeat = options.repeat;
-    let mut rows = Vec::new();
-    rows.push(time(
+    let mut timer = Timer {
         gpu,
         pipelines,
         precision,
-        repeat,
-        format!("unet step: {}-frame group x{n}", cfg.frames),
-        |r| model.unet.groups(r, &group, &timesteps, &actions).map(drop),
-    )?);
-    rows.push(time(
-        gpu,
-        pipelines,
-        precision,
-        repeat,
-        format!("unet context pass: {} frames x{n}", cfg.frames - 1),
-        |r| model.unet.context(r, &context, &actions).map(drop),
-    )?);
+        repeat: options.repeat,
+    };
+    let mut rows = vec![
+        timer.time(format!("unet step: {}-frame group x{n}", cfg.frames), |r| {
+            model.unet.groups(r, &group, &timesteps, &actions).map(drop)
+        })?,
+        timer.time(
+            format!("unet context pass: {} frames x{n}", cfg.frames - 1),
+            |r| model.unet.context(r, &context, &actions).map(drop),
+        )?,
+    ];
     // The target-only step, timed on its own against a cache made outside the timing.
     let cache = {
-        let mut r = Recorder::new(gpu, pipelines, precision);
+        let mut r = Recorder::new(gpu, timer.pipelines, precision);
         let cache = model.unet.context(&mut r, &context, &actions)?;
         r.submit();
         cache
     };
-    rows.push(time(
-        gpu,
-        pipelines,
-        precision,
-        repeat,
-        format!("unet step: target frame x{n} (cached)"),
-        |r| model.unet.next(r, &target, 700.0, &cache).map(drop),
-    )?);
+    rows.push(
+        timer.time(format!("unet step: target frame x{n} (cached)"), |r| {
+            model.unet.next(r, &target, 700.0, &cache).map(drop)
+        })?,
+    );
     let context1 = Tensor::upload(
         gpu,
         "bench.context",
@@ -410,19 +411,10 @@ fn model_rows(
         &vec![0.5; cfg.latent * 256],
         precision,
     )?;
-    rows.push(time(
-        gpu,
-        pipelines,
-        precision,
-        repeat,
-        "vae decode x1".into(),
-        |r| model.decoder.forward(r, &noise).map(drop),
-    )?);
-    rows.push(time(
-        gpu,
-        pipelines,
-        precision,
-        repeat,
+    rows.push(timer.time("vae decode x1".into(), |r| {
+        model.decoder.forward(r, &noise).map(drop)
+    })?);
+    rows.push(timer.time(
         format!("generated frame: {} steps + decode", s.steps),
         |r| {
             let z =

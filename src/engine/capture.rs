@@ -1,14 +1,19 @@
 //! Recording a frame's plan ([`Engine::capture`]): the turn and encode of the context
 //! window, the UNet's context pass and denoising steps, the decode, the frame state and
-//! points, the splats with the refiner, and the slide of the window — one captured
-//! [`Plan`](crate::gpu::plan::Plan) per sampler setting.
+//! points, the splats with the refiner ([`record_splats`], also run alone on the standing
+//! start), and the slide of the window — one captured [`Plan`](crate::gpu::plan::Plan)
+//! per sampler setting.
 
 use super::bundle::RootMotion;
 use super::kernels::{self, PostParams};
+use super::live::Live;
 use super::{Engine, FramePlan, SPLIT_STEPS};
+use crate::gpu::kernel::Precision;
 use crate::gpu::{Bound, GpuError};
+use crate::nn::refiner::Refiner;
 use crate::nn::sampler::Sampling;
 use crate::nn::{Recorder, Tensor};
+use crate::splat::frame::SplatFrame;
 
 impl Engine {
     pub(super) fn capture(&mut self, sampling: Sampling) -> Result<FramePlan, GpuError> {
@@ -128,29 +133,13 @@ impl Engine {
         );
         if let Some(splats) = &self.splats {
             r.boundary();
-            r.stage("splats");
-            let inputs = splats.record_coarse(r.steps(), &live.points);
-            let residuals = match (inputs, &bundle.refiner) {
-                (Some(inputs), Some(refiner)) => {
-                    let features = Tensor::from_buffer(
-                        inputs.features.clone(),
-                        &[inputs.points, crate::splat::frame::FEATURES],
-                        self.precision,
-                    );
-                    r.stage("refiner");
-                    let o = inputs.orders;
-                    let residuals =
-                        refiner.forward(&mut r, &features, &o.fine, &o.coarse, &o.groups)?;
-                    r.stage("splats");
-                    Some(residuals)
-                }
-                _ => None,
-            };
-            splats.record_finish(
-                r.steps(),
-                &live.points,
-                residuals.as_ref().map(|t| &t.buffer),
-            );
+            record_splats(
+                &mut r,
+                splats,
+                bundle.refiner.as_ref(),
+                live,
+                self.precision,
+            )?;
         }
         r.stage("geometry");
         let grid = r.grid(live.maps.len());
@@ -180,4 +169,38 @@ impl Engine {
             look: self.splats.as_ref().map(|s| (s.level(), s.refines())),
         })
     }
+}
+
+/// Records the splats of the frame's drawn points (`live.points`) into `splats`' buffer:
+/// the 128² stage, the refiner on the inputs it makes where it refines, and the splats at
+/// its level. The frame plan records it after the decode; [`Engine::draw_standing`] alone.
+pub(super) fn record_splats(
+    r: &mut Recorder,
+    splats: &SplatFrame,
+    refiner: Option<&Refiner>,
+    live: &Live,
+    precision: Precision,
+) -> Result<(), GpuError> {
+    r.stage("splats");
+    let residuals = match (splats.record_coarse(r.steps(), &live.points), refiner) {
+        (Some(inputs), Some(refiner)) => {
+            let features = Tensor::from_buffer(
+                inputs.features.clone(),
+                &[inputs.points, crate::splat::frame::FEATURES],
+                precision,
+            );
+            r.stage("refiner");
+            let o = inputs.orders;
+            let residuals = refiner.forward(r, &features, &o.fine, &o.coarse, &o.groups)?;
+            r.stage("splats");
+            Some(residuals)
+        }
+        _ => None,
+    };
+    splats.record_finish(
+        r.steps(),
+        &live.points,
+        residuals.as_ref().map(|t| &t.buffer),
+    );
+    Ok(())
 }

@@ -118,7 +118,8 @@ impl Live {
             points: gpu.storage_buffer(
                 "engine.points",
                 4 * d as u64,
-                wgpu::BufferUsages::COPY_SRC,
+                // Written once by `Engine::draw_standing`, read back by tests.
+                wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
             )?,
             state: gpu.storage_buffer_init(
                 "engine.state",

@@ -39,9 +39,9 @@ use crate::action::Action;
 use crate::gpu::kernel::{PipelineCache, Precision};
 use crate::gpu::plan::{StageProfile, StepProfile};
 use crate::gpu::{GpuContext, GpuError, readback};
-use crate::nn::LoadError;
 use crate::nn::ops::{Indices, Plan};
 use crate::nn::sampler::{Sampling, idle_run};
+use crate::nn::{LoadError, Recorder};
 use crate::random::Rng;
 use crate::splat::frame::SplatFrame;
 use crate::splat::ply::Splat;
@@ -325,6 +325,30 @@ impl Engine {
             &self.standing_points(),
             self.bundle.colors.as_deref(),
         )
+    }
+
+    /// Draws the standing start's last frame into the splat buffer (where splats are on)
+    /// through the frame plan's own splat stage, so the avatar is drawn before the first
+    /// generated frame: its points are written where a frame's decoded points go and the
+    /// splat stage runs on them, in one submission.
+    pub fn draw_standing(&mut self) -> Result<(), GpuError> {
+        let values: Vec<f32> = self
+            .standing_points()
+            .iter()
+            .flat_map(|p| p.to_array())
+            .collect();
+        let Some(splats) = &self.splats else {
+            return Ok(());
+        };
+        self.gpu
+            .queue
+            .write_buffer(&self.live.points, 0, bytemuck::cast_slice(&values));
+        let mut r = Recorder::new(&self.gpu, &mut self.pipelines, self.precision);
+        r.set_kernels(self.kernels);
+        let refiner = self.bundle.refiner.as_ref();
+        capture::record_splats(&mut r, splats, refiner, &self.live, self.precision)?;
+        r.submit();
+        Ok(())
     }
 
     /// The standing start's last frame in world space (what is shown before the first
