@@ -682,29 +682,6 @@ fn absurd_splats_are_dropped_with_a_line_that_says_how_many_and_why() {
     assert!(kept.note().unwrap().starts_with("dropped 2 of 3 splats"));
 }
 
-/// A compressed PLY (SuperSplat's layout) header with `chunks` chunks of the 12 bound
-/// floats and `vertices` packed vertices, with a zero body of the size it declares.
-fn compressed_ply(chunks: usize, vertices: usize) -> Vec<u8> {
-    let mut header = "ply\nformat binary_little_endian 1.0\n".to_string();
-    if chunks > 0 {
-        header += &format!("element chunk {chunks}\n");
-        for axis in ["x", "y", "z", "scale_x", "scale_y", "scale_z"] {
-            header += &format!("property float min_{axis}\n");
-        }
-        for axis in ["x", "y", "z", "scale_x", "scale_y", "scale_z"] {
-            header += &format!("property float max_{axis}\n");
-        }
-    }
-    header += &format!("element vertex {vertices}\n");
-    for name in ["position", "rotation", "scale", "color"] {
-        header += &format!("property uint packed_{name}\n");
-    }
-    header += "end_header\n";
-    let mut bytes = header.into_bytes();
-    bytes.resize(bytes.len() + 48 * chunks + 16 * vertices, 0);
-    bytes
-}
-
 #[test]
 fn view_refuses_malformed_compressed_plys_and_truncated_splat_files_in_one_line() {
     let dir = tempfile::tempdir().unwrap();
@@ -714,17 +691,17 @@ fn view_refuses_malformed_compressed_plys_and_truncated_splat_files_in_one_line(
         unica(&["view", path.to_str().unwrap(), "--exit-after", "1"])
     };
     // The file itself is well formed: 300 zero splats in 2 chunks decode.
-    let good = compressed_ply(2, 300);
+    let good = common::compressed_ply(2, 300);
     assert_eq!(decode(&good).unwrap().len(), 300);
     assert_one_line_error(
-        &view("few_chunks.ply", &compressed_ply(1, 300)),
+        &view("few_chunks.ply", &common::compressed_ply(1, 300)),
         &[
             "few_chunks.ply",
             "300 vertices need 2 chunks of 256, the 'chunk' element has 1",
         ],
     );
     assert_one_line_error(
-        &view("no_chunk.ply", &compressed_ply(0, 10)),
+        &view("no_chunk.ply", &common::compressed_ply(0, 10)),
         &["no_chunk.ply", "needs a 'chunk' element"],
     );
     assert_one_line_error(

@@ -1,6 +1,8 @@
 //! A mutation fuzzer on stable Rust for every parser of untrusted input: glTF (JSON and
-//! GLB), OBJ, binary and ASCII PLY, safetensors, bundle and dataset manifests, avatar
-//! descriptions and key scripts. Real seed files are mutated by a small deterministic
+//! GLB), VRM 1.0's extensions, OBJ, binary, ASCII and compressed PLY, antimatter15's
+//! .splat, safetensors, bundle and dataset manifests, the dataset's render manifest,
+//! avatar descriptions and key scripts. Every JSON target also starts from seeds built to
+//! exhaust ([`exhausting`]). Real seed files are mutated by a small deterministic
 //! mutator (bit flips, interesting bytes and numbers, cuts, splices); every execution
 //! must return (Ok or a named error) without a panic, without an abort and with bounded
 //! memory: a counting allocator refuses any allocation over 1 GiB (the process then
@@ -17,8 +19,10 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use serde_json::json;
+use serde_json::{Value, json};
 use unica::avatar::character::{Character, load_character};
+
+mod common;
 
 // ---------- bounded memory ----------
 
@@ -187,8 +191,8 @@ fn budget() -> (usize, Option<Duration>) {
     }
 }
 
-/// Seconds per target in the test suite (10 targets).
-const FUZZ_SECONDS: u64 = 5;
+/// Seconds per target in the test suite (14 targets).
+const FUZZ_SECONDS: u64 = 4;
 
 fn work_dir(target: &str) -> PathBuf {
     let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
@@ -202,10 +206,20 @@ fn work_dir(target: &str) -> PathBuf {
 /// `<work dir>/<file>` for the targets that read files); fails on any panic, an
 /// execution over 30 s, or live memory over 1 GiB.
 fn fuzz(target: &str, file: &str, seeds: &[Vec<u8>], exec: impl Fn(&Path, &[u8]) -> bool) {
+    fuzz_in(&work_dir(target), target, file, seeds, exec)
+}
+
+/// [`fuzz`] with the input written in `dir` (where a reader expects it beside other files).
+fn fuzz_in(
+    dir: &Path,
+    target: &str,
+    file: &str,
+    seeds: &[Vec<u8>],
+    exec: impl Fn(&Path, &[u8]) -> bool,
+) {
     for seed in seeds {
         assert!(!seed.is_empty());
     }
-    let dir = work_dir(target);
     let path = dir.join(file);
     let (execs, time) = budget();
     let started = Instant::now();
@@ -257,6 +271,56 @@ fn fuzz(target: &str, file: &str, seeds: &[Vec<u8>], exec: impl Fn(&Path, &[u8])
 }
 
 // ---------- seeds ----------
+
+/// `seed` (a JSON document) and seeds built to exhaust a JSON reader: arrays and objects
+/// nested 100,000 deep, and the seed with one of its numbers made huge (4294967295 or
+/// 1e308: counts, sizes and indices that would allocate without end if believed), for
+/// up to 12 of its numbers spread through it.
+fn exhausting(seed: &[u8]) -> Vec<Vec<u8>> {
+    const DEEP: usize = 100_000;
+    let arrays = format!("{}{}", "[".repeat(DEEP), "]".repeat(DEEP));
+    let objects = format!("{}1{}", "{\"a\":".repeat(DEEP), "}".repeat(DEEP));
+    let mut out = vec![seed.to_vec(), arrays.into_bytes(), objects.into_bytes()];
+    let value: Value = serde_json::from_slice(seed).expect("a JSON seed");
+    let numbers = with_number(&value, usize::MAX, &Value::Null).1;
+    let step = numbers.div_ceil(12).max(1);
+    for (k, at) in (0..numbers).step_by(step).enumerate() {
+        let huge = if k % 2 == 0 {
+            json!(4294967295u64)
+        } else {
+            json!(1e308)
+        };
+        out.push(serde_json::to_vec(&with_number(&value, at, &huge).0).unwrap());
+    }
+    out
+}
+
+/// `v` with its number `at` (counting in document order) replaced by `huge`, and how many
+/// numbers it holds.
+fn with_number(v: &Value, at: usize, huge: &Value) -> (Value, usize) {
+    let mut seen = 0;
+    fn walk(v: &Value, at: usize, huge: &Value, seen: &mut usize) -> Value {
+        match v {
+            Value::Number(_) => {
+                *seen += 1;
+                if *seen - 1 == at {
+                    huge.clone()
+                } else {
+                    v.clone()
+                }
+            }
+            Value::Array(items) => items.iter().map(|x| walk(x, at, huge, seen)).collect(),
+            Value::Object(map) => Value::Object(
+                map.iter()
+                    .map(|(k, x)| (k.clone(), walk(x, at, huge, seen)))
+                    .collect(),
+            ),
+            _ => v.clone(),
+        }
+    }
+    let out = walk(v, at, huge, &mut seen);
+    (out, seen)
+}
 
 /// A skinned, animated triangle whose positions have a sparse override: the bytes of its
 /// binary buffer.
@@ -363,7 +427,41 @@ fn character_ok(path: &Path) -> bool {
 #[test]
 fn fuzz_gltf_json() {
     assert!(character_ok_seed("seed.gltf", &gltf_seed()));
-    fuzz("gltf", "input.gltf", &[gltf_seed()], |p, _| character_ok(p));
+    fuzz("gltf", "input.gltf", &exhausting(&gltf_seed()), |p, _| {
+        character_ok(p)
+    });
+}
+
+/// The triangle with VRM 1.0's humanoid bone map and spring bones (a sphere and a
+/// capsule collider, one spring of one joint) in its root extensions.
+fn vrm_seed() -> Vec<u8> {
+    let mut doc: Value = serde_json::from_slice(&gltf_seed()).unwrap();
+    doc["extensionsUsed"] = json!(["VRMC_vrm", "VRMC_springBone"]);
+    doc["extensions"] = json!({
+        "VRMC_vrm": {"specVersion": "1.0", "humanoid": {"humanBones": {"hips": {"node": 1}}}},
+        "VRMC_springBone": {
+            "specVersion": "1.0",
+            "colliders": [
+                {"node": 1, "shape": {"sphere": {"offset": [0.0, 0.1, 0.0], "radius": 0.05}}},
+                {"node": 1, "shape": {"capsule": {"offset": [0.0, 0.0, 0.0], "radius": 0.03,
+                                                  "tail": [0.0, 0.2, 0.0]}}}
+            ],
+            "colliderGroups": [{"colliders": [0, 1]}],
+            "springs": [{"joints": [{"node": 1, "hitRadius": 0.02, "stiffness": 1.0,
+                                     "gravityPower": 0.3, "gravityDir": [0.0, -1.0, 0.0],
+                                     "dragForce": 0.4}],
+                         "colliderGroups": [0]}]
+        }
+    });
+    serde_json::to_vec_pretty(&doc).unwrap()
+}
+
+#[test]
+fn fuzz_vrm_extensions() {
+    assert!(character_ok_seed("seed_vrm.gltf", &vrm_seed()));
+    fuzz("vrm", "input.gltf", &exhausting(&vrm_seed()), |p, _| {
+        character_ok(p)
+    });
 }
 
 #[test]
@@ -452,6 +550,39 @@ fn fuzz_ply_ascii() {
 }
 
 #[test]
+fn fuzz_dot_splat() {
+    let seed = unica::splat::dotsplat::encode(&splats());
+    assert_eq!(unica::splat::dotsplat::decode(&seed).unwrap().len(), 4);
+    fuzz("dot_splat", "input.splat", &[seed], |p, _| {
+        unica::splat::files::read(p, Default::default()).is_ok()
+    });
+}
+
+#[test]
+fn fuzz_compressed_ply() {
+    // SuperSplat's layout: 2 chunks of bounds, 300 packed vertices; one seed with a zero
+    // body, one with its packed words drawn at random (fixed seed).
+    let zeros = common::compressed_ply(2, 300);
+    let mut drawn = zeros.clone();
+    let body = drawn.len() - (48 * 2 + 16 * 300);
+    let mut rng = Rng(0x5eed);
+    for (i, b) in drawn[body..].iter_mut().enumerate() {
+        // The chunk bounds as small floats (min below max), the vertices' words at random.
+        *b = if i < 48 * 2 {
+            [0u8, 0, 0, 0x3f][i % 4] + u8::from(i % 48 >= 24 && i % 4 == 3)
+        } else {
+            rng.next() as u8
+        };
+    }
+    for seed in [&zeros, &drawn] {
+        assert_eq!(unica::splat::ply::decode(seed).unwrap().len(), 300);
+    }
+    fuzz("compressed_ply", "input.ply", &[zeros, drawn], |p, _| {
+        unica::splat::files::read(p, Default::default()).is_ok()
+    });
+}
+
+#[test]
 fn fuzz_safetensors() {
     use unica::tensors::{TensorData, TensorFile, write};
     let dir = work_dir("seeds");
@@ -484,9 +615,12 @@ fn fuzz_safetensors() {
 fn fuzz_bundle_manifest() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let seed = std::fs::read(root.join("assets/witch/bundle/manifest.json")).unwrap();
-    fuzz("bundle_manifest", "manifest.json", &[seed], |p, _| {
-        unica::engine::bundle::read_manifest(p).is_ok()
-    });
+    fuzz(
+        "bundle_manifest",
+        "manifest.json",
+        &exhausting(&seed),
+        |p, _| unica::engine::bundle::read_manifest(p).is_ok(),
+    );
 }
 
 /// A tiny dataset (one bone, one clip of 5 frames) whose manifest and reference are
@@ -551,9 +685,50 @@ fn fuzz_dataset_manifest() {
     std::fs::write(dir.join("manifest.json"), &seed).unwrap();
     let report = unica::dataset::validate(&dir).unwrap();
     assert_eq!((report.clips, report.frames, report.groups), (1, 5, 2));
-    fuzz("dataset_manifest", "manifest.json", &[seed], |p, _| {
-        unica::dataset::validate(p.parent().unwrap()).is_ok()
-    });
+    fuzz(
+        "dataset_manifest",
+        "manifest.json",
+        &exhausting(&seed),
+        |p, _| unica::dataset::validate(p.parent().unwrap()).is_ok(),
+    );
+}
+
+/// The tiny dataset's render manifest (`renders/cameras.json`: 50 views of the standing
+/// pose and 4 of each of its 5 frames, each naming its render), read by `validate`.
+#[test]
+fn fuzz_render_manifest() {
+    let dir = work_dir("render_manifest");
+    std::fs::write(dir.join("manifest.json"), tiny_dataset(&dir)).unwrap();
+    let renders = dir.join("renders");
+    std::fs::create_dir_all(&renders).unwrap();
+    let camera = |file: String| {
+        json!({"file": file, "camera": {"target": [0.0, 1.0, 0.0], "yaw": 0.5, "pitch": 0.1,
+                                        "distance": 3.0}})
+    };
+    let mut cameras: Vec<Value> = (0..50)
+        .map(|i| camera(format!("rest_{i:02}.png")))
+        .collect();
+    for f in 0..5 {
+        for v in 0..4 {
+            let mut c = camera(format!("clip_000_{f:03}_{v}.png"));
+            c["clip_frame"] = json!([0, f]);
+            cameras.push(c);
+        }
+    }
+    for c in &cameras {
+        std::fs::write(renders.join(c["file"].as_str().unwrap()), b"png").unwrap();
+    }
+    let seed = serde_json::to_vec_pretty(&json!({"every": 1, "cameras": cameras})).unwrap();
+    std::fs::write(renders.join("cameras.json"), &seed).unwrap();
+    assert_eq!(unica::dataset::validate(&dir).unwrap().renders, 70);
+    let dataset = dir.clone();
+    fuzz_in(
+        &renders,
+        "render_manifest",
+        "cameras.json",
+        &exhausting(&seed),
+        |_, _| unica::dataset::validate(&dataset).is_ok(),
+    );
 }
 
 /// The fuzzed description drives a teacher of the seed triangle (bone "hip").
@@ -585,10 +760,11 @@ fn fuzz_avatar_description() {
     if let Err(e) = unica::avatar::teacher::Teacher::new(character.clone(), seed) {
         panic!("the seed description drives no teacher: {e}");
     }
+    let seeds = [exhausting(&tiny), vec![witch]].concat();
     fuzz(
         "avatar_description",
         "input.avatar.json",
-        &[tiny, witch],
+        &seeds,
         |p, bytes| {
             let Ok(text) = std::str::from_utf8(bytes) else {
                 return false;

@@ -131,3 +131,26 @@ pub fn assert_all_whole(dir: &Path) -> usize {
     }
     paths.len()
 }
+
+/// A compressed PLY (SuperSplat's layout) header with `chunks` chunks of the 12 bound
+/// floats and `vertices` packed vertices, with a zero body of the size it declares.
+pub fn compressed_ply(chunks: usize, vertices: usize) -> Vec<u8> {
+    let mut header = "ply\nformat binary_little_endian 1.0\n".to_string();
+    if chunks > 0 {
+        header += &format!("element chunk {chunks}\n");
+        for axis in ["x", "y", "z", "scale_x", "scale_y", "scale_z"] {
+            header += &format!("property float min_{axis}\n");
+        }
+        for axis in ["x", "y", "z", "scale_x", "scale_y", "scale_z"] {
+            header += &format!("property float max_{axis}\n");
+        }
+    }
+    header += &format!("element vertex {vertices}\n");
+    for name in ["position", "rotation", "scale", "color"] {
+        header += &format!("property uint packed_{name}\n");
+    }
+    header += "end_header\n";
+    let mut bytes = header.into_bytes();
+    bytes.resize(bytes.len() + 48 * chunks + 16 * vertices, 0);
+    bytes
+}
