@@ -85,3 +85,94 @@ def test_every_resume_path_reads_through_checkpoint_load():
     saves = {f.name: len(re.findall(r"torch\.save\(", f.read_text())) for f in PACKAGE.rglob("*.py")}
     assert {k: v for k, v in saves.items() if v} == {"checkpoint.py": 1}, saves
     assert os.path.exists(PACKAGE / "checkpoint.py")
+
+
+def test_a_folder_is_replaced_whole_and_keeps_its_other_files(tmp_path):
+    d = tmp_path / "bundle"
+    checkpoint.write_folder_atomic(d, {"a": b"1", "b": b"1"})
+    (d / "notes.txt").write_text("kept")
+    checkpoint.write_folder_atomic(d, {"a": b"2", "b": b"2"})
+    assert {p.name: p.read_bytes() for p in d.iterdir()} == {"a": b"2", "b": b"2", "notes.txt": b"kept"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bundle"]  # no staging left
+
+
+def test_a_folder_left_missing_between_renames_is_put_back_first(tmp_path):
+    # The fallback path killed after moving the old folder aside: the next write starts
+    # from it, and the stale staging copy goes.
+    d = tmp_path / "bundle"
+    checkpoint.write_folder_atomic(d, {"a": b"1", "keep": b"k"})
+    os.rename(d, tmp_path / ".bundle.old")
+    (tmp_path / ".bundle.new").mkdir()
+    checkpoint.write_folder_atomic(d, {"a": b"2"})
+    assert {p.name: p.read_bytes() for p in d.iterdir()} == {"a": b"2", "keep": b"k"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bundle"]
+
+
+WRITER = """
+import sys
+from unica_train import checkpoint
+d, n = sys.argv[1], 0
+while True:
+    n += 1
+    body = str(n).encode() * 200_000
+    checkpoint.write_folder_atomic(d, {"weights": body, "manifest": str(n).encode()})
+"""
+
+
+def _whole(d: Path) -> int:
+    """The generation of a bundle folder whose two files agree; fails on a mix. Both are
+    read through one handle on the folder, as a reader that must not mix generations
+    reads them (a swap between two opens by path would give it one file of each)."""
+    folder = os.open(d, os.O_RDONLY)
+    try:
+        def read(name):
+            fd = os.open(name, os.O_RDONLY, dir_fd=folder)
+            with os.fdopen(fd, "rb") as f:
+                return f.read()
+        manifest, weights = read("manifest"), read("weights")
+    finally:
+        os.close(folder)
+    assert weights == manifest * 200_000, f"manifest {manifest!r} beside other weights"
+    return int(manifest)
+
+
+def _current(d: Path) -> int | None:
+    """`_whole`, or None where the folder read was swapped out and removed meanwhile
+    (a reader then reads again)."""
+    try:
+        return _whole(d)
+    except FileNotFoundError:
+        return None
+
+
+def test_a_bundle_read_while_written_and_killed_is_always_one_whole_generation(tmp_path):
+    # A writer replaces the folder over and over (2 files that must agree) while this
+    # process reads it; the writer is killed with SIGKILL at 5 random moments and started
+    # again. Every read sees one generation whole (or, where the folder it holds was
+    # swapped out and removed meanwhile, no file), and after each kill so does the folder.
+    # Written in place instead, the same test fails at once (tried).
+    import random
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    d = tmp_path / "bundle"
+    checkpoint.write_folder_atomic(d, {"weights": b"0" * 200_000, "manifest": b"0"})
+    rng = random.Random(5)
+    reads, generations = 0, set()
+    for _ in range(5):
+        writer = subprocess.Popen([sys.executable, "-c", WRITER, str(d)])
+        before = _whole(d)
+        while _current(d) in (before, None):  # the writer has started (it imports torch)
+            assert writer.poll() is None, "the writer died"
+        deadline = time.time() + rng.uniform(0.3, 1.5)
+        while time.time() < deadline:
+            generation = _current(d)
+            if generation is not None:
+                generations.add(generation)
+                reads += 1
+        writer.send_signal(signal.SIGKILL)
+        writer.wait()
+        _whole(d)
+    assert reads > 100 and len(generations) > 10, (reads, len(generations))

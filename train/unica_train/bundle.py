@@ -32,7 +32,7 @@ import torch.nn.functional as F
 from safetensors.torch import load_file
 from safetensors.torch import save as safetensors_bytes
 
-from .checkpoint import write_file_atomic
+from .checkpoint import write_folder_atomic
 from .unet import UNet, UNetConfig
 from .vae import PositionVae, VaeConfig
 
@@ -130,7 +130,7 @@ def read_weights(path: str | Path) -> dict:
 def write_weights(directory: str | Path, tensors: dict, manifest: dict) -> None:
     """Writes weights.safetensors (the `QUANTISED` tensors as int8 with scales, the other
     `HALF` ones as float16) and manifest.json with its `tensors` table of stored shapes
-    and dtypes."""
+    and dtypes, the bundle folder replaced whole (`checkpoint.write_folder_atomic`)."""
     d = Path(directory)
     stored = {}
     for k, v in tensors.items():
@@ -148,8 +148,10 @@ def write_weights(directory: str | Path, tensors: dict, manifest: dict) -> None:
     manifest = dict(manifest)
     manifest["tensors"] = {k: {"shape": list(v.shape), "dtype": str(v.dtype).removeprefix("torch.")}
                            for k, v in sorted(stored.items())}
-    write_file_atomic(d / "weights.safetensors", safetensors_bytes(stored))
-    write_file_atomic(d / "manifest.json", (json.dumps(manifest, indent=2, sort_keys=True) + "\n").encode())
+    write_folder_atomic(d, {
+        "weights.safetensors": safetensors_bytes(stored),
+        "manifest.json": (json.dumps(manifest, indent=2, sort_keys=True) + "\n").encode(),
+    })
 
 
 def _read_back(name: str, stored: dict) -> torch.Tensor:

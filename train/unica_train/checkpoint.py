@@ -10,8 +10,10 @@ saving leaves the previous checkpoint whole."""
 
 from __future__ import annotations
 
+import ctypes
 import io
 import os
+import shutil
 from pathlib import Path
 
 import torch
@@ -51,3 +53,66 @@ def write_file_atomic(path: Path, data: bytes) -> None:
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
+
+
+def _sync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swaps the folders `a` and `b` in one step (Linux renameat2 RENAME_EXCHANGE);
+    False where the system cannot."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    if renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    errno = ctypes.get_errno()
+    if errno in (22, 38, 95):  # EINVAL, ENOSYS, EOPNOTSUPP: not on this file system
+        return False
+    raise OSError(errno, os.strerror(errno), str(b))
+
+
+def write_folder_atomic(directory: str | os.PathLike, files: dict[str, bytes]) -> None:
+    """Replaces the folder `directory` whole: a copy of it (its other files hard-linked)
+    with `files` written and synced is made beside it, then swapped with it in one step
+    (renameat2 RENAME_EXCHANGE), so a reader and a run killed at any moment see the old
+    folder or the new one, never a mix of their files (a bundle's weights and manifest
+    must agree). Where the system cannot swap, two renames with the old folder kept as
+    `.NAME.old` until the new one is in place; a later call puts a folder left missing
+    back first."""
+    d = Path(directory)
+    staging = d.with_name(f".{d.name}.new")
+    old = d.with_name(f".{d.name}.old")
+    if not d.exists() and old.exists():
+        os.rename(old, d)  # a run killed between the two renames
+    for leftover in (staging, old):
+        if leftover.exists():
+            shutil.rmtree(leftover)
+    if d.exists():
+        shutil.copytree(d, staging, copy_function=os.link,
+                        ignore=lambda _, names: [n for n in names if n in files])
+    else:
+        staging.mkdir(parents=True)
+    for name, data in files.items():
+        with open(staging / name, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+    _sync_dir(staging)
+    if not d.exists():
+        os.rename(staging, d)
+    elif _exchange(staging, d):
+        shutil.rmtree(staging)  # the old folder, swapped out
+    else:
+        os.rename(d, old)
+        os.rename(staging, d)
+        shutil.rmtree(old)
+    _sync_dir(d.parent)
