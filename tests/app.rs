@@ -370,6 +370,56 @@ fn recording_from_the_window_writes_frames_and_a_manifest() {
 }
 
 #[test]
+fn the_window_survives_200_resizes_down_to_one_pixel_and_hiding_while_it_records() {
+    // The neural Witch beside her teacher, the model running and a recording on, while the
+    // window goes through 200 sizes from 1280 × 800 to 1 × 1 and back, one a frame, then is
+    // minimized and unmapped (a hidden window draws nothing) for a second and shown again.
+    // No panic, exit 0, and the recording keeps every frame: as many as its rate and the
+    // time say, listed in order in the manifest, each a whole PNG, nothing temporary. GPU
+    // errors no scope caught (on lavapipe, a surface reconfigured while the model's thread
+    // submits) go to the HUD and the log and are counted in the final line.
+    let dir = tempfile::tempdir().unwrap();
+    let (shot, rec) = (dir.path().join("resized.png"), dir.path().join("rec"));
+    let rec_arg = rec.to_str().unwrap();
+    let extra = [
+        "--stress-resize",
+        "200",
+        "--record",
+        "--record-fps",
+        "2",
+        "--record-dir",
+        rec_arg,
+    ];
+    let stdout = play("witch", "60W 40A 60D 40S", &shot, 40, &extra);
+    let last = stdout.lines().find(|l| l.contains("frames rendered"));
+    eprintln!("{last:?}");
+    assert!(last.is_some_and(|l| l.contains("gpu_errors=")), "{stdout}");
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(rec.join("manifest.json")).unwrap()).unwrap();
+    let listed = manifest["frames"].as_array().unwrap();
+    // 40 s at 2 a second, the recording starting with the window.
+    assert!(
+        listed.len() >= 76,
+        "{} frames recorded in 40 s at 2 fps",
+        listed.len()
+    );
+    for (i, frame) in listed.iter().enumerate() {
+        assert_eq!(frame["index"], i as u64, "frames in order, none missing");
+        image::open(rec.join(frame["file"].as_str().unwrap())).expect("every frame opens");
+    }
+    let pngs = std::fs::read_dir(&rec)
+        .unwrap()
+        .filter(|e| e.as_ref().unwrap().path().extension() == Some("png".as_ref()))
+        .count();
+    assert_eq!(
+        pngs,
+        listed.len(),
+        "every PNG is listed, nothing else is left"
+    );
+    common::assert_all_whole(&rec);
+}
+
+#[test]
 fn the_window_without_any_adapter_fails_in_one_line() {
     let out = unica(
         &["--exit-after", "1"],

@@ -4,6 +4,7 @@
 mod hud;
 pub mod neural;
 pub mod recorder;
+mod resize;
 pub mod shown;
 pub mod viewport;
 
@@ -63,8 +64,14 @@ pub struct AppOptions {
     pub record: bool,
     /// Recording rate in frames per second.
     pub record_fps: f64,
+    /// Resize the window through this many sizes down to 1 × 1 and back, then hide and
+    /// show it (`--stress-resize`, for tests).
+    pub stress_resize: Option<usize>,
     pub gpu: GpuOptions,
 }
+
+/// The window's size when it opens, in points.
+const OPENING_SIZE: [f32; 2] = [1280.0, 800.0];
 
 /// Opens the window and runs until it is closed.
 pub fn run(options: AppOptions) -> anyhow::Result<()> {
@@ -93,7 +100,7 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
     let native = eframe::NativeOptions {
         viewport: egui::ViewportBuilder::default()
             .with_title("unica")
-            .with_inner_size([1280.0, 800.0])
+            .with_inner_size(OPENING_SIZE)
             .with_min_inner_size([480.0, 320.0])
             .with_drag_and_drop(true),
         renderer: eframe::Renderer::Wgpu,
@@ -169,6 +176,12 @@ struct UnicaApp {
     outcome: Arc<Mutex<Option<anyhow::Error>>>,
     /// A scripted run failed: close the window (the error is in `outcome`).
     closing: bool,
+    /// `--stress-resize`: the sizes and the hiding still to ask for.
+    resizes: Option<resize::ResizeScript>,
+    /// GPU errors no error scope caught (from any thread), not yet shown; and how many
+    /// there have been.
+    gpu_errors: Arc<Mutex<Vec<String>>>,
+    gpu_error_count: usize,
 }
 
 impl UnicaApp {
@@ -178,6 +191,22 @@ impl UnicaApp {
         options: AppOptions,
         outcome: Arc<Mutex<Option<anyhow::Error>>>,
     ) -> Self {
+        // wgpu's default for an error no scope catches is a panic; the window reports it
+        // instead (HUD and log) and goes on: resizing it fast on lavapipe made
+        // Surface::configure fail ("Failed to wait for GPU to come idle") and panicked.
+        let gpu_errors: Arc<Mutex<Vec<String>>> = Arc::default();
+        let sink = gpu_errors.clone();
+        gpu.device
+            .on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+                let text = e.to_string();
+                let line = text
+                    .lines()
+                    .filter(|l| !l.trim().is_empty())
+                    .collect::<Vec<_>>()
+                    .join(": ");
+                log::error!("GPU error: {line}");
+                sink.lock().expect("GPU error lock").push(line);
+            }));
         let mut viewport = Viewport::new(&gpu);
         let character = options.character.as_deref();
         let shown = match (&options.splats, &options.bundle) {
@@ -199,6 +228,9 @@ impl UnicaApp {
         viewport.camera = behind(&shown);
         log::info!("adapter: {}; {:?}", gpu.adapter_label(), gpu.caps);
         let record = options.record;
+        let resizes = options
+            .stress_resize
+            .map(|n| resize::ResizeScript::new(n, OPENING_SIZE));
         let mut app = Self {
             record_dir: options.record_dir.display().to_string(),
             open_path: options
@@ -229,6 +261,9 @@ impl UnicaApp {
             hud: HudCounters::default(),
             outcome,
             closing: false,
+            resizes,
+            gpu_errors,
+            gpu_error_count: 0,
         };
         if record {
             app.toggle_recording();
@@ -456,8 +491,8 @@ impl UnicaApp {
             _ => String::new(),
         };
         format!(
-            "unica: {} frames rendered; action {}; character {}{beside}{generated}; input_latency_ms={latency}",
-            self.frame, self.action, self.shown.name
+            "unica: {} frames rendered; action {}; character {}{beside}{generated}; input_latency_ms={latency} gpu_errors={}",
+            self.frame, self.action, self.shown.name, self.gpu_error_count
         )
     }
 
@@ -539,6 +574,16 @@ impl UnicaApp {
 }
 
 impl eframe::App for UnicaApp {
+    /// Runs every pass, the window shown or hidden: the `--stress-resize` script.
+    fn logic(&mut self, ctx: &egui::Context, _frame: &mut eframe::Frame) {
+        if let Some(script) = self.resizes.as_mut().filter(|s| !s.done()) {
+            for command in script.step(Instant::now(), OPENING_SIZE) {
+                ctx.send_viewport_cmd(command);
+            }
+            ctx.request_repaint_after(Duration::from_millis(50));
+        }
+    }
+
     fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
         let ctx = ui.ctx().clone();
         let now = Instant::now();
@@ -555,6 +600,10 @@ impl eframe::App for UnicaApp {
             self.model_started = Some((now, self.frame, n.frames));
         }
         self.hud.refresh(now, self.frame, &self.timings);
+        for error in self.gpu_errors.lock().expect("GPU error lock").drain(..) {
+            self.gpu_error_count += 1;
+            self.message = Some(format!("GPU error (the window goes on): {error}"));
+        }
         let input = ctx.input(took_input);
         self.handle_input(&ctx);
         self.action = match &self.options.keys {

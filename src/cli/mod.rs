@@ -103,6 +103,11 @@ pub struct Cli {
     /// Use only the portable GPU paths: f32 kernels, no subgroups, CPU timers
     #[arg(long, global = true)]
     gpu_fallback: bool,
+
+    /// For tests: resize the window through N sizes down to 1 × 1 and back, one a frame,
+    /// then hide it for a second and show it again
+    #[arg(long, value_name = "N", hide = true)]
+    stress_resize: Option<usize>,
 }
 
 #[derive(Subcommand, Debug)]
@@ -712,6 +717,7 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
         record_dir,
         record: cli.record,
         record_fps: cli.record_fps,
+        stress_resize: cli.stress_resize,
         gpu,
     })
 }
