@@ -6,6 +6,7 @@
 //! finished, so a second run with the same arguments continues where the first stopped
 //! (the trainers resume from their checkpoints). The bundle the app opens is `OUT/bundle`.
 
+use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
@@ -230,12 +231,7 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
                 }
                 let mut command = trainer_on(python, "unica_train.refiner", args.gpus);
                 command
-                    .arg("--bundle")
-                    .arg(&bundle)
-                    .arg("--data")
-                    .arg(&data)
-                    .arg("--out")
-                    .arg(&refiner)
+                    .args(bundle_data_out(&bundle, &data, &refiner))
                     .args(["--device", &args.device])
                     .arg("--write-bundle");
                 if args.quick {
@@ -255,12 +251,7 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
                 // into a copy of it, which then replaces OUT/bundle whole.
                 let mut command = trainer(python, "unica_train.distil");
                 command
-                    .arg("--bundle")
-                    .arg(&bundle)
-                    .arg("--data")
-                    .arg(&data)
-                    .arg("--out")
-                    .arg(&distil)
+                    .args(bundle_data_out(&bundle, &data, &distil))
                     .args(if args.quick {
                         &QUICK_DISTIL[..]
                     } else {
@@ -276,12 +267,7 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
                 let mut command = Command::new(exe);
                 command
                     .arg("eval")
-                    .arg("--bundle")
-                    .arg(&bundle)
-                    .arg("--data")
-                    .arg(&data)
-                    .arg("--out")
-                    .arg(&eval)
+                    .args(bundle_data_out(&bundle, &data, &eval))
                     .arg("--character")
                     .arg(&args.character)
                     .args(["--quick", "--strict-only"]);
@@ -351,6 +337,18 @@ fn write_state(path: &Path, state: &State) -> anyhow::Result<()> {
 }
 
 /// `python -m module`, finding the trainer in this source tree when it is not installed.
+/// The arguments `--bundle B --data D --out O` that the stages after the geometry take.
+fn bundle_data_out<'a>(bundle: &'a Path, data: &'a Path, out: &'a Path) -> [&'a OsStr; 6] {
+    [
+        "--bundle".as_ref(),
+        bundle.as_os_str(),
+        "--data".as_ref(),
+        data.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]
+}
+
 fn trainer(python: &str, module: &str) -> Command {
     let mut command = Command::new(python);
     command.args(["-u", "-m", module]);

@@ -195,7 +195,16 @@ fn the_scene_renders_a_lit_box_over_the_background() {
     let mut camera = OrbitCamera::default();
     camera.frame(Vec3::new(-0.5, 0.0, -0.5), Vec3::new(0.5, 1.0, 0.5));
     let mut encoder = gpu.device.create_command_encoder(&Default::default());
-    renderer.draw(&gpu, &mut encoder, &target, &camera, &[&mesh], None);
+    let options = unica::render::scene::DrawOptions::default();
+    renderer.draw(
+        &gpu,
+        &mut encoder,
+        &target,
+        &camera,
+        &[&mesh],
+        &options,
+        None,
+    );
     gpu.queue.submit([encoder.finish()]);
     let image = readback::rgba_texture(&gpu, &target.color).unwrap();
     assert_eq!(image.dimensions(), (96, 64));

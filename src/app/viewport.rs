@@ -197,7 +197,7 @@ impl Viewport {
             light,
             ..DrawOptions::default()
         };
-        self.renderer.draw_with(
+        self.renderer.draw(
             gpu,
             &mut encoder,
             target,

@@ -26,42 +26,13 @@ const BODY: [(&str, &str, &str, &str); 13] = [
 
 /// Fingers: (template stem, VRM stem, Mixamo stem, Unreal stem, VRM names of joints
 /// 1, 2, 3). The template's fourth joint (a tip) has no VRM or Unreal bone.
+#[rustfmt::skip]
 const FINGERS: [(&str, &str, &str, &str, [&str; 3]); 5] = [
-    (
-        "Thumb",
-        "Thumb",
-        "Thumb",
-        "thumb",
-        ["Metacarpal", "Proximal", "Distal"],
-    ),
-    (
-        "Index",
-        "Index",
-        "Index",
-        "index",
-        ["Proximal", "Intermediate", "Distal"],
-    ),
-    (
-        "Middle",
-        "Middle",
-        "Middle",
-        "middle",
-        ["Proximal", "Intermediate", "Distal"],
-    ),
-    (
-        "Ring",
-        "Ring",
-        "Ring",
-        "ring",
-        ["Proximal", "Intermediate", "Distal"],
-    ),
-    (
-        "Pinky",
-        "Little",
-        "Pinky",
-        "pinky",
-        ["Proximal", "Intermediate", "Distal"],
-    ),
+    ("Thumb", "Thumb", "Thumb", "thumb", ["Metacarpal", "Proximal", "Distal"]),
+    ("Index", "Index", "Index", "index", ["Proximal", "Intermediate", "Distal"]),
+    ("Middle", "Middle", "Middle", "middle", ["Proximal", "Intermediate", "Distal"]),
+    ("Ring", "Ring", "Ring", "ring", ["Proximal", "Intermediate", "Distal"]),
+    ("Pinky", "Little", "Pinky", "pinky", ["Proximal", "Intermediate", "Distal"]),
 ];
 
 /// One template bone's names in the other conventions.

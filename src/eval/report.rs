@@ -508,50 +508,46 @@ pub fn markdown(runs: &[SeedRun], levels: &[usize], summary: &Map<String, Value>
             r.run.seconds[4],
         );
         let show = |x: Option<usize>| x.map_or("never".to_string(), |x| x.to_string());
-        let _ = writeln!(
-            out,
-            "| turn | frame | frames | teacher |\n|---|---|---|---|"
-        );
-        for t in &r.motion.turns {
-            let _ = writeln!(
-                out,
-                "| {} | {} | {} | {} |",
-                t.label,
-                t.frame,
+        let turns = r.motion.turns.iter().map(|t| {
+            vec![
+                t.label.clone(),
+                t.frame.to_string(),
                 show(t.generated),
-                show(t.teacher)
-            );
-        }
-        let _ = writeln!(
-            out,
-            "\n| stop after | release | frames | teacher | slide m | teacher |\n|---|---|---|---|---|---|"
-        );
-        for s in &r.motion.stops {
-            let _ = writeln!(
-                out,
-                "| {} | {} | {} | {} | {:.3} | {:.3} |",
-                s.after.letter(),
-                s.release,
+                show(t.teacher),
+            ]
+        });
+        table(&mut out, &["turn", "frame", "frames", "teacher"], turns);
+        let stops = r.motion.stops.iter().map(|s| {
+            vec![
+                s.after.letter().to_string(),
+                s.release.to_string(),
                 show(s.frames),
                 show(s.teacher_frames),
-                s.slide_m,
-                s.teacher_slide_m
-            );
-        }
-        let _ = writeln!(
-            out,
-            "\n| key | from | speed m/s | teacher |\n|---|---|---|---|"
-        );
-        for s in &r.motion.speeds {
-            let _ = writeln!(
-                out,
-                "| {} | {} | {:.3} | {:.3} |",
-                s.key.letter(),
-                s.start,
-                s.speed,
-                s.teacher_speed
-            );
-        }
+                format!("{:.3}", s.slide_m),
+                format!("{:.3}", s.teacher_slide_m),
+            ]
+        });
+        let _ = writeln!(out);
+        let head = [
+            "stop after",
+            "release",
+            "frames",
+            "teacher",
+            "slide m",
+            "teacher",
+        ];
+        table(&mut out, &head, stops);
+        let speeds = r.motion.speeds.iter().map(|s| {
+            let (speed, teacher) = (format!("{:.3}", s.speed), format!("{:.3}", s.teacher_speed));
+            vec![
+                s.key.letter().to_string(),
+                s.start.to_string(),
+                speed,
+                teacher,
+            ]
+        });
+        let _ = writeln!(out);
+        table(&mut out, &["key", "from", "speed m/s", "teacher"], speeds);
         for c in &r.motion.creep {
             let _ = writeln!(
                 out,
@@ -565,6 +561,15 @@ pub fn markdown(runs: &[SeedRun], levels: &[usize], summary: &Map<String, Value>
         let _ = writeln!(out);
     }
     out
+}
+
+/// A Markdown table: the header's cells, the separator, then each row's cells.
+fn table(out: &mut String, header: &[&str], rows: impl Iterator<Item = Vec<String>>) {
+    let _ = writeln!(out, "| {} |", header.join(" | "));
+    let _ = writeln!(out, "|{}", "---|".repeat(header.len()));
+    for row in rows {
+        let _ = writeln!(out, "| {} |", row.join(" | "));
+    }
 }
 
 #[cfg(test)]

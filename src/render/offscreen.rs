@@ -43,6 +43,7 @@ impl Offscreen {
         camera: &OrbitCamera,
         options: &DrawOptions,
     ) -> Result<image::RgbaImage, GpuError> {
+        let mut encoder = self.scene(camera, &[], options);
         let (rasterizer, compositor) = self.splatting.get_or_insert_with(|| {
             (
                 Rasterizer::default(),
@@ -50,16 +51,6 @@ impl Offscreen {
             )
         });
         let (w, h) = self.target.size();
-        let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
-        self.renderer.draw_with(
-            &self.gpu,
-            &mut encoder,
-            &self.target,
-            camera,
-            &[],
-            options,
-            None,
-        );
         let splat_camera = camera.splat_camera(w, h);
         let raster = rasterizer.record(
             &self.gpu,
@@ -88,17 +79,23 @@ impl Offscreen {
             _ => self.mesh = Some((mesh.positions.len(), self.renderer.upload(&self.gpu, mesh))),
         }
         let (_, gpu_mesh) = self.mesh.as_ref().expect("uploaded above");
-        let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
-        self.renderer.draw_with(
-            &self.gpu,
-            &mut encoder,
-            &self.target,
-            camera,
-            &[gpu_mesh],
-            options,
-            None,
-        );
+        let encoder = self.scene(camera, &[gpu_mesh], options);
         self.gpu.submit([encoder.finish()]);
         readback::rgba_texture(&self.gpu, &self.target.color)
+    }
+
+    /// An encoder with the scene (grid and `meshes`) drawn into the target.
+    fn scene(
+        &self,
+        camera: &OrbitCamera,
+        meshes: &[&GpuMesh],
+        options: &DrawOptions,
+    ) -> wgpu::CommandEncoder {
+        let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
+        let target = &self.target;
+        let gpu = &self.gpu;
+        self.renderer
+            .draw(gpu, &mut encoder, target, camera, meshes, options, None);
+        encoder
     }
 }

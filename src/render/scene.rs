@@ -202,30 +202,10 @@ impl SceneRenderer {
         upload(gpu, mesh, "mesh")
     }
 
-    /// Clears `target` and draws the grid and `meshes` as seen by `camera`.
-    pub fn draw(
-        &self,
-        gpu: &GpuContext,
-        encoder: &mut wgpu::CommandEncoder,
-        target: &RenderTarget,
-        camera: &OrbitCamera,
-        meshes: &[&GpuMesh],
-        timer: Option<PassTimer<'_>>,
-    ) {
-        self.draw_with(
-            gpu,
-            encoder,
-            target,
-            camera,
-            meshes,
-            &DrawOptions::default(),
-            timer,
-        );
-    }
-
-    /// [`Self::draw`] with a choice of grid, background and light.
+    /// Clears `target` and draws the grid and `meshes` as seen by `camera`, with
+    /// `options`' choice of grid, background and light.
     #[allow(clippy::too_many_arguments)]
-    pub fn draw_with(
+    pub fn draw(
         &self,
         gpu: &GpuContext,
         encoder: &mut wgpu::CommandEncoder,
