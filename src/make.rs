@@ -405,6 +405,9 @@ fn run(mut command: Command, what: &str) -> anyhow::Result<()> {
         // torchrun's worker processes do not get `python -u`: unbuffered output keeps
         // their progress lines in order with the make's own.
         .env("PYTHONUNBUFFERED", "1")
+        // Each trainer process dies with its parent (unica_train/__init__.py), so a make
+        // killed part-way leaves none writing while it is run again.
+        .env("UNICA_DIE_WITH_PARENT", "1")
         .status()
         .with_context(|| format!("starting {what}"))?;
     if !status.success() {
@@ -413,7 +416,11 @@ fn run(mut command: Command, what: &str) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Replaces `to` with a copy of the files of `from` (a flat bundle folder).
+/// Replaces `to` whole with a copy of the files of `from` (a flat bundle folder): the
+/// copy is made and synced beside `to` (`.NAME.new`), then put in its place by two
+/// renames, the old folder moved aside (`.NAME.old`) first and removed last. A make
+/// killed between the renames finds `to` missing and the old folder aside, and puts it
+/// back before anything else.
 fn copy_dir(from: &Path, to: &Path) -> anyhow::Result<()> {
     if !from.join("manifest.json").is_file() {
         bail!(
@@ -421,16 +428,35 @@ fn copy_dir(from: &Path, to: &Path) -> anyhow::Result<()> {
             from.display()
         );
     }
-    if to.exists() {
-        std::fs::remove_dir_all(to).with_context(|| to.display().to_string())?;
+    let name = to.file_name().expect("a folder name").to_string_lossy();
+    let staging = to.with_file_name(format!(".{name}.new"));
+    let old = to.with_file_name(format!(".{name}.old"));
+    let context = |path: &Path| path.display().to_string();
+    if !to.exists() && old.exists() {
+        std::fs::rename(&old, to).with_context(|| context(to))?;
     }
-    std::fs::create_dir_all(to).with_context(|| to.display().to_string())?;
-    for entry in std::fs::read_dir(from).with_context(|| from.display().to_string())? {
+    for leftover in [&staging, &old] {
+        if leftover.exists() {
+            std::fs::remove_dir_all(leftover).with_context(|| context(leftover))?;
+        }
+    }
+    std::fs::create_dir_all(&staging).with_context(|| context(&staging))?;
+    for entry in std::fs::read_dir(from).with_context(|| context(from))? {
         let path = entry?.path();
         if path.is_file() {
-            let name = path.file_name().expect("a file name");
-            std::fs::copy(&path, to.join(name)).with_context(|| path.display().to_string())?;
+            let copy = staging.join(path.file_name().expect("a file name"));
+            std::fs::copy(&path, &copy).with_context(|| context(&path))?;
+            std::fs::File::open(&copy)
+                .and_then(|f| f.sync_all())
+                .with_context(|| context(&copy))?;
         }
+    }
+    if to.exists() {
+        std::fs::rename(to, &old).with_context(|| context(to))?;
+    }
+    std::fs::rename(&staging, to).with_context(|| context(to))?;
+    if old.exists() {
+        std::fs::remove_dir_all(&old).with_context(|| context(&old))?;
     }
     Ok(())
 }

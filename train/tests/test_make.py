@@ -1,7 +1,8 @@
 """`unica make --quick` end to end: the shipped Witch from her character file to a bundle
 with a refiner and an evaluation, through the binary that `cargo test --release` builds (the
 README's test command runs it first); then a rerun keeps every stage, and a make cut off
-during its refiner continues it from its checkpoint."""
+during its refiner continues it from its checkpoint; a make killed at random moments
+and run again ends whole."""
 
 import json
 import subprocess
@@ -88,3 +89,50 @@ def test_make_quick_on_two_processes_plays_in_the_engine(tmp_path):
     assert render.returncode == 0, render.stderr[-3000:]
     manifest = json.loads((tmp_path / "frames" / "manifest.json").read_text())
     assert len(manifest["frames"]) == 3, manifest
+
+
+def _trainers_writing_into(out: Path) -> list[str]:
+    """Command lines of running processes that name `out` (trainers left behind)."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        try:
+            cmdline = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:
+            continue
+        if str(out) in cmdline:
+            found.append(cmdline)
+    return found
+
+
+def test_make_quick_killed_at_random_moments_and_run_again_ends_whole(tmp_path):
+    # `unica make --quick` killed with SIGKILL (the make alone: its trainers die with it)
+    # at 3 moments drawn from a fixed seed over the first 4 minutes, each time started
+    # again with the same command, then run to the end: no trainer is left running after
+    # a kill, and the end is a make like any other (every stage done, a bundle that loads
+    # with its refiner and student, the evaluation's report), no staging folder left.
+    import random
+    import signal
+    import time
+
+    out = tmp_path / "made"
+    rng = random.Random(51)
+    command = [str(BINARY), "make", str(WITCH), "--out", str(out), "--quick", "--device", "cpu"]
+    for moment in sorted(rng.uniform(5, 240) for _ in range(3)):
+        started = time.time()
+        run = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        while run.poll() is None and time.time() - started < moment:
+            time.sleep(0.05)
+        if run.poll() is None:
+            run.send_signal(signal.SIGKILL)
+        run.wait()
+        deadline = time.time() + 10
+        while _trainers_writing_into(out) and time.time() < deadline:
+            time.sleep(0.1)
+        assert not _trainers_writing_into(out), _trainers_writing_into(out)
+    make(out)
+    state = json.loads((out / "make.json").read_text())
+    assert state["done"] == ["bake", "geometry", "refiner", "distil", "eval"], state
+    _, _, extra, manifest = bundle.load(out / "bundle")
+    assert manifest["sampler"]["kind"] == "one_pass" and "refiner" in manifest, sorted(manifest)
+    assert (out / "eval" / "report.md").is_file()
+    assert not [p for p in out.rglob("*") if p.name.endswith((".tmp", ".new", ".old"))]

@@ -1,2 +1,25 @@
 """The unica trainer: reads datasets baked by `unica bake`, trains the geometry model and
 writes bundles that the Rust app loads. See train/README.md."""
+
+import os as _os
+
+
+def _die_with_parent() -> None:
+    """Under `unica make` (UNICA_DIE_WITH_PARENT=1 in the environment) every trainer
+    process, torchrun's workers too, dies with the process that started it (Linux
+    PR_SET_PDEATHSIG), so a make killed with SIGKILL leaves no trainer writing into its
+    folder while the same make runs again."""
+    if _os.environ.get("UNICA_DIE_WITH_PARENT") != "1":
+        return
+    import ctypes
+    import signal
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return  # not Linux: nothing to ask for
+    if _os.getppid() == 1:
+        _os._exit(1)  # the parent died before the request
+
+
+_die_with_parent()
