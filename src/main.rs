@@ -14,6 +14,7 @@ fn main() -> ExitCode {
         // SAFETY: first thing in main, before any other thread exists.
         unsafe { std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir()) };
     }
+    die_with_parent();
     env_logger::Builder::from_env(
         env_logger::Env::default().default_filter_or("warn,wgpu_hal=off"),
     )
@@ -24,6 +25,24 @@ fn main() -> ExitCode {
             let cause = format!("{e:#}").replace('\n', " ");
             eprintln!("unica: error: {cause}");
             ExitCode::FAILURE
+        }
+    }
+}
+
+/// Under `unica make` (UNICA_DIE_WITH_PARENT=1 in the environment, as the trainers it
+/// starts honor too), this process dies with the one that started it, so a make killed
+/// with SIGKILL leaves no stage (`unica eval`) running while the same make runs again.
+fn die_with_parent() {
+    if std::env::var_os("UNICA_DIE_WITH_PARENT").is_none_or(|v| v != "1") {
+        return;
+    }
+    #[cfg(target_os = "linux")]
+    // SAFETY: prctl with PR_SET_PDEATHSIG takes a signal number and nothing else;
+    // getppid has no preconditions.
+    unsafe {
+        libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL);
+        if libc::getppid() == 1 {
+            std::process::exit(1); // the parent died before the request
         }
     }
 }

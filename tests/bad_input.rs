@@ -262,29 +262,18 @@ fn base64_encode(bytes: &[u8]) -> String {
 fn bake_reports_a_bad_character_in_one_line() {
     let dir = tempfile::tempdir().unwrap();
     // All vertices NaN: this panicked in the spring placement (a clamp).
+    let bake = |character: &Path, out: &str| {
+        let out = dir.path().join(out);
+        let (character, out) = (character.to_str().unwrap(), out.to_str().unwrap());
+        unica(&["bake", character, "--out", out, "--quick"])
+    };
     let path = write_gltf(dir.path(), &triangle_bin([[f32::NAN; 3]; 3], 1.0), |_| {});
-    let out = dir.path().join("out");
-    let out = unica(&[
-        "bake",
-        path.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--quick",
-    ]);
-    assert_one_line_error(&out, &["t.gltf", "non-finite position"]);
+    assert_one_line_error(&bake(&path, "out"), &["t.gltf", "non-finite position"]);
     // An index overrun: this panicked in tensors.rs.
     let path = write_gltf(dir.path(), &triangle_bin(GOOD, 1.0), |doc| {
         doc["accessors"][1]["count"] = json!(30);
     });
-    let out = dir.path().join("out2");
-    let out = unica(&[
-        "bake",
-        path.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--quick",
-    ]);
-    assert_one_line_error(&out, &["t.gltf", "overrun"]);
+    assert_one_line_error(&bake(&path, "out2"), &["t.gltf", "overrun"]);
 }
 
 // ---------- key scripts ----------

@@ -76,23 +76,16 @@ fn eval_names_a_missing_dataset_or_character() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("report");
     let out = out.to_str().unwrap();
+    let bundle = "assets/witch/bundle";
+    let eval = |data: &str| {
+        unica(
+            &["eval", "--bundle", bundle, "--data", data, "--out", out],
+            &[],
+        )
+    };
     let missing = dir.path().join("nothing");
     let missing = missing.to_str().unwrap();
-    assert_one_line_error(
-        &unica(
-            &[
-                "eval",
-                "--bundle",
-                "assets/witch/bundle",
-                "--data",
-                missing,
-                "--out",
-                out,
-            ],
-            &[],
-        ),
-        &format!("{missing}/manifest.json"),
-    );
+    assert_one_line_error(&eval(missing), &format!("{missing}/manifest.json"));
     // A dataset whose character file has gone: named, with the way out.
     let data = dir.path().join("data");
     std::fs::create_dir(&data).unwrap();
@@ -105,18 +98,7 @@ fn eval_names_a_missing_dataset_or_character() {
     value["character"] = "/no/such/Witch.gltf".into();
     std::fs::write(data.join("manifest.json"), value.to_string()).unwrap();
     assert_one_line_error(
-        &unica(
-            &[
-                "eval",
-                "--bundle",
-                "assets/witch/bundle",
-                "--data",
-                data.to_str().unwrap(),
-                "--out",
-                out,
-            ],
-            &[],
-        ),
+        &eval(data.to_str().unwrap()),
         "/no/such/Witch.gltf: the dataset's character file is not there; give it with --character",
     );
 }

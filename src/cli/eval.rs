@@ -266,21 +266,12 @@ fn lenient(
     gpu: &GpuOptions,
 ) -> anyhow::Result<()> {
     std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
-    let script = eval_script(&args.keys, args.quick, EVAL_KEYS, EVAL_KEYS_QUICK);
+    let pick = |given, full, short| eval_script(given, args.quick, full, short);
+    let script = pick(&args.keys, EVAL_KEYS, EVAL_KEYS_QUICK);
+    let stops_script = pick(&args.stops_keys, EVAL_STOPS_KEYS, EVAL_STOPS_KEYS_QUICK);
+    let turns_script = pick(&args.turns_keys, EVAL_TURNS_KEYS, EVAL_TURNS_KEYS_QUICK);
     let keys = KeyScript::parse(script).context("--keys")?;
-    let stops_script = eval_script(
-        &args.stops_keys,
-        args.quick,
-        EVAL_STOPS_KEYS,
-        EVAL_STOPS_KEYS_QUICK,
-    );
     let stops_keys = KeyScript::parse(stops_script).context("--stops-keys")?;
-    let turns_script = eval_script(
-        &args.turns_keys,
-        args.quick,
-        EVAL_TURNS_KEYS,
-        EVAL_TURNS_KEYS_QUICK,
-    );
     let turns_keys = KeyScript::parse(turns_script).context("--turns-keys")?;
     let teacher = out.join("teacher.json");
     let stops_teacher = out.join("teacher_stops.json");
