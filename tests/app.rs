@@ -93,6 +93,28 @@ fn play(name: &str, keys: &str, shot: &Path, seconds: u32, extra: &[&str]) -> St
     check(&unica(&args, &[]))
 }
 
+/// The window run with `args` for `frames` window frames, then a screenshot to `shot`:
+/// its stdout, after checking it succeeded.
+fn shoot(args: &[&str], shot: &Path, frames: u32) -> String {
+    let frames = frames.to_string();
+    let tail = [
+        "--screenshot",
+        shot.to_str().unwrap(),
+        "--exit-after",
+        &frames,
+    ];
+    check(&unica(&[args, &tail[..]].concat(), &[]))
+}
+
+/// Fails when a viewport's luma variance says it looks blank (the grid alone stays well
+/// below 20).
+fn assert_not_blank(variance: f64, what: &str) {
+    assert!(
+        variance > 20.0,
+        "{what}: the viewport looks blank: variance {variance:.1}"
+    );
+}
+
 fn check(out: &Output) -> String {
     let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(
@@ -148,29 +170,13 @@ fn the_witch_window_screenshot_is_not_blank_and_keys_drive_the_action() {
     let dir = tempfile::tempdir().unwrap();
     let shot = dir.path().join("witch.png");
     let witch = witch();
-    let out = unica(
-        &[
-            "--character",
-            witch.to_str().unwrap(),
-            "--keys",
-            "20I 40W",
-            "--screenshot",
-            shot.to_str().unwrap(),
-            "--exit-after",
-            "30",
-        ],
-        &[],
-    );
-    let stdout = check(&out);
+    let args = ["--character", witch.to_str().unwrap(), "--keys", "20I 40W"];
+    let stdout = shoot(&args, &shot, 30);
     assert!(
         stdout.contains("30 frames rendered; action Forward; character Witch"),
         "{stdout}"
     );
-    let variance = assert_covers(&shot, "the witch");
-    assert!(
-        variance > 20.0,
-        "viewport looks blank: variance {variance:.1}"
-    );
+    assert_not_blank(assert_covers(&shot, "the witch"), "the witch");
 }
 
 #[test]
@@ -288,18 +294,7 @@ fn view_shows_a_3dgs_file_written_by_another_program() {
     }
     std::fs::write(&file, text).unwrap();
     let shot = dir.path().join("view.png");
-    let out = unica(
-        &[
-            "view",
-            file.to_str().unwrap(),
-            "--screenshot",
-            shot.to_str().unwrap(),
-            "--exit-after",
-            "5",
-        ],
-        &[],
-    );
-    let stdout = check(&out);
+    let stdout = shoot(&["view", file.to_str().unwrap()], &shot, 5);
     assert!(stdout.contains("(1000 splats)"), "{stdout}");
     assert_covers(&shot, "the splats");
 }
@@ -308,24 +303,9 @@ fn view_shows_a_3dgs_file_written_by_another_program() {
 fn a_missing_character_shows_the_placeholder() {
     let dir = tempfile::tempdir().unwrap();
     let shot = dir.path().join("placeholder.png");
-    let out = unica(
-        &[
-            "--character",
-            "/nonexistent/hero.glb",
-            "--screenshot",
-            shot.to_str().unwrap(),
-            "--exit-after",
-            "5",
-        ],
-        &[],
-    );
-    let stdout = check(&out);
+    let stdout = shoot(&["--character", "/nonexistent/hero.glb"], &shot, 5);
     assert!(stdout.contains("character placeholder"), "{stdout}");
-    let (variance, _) = viewport_stats(&shot);
-    assert!(
-        variance > 20.0,
-        "placeholder viewport looks blank: variance {variance:.1}"
-    );
+    assert_not_blank(viewport_stats(&shot).0, "the placeholder");
 }
 
 #[test]
