@@ -1,6 +1,8 @@
 //! Nothing is Witch-specific: a small character built here, with its own bone names, clip
 //! names and proportions, is driven and baked with only its description file.
 
+mod common;
+
 use std::path::Path;
 
 use unica::action::Action;
@@ -8,30 +10,6 @@ use unica::avatar::description::Description;
 use unica::avatar::load_character;
 use unica::avatar::teacher::Teacher;
 use unica::dataset::bake::{BakeOptions, bake};
-
-/// A GLB file: JSON chunk and binary chunk.
-fn glb(json: &serde_json::Value, bin: &[u8]) -> Vec<u8> {
-    let mut text = serde_json::to_vec(json).unwrap();
-    while !text.len().is_multiple_of(4) {
-        text.push(b' ');
-    }
-    let mut data = bin.to_vec();
-    while !data.len().is_multiple_of(4) {
-        data.push(0);
-    }
-    let total = 12 + 8 + text.len() + 8 + data.len();
-    let mut out = Vec::new();
-    out.extend(b"glTF");
-    out.extend(2u32.to_le_bytes());
-    out.extend((total as u32).to_le_bytes());
-    out.extend((text.len() as u32).to_le_bytes());
-    out.extend(b"JSON");
-    out.extend(text);
-    out.extend((data.len() as u32).to_le_bytes());
-    out.extend(b"BIN\0");
-    out.extend(data);
-    out
-}
 
 /// Binary buffer with accessors appended as they are added.
 #[derive(Default)]
@@ -299,7 +277,7 @@ fn write_robot(path: &Path) {
         "bufferViews": buffer.views,
         "accessors": buffer.accessors,
     });
-    std::fs::write(path, glb(&json, &buffer.bin)).unwrap();
+    std::fs::write(path, common::glb(&json, &buffer.bin)).unwrap();
 }
 
 const DESCRIPTION: &str = r#"{
@@ -429,7 +407,7 @@ fn base_colour_textures_are_sampled_at_the_vertex_uvs() {
     });
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("quad.glb");
-    std::fs::write(&path, glb(&json, &buffer.bin)).unwrap();
+    std::fs::write(&path, common::glb(&json, &buffer.bin)).unwrap();
     let colours = load_character(&path).unwrap().rest_mesh().colors;
     // Linear colour = factor × sRGB-decoded texel (255 -> 1.0).
     let expected = [

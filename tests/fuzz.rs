@@ -403,21 +403,7 @@ fn gltf_seed() -> Vec<u8> {
 /// The triangle as a GLB: JSON chunk, BIN chunk.
 fn glb_seed() -> Vec<u8> {
     let bin = triangle_bin();
-    let mut text = serde_json::to_vec(&triangle_json(json!({"byteLength": bin.len()}))).unwrap();
-    while !text.len().is_multiple_of(4) {
-        text.push(b' ');
-    }
-    let total = 12 + 8 + text.len() + 8 + bin.len();
-    let mut out = b"glTF".to_vec();
-    out.extend(2u32.to_le_bytes());
-    out.extend((total as u32).to_le_bytes());
-    out.extend((text.len() as u32).to_le_bytes());
-    out.extend(b"JSON");
-    out.extend(text);
-    out.extend((bin.len() as u32).to_le_bytes());
-    out.extend(b"BIN\0");
-    out.extend(bin);
-    out
+    common::glb(&triangle_json(json!({"byteLength": bin.len()})), &bin)
 }
 
 fn character_ok(path: &Path) -> bool {

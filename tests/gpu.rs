@@ -3,7 +3,7 @@
 //! limits, stage timing and an off-screen scene render.
 
 use glam::Vec3;
-use unica::gpu::kernel::{self, Grid, PipelineCache, Precision, WORKGROUP_SIZE};
+use unica::gpu::kernel::{self, Grid, PipelineCache, Precision, ScaleAdd, WORKGROUP_SIZE};
 use unica::gpu::timing::Profiler;
 use unica::gpu::{GpuContext, GpuError, GpuOptions, readback};
 use unica::mesh::Mesh;
@@ -62,11 +62,12 @@ fn scale_add_f32_matches_the_cpu_on_both_paths() {
     }
 }
 
-/// `kernel::scale_add(x, 1.5, -0.25)` in `precision` within `relative` of the exact
+/// `ScaleAdd` of (x, 1.5, -0.25) in `precision` within `relative` of the exact
 /// value (relative to max(1, |value|)) everywhere.
 fn assert_scale_add(gpu: &GpuContext, x: &[f32], precision: Precision, relative: f32, what: &str) {
     let mut pipelines = PipelineCache::default();
-    let y = kernel::scale_add(gpu, &mut pipelines, x, 1.5, -0.25, precision).unwrap();
+    let kernel = ScaleAdd::new(gpu, &mut pipelines, x, 1.5, -0.25, precision).unwrap();
+    let y = kernel.run(gpu).unwrap();
     for (i, (&got, &xi)) in y.iter().zip(x).enumerate() {
         let want = 1.5 * xi - 0.25;
         assert!(
@@ -99,15 +100,9 @@ fn dispatches_past_the_workgroup_limit_cover_every_element() {
     let grid = Grid::for_elements(n as u32, max);
     assert!(grid.y > 1, "{grid:?} should need a second dimension");
     let x: Vec<f32> = (0..n).map(|i| (i % 4096) as f32).collect();
-    let y = kernel::scale_add(
-        &gpu,
-        &mut PipelineCache::default(),
-        &x,
-        1.0,
-        1.0,
-        Precision::F32,
-    )
-    .unwrap();
+    let mut cache = PipelineCache::default();
+    let kernel = ScaleAdd::new(&gpu, &mut cache, &x, 1.0, 1.0, Precision::F32).unwrap();
+    let y = kernel.run(&gpu).unwrap();
     let wrong = y.iter().zip(&x).position(|(&got, &xi)| got != xi + 1.0);
     assert_eq!(wrong, None, "first wrong element of {n}");
 }
@@ -146,8 +141,10 @@ fn pipelines_are_cached() {
     let gpu = device(false);
     let mut cache = PipelineCache::default();
     let x = ramp(10);
-    kernel::scale_add(&gpu, &mut cache, &x, 1.0, 0.0, Precision::F32).unwrap();
-    kernel::scale_add(&gpu, &mut cache, &x, 2.0, 0.0, Precision::F32).unwrap();
+    for scale in [1.0, 2.0] {
+        let kernel = ScaleAdd::new(&gpu, &mut cache, &x, scale, 0.0, Precision::F32).unwrap();
+        kernel.run(&gpu).unwrap();
+    }
     assert_eq!(cache.len(), 1);
 }
 

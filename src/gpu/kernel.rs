@@ -231,6 +231,14 @@ impl ScaleAdd {
         );
     }
 
+    /// Runs the kernel once and reads the result back.
+    pub fn run(&self, gpu: &GpuContext) -> Result<Vec<f32>, GpuError> {
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        self.record(gpu, &mut encoder, None);
+        gpu.submit([encoder.finish()]);
+        self.read(gpu)
+    }
+
     /// The output as f32.
     pub fn read(&self, gpu: &GpuContext) -> Result<Vec<f32>, GpuError> {
         let raw = readback::buffer(gpu, &self.output, "scale_add.y")?;
@@ -238,22 +246,6 @@ impl ScaleAdd {
             .precision
             .decode(&raw[..self.len * self.precision.bytes()]))
     }
-}
-
-/// Runs [`ScaleAdd`] once and reads the result back.
-pub fn scale_add(
-    gpu: &GpuContext,
-    cache: &mut PipelineCache,
-    x: &[f32],
-    scale: f32,
-    bias: f32,
-    precision: Precision,
-) -> Result<Vec<f32>, GpuError> {
-    let kernel = ScaleAdd::new(gpu, cache, x, scale, bias, precision)?;
-    let mut encoder = gpu.device.create_command_encoder(&Default::default());
-    kernel.record(gpu, &mut encoder, None);
-    gpu.submit([encoder.finish()]);
-    kernel.read(gpu)
 }
 
 /// The example reduction: the sum of `x`, with subgroup operations where available and

@@ -154,3 +154,27 @@ pub fn compressed_ply(chunks: usize, vertices: usize) -> Vec<u8> {
     bytes.resize(bytes.len() + 48 * chunks + 16 * vertices, 0);
     bytes
 }
+
+/// A GLB file: JSON chunk and binary chunk.
+pub fn glb(json: &serde_json::Value, bin: &[u8]) -> Vec<u8> {
+    let mut text = serde_json::to_vec(json).unwrap();
+    while !text.len().is_multiple_of(4) {
+        text.push(b' ');
+    }
+    let mut data = bin.to_vec();
+    while !data.len().is_multiple_of(4) {
+        data.push(0);
+    }
+    let total = 12 + 8 + text.len() + 8 + data.len();
+    let mut out = Vec::new();
+    out.extend(b"glTF");
+    out.extend(2u32.to_le_bytes());
+    out.extend((total as u32).to_le_bytes());
+    out.extend((text.len() as u32).to_le_bytes());
+    out.extend(b"JSON");
+    out.extend(text);
+    out.extend((data.len() as u32).to_le_bytes());
+    out.extend(b"BIN\0");
+    out.extend(data);
+    out
+}
