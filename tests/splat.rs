@@ -8,35 +8,14 @@
 use glam::{Quat, Vec3};
 use unica::gpu::{GpuContext, GpuOptions, readback};
 use unica::render::OrbitCamera;
-use unica::splat::ply::{SH_C0, Splat};
+use unica::splat::ply::Splat;
 use unica::splat::project::{SplatCamera, render_reference};
 use unica::splat::raster::Rasterizer;
 
 /// A deterministic cloud of `n` splats around the origin: mixed sizes, elongations,
 /// rotations, colours and opacities, some overlapping, some off screen.
 fn scene(n: usize) -> Vec<Splat> {
-    (0..n)
-        .map(|i| {
-            let f = i as f32;
-            let h = |k: f32| ((f * k).sin() * 43758.547).fract().abs();
-            Splat {
-                position: Vec3::new(h(1.1) * 2.4 - 1.2, h(2.3) * 1.8 - 0.9, h(3.7) * 2.0 - 1.0),
-                f_dc: (Vec3::new(h(4.1), h(5.3), h(6.7)) - Vec3::splat(0.5)) / SH_C0,
-                opacity: 0.2 + 0.79 * h(7.9),
-                scale: Vec3::new(
-                    0.01 + 0.12 * h(8.3),
-                    0.01 + 0.05 * h(9.1),
-                    0.005 + 0.03 * h(10.7),
-                ),
-                rotation: Quat::from_euler(
-                    glam::EulerRot::XYZ,
-                    h(11.3) * 6.0,
-                    h(12.1) * 6.0,
-                    h(13.9) * 6.0,
-                ),
-            }
-        })
-        .collect()
+    Splat::cloud(n, Vec3::new(-1.2, -0.9, -1.0), Vec3::new(2.4, 1.8, 2.0))
 }
 
 fn camera(width: u32, height: u32) -> SplatCamera {

@@ -378,28 +378,7 @@ mod tests {
 
     /// 600 splats (three chunks, the last partial) spread over a few metres.
     fn splats() -> Vec<Splat> {
-        (0..600)
-            .map(|i| {
-                let f = i as f32;
-                let h = |k: f32| ((f * k).sin() * 43758.547).fract().abs();
-                Splat {
-                    position: Vec3::new(h(1.1) * 4.0 - 2.0, h(2.3) * 2.0, h(3.7) - 0.5),
-                    f_dc: (Vec3::new(h(4.1), h(5.3), h(6.7)) - Vec3::splat(0.5)) / SH_C0,
-                    opacity: 0.05 + 0.9 * h(7.9),
-                    scale: Vec3::new(
-                        0.002 + 0.1 * h(8.3),
-                        0.01 + 0.05 * h(9.1),
-                        0.005 + 0.03 * h(10.7),
-                    ),
-                    rotation: Quat::from_euler(
-                        glam::EulerRot::XYZ,
-                        h(11.3) * 6.0,
-                        h(12.1) * 6.0,
-                        h(13.9) * 6.0,
-                    ),
-                }
-            })
-            .collect()
+        Splat::cloud(600, Vec3::new(-2.0, 0.0, -0.5), Vec3::new(4.0, 2.0, 1.0))
     }
 
     /// The quantisation's worst error for each field of a chunk: half a step of the

@@ -15,6 +15,33 @@ pub struct Splat {
     pub rotation: Quat,
 }
 
+impl Splat {
+    /// A deterministic cloud of `n` splats in the box from `min` over `size`: mixed
+    /// sizes, elongations, rotations, colours and opacities, some overlapping (for tests
+    /// and benchmarks).
+    pub fn cloud(n: usize, min: Vec3, size: Vec3) -> Vec<Splat> {
+        (0..n)
+            .map(|i| {
+                let f = i as f32;
+                let h = |k: f32| ((f * k).sin() * 43758.547).fract().abs();
+                Splat {
+                    position: min + Vec3::new(h(1.1), h(2.3), h(3.7)) * size,
+                    f_dc: (Vec3::new(h(4.1), h(5.3), h(6.7)) - Vec3::splat(0.5)) / SH_C0,
+                    opacity: 0.2 + 0.79 * h(7.9),
+                    scale: Vec3::new(0.01, 0.01, 0.005)
+                        + Vec3::new(0.12 * h(8.3), 0.05 * h(9.1), 0.03 * h(10.7)),
+                    rotation: Quat::from_euler(
+                        glam::EulerRot::XYZ,
+                        h(11.3) * 6.0,
+                        h(12.1) * 6.0,
+                        h(13.9) * 6.0,
+                    ),
+                }
+            })
+            .collect()
+    }
+}
+
 /// The smallest scale written (1 nm): zero footprints are written as this.
 pub const MIN_SCALE: f32 = 1e-9;
 
