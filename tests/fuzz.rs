@@ -10,8 +10,8 @@
 //! checks the peak of live memory.
 //!
 //! The test suite runs a short budget (`FUZZ_SECONDS` per target, ≤ 60 s in all). The
-//! long run: `UNICA_FUZZ_EXECS=100000 cargo test --release --test fuzz -- --nocapture`
-//! (executions per target; no time limit then).
+//! long run (docs/status.md has its figures): `UNICA_FUZZ_EXECS=1000000 cargo test
+//! --release --test fuzz -- --nocapture` (executions per target; no time limit then).
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::panic::{AssertUnwindSafe, catch_unwind};

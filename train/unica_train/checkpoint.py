@@ -97,8 +97,9 @@ def write_folder_atomic(directory: str | os.PathLike, files: dict[str, bytes]) -
         if leftover.exists():
             shutil.rmtree(leftover)
     if d.exists():
+        top = os.fspath(d)
         shutil.copytree(d, staging, copy_function=os.link,
-                        ignore=lambda _, names: [n for n in names if n in files])
+                        ignore=lambda folder, names: [n for n in names if n in files] if folder == top else [])
     else:
         staging.mkdir(parents=True)
     for name, data in files.items():
