@@ -74,9 +74,14 @@ fn assert_covers(shot: &Path, what: &str) -> f64 {
     variance
 }
 
+/// The runs of the neural avatar take turns: two at once on a 2-core machine halve each
+/// model's share, and the pacing the neural test measures is then the other run's.
+static MODEL_RUNS: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 /// The window on a shipped bundle, driven by the key script `keys` for `seconds`, with
 /// a screenshot to `shot` and `extra` arguments: its stdout, after checking it succeeded.
 fn play(name: &str, keys: &str, shot: &Path, seconds: u32, extra: &[&str]) -> String {
+    let _turn = MODEL_RUNS.lock().unwrap_or_else(|e| e.into_inner());
     let bundle = shipped_bundle(name);
     let seconds = seconds.to_string();
     let mut args = vec![
