@@ -176,3 +176,32 @@ def test_a_bundle_read_while_written_and_killed_is_always_one_whole_generation(t
         writer.wait()
         _whole(d)
     assert reads > 100 and len(generations) > 10, (reads, len(generations))
+
+
+def test_every_file_the_trainer_writes_goes_through_a_synced_rename():
+    # Results, reports, figures, logs' rewrites and tensors: no write in the package but
+    # checkpoint.py's own (write_file_atomic, write_text, write_tensors, save) and the
+    # appends of a log a row at a time (cut back by `cut_log` when a run resumes).
+    direct = re.compile(r"\.write_text\(|\.write_bytes\(|save_file\(|savefig\((?!buffer)|imsave\((?!buffer)|"
+                        r"open\([^)]*[\"'](w|wb|x|r\+)[\"']")
+    found = {}
+    for file in sorted(PACKAGE.rglob("*.py")):
+        hits = [line.strip() for line in file.read_text().splitlines()
+                if direct.search(line.replace("checkpoint_file.write_text(", "").replace("write_file_atomic(", ""))]
+        if hits:
+            found[str(file.relative_to(PACKAGE))] = hits
+    assert list(found) == ["checkpoint.py"], found
+    assert len(found["checkpoint.py"]) == 2, found  # write_file_atomic's and write_folder_atomic's opens
+
+
+def test_a_resumed_log_keeps_the_steps_up_to_its_checkpoint_and_drops_a_cut_row(tmp_path):
+    log = tmp_path / "losses.csv"
+    log.write_text("step,loss\r\n1,0.5\r\n2,0.4\r\n3,0.3\r\n4,0.2\r\n5,0.")  # killed while writing step 5
+    checkpoint.cut_log(log, 3)
+    assert log.read_bytes() == b"step,loss\r\n1,0.5\r\n2,0.4\r\n3,0.3\r\n"
+    # Per stage: only the resumed stage's rows past its step go (the step in column 1).
+    log.write_text("stage,step,name,value\nvae,50,loss,1\nvae,100,loss,0.5\nunet1,50,loss,2\nunet1,100,loss,1\n")
+    checkpoint.cut_log(log, 50, step_column=1, only=lambda row: row[0].startswith("unet"))
+    assert log.read_text() == "stage,step,name,value\nvae,50,loss,1\nvae,100,loss,0.5\nunet1,50,loss,2\n"
+    checkpoint.cut_log(tmp_path / "absent.csv", 3)
+    assert not (tmp_path / "absent.csv").exists()

@@ -144,7 +144,7 @@ def test_baseline_beta_is_recovered(data):
 
 def args(data, out, model, steps, **extra):
     base = {"data": data.root, "out": out, "model": model, "steps": steps, "batch": 4, "lr": 3e-3, "resume": False,
-            "holdout": 2, "threads": 2, "device": "cpu", "seed": 0, "init": None,
+            "holdout": 2, "threads": 2, "device": "cpu", "seed": 0, "init": None, "checkpoint_every": None,
             "arch": json.dumps(TINY_SKELETON if model == "skeleton" else TINY_SKIN)}
     return argparse.Namespace(**{**base, **extra})
 

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import torch
 
+from . import checkpoint as checkpoint_file
 from . import bundle, fixtures
 from .diffusion import Schedule, sample_next
 from .unet import NULL_ACTION, UNet, UNetConfig, conv_and_linear_flops, parameter_count
@@ -148,7 +149,7 @@ def main(argv=None) -> dict:
     report = {"device": label, "torch": torch.__version__, "steps": args.steps, "cfg_scale": args.cfg_scale, "repeat": args.repeat,
               "configs": [{k: v for k, v in r.items() if k != "rows"} for r in results], "rows": rows}
     if args.json:
-        args.json.write_text(json.dumps(report, indent=2) + "\n")
+        checkpoint_file.write_text(args.json, json.dumps(report, indent=2) + "\n")
     return report
 
 

@@ -150,8 +150,18 @@ def write_weights(directory: str | Path, tensors: dict, manifest: dict) -> None:
                            for k, v in sorted(stored.items())}
     write_folder_atomic(d, {
         "weights.safetensors": safetensors_bytes(stored),
-        "manifest.json": (json.dumps(manifest, indent=2, sort_keys=True) + "\n").encode(),
+        "manifest.json": _manifest_bytes(manifest),
     })
+
+
+def write_manifest(directory: str | Path, manifest: dict) -> None:
+    """Replaces a bundle's manifest.json alone, the folder swapped whole as `write_weights`
+    does (the weights are kept as they are)."""
+    write_folder_atomic(Path(directory), {"manifest.json": _manifest_bytes(manifest)})
+
+
+def _manifest_bytes(manifest: dict) -> bytes:
+    return (json.dumps(manifest, indent=2, sort_keys=True) + "\n").encode()
 
 
 def _read_back(name: str, stored: dict) -> torch.Tensor:

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import torch
 
+from . import bundle as bundle_io
 from . import compare
 
 HEADING_LIMIT = 30.0
@@ -214,7 +215,7 @@ def main(argv=None):
         if args.heading:
             manifest["heading"] = args.heading
         manifest["sampler"]["cfg_probe"] = {"keys": args.keys, "teacher": teacher, "results": results}
-        path.write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+        bundle_io.write_manifest(args.bundle, manifest)
         print(f"set {path}'s sampler to {label(best['cfg_scale'], best['guided_steps'], steps)}")
 
 

@@ -10,13 +10,16 @@ saving leaves the previous checkpoint whole."""
 
 from __future__ import annotations
 
+import csv
 import ctypes
 import io
 import os
 import shutil
 from pathlib import Path
+from typing import Callable
 
 import torch
+from safetensors.torch import save as safetensors_bytes
 
 
 class UnsafeCheckpoint(SystemExit):
@@ -53,6 +56,36 @@ def write_file_atomic(path: Path, data: bytes) -> None:
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
+
+
+def write_text(path: str | os.PathLike, text: str) -> None:
+    """`text` written whole or not at all (`write_file_atomic`): every JSON, CSV and
+    report a trainer writes goes through here or `write_tensors`."""
+    write_file_atomic(Path(path), text.encode())
+
+
+def write_tensors(path: str | os.PathLike, tensors: dict, metadata: dict | None = None) -> None:
+    """A safetensors file written whole or not at all."""
+    tensors = {k: v.detach().contiguous().cpu() for k, v in tensors.items()}
+    write_file_atomic(Path(path), safetensors_bytes(tensors, metadata))
+
+
+def cut_log(path: str | os.PathLike, last_step: int, step_column: int = 0,
+            only: Callable[[list[str]], bool] = lambda row: True) -> None:
+    """A CSV log that a run appends a row at a time, as a resumed run continues it: the
+    rows `only` selects are kept up to `last_step` (the resumed checkpoint's step), so
+    steps redone after a kill are not logged twice; the header and other rows are kept,
+    and a row cut off by the kill (no line end) is dropped. Rewritten whole."""
+    path = Path(path)
+    if not path.exists():
+        return
+    complete = path.read_bytes().decode().split("\n")[:-1]  # line ends as written
+    kept = []
+    for line, row in zip(complete, csv.reader(complete)):
+        step = row[step_column] if len(row) > step_column else ""
+        if not step.lstrip("-").isdigit() or not only(row) or int(step) <= last_step:
+            kept.append(line)
+    write_text(path, "".join(line + "\n" for line in kept))
 
 
 def _sync_dir(path: Path) -> None:

@@ -49,7 +49,6 @@ from pathlib import Path
 
 import torch
 from safetensors.torch import load_file
-from safetensors.torch import save as safetensors_bytes
 
 from . import bundle as bundle_io
 from . import checkpoint as checkpoint_file
@@ -70,15 +69,6 @@ RELEASE_WINDOW = 40
 
 class DistilError(ValueError):
     """A bad input to the distillation; the message names the file and the problem."""
-
-
-def write_atomic(path: Path, tensors: dict) -> None:
-    """safetensors written to a temporary name, synced, then renamed over `path`."""
-    checkpoint_file.write_file_atomic(path, safetensors_bytes({k: v.detach().contiguous().cpu() for k, v in tensors.items()}))
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    checkpoint_file.write_file_atomic(path, text.encode())
 
 
 def one_pass(student, schedule: Schedule, context, action, noise):
@@ -240,7 +230,7 @@ def build_pool(teacher: Teacher, folder: Path, count: int, seed: int, held_out: 
         part = teacher.encode(chunk)
         part["noise"] = noise
         part["frames"] = torch.tensor(chunk, dtype=torch.int32)
-        write_atomic(path, part)
+        checkpoint_file.write_tensors(path, part)
         done = min(at + CHUNK, count)
         print(f"{label} {bar(done, count)} {done}/{count} {time.time() - started:.0f} s", flush=True)
     return read_chunks(folder, (count + CHUNK - 1) // CHUNK)
@@ -268,7 +258,7 @@ def teacher_samples(teacher: Teacher, pool: dict, folder: Path, label: str) -> t
         rows = slice(at, min(at + CHUNK, n))
         if not path.exists():
             z = teacher.sample(pool["context"][rows], pool["action"][rows], pool["idle_scale"][rows], pool["noise"][rows])
-            write_atomic(path, {"sample": z})
+            checkpoint_file.write_tensors(path, {"sample": z})
             print(f"{label} {bar(rows.stop, n)} {rows.stop}/{n} {time.time() - started:.0f} s", flush=True)
         out.append(load_file(str(path))["sample"])
     return torch.cat(out)
@@ -299,6 +289,7 @@ def train(teacher: Teacher, pool: dict, targets: torch.Tensor | None, out: Path,
     log_path = out / "losses.csv"
     if step == 0 and log_path.exists():
         log_path.unlink()
+    checkpoint_file.cut_log(log_path, step)
     n = pool["noise"].shape[0]
     grid = teacher.schedule.ddim_timesteps(teacher.steps) + [-1]
     noise_scale = teacher.options["noise_scale"]
@@ -473,7 +464,7 @@ def main(argv=None):
         "minutes": (time.time() - started) / 60,
         "held_out": held_out_errors(teacher, student, held, held_z),
     }
-    write_text_atomic(args.out / "metrics.json", json.dumps(record, indent=2) + "\n")
+    checkpoint_file.write_text(args.out / "metrics.json", json.dumps(record, indent=2) + "\n")
     write_curves(args.out, args.method)
     path = write_bundle(teacher, student, args.out, record)
     print(json.dumps(record, indent=2), flush=True)

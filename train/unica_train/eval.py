@@ -44,6 +44,7 @@ from pathlib import Path
 
 import torch
 
+from . import checkpoint as checkpoint_file
 from . import bundle as bundle_io
 from . import metrics, pca, recentre, splats
 from .dataset import ANCHOR, BakedDataset, quarter_turn_action
@@ -771,8 +772,8 @@ def evaluate(args) -> dict:
         print(f"  {v}: chamfer {seq['chamfer_mm']:.1f} mm, FVD-PCA {seq['fvd_pca']:.2f}", flush=True)
     results["ablations"] = ablations
     results["minutes"] = (time.time() - began) / 60
-    (out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
-    (out / "summary.json").write_text(json.dumps(summary(results), indent=1) + "\n")
+    checkpoint_file.write_text(out / "results.json", json.dumps(results, indent=1) + "\n")
+    checkpoint_file.write_text(out / "summary.json", json.dumps(summary(results), indent=1) + "\n")
     from .report import write_report
 
     write_report(out, results, sheet, masked_sheet)

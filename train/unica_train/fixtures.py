@@ -16,9 +16,9 @@ import argparse
 from pathlib import Path
 
 import torch
-from safetensors.torch import save_file
 
 from . import bundle, pca, splats
+from . import checkpoint as checkpoint_file
 from .diffusion import Schedule, ddim_step, guided_eps, sample_next, sampler_options
 from .refiner import Refiner, RefinerConfig, features, from_bundle
 from .refiner import apply as apply_residuals
@@ -171,7 +171,7 @@ def main(argv=None):
     args.out.mkdir(parents=True, exist_ok=True)
     built = build()
     for name, tensors in built.items():
-        save_file(tensors, str(args.out / f"{name}.safetensors"))
+        checkpoint_file.write_tensors(args.out / f"{name}.safetensors", tensors)
     print(f"wrote {len(built)} fixtures to {args.out}")
 
 

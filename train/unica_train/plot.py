@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .checkpoint import write_file_atomic
+
 COLOURS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189)]
 
 
@@ -22,7 +24,7 @@ def write_png(path: str | Path, rgb: np.ndarray) -> None:
 
     png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
     png += chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b"")
-    Path(path).write_bytes(png)
+    write_file_atomic(Path(path), png)
 
 
 def curves(path: str | Path, series: dict[str, list[tuple[int, float]]], width: int = 800, height: int = 300) -> None:

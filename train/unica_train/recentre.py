@@ -34,6 +34,7 @@ from pathlib import Path
 import torch
 
 from . import bundle as bundle_io
+from . import checkpoint as checkpoint_file
 from .diffusion import Schedule, brake_options, frame_idle_scales, sample_next, sampler_options
 from .dataset import action_quarter, quarter_turn, quarter_turn_action
 from .train import parse_keys
@@ -461,9 +462,7 @@ def main(argv=None):
         J, count = dataset_basis(vae, ds, manifest, [c for c in range(len(ds.clips)) if c not in held], step=args.basis_step)
         bases[f"dataset {count} frames, step {args.basis_step:g}"] = J
     basis = list(bases.values())[0 if args.basis == "context" else 1]
-    from safetensors.torch import save_file
-
-    save_file({"shift_basis": basis.contiguous()}, str(args.out / "basis.safetensors"))
+    checkpoint_file.write_tensors(args.out / "basis.safetensors", {"shift_basis": basis})
     print(f"shift basis J ({args.basis}, step {args.basis_step}): per-axis RMS "
           f"{[round(float(v), 3) for v in basis.pow(2).mean((1, 2, 3)).sqrt()]}", flush=True)
 
@@ -471,7 +470,7 @@ def main(argv=None):
         bases = {"context, step 0.001": bundle_basis(vae, extra, manifest, 0.001), **bases}
         started = time.time()
         result = measure(vae, manifest, extra, ds, bases, held, args.stride, seed=args.seed)
-        (args.out / "approximation.json").write_text(json.dumps(result, indent=2) + "\n")
+        checkpoint_file.write_text(args.out / "approximation.json", json.dumps(result, indent=2) + "\n")
         print(approximation_text(result))
         print(f"measured in {time.time() - started:.0f} s", flush=True)
 
@@ -489,7 +488,7 @@ def main(argv=None):
         out["seconds"] = round(time.time() - started, 1)
         out["basis"] = args.basis if mode == "latent" else None
         path = args.out / f"rollout_{mode}.json"
-        path.write_text(json.dumps(out) + "\n")
+        checkpoint_file.write_text(path, json.dumps(out) + "\n")
         print(f"{mode}: {args.frames} frames in {out['seconds']} s -> {path}", flush=True)
         if args.teacher:
             from .compare import compare
@@ -498,8 +497,8 @@ def main(argv=None):
             rows[mode] = compare(out, teacher)
     if rows:
         text = side_by_side(rows)
-        (args.out / "comparison.txt").write_text(text + "\n")
-        (args.out / "comparison.json").write_text(json.dumps(rows, indent=2) + "\n")
+        checkpoint_file.write_text(args.out / "comparison.txt", text + "\n")
+        checkpoint_file.write_text(args.out / "comparison.json", json.dumps(rows, indent=2) + "\n")
         print(text)
 
 

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import torch
 
+from . import checkpoint as checkpoint_file
 from . import bundle as bundle_io
 from . import pca
 from .diffusion import Schedule, brake_options, frame_options, sample_next, sampler_options
@@ -196,7 +197,7 @@ def _main(argv):
             shutil.copy2(extra, args.out / extra.name)
     bundle_io.write_weights(args.out, tensors, manifest)
     report["minutes"] = (time.time() - started) / 60
-    (args.out / "refit.json").write_text(json.dumps(report, indent=2) + "\n")
+    checkpoint_file.write_text(args.out / "refit.json", json.dumps(report, indent=2) + "\n")
     bundle_io.load(args.out)  # the written bundle loads and checks
     print(f"wrote {args.out} in {report['minutes']:.1f} min", flush=True)
 

@@ -4,6 +4,7 @@ vs teacher frames. The paper's numbers stand beside ours where it has them."""
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import matplotlib
@@ -13,6 +14,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from . import checkpoint as checkpoint_file  # noqa: E402
 from . import metrics  # noqa: E402
 
 PAPER_TURNS = {"180": (13.4, 12), "90": (9.8, 9)}
@@ -31,8 +33,7 @@ def _turn_plot(path: Path, results: dict) -> None:
     ax.set_title(f"direction of movement under {results['keys']}")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def _drift_plot(path: Path, long: dict) -> None:
@@ -49,8 +50,7 @@ def _drift_plot(path: Path, long: dict) -> None:
     ax.set_title(f"long run: {long['frames']} frames")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def _label(setting: dict, defaults: dict) -> str:
@@ -74,15 +74,24 @@ def _bars(path: Path, results: dict) -> None:
         ax.set_title(title, fontsize=9)
         ax.tick_params(labelsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def _sheet(path: Path, pairs: list) -> None:
     if not pairs:
         return
     rows = [np.concatenate([w.numpy(), g.numpy()], 1) for w, g in pairs]
-    plt.imsave(path, np.clip(np.concatenate(rows, 0), 0, 1))
+    buffer = io.BytesIO()
+    plt.imsave(buffer, np.clip(np.concatenate(rows, 0), 0, 1), format="png")
+    checkpoint_file.write_file_atomic(Path(path), buffer.getvalue())
+
+
+def save_figure(fig, path) -> None:
+    """A figure as a PNG written whole or not at all."""
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    checkpoint_file.write_file_atomic(Path(path), buffer.getvalue())
 
 
 def every(n: int) -> str:
@@ -302,4 +311,4 @@ def write_report(out: Path, results: dict, sheet: list, masked_sheet: list | Non
         lines.append(f"| {_label(r['setting'], d)} | {r['chamfer_mm']:.1f} | {r['fvd_pca']:.3f} | "
                      f"{_fmt(w and w['speed'], 2)} | {_fmt(w and w['heading'])} | {r['ms_per_frame']:.0f} |")
     lines += ["", "The refiner's ablation is the image table above (base vs refined).", "", "![ablations](ablations.png)", ""]
-    (out / "report.md").write_text("\n".join(lines))
+    checkpoint_file.write_text(out / "report.md", "\n".join(lines))

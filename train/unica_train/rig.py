@@ -7,11 +7,11 @@ softmax over bones). Every attention and MLP block is pre-LN with a residual.
 Training on a rig-data directory (written by `unica rig-data`):
 
     python -m unica_train.rig --data DIR --out RUN --model skeleton|skin --steps N
-        [--batch B] [--lr LR] [--resume] [--init DIR] [--holdout K] [--threads 2] [--device cpu]
+        [--batch B] [--lr LR] [--resume] [--checkpoint-every N] [--init DIR] [--holdout K] [--threads 2] [--device cpu]
         [--arch JSON]
 
 writes RUN/{model}.safetensors (f32 weights under the spec's names), {model}_config.json,
-{model}_losses.csv, {model}_checkpoint.pt (every 200 steps, for --resume) and
+{model}_losses.csv, {model}_checkpoint.pt (every 200 steps or --checkpoint-every, for --resume) and
 {model}_eval.json (the last K samples are held out). `--init DIR` starts from the weights
 and architecture of DIR/{model}.safetensors and DIR/{model}_config.json (a fine-tune: new
 optimiser, new schedule, its own losses). Parity fixtures for the Rust side:
@@ -32,8 +32,7 @@ from pathlib import Path
 
 import torch
 import torch.nn.functional as F
-from safetensors.torch import load_file, save_file
-from safetensors.torch import save as safetensors_bytes
+from safetensors.torch import load_file
 from torch import nn
 
 from . import checkpoint as checkpoint_file
@@ -353,7 +352,7 @@ def export(model: nn.Module, run: Path, kind: str, extra: dict, half: bool = Fal
     dtype = torch.float16 if half else torch.float32
     weights = {k: v.detach().to(dtype).cpu().contiguous() for k, v in model.state_dict().items()}
     # Written whole or not at all (the model `unica rig` loads), as checkpoints are.
-    checkpoint_file.write_file_atomic(run / f"{kind}.safetensors", safetensors_bytes(weights))
+    checkpoint_file.write_tensors(run / f"{kind}.safetensors", weights)
     config = json.dumps({"kind": kind, **asdict(model.cfg), **extra}, indent=2) + "\n"
     checkpoint_file.write_file_atomic(run / f"{kind}_config.json", config.encode())
 
@@ -479,20 +478,18 @@ def train(args) -> dict:
         opt.load_state_dict(state["opt"])
         gen.set_state(state["gen"])
         start, extra = state["step"], state["extra"]
-        rows = list(csv.reader(losses.open()))[1:] if losses.exists() else []
-        kept = [r for r in rows if int(r[0]) <= start]
         print(f"resuming at step {start}")
+    if args.resume and losses.exists():
+        checkpoint_file.cut_log(losses, start)
     else:
-        kept = []
+        checkpoint_file.write_text(losses, "step,loss,heldout_loss\r\n")
     if kind == "skin" and "baseline_beta" not in extra:
         extra["baseline_beta"] = fit_beta(data, train_idx[:64], device)
         print(f"geodesic baseline beta {extra['baseline_beta']:.3f}")
     extra["train"] = {"data": str(args.data), "steps": args.steps, "batch": batch, "lr": lr, "weight_decay": 0.01, "clip": 1.0,
                       "holdout": holdout, "seed": args.seed, "samples": len(train_idx)}
-    with losses.open("w", newline="") as f:
+    with losses.open("a", newline="") as f:
         out = csv.writer(f)
-        out.writerow(["step", "loss", "heldout_loss"])
-        out.writerows(kept)
         began = time.time()
         for step in range(start, args.steps):
             for group in opt.param_groups:
@@ -514,7 +511,7 @@ def train(args) -> dict:
                 rate = (done - start) / (time.time() - began)
                 print(f"{kind} step {done}/{args.steps} loss {loss.item():.4f}" + (f" held-out {held}" if held else "")
                       + f" ({rate:.2f} steps/s, {(args.steps - done) / rate / 60:.1f} min left)", flush=True)
-            if done % CHECKPOINT_EVERY == 0 or done == args.steps:
+            if done % (args.checkpoint_every or CHECKPOINT_EVERY) == 0 or done == args.steps:
                 checkpoint_file.save({"model": model.state_dict(), "opt": opt.state_dict(), "gen": gen.get_state(), "step": done, "extra": extra}, checkpoint)
     export(model, run, kind, extra, half=True)
     write_curve(losses, run / f"{kind}_curve.png")
@@ -524,7 +521,7 @@ def train(args) -> dict:
             result = evaluate_skeleton(model, data, held_idx, batch, device)
         else:
             result = evaluate_skin(model, data, held_idx, batch, device, extra["baseline_beta"])
-        (run / f"{kind}_eval.json").write_text(json.dumps(result, indent=2) + "\n")
+        checkpoint_file.write_text(run / f"{kind}_eval.json", json.dumps(result, indent=2) + "\n")
         print(json.dumps(result, indent=2))
     return result
 
@@ -585,7 +582,7 @@ def write_fixtures(out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     for kind, (model, io) in fixtures().items():
         export(model, out, kind, {})
-        save_file({k: v.contiguous() for k, v in io.items()}, str(out / f"{kind}_io.safetensors"))
+        checkpoint_file.write_tensors(out / f"{kind}_io.safetensors", io)
     print(f"wrote the skeleton and skin fixtures to {out}")
 
 
@@ -607,6 +604,7 @@ def main(argv=None):
     parser.add_argument("--batch", type=int, help="default 8")
     parser.add_argument("--lr", type=float, help="default 3e-4 (skeleton), 1e-3 (skin)")
     parser.add_argument("--resume", action="store_true")
+    parser.add_argument("--checkpoint-every", type=int, default=CHECKPOINT_EVERY, help=f"steps between checkpoints (default {CHECKPOINT_EVERY})")
     parser.add_argument("--init", type=Path, help="start from the exported model in this folder (e.g. assets/autorig)")
     parser.add_argument("--holdout", type=int, default=16, help="the last K samples are held out")
     parser.add_argument("--threads", type=int, default=2)

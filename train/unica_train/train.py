@@ -411,7 +411,7 @@ class Run:
         record = {"unet_steps": steps1, "stage2_steps": steps2, "seconds_per_step": pace,
                   "unet_minutes": self.cfg.unet_minutes, "config_steps": [self.cfg.unet_steps, self.cfg.stage2_steps]}
         if self.rank == 0:
-            (self.out / "unet_schedule.json").write_text(json.dumps(record, indent=2) + "\n")
+            checkpoint_file.write_text(self.out / "unet_schedule.json", json.dumps(record, indent=2) + "\n")
             print(f"unet: {pace:.3f} s a step; {steps1} + {steps2} steps fit in {self.cfg.unet_minutes:g} min "
                   f"(config {self.cfg.unet_steps} + {self.cfg.stage2_steps})", flush=True)
         return steps1, steps2
@@ -424,14 +424,20 @@ class Run:
         checkpoint_file.save({"step": step, **{k: v.state_dict() for k, v in parts.items()}}, path)
 
     def restore(self, name: str, resume: bool, parts: dict) -> int:
+        """The step `name` resumes at (its checkpoint's, or 0); its rows of losses.csv past
+        that step, logged before a kill, are cut."""
         path = self.out / "checkpoints" / f"{name}.pt"
         if not (resume and path.exists()):
-            return 0
-        saved = checkpoint_file.load(path)
-        for k, v in parts.items():
-            v.load_state_dict(saved[k])
-        print(f"resumed {name} at step {saved['step']}", flush=True)
-        return saved["step"]
+            step = 0
+        else:
+            saved = checkpoint_file.load(path)
+            for k, v in parts.items():
+                v.load_state_dict(saved[k])
+            print(f"resumed {name} at step {saved['step']}", flush=True)
+            step = saved["step"]
+        if resume and self.rank == 0:
+            checkpoint_file.cut_log(self.log_path, step, step_column=1, only=lambda row: row[0].startswith(name))
+        return step
 
     # -- PCA, evaluation -------------------------------------------------------------
     def fit_pca(self) -> tuple[torch.Tensor, torch.Tensor]:
@@ -544,7 +550,7 @@ def write_unet_only(out: Path, run: Run, init: tuple, unet, schedule, latents, s
     schedule_path = out / "unet_schedule.json"
     if schedule_path.exists():
         record["unet_schedule"] = json.loads(schedule_path.read_text())
-    (out / "metrics.json").write_text(json.dumps(record, indent=2) + "\n")
+    checkpoint_file.write_text(out / "metrics.json", json.dumps(record, indent=2) + "\n")
     manifest = {k: v for k, v in manifest0.items() if k not in ("format", "version", "vae", "unet", "tensors")}
     manifest["metrics"] = {**manifest0.get("metrics", {}), "denoise_mse": after, "unet_only": record}
     bundle.save(out / "bundle", vae0.cpu(), unet.cpu(), extra0, manifest)
@@ -577,7 +583,7 @@ def main(argv=None):
     device = training_device(args.device, world)
     (args.out / "checkpoints").mkdir(parents=True, exist_ok=True)
     if rank == 0:
-        (args.out / "config.json").write_text(json.dumps(asdict(cfg), indent=2) + "\n")
+        checkpoint_file.write_text(args.out / "config.json", json.dumps(asdict(cfg), indent=2) + "\n")
     torch.manual_seed(cfg.seed)  # the same initial weights on every rank
     try:
         run = Run(args.data, args.out, cfg, device, rank, world, init, args.extra_data)
@@ -620,8 +626,8 @@ def main(argv=None):
         "vae_decoder_gflop": (conv_and_linear_flops(vae.decoder, torch.zeros(1, vae.cfg.latent, 16, 16)) + vae.decoder_flops()) / 1e9,
         "latent_scale": scale,
     })
-    (args.out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
-    (args.out / "rollout.json").write_text(json.dumps(rollout) + "\n")
+    checkpoint_file.write_text(args.out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
+    checkpoint_file.write_text(args.out / "rollout.json", json.dumps(rollout) + "\n")
     unit, _ = run.ds.normalise(run.world[0][0:4])
     context = vae.encoder(run.ds.to_maps(unit[:3]))[0] * scale
     m = run.ds.manifest

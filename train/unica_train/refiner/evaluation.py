@@ -8,6 +8,7 @@ import json
 import torch
 
 from .. import bundle as bundle_io
+from .. import checkpoint as checkpoint_file
 from .. import splats
 from .config import held_out_keys, train_config
 from .frames import Frames, drawn_level, refined
@@ -55,5 +56,5 @@ def evaluate_bundle(args) -> dict:
     frames = Frames(args.data, args.bundle, cfg.image_size)
     metrics = evaluate(model, frames, held_out_keys(frames, cfg), drawn_level(frames, cfg)) | {"bundle": str(args.bundle), "image_size": cfg.image_size, "splat_level": cfg.splat_level}
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "refiner_eval.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    checkpoint_file.write_text(args.out / "refiner_eval.json", json.dumps(metrics, indent=2) + "\n")
     return metrics

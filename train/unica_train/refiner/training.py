@@ -10,7 +10,6 @@ from dataclasses import asdict
 from pathlib import Path
 
 import torch
-from safetensors.torch import save_file
 
 from .. import bundle as bundle_io
 from .. import checkpoint as checkpoint_file
@@ -47,7 +46,7 @@ def train(args) -> dict:
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     if rank == 0:
-        (out / "refiner_config.json").write_text(json.dumps(asdict(cfg), indent=2) + "\n")
+        checkpoint_file.write_text(out / "refiner_config.json", json.dumps(asdict(cfg), indent=2) + "\n")
     torch.manual_seed(cfg.seed)  # the same initial weights in every process
     # Each process draws its own frames.
     gen = torch.Generator().manual_seed(cfg.seed + rank)
@@ -86,6 +85,7 @@ def train(args) -> dict:
             raise SystemExit(f"{ckpt}: step {start} is past this run's {steps} steps")
         if rank == 0:
             print(f"resumed at step {start}")
+            checkpoint_file.cut_log(log_path, start - 1)  # rows are numbered from step 0
     else:
         if log_path.exists() and rank == 0:
             log_path.unlink()
@@ -153,8 +153,8 @@ def train(args) -> dict:
         "processes": world,
         "device": str(device),
     })
-    (out / "refiner_eval.json").write_text(json.dumps(metrics, indent=2) + "\n")
-    save_file({f"refiner.{k}": v.contiguous() for k, v in model.state_dict().items()}, str(out / "refiner.safetensors"))
+    checkpoint_file.write_text(out / "refiner_eval.json", json.dumps(metrics, indent=2) + "\n")
+    checkpoint_file.write_tensors(out / "refiner.safetensors", {f"refiner.{k}": v for k, v in model.state_dict().items()})
     if args.write_bundle:
         add_to_bundle(args.bundle, model)
     return metrics
