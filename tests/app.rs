@@ -379,20 +379,61 @@ fn the_window_survives_200_resizes_down_to_one_pixel_and_hiding_while_it_records
     let last = stdout.lines().find(|l| l.contains("frames rendered"));
     eprintln!("{last:?}");
     assert!(last.is_some_and(|l| l.contains("gpu_errors=")), "{stdout}");
+    // 40 s at 2 a second, the recording starting with the window.
+    let recorded = assert_recording_whole(&rec);
+    assert!(
+        recorded >= 76,
+        "{recorded} frames recorded in 40 s at 2 fps"
+    );
+}
+
+#[test]
+fn a_lost_device_ends_the_window_in_one_line_and_keeps_the_recording() {
+    // The neural Witch with the model running and a recording on; the GPU device is
+    // destroyed (lost) 12 s in. egui's painter panics when it cannot upload to a lost
+    // device; the run must still end with exit 1 and one line, no panic shown, and the
+    // recording must keep every frame made before the loss, whole and listed.
+    let _turn = MODEL_RUNS.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("rec");
+    let bundle = shipped_bundle("witch");
+    let out = unica(
+        &[
+            "--bundle",
+            bundle.to_str().unwrap(),
+            "--keys",
+            "60W 40A 60D 40S",
+            "--exit-after-seconds",
+            "60",
+            "--record",
+            "--record-fps",
+            "2",
+            "--record-dir",
+            rec.to_str().unwrap(),
+            "--stress-lose-device",
+            "12",
+        ],
+        &[],
+    );
+    assert_scripted_failure(&out, "the GPU device was lost");
+    let recorded = assert_recording_whole(&rec);
+    assert!(
+        recorded >= 22,
+        "{recorded} frames recorded in the 12 s at 2 fps"
+    );
+}
+
+/// A recording folder as the recorder leaves it: every frame listed in order in the
+/// manifest, each a whole PNG, every PNG listed, nothing temporary. The frame count.
+fn assert_recording_whole(rec: &Path) -> usize {
     let manifest: serde_json::Value =
         serde_json::from_slice(&std::fs::read(rec.join("manifest.json")).unwrap()).unwrap();
     let listed = manifest["frames"].as_array().unwrap();
-    // 40 s at 2 a second, the recording starting with the window.
-    assert!(
-        listed.len() >= 76,
-        "{} frames recorded in 40 s at 2 fps",
-        listed.len()
-    );
     for (i, frame) in listed.iter().enumerate() {
         assert_eq!(frame["index"], i as u64, "frames in order, none missing");
         image::open(rec.join(frame["file"].as_str().unwrap())).expect("every frame opens");
     }
-    let pngs = std::fs::read_dir(&rec)
+    let pngs = std::fs::read_dir(rec)
         .unwrap()
         .filter(|e| e.as_ref().unwrap().path().extension() == Some("png".as_ref()))
         .count();
@@ -401,7 +442,8 @@ fn the_window_survives_200_resizes_down_to_one_pixel_and_hiding_while_it_records
         listed.len(),
         "every PNG is listed, nothing else is left"
     );
-    common::assert_all_whole(&rec);
+    common::assert_all_whole(rec);
+    listed.len()
 }
 
 #[test]

@@ -199,6 +199,17 @@ impl SessionRecorder {
     }
 }
 
+/// A recording dropped without `stop` (the window torn down by a panic, as a lost GPU
+/// device makes egui's painter do) still writes every frame it was handed.
+impl Drop for SessionRecorder {
+    fn drop(&mut self) {
+        self.jobs = None;
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
 /// The first `ffmpeg` on the PATH.
 pub fn find_ffmpeg() -> Option<PathBuf> {
     let path = std::env::var_os("PATH")?;

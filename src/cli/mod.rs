@@ -108,6 +108,10 @@ pub struct Cli {
     /// then hide it for a second and show it again
     #[arg(long, value_name = "N", hide = true)]
     stress_resize: Option<usize>,
+
+    /// For tests: destroy the GPU device after SECONDS (the device is then lost)
+    #[arg(long, value_name = "SECONDS", hide = true)]
+    stress_lose_device: Option<f64>,
 }
 
 #[derive(Subcommand, Debug)]
@@ -718,6 +722,7 @@ fn play(cli: Cli, gpu: GpuOptions) -> anyhow::Result<()> {
         record: cli.record,
         record_fps: cli.record_fps,
         stress_resize: cli.stress_resize,
+        stress_lose_device: cli.stress_lose_device,
         gpu,
     })
 }
