@@ -423,6 +423,154 @@ fn a_lost_device_ends_the_window_in_one_line_and_keeps_the_recording() {
     );
 }
 
+#[test]
+fn the_window_survives_being_minimized_by_a_window_manager() {
+    // The same stress under a real window manager (openbox on its own Xvfb), which
+    // iconifies the window when it is minimized: the window must be seen iconified
+    // (WM_STATE Iconic), then normal again, and the run must end as any other, its
+    // recording whole and as long as its rate and time say.
+    let _turn = MODEL_RUNS.lock().unwrap_or_else(|e| e.into_inner());
+    let managed = ManagedDisplay::start();
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("rec");
+    let bundle = shipped_bundle("witch");
+    let watching = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
+    let watcher = {
+        let (display, watching) = (managed.name.clone(), watching.clone());
+        std::thread::spawn(move || {
+            let mut states: Vec<String> = Vec::new();
+            while watching.load(std::sync::atomic::Ordering::Relaxed) {
+                for state in window_states(&display) {
+                    if states.last() != Some(&state) {
+                        states.push(state);
+                    }
+                }
+                std::thread::sleep(std::time::Duration::from_millis(200));
+            }
+            states
+        })
+    };
+    let out = unica(
+        &[
+            "--bundle",
+            bundle.to_str().unwrap(),
+            "--keys",
+            "60W 40A",
+            "--exit-after-seconds",
+            "30",
+            "--stress-resize",
+            "20",
+            "--record",
+            "--record-fps",
+            "2",
+            "--record-dir",
+            rec.to_str().unwrap(),
+        ],
+        &[("DISPLAY", &managed.name)],
+    );
+    watching.store(false, std::sync::atomic::Ordering::Relaxed);
+    let states = watcher.join().unwrap();
+    check(&out);
+    let iconic = states.iter().position(|s| s == "Iconic");
+    assert!(iconic.is_some(), "never iconified: {states:?}");
+    assert!(
+        states[iconic.unwrap()..].iter().any(|s| s == "Normal"),
+        "not shown again: {states:?}"
+    );
+    let recorded = assert_recording_whole(&rec);
+    assert!(
+        recorded >= 56,
+        "{recorded} frames recorded in 30 s at 2 fps"
+    );
+}
+
+/// An Xvfb of its own with openbox managing its windows; both stopped when dropped.
+struct ManagedDisplay {
+    name: String,
+    server: std::process::Child,
+    manager: std::process::Child,
+}
+
+impl ManagedDisplay {
+    fn start() -> Self {
+        let missing = "needs Xvfb, openbox and xprop (Debian packages xvfb, openbox and \
+                       x11-utils; .ci/run installs them)";
+        let mut server = Command::new("Xvfb")
+            .args([
+                "-displayfd",
+                "1",
+                "-screen",
+                "0",
+                "1280x800x24",
+                "-nolisten",
+                "tcp",
+            ])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect(missing);
+        let mut line = String::new();
+        BufReader::new(server.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let name = format!(":{}", line.trim());
+        let manager = Command::new("openbox")
+            .arg("--sm-disable")
+            .env("DISPLAY", &name)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect(missing);
+        // openbox is managing once it has set the root's _NET_SUPPORTING_WM_CHECK.
+        let ready = (0..100).any(|_| {
+            std::thread::sleep(std::time::Duration::from_millis(100));
+            let root = Command::new("xprop")
+                .args(["-root", "_NET_SUPPORTING_WM_CHECK"])
+                .env("DISPLAY", &name)
+                .output()
+                .expect(missing);
+            String::from_utf8_lossy(&root.stdout).contains("window id")
+        });
+        assert!(ready, "openbox did not start on {name}");
+        Self {
+            name,
+            server,
+            manager,
+        }
+    }
+}
+
+impl Drop for ManagedDisplay {
+    fn drop(&mut self) {
+        let _ = self.manager.kill();
+        let _ = self.server.kill();
+        let _ = self.manager.wait();
+        let _ = self.server.wait();
+    }
+}
+
+/// The WM_STATE ("Normal", "Iconic", …) of each window the manager lists on `display`.
+fn window_states(display: &str) -> Vec<String> {
+    let xprop = |args: &[&str]| {
+        let out = Command::new("xprop")
+            .args(args)
+            .env("DISPLAY", display)
+            .output()
+            .expect("xprop runs");
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let clients = xprop(&["-root", "_NET_CLIENT_LIST"]);
+    clients
+        .split([' ', ','])
+        .filter(|word| word.starts_with("0x"))
+        .filter_map(|id| {
+            let state = xprop(&["-id", id, "WM_STATE"]);
+            let (_, rest) = state.split_once("window state: ")?;
+            Some(rest.split_whitespace().next()?.to_string())
+        })
+        .collect()
+}
+
 /// A recording folder as the recorder leaves it: every frame listed in order in the
 /// manifest, each a whole PNG, every PNG listed, nothing temporary. The frame count.
 fn assert_recording_whole(rec: &Path) -> usize {

@@ -1,14 +1,15 @@
 //! The window under resizing (`--stress-resize N`, for tests): N sizes from the opening
-//! size down to 1 × 1 and back, one per window frame, then hidden (minimized, and unmapped,
-//! which is what minimizing does where no window manager runs, as under Xvfb) for a
-//! second, then shown again at the opening size. The app keeps drawing, recording and
-//! running the model throughout.
+//! size down to 1 × 1 and back, one per window frame, then minimized for a second (a
+//! window manager iconifies it; where none runs, as under a bare Xvfb, nothing happens),
+//! then unmapped for a second (what minimizing does without a window manager), then shown
+//! again at the opening size. The app keeps drawing, recording and running the model
+//! throughout.
 
 use std::time::{Duration, Instant};
 
 use eframe::egui;
 
-/// How long the window stays hidden.
+/// How long the window stays minimized, then unmapped.
 const HIDDEN: Duration = Duration::from_secs(1);
 
 /// Where the script is.
@@ -16,7 +17,9 @@ const HIDDEN: Duration = Duration::from_secs(1);
 pub struct ResizeScript {
     sizes: Vec<[f32; 2]>,
     next: usize,
-    hidden_since: Option<Instant>,
+    /// When the window was minimized, and when unmapped.
+    minimized_since: Option<Instant>,
+    unmapped_since: Option<Instant>,
     done: bool,
 }
 
@@ -36,7 +39,8 @@ impl ResizeScript {
         Self {
             sizes,
             next: 0,
-            hidden_since: None,
+            minimized_since: None,
+            unmapped_since: None,
             done: false,
         }
     }
@@ -67,13 +71,17 @@ impl ResizeScript {
             out.push(C::InnerSize(egui::vec2(w, h)));
             return out;
         }
-        match self.hidden_since {
-            None => {
-                self.hidden_since = Some(now);
-                vec![C::Minimized(true), C::Visible(false)]
+        let waited = |since: Instant| now.duration_since(since) >= HIDDEN;
+        match (self.minimized_since, self.unmapped_since) {
+            (None, _) => {
+                self.minimized_since = Some(now);
+                vec![C::Minimized(true)]
             }
-            Some(t) if now.duration_since(t) < HIDDEN => Vec::new(),
-            Some(_) => {
+            (Some(t), None) if waited(t) => {
+                self.unmapped_since = Some(now);
+                vec![C::Visible(false)]
+            }
+            (Some(_), Some(t)) if waited(t) => {
                 self.done = true;
                 vec![
                     C::Visible(true),
@@ -81,6 +89,7 @@ impl ResizeScript {
                     C::InnerSize(egui::vec2(full[0], full[1])),
                 ]
             }
+            _ => Vec::new(),
         }
     }
 }
@@ -100,18 +109,22 @@ mod tests {
     }
 
     #[test]
-    fn the_window_is_hidden_after_the_sizes_and_shown_a_second_later() {
+    fn the_window_is_minimized_then_unmapped_after_the_sizes_and_shown_again() {
+        use egui::ViewportCommand as C;
         let mut script = ResizeScript::new(3, [100.0, 50.0]);
         let t = Instant::now();
-        let count = |c: Vec<egui::ViewportCommand>| c.len();
-        assert_eq!(count(script.step(t, [100.0, 50.0])), 2); // min size, first size
-        assert_eq!(count(script.step(t, [100.0, 50.0])), 1);
-        assert_eq!(count(script.step(t, [100.0, 50.0])), 1);
-        assert_eq!(count(script.step(t, [100.0, 50.0])), 2); // hidden
-        assert_eq!(count(script.step(t, [100.0, 50.0])), 0);
+        let full = [100.0, 50.0];
+        assert_eq!(script.step(t, full).len(), 2); // min size, first size
+        assert_eq!(script.step(t, full).len(), 1);
+        assert_eq!(script.step(t, full).len(), 1);
+        assert_eq!(script.step(t, full), vec![C::Minimized(true)]);
+        assert!(script.step(t, full).is_empty());
+        let second = t + HIDDEN;
+        assert_eq!(script.step(second, full), vec![C::Visible(false)]);
+        assert!(script.step(second, full).is_empty());
         assert!(!script.done());
-        let later = t + HIDDEN;
-        assert_eq!(count(script.step(later, [100.0, 50.0])), 3); // shown, full size
+        let shown = script.step(second + HIDDEN, full);
+        assert_eq!(shown[..2], [C::Visible(true), C::Minimized(false)]);
         assert!(script.done());
     }
 }
