@@ -1,5 +1,6 @@
 //! File output that never leaves a half-written file behind: write to a temporary name
-//! beside the target, then rename over it (atomic on one file system).
+//! beside the target, then rename over it (atomic on one file system). And its reading
+//! side for folders replaced whole (a bundle): files read through one held folder.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -58,9 +59,82 @@ pub fn write_png_atomic(path: &Path, image: &image::RgbaImage) -> Result<(), Wri
     write_atomic(path, &bytes)
 }
 
+/// A folder held open: on Linux every file read through it comes from the folder as it
+/// was when opened (its descriptor and `openat`), even when another folder is renamed
+/// into its place meanwhile, as the trainer replaces a bundle whole; a bundle's manifest
+/// and weights read through one therefore belong together. Elsewhere, by path.
+pub struct HeldFolder {
+    path: PathBuf,
+    #[cfg(target_os = "linux")]
+    handle: std::fs::File,
+}
+
+impl HeldFolder {
+    pub fn open(path: &Path) -> std::io::Result<Self> {
+        Ok(Self {
+            path: path.to_path_buf(),
+            #[cfg(target_os = "linux")]
+            handle: std::fs::File::open(path)?,
+        })
+    }
+
+    /// The path of the file `name` in the folder (for messages).
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.path.join(name)
+    }
+
+    /// The bytes of the file `name` (a plain file name) in the held folder.
+    pub fn read(&self, name: &str) -> std::io::Result<Vec<u8>> {
+        #[cfg(target_os = "linux")]
+        {
+            use std::io::Read;
+            use std::os::fd::{AsRawFd, FromRawFd};
+            let name = std::ffi::CString::new(name)?;
+            // SAFETY: a valid descriptor and a NUL-terminated name; the new descriptor is
+            // owned by the File made from it.
+            let fd = unsafe {
+                libc::openat(
+                    self.handle.as_raw_fd(),
+                    name.as_ptr(),
+                    libc::O_RDONLY | libc::O_CLOEXEC,
+                )
+            };
+            if fd < 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            let mut bytes = Vec::new();
+            unsafe { std::fs::File::from_raw_fd(fd) }.read_to_end(&mut bytes)?;
+            Ok(bytes)
+        }
+        #[cfg(not(target_os = "linux"))]
+        std::fs::read(self.path.join(name))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_held_folder_reads_the_generation_it_opened_after_a_swap() {
+        let dir = tempfile::tempdir().unwrap();
+        let (bundle, staging) = (dir.path().join("bundle"), dir.path().join(".bundle.new"));
+        for (folder, text) in [(&bundle, "old"), (&staging, "new")] {
+            std::fs::create_dir(folder).unwrap();
+            std::fs::write(folder.join("manifest.json"), text).unwrap();
+        }
+        let held = HeldFolder::open(&bundle).unwrap();
+        // The writer's swap without renameat2: old aside, new in place.
+        std::fs::rename(&bundle, dir.path().join(".bundle.old")).unwrap();
+        std::fs::rename(&staging, &bundle).unwrap();
+        assert_eq!(held.read("manifest.json").unwrap(), b"old");
+        assert_eq!(std::fs::read(bundle.join("manifest.json")).unwrap(), b"new");
+        let again = HeldFolder::open(&bundle).unwrap();
+        assert_eq!(again.read("manifest.json").unwrap(), b"new");
+        assert_eq!(held.path("manifest.json"), bundle.join("manifest.json"));
+        assert!(held.read("missing.json").is_err());
+    }
 
     #[test]
     fn writes_and_replaces_whole_files() {

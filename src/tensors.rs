@@ -119,6 +119,11 @@ impl TensorFile {
             path: path.to_path_buf(),
             problem: e.to_string(),
         })?;
+        Self::from_bytes(path, bytes)
+    }
+
+    /// The file read by the caller (`path` names it in errors).
+    pub fn from_bytes(path: &Path, bytes: Vec<u8>) -> Result<Self, TensorError> {
         let file = Self {
             path: path.to_path_buf(),
             bytes,

@@ -2,6 +2,7 @@
 //! input and the recorder. The only module that knows about windows.
 
 mod hud;
+mod lost;
 pub mod neural;
 pub mod recorder;
 mod resize;
@@ -74,17 +75,6 @@ pub struct AppOptions {
     pub gpu: GpuOptions,
 }
 
-/// Whether a panic is egui-wgpu's painter failing to upload a frame, which it does when
-/// the device is lost (its message in 0.37: "Failed to create staging buffer …").
-fn painter_lost_its_device(payload: &(dyn std::any::Any + Send)) -> bool {
-    let message = payload
-        .downcast_ref::<String>()
-        .map(String::as_str)
-        .or_else(|| payload.downcast_ref::<&str>().copied())
-        .unwrap_or("");
-    message.starts_with("Failed to create staging buffer")
-}
-
 /// The window's size when it opens, in points.
 const OPENING_SIZE: [f32; 2] = [1280.0, 800.0];
 
@@ -127,22 +117,9 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
     };
     let outcome: Arc<Mutex<Option<anyhow::Error>>> = Arc::default();
     let app_outcome = outcome.clone();
-    // A lost device: egui's painter panics on its next upload (egui-wgpu 0.37), which
-    // cannot be prevented when the loss comes between a frame's UI and its painting (wgpu
-    // may even report the loss only as the device is dropped during that unwinding). That
-    // panic is caught here and becomes one line (the panic hook keeps quiet about it); the
-    // app dropped on the way has finished its recording.
-    let device_lost: Arc<Mutex<Option<String>>> = Arc::default();
+    let device_lost = lost::Lost::default();
     let app_lost = device_lost.clone();
-    let hook_lost = device_lost.clone();
-    let previous_hook = std::panic::take_hook();
-    std::panic::set_hook(Box::new(move |info| {
-        let known = hook_lost.lock().is_ok_and(|lost| lost.is_some());
-        if !(known || painter_lost_its_device(info.payload())) {
-            previous_hook(info);
-        }
-    }));
-    let ran = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+    let ran = lost::caught(&device_lost, || {
         eframe::run_native(
             "unica",
             native,
@@ -165,24 +142,7 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
                 )))
             }),
         )
-    }));
-    let ran = match ran {
-        Ok(ran) => ran,
-        Err(panic) => match device_lost
-            .lock()
-            .ok()
-            .and_then(|lost| lost.clone())
-            .or_else(|| {
-                painter_lost_its_device(panic.as_ref())
-                    .then(|| "egui could not upload to it".to_string())
-            }) {
-            Some(why) => anyhow::bail!(
-                "the GPU device was lost ({why}): unica cannot draw without it; start it again \
-                 (a recording keeps every frame made before it)"
-            ),
-            None => std::panic::resume_unwind(panic),
-        },
-    };
+    })?;
     ran.map_err(|e| anyhow::anyhow!("could not open the window: {e}"))?;
     match outcome.lock().expect("outcome lock").take() {
         Some(err) => Err(err),
@@ -233,7 +193,7 @@ struct UnicaApp {
     gpu_errors: Arc<Mutex<Vec<String>>>,
     gpu_error_count: usize,
     /// Why the GPU device was lost, once it is (set from wgpu's callback).
-    device_lost: Arc<Mutex<Option<String>>>,
+    device_lost: lost::Lost,
     /// `--stress-lose-device` has destroyed the device.
     device_destroyed: bool,
 }
@@ -244,7 +204,7 @@ impl UnicaApp {
         ctx: egui::Context,
         options: AppOptions,
         outcome: Arc<Mutex<Option<anyhow::Error>>>,
-        device_lost: Arc<Mutex<Option<String>>>,
+        device_lost: lost::Lost,
     ) -> Self {
         // wgpu's default for an error no scope catches is a panic; the window reports it
         // instead (HUD and log) and goes on: resizing it fast on lavapipe made
@@ -262,21 +222,7 @@ impl UnicaApp {
                 log::error!("GPU error: {line}");
                 sink.lock().expect("GPU error lock").push(line);
             }));
-        // A lost device cannot be had back under eframe (it owns the device the window
-        // draws with): the window closes with one line saying so, the recording whole.
-        let lost = device_lost.clone();
-        gpu.device.set_device_lost_callback(move |reason, message| {
-            let why = format!(
-                "{reason:?}{}",
-                if message.is_empty() {
-                    String::new()
-                } else {
-                    format!(": {message}")
-                }
-            );
-            log::error!("the GPU device was lost ({why})");
-            *lost.lock().expect("device lost lock") = Some(why);
-        });
+        lost::watch(&gpu.device, &device_lost);
         let mut viewport = Viewport::new(&gpu);
         let character = options.character.as_deref();
         let shown = match (&options.splats, &options.bundle) {
@@ -653,41 +599,6 @@ impl eframe::App for UnicaApp {
 }
 
 impl UnicaApp {
-    /// Whether the GPU device is known to be lost (`--stress-lose-device` destroys it
-    /// here; wgpu says so a little later, while the frame is painted, as a real loss
-    /// can come at any moment). Then the window is asked to close, the run ends with
-    /// one line saying so, and the frame adds nothing to draw.
-    fn device_gone(&mut self, ctx: &egui::Context) -> bool {
-        if let Some(seconds) = self.options.stress_lose_device
-            && !self.device_destroyed
-            && self.opened.elapsed().as_secs_f64() >= seconds
-        {
-            self.device_destroyed = true;
-            self.gpu.device.destroy();
-        }
-        let Some(why) = self.device_lost.lock().expect("device lost lock").clone() else {
-            return false;
-        };
-        if !self.closing {
-            let recording = match &self.recording {
-                Some((recorder, _)) => format!(
-                    "; the recording in {} keeps every frame made before it",
-                    recorder.dir.display()
-                ),
-                None => String::new(),
-            };
-            let problem = format!(
-                "the GPU device was lost ({why}): unica cannot draw without it; start it again{recording}"
-            );
-            log::error!("{problem}");
-            let mut outcome = self.outcome.lock().expect("outcome lock");
-            outcome.get_or_insert_with(|| anyhow::anyhow!("{problem}"));
-            self.closing = true;
-        }
-        ctx.send_viewport_cmd(egui::ViewportCommand::Close);
-        true
-    }
-
     /// The note shown until the first generated frame arrives.
     fn first_frame_note(&self) -> Option<String> {
         let loaded = self.shown.first_frame_pending()?;

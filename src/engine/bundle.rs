@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use crate::action::Action;
+use crate::files::HeldFolder;
 use crate::gpu::kernel::Precision;
 use crate::gpu::{GpuContext, GpuError};
 use crate::nn::Tensor;
@@ -19,7 +20,7 @@ use crate::nn::vae::{Decoder, Encoder, VaeConfig};
 use crate::nn::weights::{self, LoadError, Weights};
 use crate::splat::base::RESIDUALS;
 use crate::splat::frame::FEATURES;
-use crate::tensors::TensorFile;
+use crate::tensors::{TensorError, TensorFile};
 
 pub const FORMAT: &str = "unica-bundle";
 pub const VERSION: u64 = 1;
@@ -133,8 +134,30 @@ pub struct Bundle {
 
 impl Bundle {
     pub fn load(dir: &Path, gpu: &GpuContext, precision: Precision) -> Result<Self, LoadError> {
-        let manifest = read_manifest(&dir.join("manifest.json"))?;
-        let file = TensorFile::open(&dir.join("weights.safetensors"))?;
+        // Both files from one held folder: a bundle replaced whole while it loads gives
+        // the old or the new one, never the manifest of one and the weights of the other.
+        let folder = HeldFolder::open(dir).map_err(|e| LoadError::Manifest {
+            path: dir.display().to_string(),
+            problem: e.to_string(),
+        })?;
+        let manifest_path = folder.path("manifest.json");
+        let manifest = folder
+            .read("manifest.json")
+            .map_err(|e| e.to_string())
+            .and_then(|bytes| String::from_utf8(bytes).map_err(|e| e.to_string()))
+            .map_err(|problem| LoadError::Manifest {
+                path: manifest_path.display().to_string(),
+                problem,
+            })
+            .and_then(|text| parse_manifest(&text, &manifest_path))?;
+        let weights_path = folder.path("weights.safetensors");
+        let bytes = folder
+            .read("weights.safetensors")
+            .map_err(|e| TensorError {
+                path: weights_path.clone(),
+                problem: e.to_string(),
+            })?;
+        let file = TensorFile::from_bytes(&weights_path, bytes)?;
         let w = Weights::new(&file, gpu, precision);
         let (vae, unet) = (&manifest.vae, &manifest.unet);
         let side = manifest.map_size / 8;
@@ -313,13 +336,21 @@ fn indices(file: &TensorFile, name: &str, bound: usize) -> Result<Vec<u32>, Load
 /// Reads and checks a manifest: format and version first (so a future version gets that
 /// message, not a field error), then the fields and what this engine supports.
 pub fn read_manifest(path: &Path) -> Result<Manifest, LoadError> {
+    let text = std::fs::read_to_string(path).map_err(|e| LoadError::Manifest {
+        path: path.display().to_string(),
+        problem: e.to_string(),
+    })?;
+    parse_manifest(&text, path)
+}
+
+/// `read_manifest` on text already read from `path`.
+pub fn parse_manifest(text: &str, path: &Path) -> Result<Manifest, LoadError> {
     let fail = |problem: String| LoadError::Manifest {
         path: path.display().to_string(),
         problem,
     };
-    let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
     let value: serde_json::Value =
-        serde_json::from_str(&text).map_err(|e| fail(format!("not JSON: {e}")))?;
+        serde_json::from_str(text).map_err(|e| fail(format!("not JSON: {e}")))?;
     let format = value.get("format").and_then(|f| f.as_str()).unwrap_or("");
     if format != FORMAT {
         return Err(fail(format!(
