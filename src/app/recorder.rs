@@ -219,9 +219,10 @@ pub fn find_ffmpeg() -> Option<PathBuf> {
 }
 
 /// Encodes `dir`'s numbered frames at `fps` into `dir/session.mp4` (H.264, yuv420p, even
-/// size) with the `ffmpeg` program; the frames stay.
+/// size) with the `ffmpeg` program; the frames stay. ffmpeg writes `session.mp4.tmp`,
+/// renamed when it has finished, so a killed encoding leaves no half video under the name.
 pub fn encode_mp4(ffmpeg: &Path, dir: &Path, fps: f64) -> Result<PathBuf, String> {
-    let out = dir.join("session.mp4");
+    let (out, partial) = (dir.join("session.mp4"), dir.join("session.mp4.tmp"));
     let run = std::process::Command::new(ffmpeg)
         .current_dir(dir)
         .args(["-y", "-loglevel", "error", "-framerate", &fps.to_string()])
@@ -231,12 +232,15 @@ pub fn encode_mp4(ffmpeg: &Path, dir: &Path, fps: f64) -> Result<PathBuf, String
             "-vf",
             "pad=ceil(iw/2)*2:ceil(ih/2)*2",
         ])
-        .args(["-c:v", "libx264", "-pix_fmt", "yuv420p", "session.mp4"])
+        .args(["-c:v", "libx264", "-pix_fmt", "yuv420p", "-f", "mp4"])
+        .arg("session.mp4.tmp")
         .output()
         .map_err(|e| format!("{}: {e}", ffmpeg.display()))?;
-    if run.status.success() && out.is_file() {
+    if run.status.success() && partial.is_file() {
+        std::fs::rename(&partial, &out).map_err(|e| format!("{}: {e}", out.display()))?;
         Ok(out)
     } else {
+        let _ = std::fs::remove_file(&partial);
         let stderr = String::from_utf8_lossy(&run.stderr);
         Err(format!("{} failed: {}", ffmpeg.display(), stderr.trim()))
     }
@@ -253,7 +257,7 @@ mod tests {
         let fake = dir.path().join("ffmpeg");
         std::fs::write(
             &fake,
-            "#!/bin/sh\necho \"$@\" > args.txt\ntouch session.mp4\n",
+            "#!/bin/sh\necho \"$@\" > args.txt\ntouch session.mp4.tmp\n",
         )
         .unwrap();
         std::process::Command::new("chmod")
@@ -265,7 +269,8 @@ mod tests {
         assert_eq!(out, dir.path().join("session.mp4"));
         let args = std::fs::read_to_string(dir.path().join("args.txt")).unwrap();
         assert!(args.contains("-framerate 30 -i frame_%06d.png"), "{args}");
-        assert!(args.contains("yuv420p session.mp4"), "{args}");
+        assert!(args.contains("yuv420p -f mp4 session.mp4.tmp"), "{args}");
+        assert!(!dir.path().join("session.mp4.tmp").exists());
         // A failing ffmpeg is reported with its message.
         std::fs::write(&fake, "#!/bin/sh\necho 'no libx264' >&2\nexit 1\n").unwrap();
         let err = encode_mp4(&fake, dir.path(), 30.0).unwrap_err();
