@@ -671,7 +671,11 @@ fn median(values: &[f64]) -> Option<f64> {
 /// A wake-up for the neural avatar's worker: a new frame makes the window draw.
 fn wake(ctx: &egui::Context) -> neural::Wake {
     let ctx = ctx.clone();
-    Arc::new(move || ctx.request_repaint())
+    // Not `request_repaint()`: egui answers each of those with two frames ("to give some
+    // things time to settle"), and a new generated frame needs one; a delay above zero
+    // gets exactly one. On a CPU driver the second, unchanged frame took model time
+    // (docs/performance.md: 1.39 → 1.51 generated frames a second beside the window).
+    Arc::new(move || ctx.request_repaint_after(Duration::from_millis(1)))
 }
 
 /// The key map shown in Help and the README.

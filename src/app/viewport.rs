@@ -214,7 +214,15 @@ impl Viewport {
                 .get_or_insert_with(|| (Rasterizer::default(), Compositor::new(gpu, COLOR_FORMAT)));
             let key = (self.camera, (w, h), buffer.clone(), count, generation);
             let cached = &mut self.cached;
-            let moving = cached.as_ref().is_some_and(|c| c.key.0 != self.camera);
+            // Drawn small only while the camera alone moves (a drag, a wheel turn). A camera
+            // following the avatar moves once with each generated frame, which comes with new
+            // splats: drawn small, then full size, that was two window frames per generated
+            // frame, each taken from the model on a CPU driver.
+            let moving = cached.as_ref().is_some_and(|c| {
+                let (camera, size, buffer, count, generation) = &c.key;
+                *camera != self.camera
+                    && (size, buffer, count, generation) == (&key.1, &key.2, &key.3, &key.4)
+            });
             let full = cached.as_ref().is_some_and(|c| c.divisor == 1);
             let fresh = cached.as_ref().is_some_and(|c| c.key == key);
             if !(fresh && (full || moving)) {
