@@ -44,15 +44,22 @@ pub fn caught<R>(lost: &Lost, body: impl FnOnce() -> R) -> anyhow::Result<R> {
         Ok(ran) => return Ok(ran),
         Err(panic) => panic,
     };
-    let why = lost.lock().ok().and_then(|lost| lost.clone()).or_else(|| {
-        painter_lost_its_device(panic.as_ref()).then(|| "egui could not upload to it".into())
-    });
-    match why {
+    if painter_lost_its_device(panic.as_ref()) {
+        let mut lost = lost.lock().unwrap_or_else(|e| e.into_inner());
+        lost.get_or_insert_with(|| "egui could not upload to it".into());
+    }
+    reported(lost)?;
+    std::panic::resume_unwind(panic)
+}
+
+/// The one-line error for a lost device, if it was lost.
+pub fn reported(lost: &Lost) -> anyhow::Result<()> {
+    match lost.lock().ok().and_then(|lost| lost.clone()) {
         Some(why) => anyhow::bail!(
             "the GPU device was lost ({why}): unica cannot draw without it; start it again \
              (a recording keeps every frame made before it)"
         ),
-        None => std::panic::resume_unwind(panic),
+        None => Ok(()),
     }
 }
 
@@ -70,8 +77,8 @@ fn painter_lost_its_device(payload: &(dyn std::any::Any + Send)) -> bool {
 impl UnicaApp {
     /// Whether the GPU device is known to be lost (`--stress-lose-device` destroys it
     /// here; wgpu says so a little later, while the frame is painted, as a real loss can
-    /// come at any moment). Then the window is asked to close, the run ends with one line
-    /// saying so, and the frame adds nothing to draw.
+    /// come at any moment). Then the window is asked to close (the run ends with
+    /// [`reported`]'s line) and the frame adds nothing to draw.
     pub(super) fn device_gone(&mut self, ctx: &egui::Context) -> bool {
         if let Some(seconds) = self.options.stress_lose_device
             && !self.device_destroyed
@@ -80,25 +87,11 @@ impl UnicaApp {
             self.device_destroyed = true;
             self.gpu.device.destroy();
         }
-        let Some(why) = self.device_lost.lock().expect("device lost lock").clone() else {
+        if self.device_lost.lock().expect("device lost lock").is_none() {
             return false;
-        };
-        if !self.closing {
-            let recording = match &self.recording {
-                Some((recorder, _)) => format!(
-                    "; the recording in {} keeps every frame made before it",
-                    recorder.dir.display()
-                ),
-                None => String::new(),
-            };
-            let problem = format!(
-                "the GPU device was lost ({why}): unica cannot draw without it; start it again{recording}"
-            );
-            log::error!("{problem}");
-            let mut outcome = self.outcome.lock().expect("outcome lock");
-            outcome.get_or_insert_with(|| anyhow::anyhow!("{problem}"));
-            self.closing = true;
         }
+        // The run's error line is `reported`'s, given when the window has closed.
+        self.closing = true;
         ctx.send_viewport_cmd(egui::ViewportCommand::Close);
         true
     }

@@ -144,6 +144,9 @@ pub fn run(options: AppOptions) -> anyhow::Result<()> {
         )
     })?;
     ran.map_err(|e| anyhow::anyhow!("could not open the window: {e}"))?;
+    // A lost device is the cause of whatever else failed after it (the model's thread
+    // may have stopped first).
+    lost::reported(&device_lost)?;
     match outcome.lock().expect("outcome lock").take() {
         Some(err) => Err(err),
         None => Ok(()),
