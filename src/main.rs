@@ -29,20 +29,26 @@ fn main() -> ExitCode {
     }
 }
 
-/// Under `unica make` (UNICA_DIE_WITH_PARENT=1 in the environment, as the trainers it
-/// starts honor too), this process dies with the one that started it, so a make killed
-/// with SIGKILL leaves no stage (`unica eval`) running while the same make runs again.
+/// Under `unica make` (UNICA_DIE_WITH_PARENT=its pid in the environment, as the
+/// trainers it starts honor too), this process dies with the one that started it, so a
+/// make killed with SIGKILL leaves no stage (`unica eval`) running while the same make
+/// runs again.
 fn die_with_parent() {
-    if std::env::var_os("UNICA_DIE_WITH_PARENT").is_none_or(|v| v != "1") {
+    let Some(parent) = std::env::var("UNICA_DIE_WITH_PARENT")
+        .ok()
+        .and_then(|v| v.parse::<i64>().ok())
+    else {
         return;
-    }
+    };
     #[cfg(target_os = "linux")]
     // SAFETY: prctl with PR_SET_PDEATHSIG takes a signal number and nothing else;
     // getppid has no preconditions.
     unsafe {
         libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL);
-        if libc::getppid() == 1 {
-            std::process::exit(1); // the parent died before the request
+        // Taken in by init: the parent died before the request (unless the parent is
+        // init itself, a make as a container's entry point).
+        if libc::getppid() == 1 && parent != 1 {
+            std::process::exit(1);
         }
     }
 }

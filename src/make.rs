@@ -171,6 +171,9 @@ pub fn make(args: &MakeArgs, exe: &Path, python: &str) -> anyhow::Result<()> {
         args.out.join("bundle"),
         args.out.join("eval"),
     );
+    // A make killed between copy_dir's two renames left OUT/bundle aside: put it back
+    // before any stage reads it (the distillation opens it before its copy_dir).
+    restore_aside(&bundle)?;
     for (index, (stage, writes)) in STAGES.iter().enumerate() {
         let header = format!("[{}/{}] {stage} → {}", index + 1, STAGES.len(), writes);
         if state.done.iter().any(|d| d == stage) {
@@ -336,7 +339,6 @@ fn write_state(path: &Path, state: &State) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `python -m module`, finding the trainer in this source tree when it is not installed.
 /// The arguments `--bundle B --data D --out O` that the stages after the geometry take.
 fn bundle_data_out<'a>(bundle: &'a Path, data: &'a Path, out: &'a Path) -> [&'a OsStr; 6] {
     [
@@ -400,14 +402,18 @@ fn check_trainer(python: &str) -> anyhow::Result<()> {
 }
 
 fn run(mut command: Command, what: &str) -> anyhow::Result<()> {
-    let status = command
+    command
         .env("PYTHONPATH", python_path())
         // torchrun's worker processes do not get `python -u`: unbuffered output keeps
         // their progress lines in order with the make's own.
         .env("PYTHONUNBUFFERED", "1")
-        // Each trainer process dies with its parent (unica_train/__init__.py), so a make
-        // killed part-way leaves none writing while it is run again.
-        .env("UNICA_DIE_WITH_PARENT", "1")
+        // Each process a stage starts below this one dies with its parent
+        // (unica_train/__init__.py; torchrun's workers with torchrun), so a make killed
+        // part-way leaves none writing while it is run again. The value is the make's
+        // pid, so that a child of a make running as pid 1 (a container's entry point)
+        // does not take its parent for dead.
+        .env("UNICA_DIE_WITH_PARENT", std::process::id().to_string());
+    let status = command
         .status()
         .with_context(|| format!("starting {what}"))?;
     if !status.success() {
@@ -416,11 +422,21 @@ fn run(mut command: Command, what: &str) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `to` put back from `.NAME.old` where [`copy_dir`] was killed between its renames.
+fn restore_aside(to: &Path) -> anyhow::Result<()> {
+    let name = to.file_name().expect("a folder name").to_string_lossy();
+    let old = to.with_file_name(format!(".{name}.old"));
+    if !to.exists() && old.exists() {
+        std::fs::rename(&old, to).with_context(|| to.display().to_string())?;
+    }
+    Ok(())
+}
+
 /// Replaces `to` whole with a copy of the files of `from` (a flat bundle folder): the
 /// copy is made and synced beside `to` (`.NAME.new`), then put in its place by two
 /// renames, the old folder moved aside (`.NAME.old`) first and removed last. A make
 /// killed between the renames finds `to` missing and the old folder aside, and puts it
-/// back before anything else.
+/// back when it starts again ([`restore_aside`]).
 fn copy_dir(from: &Path, to: &Path) -> anyhow::Result<()> {
     if !from.join("manifest.json").is_file() {
         bail!(
@@ -432,9 +448,7 @@ fn copy_dir(from: &Path, to: &Path) -> anyhow::Result<()> {
     let staging = to.with_file_name(format!(".{name}.new"));
     let old = to.with_file_name(format!(".{name}.old"));
     let context = |path: &Path| path.display().to_string();
-    if !to.exists() && old.exists() {
-        std::fs::rename(&old, to).with_context(|| context(to))?;
-    }
+    restore_aside(to)?;
     for leftover in [&staging, &old] {
         if leftover.exists() {
             std::fs::remove_dir_all(leftover).with_context(|| context(leftover))?;
@@ -459,4 +473,33 @@ fn copy_dir(from: &Path, to: &Path) -> anyhow::Result<()> {
         std::fs::remove_dir_all(&old).with_context(|| context(&old))?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_bundle_left_aside_between_the_renames_is_put_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let (bundle, old) = (dir.path().join("bundle"), dir.path().join(".bundle.old"));
+        std::fs::create_dir(&old).unwrap();
+        std::fs::write(old.join("manifest.json"), "old").unwrap();
+        restore_aside(&bundle).unwrap();
+        assert_eq!(std::fs::read(bundle.join("manifest.json")).unwrap(), b"old");
+        assert!(!old.exists());
+        // A bundle in place is kept, and copy_dir replaces it whole.
+        let new = dir.path().join("new");
+        std::fs::create_dir(&new).unwrap();
+        std::fs::write(new.join("manifest.json"), "new").unwrap();
+        restore_aside(&bundle).unwrap();
+        copy_dir(&new, &bundle).unwrap();
+        assert_eq!(std::fs::read(bundle.join("manifest.json")).unwrap(), b"new");
+        let mut names: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["bundle", "new"]);
+    }
 }

@@ -136,3 +136,45 @@ def test_make_quick_killed_at_random_moments_and_run_again_ends_whole(tmp_path):
     assert manifest["sampler"]["kind"] == "one_pass" and "refiner" in manifest, sorted(manifest)
     assert (out / "eval" / "report.md").is_file()
     assert not [p for p in out.rglob("*") if p.name.endswith((".tmp", ".new", ".old"))]
+
+
+def test_make_on_two_processes_killed_leaves_no_trainer_running(tmp_path):
+    # With --gpus 2 the make's child is torchrun, which never imports the trainer (so
+    # never asks to die with the make); killed with the make, torchrun ends on its own
+    # (measured) and its workers, which do ask, die with it. Nothing may be left.
+    import signal
+    import time
+
+    out = tmp_path / "two"
+    run = subprocess.Popen([str(BINARY), "make", str(WITCH), "--out", str(out), "--quick", "--device", "cpu", "--gpus", "2"],
+                           cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    started = time.time()
+    def launched():  # torchrun and its two workers
+        found = _trainers_writing_into(out)
+        return any("torch.distributed.run" in c for c in found) and sum("unica_train.train" in c for c in found) >= 3
+
+    while not launched() and time.time() - started < 180:
+        time.sleep(0.2)
+    assert launched(), _trainers_writing_into(out)
+    time.sleep(2)
+    run.send_signal(signal.SIGKILL)
+    run.wait()
+    deadline = time.time() + 10
+    while _trainers_writing_into(out) and time.time() < deadline:
+        time.sleep(0.1)
+    assert not _trainers_writing_into(out), _trainers_writing_into(out)
+
+
+def test_a_trainer_under_a_make_that_is_pid_1_runs(tmp_path):
+    # A make as a container's entry point is pid 1: its children must not take their
+    # parent for dead (they exited at once, silently); a child whose make is another
+    # process and which was taken in by pid 1 does exit.
+    import os
+    import sys
+
+    script = f"{sys.executable} -c 'import unica_train'"
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "train"))
+    for make, code in (("1", 0), ("4242", 1)):
+        done = subprocess.run(["unshare", "-fp", "--mount-proc", "sh", "-c", script], capture_output=True, text=True,
+                              env=dict(env, UNICA_DIE_WITH_PARENT=make))
+        assert done.returncode == code, (make, done.returncode, done.stderr[-2000:])

@@ -5,11 +5,13 @@ import os as _os
 
 
 def _die_with_parent() -> None:
-    """Under `unica make` (UNICA_DIE_WITH_PARENT=1 in the environment) every trainer
-    process, torchrun's workers too, dies with the process that started it (Linux
-    PR_SET_PDEATHSIG), so a make killed with SIGKILL leaves no trainer writing into its
-    folder while the same make runs again."""
-    if _os.environ.get("UNICA_DIE_WITH_PARENT") != "1":
+    """Under `unica make` (UNICA_DIE_WITH_PARENT=the make's pid in the environment)
+    every trainer process, torchrun's workers too, dies with the process that started it
+    (Linux PR_SET_PDEATHSIG; the make sets it for torchrun itself), so a make killed with
+    SIGKILL leaves no trainer writing into its folder while the same make runs again."""
+    try:
+        make = int(_os.environ.get("UNICA_DIE_WITH_PARENT", ""))
+    except ValueError:
         return
     import ctypes
     import signal
@@ -18,8 +20,10 @@ def _die_with_parent() -> None:
         ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
         return  # not Linux: nothing to ask for
-    if _os.getppid() == 1:
-        _os._exit(1)  # the parent died before the request
+    # Taken in by init: the parent died before the request (unless init is the make
+    # itself, as a container's entry point).
+    if _os.getppid() == 1 and make != 1:
+        _os._exit(1)
 
 
 _die_with_parent()
