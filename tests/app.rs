@@ -81,21 +81,8 @@ static MODEL_RUNS: std::sync::Mutex<()> = std::sync::Mutex::new(());
 /// The window on a shipped bundle, driven by the key script `keys` for `seconds`, with
 /// a screenshot to `shot` and `extra` arguments: its stdout, after checking it succeeded.
 fn play(name: &str, keys: &str, shot: &Path, seconds: u32, extra: &[&str]) -> String {
-    let _turn = MODEL_RUNS.lock().unwrap_or_else(|e| e.into_inner());
-    let bundle = shipped_bundle(name);
-    let seconds = seconds.to_string();
-    let mut args = vec![
-        "--bundle",
-        bundle.to_str().unwrap(),
-        "--keys",
-        keys,
-        "--screenshot",
-        shot.to_str().unwrap(),
-        "--exit-after-seconds",
-        &seconds,
-    ];
-    args.extend_from_slice(extra);
-    let out = unica(&args, &[]);
+    let screenshot = ["--screenshot", shot.to_str().unwrap()];
+    let out = drive(name, keys, seconds, &[&screenshot[..], extra].concat(), &[]);
     if extra.contains(&"--stress-resize") {
         check_stressed(&out)
     } else {
@@ -123,6 +110,35 @@ fn assert_not_blank(variance: f64, what: &str) {
         variance > 20.0,
         "{what}: the viewport looks blank: variance {variance:.1}"
     );
+}
+
+/// The window on a shipped bundle, driven by the key script `keys` for `seconds`, with
+/// `extra` arguments and environment `env`; the neural runs take turns (`MODEL_RUNS`).
+fn drive(name: &str, keys: &str, seconds: u32, extra: &[&str], env: &[(&str, &str)]) -> Output {
+    let _turn = MODEL_RUNS.lock().unwrap_or_else(|e| e.into_inner());
+    let bundle = shipped_bundle(name);
+    let seconds = seconds.to_string();
+    let mut args = vec![
+        "--bundle",
+        bundle.to_str().unwrap(),
+        "--keys",
+        keys,
+        "--exit-after-seconds",
+        &seconds,
+    ];
+    args.extend_from_slice(extra);
+    unica(&args, env)
+}
+
+/// The arguments of a recording into `rec` at 2 frames a second.
+fn record_into(rec: &Path) -> [&str; 5] {
+    [
+        "--record",
+        "--record-fps",
+        "2",
+        "--record-dir",
+        rec.to_str().unwrap(),
+    ]
 }
 
 /// A run that succeeded without any GPU error (the window reports them and goes on, so
@@ -384,16 +400,7 @@ fn the_window_survives_200_resizes_down_to_one_pixel_and_hiding_while_it_records
     // submits) go to the HUD and the log and are counted in the final line.
     let dir = tempfile::tempdir().unwrap();
     let (shot, rec) = (dir.path().join("resized.png"), dir.path().join("rec"));
-    let rec_arg = rec.to_str().unwrap();
-    let extra = [
-        "--stress-resize",
-        "200",
-        "--record",
-        "--record-fps",
-        "2",
-        "--record-dir",
-        rec_arg,
-    ];
+    let extra = [&["--stress-resize", "200"][..], &record_into(&rec)].concat();
     let stdout = play("witch", "60W 40A 60D 40S", &shot, 40, &extra);
     let last = stdout.lines().find(|l| l.contains("frames rendered"));
     eprintln!("{last:?}");
@@ -412,28 +419,10 @@ fn a_lost_device_ends_the_window_in_one_line_and_keeps_the_recording() {
     // destroyed (lost) 12 s in. egui's painter panics when it cannot upload to a lost
     // device; the run must still end with exit 1 and one line, no panic shown, and the
     // recording must keep every frame made before the loss, whole and listed.
-    let _turn = MODEL_RUNS.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("rec");
-    let bundle = shipped_bundle("witch");
-    let out = unica(
-        &[
-            "--bundle",
-            bundle.to_str().unwrap(),
-            "--keys",
-            "60W 40A 60D 40S",
-            "--exit-after-seconds",
-            "60",
-            "--record",
-            "--record-fps",
-            "2",
-            "--record-dir",
-            rec.to_str().unwrap(),
-            "--stress-lose-device",
-            "12",
-        ],
-        &[],
-    );
+    let extra = [&record_into(&rec)[..], &["--stress-lose-device", "12"]].concat();
+    let out = drive("witch", "60W 40A 60D 40S", 60, &extra, &[]);
     assert_scripted_failure(&out, "the GPU device was lost");
     let recorded = assert_recording_whole(&rec);
     assert!(
@@ -448,11 +437,9 @@ fn the_window_survives_being_minimized_by_a_window_manager() {
     // iconifies the window when it is minimized: the window must be seen iconified
     // (WM_STATE Iconic), then normal again, and the run must end as any other, its
     // recording whole and as long as its rate and time say.
-    let _turn = MODEL_RUNS.lock().unwrap_or_else(|e| e.into_inner());
     let managed = ManagedDisplay::start();
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("rec");
-    let bundle = shipped_bundle("witch");
     let watching = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
     let watcher = {
         let (display, watching) = (managed.name.clone(), watching.clone());
@@ -469,22 +456,12 @@ fn the_window_survives_being_minimized_by_a_window_manager() {
             states
         })
     };
-    let out = unica(
-        &[
-            "--bundle",
-            bundle.to_str().unwrap(),
-            "--keys",
-            "60W 40A",
-            "--exit-after-seconds",
-            "30",
-            "--stress-resize",
-            "20",
-            "--record",
-            "--record-fps",
-            "2",
-            "--record-dir",
-            rec.to_str().unwrap(),
-        ],
+    let extra = [&["--stress-resize", "20"][..], &record_into(&rec)].concat();
+    let out = drive(
+        "witch",
+        "60W 40A",
+        30,
+        &extra,
         &[("DISPLAY", &managed.name)],
     );
     watching.store(false, std::sync::atomic::Ordering::Relaxed);

@@ -104,6 +104,16 @@ def _trainers_writing_into(out: Path) -> list[str]:
     return found
 
 
+def _assert_none_left_writing_into(out: Path) -> None:
+    """No process names `out` within 10 s (a killed make's trainers die with it)."""
+    import time
+
+    deadline = time.time() + 10
+    while _trainers_writing_into(out) and time.time() < deadline:
+        time.sleep(0.1)
+    assert not _trainers_writing_into(out), _trainers_writing_into(out)
+
+
 def test_make_quick_killed_at_random_moments_and_run_again_ends_whole(tmp_path):
     # `unica make --quick` killed with SIGKILL (the make alone: its trainers die with it)
     # at 3 moments drawn from a fixed seed over the first 4 minutes, each time started
@@ -125,10 +135,7 @@ def test_make_quick_killed_at_random_moments_and_run_again_ends_whole(tmp_path):
         if run.poll() is None:
             run.send_signal(signal.SIGKILL)
         run.wait()
-        deadline = time.time() + 10
-        while _trainers_writing_into(out) and time.time() < deadline:
-            time.sleep(0.1)
-        assert not _trainers_writing_into(out), _trainers_writing_into(out)
+        _assert_none_left_writing_into(out)
     make(out)
     state = json.loads((out / "make.json").read_text())
     assert state["done"] == ["bake", "geometry", "refiner", "distil", "eval"], state
@@ -159,10 +166,7 @@ def test_make_on_two_processes_killed_leaves_no_trainer_running(tmp_path):
     time.sleep(2)
     run.send_signal(signal.SIGKILL)
     run.wait()
-    deadline = time.time() + 10
-    while _trainers_writing_into(out) and time.time() < deadline:
-        time.sleep(0.1)
-    assert not _trainers_writing_into(out), _trainers_writing_into(out)
+    _assert_none_left_writing_into(out)
 
 
 def test_a_trainer_under_a_make_that_is_pid_1_runs(tmp_path):
