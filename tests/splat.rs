@@ -10,7 +10,7 @@ use unica::gpu::{GpuContext, GpuOptions, readback};
 use unica::render::OrbitCamera;
 use unica::splat::ply::Splat;
 use unica::splat::project::{SplatCamera, render_reference};
-use unica::splat::raster::Rasterizer;
+use unica::splat::raster::{Rasterizer, TileBlend};
 
 /// A deterministic cloud of `n` splats around the origin: mixed sizes, elongations,
 /// rotations, colours and opacities, some overlapping, some off screen.
@@ -28,17 +28,33 @@ fn camera(width: u32, height: u32) -> SplatCamera {
     orbit.splat_camera(width, height)
 }
 
+/// The rasterizer's variants: each blend, with the sort's grids sized on the GPU
+/// (indirect) or over the capacity.
+fn variants() -> Vec<(&'static str, Rasterizer)> {
+    let mut out = Vec::new();
+    for (blend, name) in [(TileBlend::Shared, "shared"), (TileBlend::Direct, "direct")] {
+        out.push((name, Rasterizer::default().with_blend(blend)));
+    }
+    out.push((
+        "shared, grids over the capacity",
+        Rasterizer::default()
+            .with_blend(TileBlend::Shared)
+            .direct_grids(),
+    ));
+    out
+}
+
 /// Renders on the GPU; returns the image and [entries kept, entries wanted]. With
 /// `warm_up`, the same rasterizer first draws those splats (same count and size, so its
 /// kept buffers are reused: nothing of that frame may leak into this one).
 fn gpu_render(
+    mut rasterizer: Rasterizer,
     splats: &[Splat],
     warm_up: Option<&[Splat]>,
     cam: &SplatCamera,
     background: Vec3,
 ) -> (Vec<[f32; 4]>, [u32; 2]) {
     let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
-    let mut rasterizer = Rasterizer::default();
     let mut raster = None;
     for scene in warm_up.into_iter().chain([splats]) {
         let buffer = Rasterizer::upload(&gpu, scene).unwrap();
@@ -61,9 +77,22 @@ fn gpu_render(
     )
 }
 
+/// Every variant of the rasterizer against the reference.
 fn compare(splats: &[Splat], warm_up: Option<&[Splat]>, cam: &SplatCamera) {
+    for (name, rasterizer) in variants() {
+        eprint!("{name}: ");
+        compare_one(rasterizer, splats, warm_up, cam);
+    }
+}
+
+fn compare_one(
+    rasterizer: Rasterizer,
+    splats: &[Splat],
+    warm_up: Option<&[Splat]>,
+    cam: &SplatCamera,
+) {
     let background = Vec3::new(0.1, 0.2, 0.3);
-    let (got, info) = gpu_render(splats, warm_up, cam, background);
+    let (got, info) = gpu_render(rasterizer, splats, warm_up, cam, background);
     assert_eq!(info[0], info[1], "no sort entry dropped");
     assert!(info[0] > 0, "something is on screen");
     let want = render_reference(splats, cam, background);
@@ -77,10 +106,12 @@ fn compare(splats: &[Splat], warm_up: Option<&[Splat]>, cam: &SplatCamera) {
     let worst = diffs.iter().fold(0.0f32, |m, &d| m.max(d));
     let covered = want.iter().filter(|p| p[3] > 0.5).count();
     eprintln!(
-        "{}x{}: mean {mean:.2e}, {:.3}% > 1e-3, worst {worst:.3}, {covered} covered pixels",
+        "{}x{}: mean {mean:.2e}, {:.3}% > 1e-3, worst {worst:.3}, {covered} covered pixels, \
+         {} sort entries",
         cam.width,
         cam.height,
-        off * 100.0
+        off * 100.0,
+        info[0]
     );
     assert!(
         covered > (cam.width * cam.height / 10) as usize,
@@ -99,8 +130,9 @@ fn the_rasterizer_matches_the_reference_on_a_small_scene() {
 
 #[test]
 fn the_rasterizer_matches_the_reference_off_the_tile_grid_and_with_deep_scans() {
-    // 100 × 70 pixels (partial tiles) and 5,000 splats: 80,000 sort entries, so the
-    // histogram scan needs two levels of block sums.
+    // 100 × 70 pixels (partial tiles) and 5,000 splats: 80,000 sort entries of
+    // capacity, of which over 4,096 are kept, so the histogram scan (256 values a block
+    // of 256 entries) needs two levels of block sums either way.
     compare(&scene(5000), None, &camera(100, 70));
 }
 

@@ -1,6 +1,7 @@
 // Radix sort, pass part 1: each workgroup counts the 8-bit digits (at `shift`) of its 256
-// keys and writes the counts digit-major (hist[digit · blocks + block]), so one exclusive
-// scan of `hist` gives every (digit, block) its first output position.
+// keys and writes the counts digit-major (hist[digit · blocks + block], blocks of the
+// entries kept, info[0]), so one exclusive scan of the first 256 · blocks values of
+// `hist` gives every (digit, block) its first output position.
 
 #bind p: uniform RadixParams
 #bind keys, info: read array<u32>
@@ -19,7 +20,8 @@ fn main(invocation: Invocation) {
         atomicAdd(&counts[(keys[i] >> p.shift) & 255u], 1u);
     }
     workgroupBarrier();
-    if block < p.blocks {
-        hist[lane * p.blocks + block] = atomicLoad(&counts[lane]);
+    let blocks = (info[0] + 255u) / 256u;
+    if block < blocks {
+        hist[lane * blocks + block] = atomicLoad(&counts[lane]);
     }
 }

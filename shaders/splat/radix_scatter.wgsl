@@ -29,7 +29,7 @@ fn main(invocation: Invocation) {
             rank++;
         }
     }
-    let at = hist[digit * p.blocks + block] + rank;
+    let at = hist[digit * ((info[0] + 255u) / 256u) + block] + rank;
     keys_out[at] = keys[i];
     values_out[at] = values[i];
 }

@@ -189,6 +189,56 @@ pub fn frame_stages(
     stage_lines(&mut engine, out)
 }
 
+/// What the window adds to each generated frame: the last frame's splats rasterized as
+/// the viewport draws them (the default orbit camera on the avatar; 640 × 400 is the 3D
+/// view of a 1280 × 800 window at the half size a CPU driver draws), one line per size:
+/// `window raster WxH: ms=X dispatches=D sort_entries=E splats=S` (median of 5 after a
+/// warm-up, each submitted and waited for alone).
+fn window_raster_lines(
+    gpu: &GpuContext,
+    engine: &crate::engine::Engine,
+    out: &mut impl Write,
+) -> anyhow::Result<()> {
+    use crate::splat::raster::Rasterizer;
+    let Some((buffer, count)) = engine.splats() else {
+        return Ok(());
+    };
+    let orbit = crate::render::OrbitCamera {
+        target: engine.root(),
+        ..Default::default()
+    };
+    for (width, height) in [(640, 400), (1280, 800)] {
+        let camera = orbit.splat_camera(width, height);
+        let mut rasterizer = Rasterizer::default();
+        let mut times = Vec::new();
+        let mut entries = 0;
+        let mut dispatches = 0;
+        for run in 0..6 {
+            let before = gpu.counts();
+            let clock = Instant::now();
+            let mut encoder = gpu.device.create_command_encoder(&Default::default());
+            let raster =
+                rasterizer.record(gpu, &mut encoder, buffer, count, &camera, glam::Vec3::ONE)?;
+            gpu.submit([encoder.finish()]);
+            gpu.wait_idle();
+            if run > 0 {
+                times.push(clock.elapsed().as_secs_f64() * 1e3);
+            }
+            dispatches = (gpu.counts() - before).dispatches;
+            let info = crate::gpu::readback::buffer(gpu, &raster.info, "sort entries")?;
+            entries = bytemuck::pod_read_unaligned::<u32>(&info[..4]);
+        }
+        times.sort_by(f64::total_cmp);
+        writeln!(
+            out,
+            "window raster {width}x{height}: ms={:.1} dispatches={dispatches} \
+             sort_entries={entries} splats={count}",
+            times[times.len() / 2]
+        )?;
+    }
+    Ok(())
+}
+
 /// One more frame, each stage of its plan submitted and waited for alone: one line per
 /// stage, `stage NAME: dispatches=D ms=X gpu_ms=Y gflop=F gflops=G` (ms: wall clock
 /// around the submission and the wait; gpu_ms: the GPU's timestamps, "-" where the
@@ -341,6 +391,7 @@ pub fn live(
         "after {} frames: world root ({:.3}, {:.3}, {:.3}) m, {} values clamped",
         state.frames, state.root[0], state.root[1], state.root[2], state.clamped_total
     )?;
+    window_raster_lines(gpu, &engine, out)?;
     stage_lines(&mut engine, out)?;
     writeln!(
         out,

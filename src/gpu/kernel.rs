@@ -147,6 +147,24 @@ pub fn dispatch(
     pass.dispatch_workgroups(grid.x, grid.y, 1);
 }
 
+/// [`dispatch`] over the grid the GPU wrote at byte `offset` of `grids` (three u32:
+/// workgroups along x, y, z), for work whose size only the GPU knows.
+pub fn dispatch_indirect(
+    gpu: &GpuContext,
+    encoder: &mut wgpu::CommandEncoder,
+    pipeline: &wgpu::ComputePipeline,
+    buffers: &[&wgpu::Buffer],
+    grids: &wgpu::Buffer,
+    offset: u64,
+) {
+    let bind_group = gpu.bind_buffers(&pipeline.get_bind_group_layout(0), buffers);
+    gpu.counters.dispatches(1);
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, &bind_group, &[]);
+    pass.dispatch_workgroups_indirect(grids, offset);
+}
+
 /// A uniform buffer holding `value` (kernel parameters).
 pub fn uniform<T: bytemuck::Pod>(gpu: &GpuContext, value: &T) -> wgpu::Buffer {
     let buffer = gpu.create_buffer(&wgpu::BufferDescriptor {

@@ -1,24 +1,34 @@
 //! The WGSL splat rasterizer: project (shaders/splat_project.wgsl) → exclusive scan of the
 //! tiles each splat touches → one (tile, depth) key per covered tile → LSD radix sort, 8
-//! bits a pass, in which no workgroup waits on another → each tile's range → per-tile
-//! front-to-back blending with early stop. Everything is recorded into one command
-//! encoder; only the caller reads the image back.
+//! bits a pass, in which no workgroup waits on another, over the entries kept (its grids
+//! are sized on the GPU, indirect dispatches) → each tile's range → per-tile front-to-back
+//! blending with early stop, in shared memory on a GPU and without barriers on a CPU
+//! driver ([`TileBlend`]). Everything is recorded into one command encoder; only the caller
+//! reads the image back.
 
 use crate::wgsl_shader as shader;
 use glam::{Mat4, Vec3};
 
 use super::ply::Splat;
 use super::project::SplatCamera;
-use crate::gpu::kernel::{Grid, PipelineCache, Precision, dispatch, uniform};
+use crate::gpu::kernel::{Grid, PipelineCache, Precision, dispatch, dispatch_indirect, uniform};
 use crate::gpu::shaders::Shader;
 use crate::gpu::{GpuContext, GpuError};
 use crate::gpu_struct;
 
 pub const SPLAT_PROJECT: Shader = shader!("splat/splat_project.wgsl", [RasterView, GpuSplat, ProjectedSplat], f16: false, subgroups: false);
 pub const SCAN_BLOCKS: Shader =
-    shader!("splat/scan_blocks.wgsl", [ScanParams], f16: false, subgroups: false);
+    shader!("splat/scan_blocks.wgsl", [ScanParams], f16: false, subgroups: false)
+        .with_uints(&[("SCAN_PER_LANE", SCAN_PER_LANE as u32)]);
 pub const SCAN_ADD: Shader =
-    shader!("splat/scan_add.wgsl", [ScanParams], f16: false, subgroups: false);
+    shader!("splat/scan_add.wgsl", [ScanParams], f16: false, subgroups: false)
+        .with_uints(&[("SCAN_PER_LANE", SCAN_PER_LANE as u32)]);
+pub const SORT_GRIDS: Shader = shader!(
+    "splat/sort_grids.wgsl",
+    [RasterView, ScanParams],
+    f16: false,
+    subgroups: false
+);
 pub const SPLAT_KEYS: Shader =
     shader!("splat/splat_keys.wgsl", [RasterView, ProjectedSplat], f16: false, subgroups: false);
 pub const RADIX_HISTOGRAM: Shader =
@@ -30,6 +40,13 @@ pub const SPLAT_RANGES: Shader =
 pub const SPLAT_RENDER: Shader =
     shader!("splat/splat_render.wgsl", [RasterView, ProjectedSplat], f16: false, subgroups: false)
         .with_uints(&[("TILE", super::project::TILE)]);
+pub const SPLAT_RENDER_DIRECT: Shader = shader!(
+    "splat/splat_render_direct.wgsl",
+    [RasterView, ProjectedSplat],
+    f16: false,
+    subgroups: false
+)
+.with_uints(&[("TILE", super::project::TILE)]);
 
 /// Every shader of this file (gathered by `splat::shaders`).
 pub const SHADERS: &[Shader] = &[
@@ -37,11 +54,41 @@ pub const SHADERS: &[Shader] = &[
     SCAN_BLOCKS,
     SCAN_ADD,
     SPLAT_KEYS,
+    SORT_GRIDS,
     RADIX_HISTOGRAM,
     RADIX_SCATTER,
     SPLAT_RANGES,
     SPLAT_RENDER,
+    SPLAT_RENDER_DIRECT,
 ];
+
+/// How each tile's pixels blend its splats; both give the same image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TileBlend {
+    /// The workgroup loads the tile's splats into shared memory 256 at a time and stops
+    /// when every pixel has (splat_render.wgsl): for GPUs.
+    Shared,
+    /// Each pixel reads the splats itself, without barriers (splat_render_direct.wgsl):
+    /// for CPU drivers.
+    Direct,
+}
+
+impl TileBlend {
+    /// `Direct` on a CPU driver, `Shared` on anything else.
+    pub fn for_adapter(gpu: &GpuContext) -> Self {
+        if gpu.cpu_driver() {
+            Self::Direct
+        } else {
+            Self::Shared
+        }
+    }
+}
+
+/// Values each lane of the prefix sum adds up serially: a workgroup scans 256 times as
+/// many. One value a lane took 38 ms to scan a 640 × 400 frame's 288k-entry histogram on
+/// lavapipe (each workgroup's barriers are what a CPU driver pays for), 16 take 5 ms
+/// (docs/performance.md).
+pub const SCAN_PER_LANE: usize = 16;
 
 gpu_struct! {
     /// The camera and sizes of one rasterized frame.
@@ -57,7 +104,8 @@ gpu_struct! {
         pub tiles_y: u32,
         pub splats: u32,
         pub capacity: u32,
-        pub reserved0: u32,
+        /// The device's workgroups per grid dimension (sort_grids.wgsl sizes grids).
+        pub max_groups: u32,
         pub reserved1: u32,
         pub background: [f32; 4],
     }
@@ -85,7 +133,7 @@ gpu_struct! {
 }
 
 gpu_struct! {
-    /// An exclusive scan of `len` values in `blocks` blocks of 256.
+    /// An exclusive scan of `len` values in `blocks` blocks of 256 · [`SCAN_PER_LANE`].
     pub struct ScanParams {
         pub len: u32,
         pub blocks: u32,
@@ -95,12 +143,13 @@ gpu_struct! {
 }
 
 gpu_struct! {
-    /// One radix pass over the digit at `shift`, `blocks` blocks of 256 keys.
+    /// One radix pass over the digit at `shift` (the entries kept, in blocks of 256,
+    /// come from the GPU's count).
     pub struct RadixParams {
         pub shift: u32,
-        pub blocks: u32,
         pub reserved0: u32,
         pub reserved1: u32,
+        pub reserved2: u32,
     }
 }
 
@@ -158,6 +207,10 @@ struct Buffers {
     ranges: wgpu::Buffer,
     image: wgpu::Buffer,
     hist: wgpu::Buffer,
+    /// Indirect dispatch grids sized by the sort entries kept (sort_grids.wgsl).
+    grids: wgpu::Buffer,
+    /// The histogram scan's [`ScanParams`], its length from the entries kept.
+    hist_scan: wgpu::Buffer,
 }
 
 impl Buffers {
@@ -166,6 +219,20 @@ impl Buffers {
         let capacity = capacity(count);
         let buffer =
             |label: &str, bytes: usize| gpu.storage_buffer(label, bytes.max(4) as u64, STORAGE);
+        let hist_scan = gpu.storage_buffer(
+            "splat.hist_scan",
+            std::mem::size_of::<ScanParams>() as u64,
+            STORAGE | wgpu::BufferUsages::UNIFORM,
+        )?;
+        let blocks = capacity.div_ceil(256 * SCAN_PER_LANE);
+        let scan = ScanParams {
+            len: capacity as u32,
+            blocks: blocks as u32,
+            reserved0: 0,
+            reserved1: 0,
+        };
+        gpu.queue
+            .write_buffer(&hist_scan, 0, bytemuck::bytes_of(&scan));
         Ok(Self {
             key: (count, camera.width, camera.height),
             projected: buffer(
@@ -186,6 +253,12 @@ impl Buffers {
             ranges: buffer("splat.ranges", 8 * (tiles_x * tiles_y) as usize)?,
             image: buffer("splat.image", 16 * (camera.width * camera.height) as usize)?,
             hist: buffer("splat.hist", 4 * capacity)?,
+            grids: gpu.storage_buffer(
+                "splat.grids",
+                4 * 6,
+                STORAGE | wgpu::BufferUsages::INDIRECT,
+            )?,
+            hist_scan,
         })
     }
 }
@@ -194,6 +267,10 @@ impl Buffers {
 pub struct Rasterizer {
     pipelines: PipelineCache,
     buffers: Option<Buffers>,
+    /// Sort grids over the capacity even where indirect dispatches exist.
+    direct: bool,
+    /// The blend asked for, else the adapter's ([`TileBlend::for_adapter`]).
+    blend: Option<TileBlend>,
 }
 
 const STORAGE: wgpu::BufferUsages = wgpu::BufferUsages::STORAGE
@@ -267,7 +344,7 @@ impl Rasterizer {
             tiles_y,
             splats: count as u32,
             capacity: capacity as u32,
-            reserved0: 0,
+            max_groups: gpu.device.limits().max_compute_workgroups_per_dimension,
             reserved1: 0,
             background: background.extend(1.0).to_array(),
         };
@@ -290,7 +367,7 @@ impl Rasterizer {
             threads(count),
         );
         encoder.copy_buffer_to_buffer(&b.touched, 0, &b.offsets, 0, 4 * count as u64);
-        self.scan(gpu, encoder, &b.offsets, count)?;
+        self.scan(gpu, encoder, &b.offsets, count, None)?;
         let bindings = [
             &frame,
             &b.projected,
@@ -301,20 +378,38 @@ impl Rasterizer {
             &b.info,
         ];
         self.run(gpu, encoder, &SPLAT_KEYS, &bindings, threads(count));
+        // The sort runs over the entries kept, not the capacity (on a 640 × 400 frame of
+        // the Witch 53k of 289k): its grids and the histogram scan's length come from the
+        // GPU's count.
+        self.run(
+            gpu,
+            encoder,
+            &SORT_GRIDS,
+            &[&frame, &b.info, &b.grids, &b.hist_scan],
+            groups(1),
+        );
+        let grids = self.indirect(gpu).then_some(&b.grids);
         for pass in 0..4 {
             let (from, to) = (pass % 2, 1 - pass % 2);
             let params = uniform(
                 gpu,
                 &RadixParams {
                     shift: 8 * pass as u32,
-                    blocks: blocks as u32,
                     reserved0: 0,
                     reserved1: 0,
+                    reserved2: 0,
                 },
             );
             let bindings = [&params, &b.keys[from], &b.info, &b.hist];
-            self.run(gpu, encoder, &RADIX_HISTOGRAM, &bindings, groups(blocks));
-            self.scan(gpu, encoder, &b.hist, 256 * blocks)?;
+            self.run_sized(
+                gpu,
+                encoder,
+                &RADIX_HISTOGRAM,
+                &bindings,
+                grids.map(|g| (g, 0)),
+                groups(blocks),
+            );
+            self.scan(gpu, encoder, &b.hist, 256 * blocks, Some(&b.hist_scan))?;
             let bindings = [
                 &params,
                 &b.keys[from],
@@ -324,21 +419,33 @@ impl Rasterizer {
                 &b.keys[to],
                 &b.values[to],
             ];
-            self.run(gpu, encoder, &RADIX_SCATTER, &bindings, groups(blocks));
+            self.run_sized(
+                gpu,
+                encoder,
+                &RADIX_SCATTER,
+                &bindings,
+                grids.map(|g| (g, 0)),
+                groups(blocks),
+            );
         }
         encoder.clear_buffer(&b.ranges, 0, None);
-        self.run(
+        self.run_sized(
             gpu,
             encoder,
             &SPLAT_RANGES,
             &[&b.keys[0], &b.info, &b.ranges],
+            grids.map(|g| (g, 12)),
             threads(capacity),
         );
         let bindings = [&frame, &b.projected, &b.values[0], &b.ranges, &b.image];
+        let blend = match self.blend.unwrap_or_else(|| TileBlend::for_adapter(gpu)) {
+            TileBlend::Shared => &SPLAT_RENDER,
+            TileBlend::Direct => &SPLAT_RENDER_DIRECT,
+        };
         self.run(
             gpu,
             encoder,
-            &SPLAT_RENDER,
+            blend,
             &bindings,
             groups((tiles_x * tiles_y) as usize),
         );
@@ -350,35 +457,82 @@ impl Rasterizer {
         Ok(raster)
     }
 
-    /// Records an exclusive prefix sum of the first `len` u32 of `data`, in place.
+    /// Records an exclusive prefix sum of the first `len` u32 of `data`, in place; with
+    /// `written`, of as many as the GPU wrote into those [`ScanParams`] (at most `len`).
     fn scan(
         &mut self,
         gpu: &GpuContext,
         encoder: &mut wgpu::CommandEncoder,
         data: &wgpu::Buffer,
         len: usize,
+        written: Option<&wgpu::Buffer>,
     ) -> Result<(), GpuError> {
-        let blocks = len.div_ceil(256);
+        let blocks = len.div_ceil(256 * SCAN_PER_LANE);
         let sums = gpu.storage_buffer("scan.sums", 4 * blocks as u64, STORAGE)?;
-        let params = uniform(
-            gpu,
-            &ScanParams {
-                len: len as u32,
-                blocks: blocks as u32,
-                reserved0: 0,
-                reserved1: 0,
-            },
-        );
+        let params = match written {
+            Some(params) => params.clone(),
+            None => uniform(
+                gpu,
+                &ScanParams {
+                    len: len as u32,
+                    blocks: blocks as u32,
+                    reserved0: 0,
+                    reserved1: 0,
+                },
+            ),
+        };
         let grid = Grid::for_workgroups(
             blocks as u32,
             gpu.device.limits().max_compute_workgroups_per_dimension,
         );
         self.run(gpu, encoder, &SCAN_BLOCKS, &[&params, data, &sums], grid);
         if blocks > 1 {
-            self.scan(gpu, encoder, &sums, blocks)?;
+            self.scan(gpu, encoder, &sums, blocks, None)?;
             self.run(gpu, encoder, &SCAN_ADD, &[&params, data, &sums], grid);
         }
         Ok(())
+    }
+
+    /// Whether the sort's grids are sized on the GPU (indirect dispatches): unless the
+    /// adapter cannot, or [`Rasterizer::direct_grids`] asked for grids over the capacity.
+    fn indirect(&self, gpu: &GpuContext) -> bool {
+        !self.direct
+            && gpu
+                .adapter
+                .get_downlevel_capabilities()
+                .flags
+                .contains(wgpu::DownlevelFlags::INDIRECT_EXECUTION)
+    }
+
+    /// Blends with `blend` whatever the adapter (tests run both).
+    pub fn with_blend(mut self, blend: TileBlend) -> Self {
+        self.blend = Some(blend);
+        self
+    }
+
+    /// Sizes the sort's grids by its capacity, as on an adapter without indirect
+    /// dispatches (tests run both ways).
+    pub fn direct_grids(mut self) -> Self {
+        self.direct = true;
+        self
+    }
+
+    /// Dispatches `shader` over the grid at (buffer, byte offset) `indirect`, or else over
+    /// `grid`.
+    fn run_sized(
+        &mut self,
+        gpu: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        shader: &Shader,
+        buffers: &[&wgpu::Buffer],
+        indirect: Option<(&wgpu::Buffer, u64)>,
+        grid: Grid,
+    ) {
+        let Some((grids, offset)) = indirect else {
+            return self.run(gpu, encoder, shader, buffers, grid);
+        };
+        let pipeline = self.pipelines.get(&gpu.device, shader, Precision::F32);
+        dispatch_indirect(gpu, encoder, pipeline, buffers, grids, offset);
     }
 
     fn run(
@@ -391,5 +545,49 @@ impl Rasterizer {
     ) {
         let pipeline = self.pipelines.get(&gpu.device, shader, Precision::F32);
         dispatch(gpu, encoder, pipeline, buffers, grid, None);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gpu::{GpuOptions, readback};
+
+    /// The prefix sum against a CPU loop: within one block, across blocks (two levels of
+    /// block sums) and past 4096² values (three levels); values chosen so that sums wrap
+    /// like u32 arithmetic does.
+    #[test]
+    fn the_scan_is_an_exclusive_prefix_sum_at_every_depth() {
+        let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
+        let block = 256 * SCAN_PER_LANE;
+        for len in [
+            1,
+            255,
+            block - 1,
+            block,
+            block + 1,
+            18 * block + 77,
+            block * block + 300,
+        ] {
+            let data: Vec<u32> = (0..len as u32)
+                .map(|i| i.wrapping_mul(2_654_435_761) >> 22)
+                .collect();
+            let buffer = gpu
+                .storage_buffer_init("scan", bytemuck::cast_slice(&data), STORAGE)
+                .unwrap();
+            let mut rasterizer = Rasterizer::default();
+            let mut encoder = gpu.device.create_command_encoder(&Default::default());
+            rasterizer
+                .scan(&gpu, &mut encoder, &buffer, len, None)
+                .unwrap();
+            gpu.submit([encoder.finish()]);
+            let got: Vec<u32> =
+                bytemuck::pod_collect_to_vec(&readback::buffer(&gpu, &buffer, "scan").unwrap());
+            let mut sum = 0u32;
+            for (i, (&value, &got)) in data.iter().zip(&got).enumerate() {
+                assert_eq!(got, sum, "length {len}, index {i}");
+                sum = sum.wrapping_add(value);
+            }
+        }
     }
 }
