@@ -32,7 +32,7 @@ fn camera(width: u32, height: u32) -> SplatCamera {
 /// (indirect) or over the capacity.
 fn variants() -> Vec<(&'static str, Rasterizer)> {
     let mut out = Vec::new();
-    for (blend, name) in [(TileBlend::Shared, "shared"), (TileBlend::Direct, "direct")] {
+    for (blend, name) in [(TileBlend::Shared, "shared"), (TileBlend::Rows, "rows")] {
         out.push((name, Rasterizer::default().with_blend(blend)));
     }
     out.push((

@@ -40,8 +40,8 @@ pub const SPLAT_RANGES: Shader =
 pub const SPLAT_RENDER: Shader =
     shader!("splat/splat_render.wgsl", [RasterView, ProjectedSplat], f16: false, subgroups: false)
         .with_uints(&[("TILE", super::project::TILE)]);
-pub const SPLAT_RENDER_DIRECT: Shader = shader!(
-    "splat/splat_render_direct.wgsl",
+pub const SPLAT_RENDER_ROWS: Shader = shader!(
+    "splat/splat_render_rows.wgsl",
     [RasterView, ProjectedSplat],
     f16: false,
     subgroups: false
@@ -59,7 +59,7 @@ pub const SHADERS: &[Shader] = &[
     RADIX_SCATTER,
     SPLAT_RANGES,
     SPLAT_RENDER,
-    SPLAT_RENDER_DIRECT,
+    SPLAT_RENDER_ROWS,
 ];
 
 /// How each tile's pixels blend its splats; both give the same image.
@@ -68,16 +68,17 @@ pub enum TileBlend {
     /// The workgroup loads the tile's splats into shared memory 256 at a time and stops
     /// when every pixel has (splat_render.wgsl): for GPUs.
     Shared,
-    /// Each pixel reads the splats itself, without barriers (splat_render_direct.wgsl):
-    /// for CPU drivers.
-    Direct,
+    /// Each pixel row of a tile blends each splat over only the pixels of the row that
+    /// it can reach, without shared memory or barriers (splat_render_rows.wgsl): for CPU
+    /// drivers.
+    Rows,
 }
 
 impl TileBlend {
-    /// `Direct` on a CPU driver, `Shared` on anything else.
+    /// `Rows` on a CPU driver, `Shared` on anything else.
     pub fn for_adapter(gpu: &GpuContext) -> Self {
         if gpu.cpu_driver() {
-            Self::Direct
+            Self::Rows
         } else {
             Self::Shared
         }
@@ -440,7 +441,7 @@ impl Rasterizer {
         let bindings = [&frame, &b.projected, &b.values[0], &b.ranges, &b.image];
         let blend = match self.blend.unwrap_or_else(|| TileBlend::for_adapter(gpu)) {
             TileBlend::Shared => &SPLAT_RENDER,
-            TileBlend::Direct => &SPLAT_RENDER_DIRECT,
+            TileBlend::Rows => &SPLAT_RENDER_ROWS,
         };
         self.run(
             gpu,
