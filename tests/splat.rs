@@ -10,7 +10,7 @@ use unica::gpu::{GpuContext, GpuOptions, readback};
 use unica::render::OrbitCamera;
 use unica::splat::ply::Splat;
 use unica::splat::project::{SplatCamera, render_reference};
-use unica::splat::raster::{Rasterizer, TileBlend};
+use unica::splat::raster::{RasterKernels, Rasterizer};
 
 /// A deterministic cloud of `n` splats around the origin: mixed sizes, elongations,
 /// rotations, colours and opacities, some overlapping, some off screen.
@@ -28,19 +28,21 @@ fn camera(width: u32, height: u32) -> SplatCamera {
     orbit.splat_camera(width, height)
 }
 
-/// The rasterizer's variants: each blend, with the sort's grids sized on the GPU
-/// (indirect) or over the capacity.
+/// The rasterizer's variants: each kernel set, with the sort's grids sized on the GPU
+/// (indirect dispatches) or over the capacity.
 fn variants() -> Vec<(&'static str, Rasterizer)> {
     let mut out = Vec::new();
-    for (blend, name) in [(TileBlend::Shared, "shared"), (TileBlend::Rows, "rows")] {
-        out.push((name, Rasterizer::default().with_blend(blend)));
+    for (kernels, name) in [(RasterKernels::Gpu, "gpu"), (RasterKernels::Cpu, "cpu")] {
+        out.push((name, Rasterizer::default().with_kernels(kernels)));
+        out.push((
+            if kernels == RasterKernels::Gpu {
+                "gpu, grids over the capacity"
+            } else {
+                "cpu, grids over the capacity"
+            },
+            Rasterizer::default().with_kernels(kernels).direct_grids(),
+        ));
     }
-    out.push((
-        "shared, grids over the capacity",
-        Rasterizer::default()
-            .with_blend(TileBlend::Shared)
-            .direct_grids(),
-    ));
     out
 }
 

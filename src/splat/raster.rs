@@ -3,7 +3,7 @@
 //! bits a pass, in which no workgroup waits on another, over the entries kept (its grids
 //! are sized on the GPU, indirect dispatches) → each tile's range → per-tile front-to-back
 //! blending with early stop, in shared memory on a GPU and without barriers on a CPU
-//! driver ([`TileBlend`]). Everything is recorded into one command encoder; only the caller
+//! driver ([`RasterKernels`]). Everything is recorded into one command encoder; only the caller
 //! reads the image back.
 
 use crate::wgsl_shader as shader;
@@ -35,6 +35,18 @@ pub const RADIX_HISTOGRAM: Shader =
     shader!("splat/radix_histogram.wgsl", [RadixParams], f16: false, subgroups: false);
 pub const RADIX_SCATTER: Shader =
     shader!("splat/radix_scatter.wgsl", [RadixParams], f16: false, subgroups: false);
+pub const RADIX_HISTOGRAM_SERIAL: Shader = shader!(
+    "splat/radix_histogram_serial.wgsl",
+    [RadixParams],
+    f16: false,
+    subgroups: false
+);
+pub const RADIX_SCATTER_SERIAL: Shader = shader!(
+    "splat/radix_scatter_serial.wgsl",
+    [RadixParams],
+    f16: false,
+    subgroups: false
+);
 pub const SPLAT_RANGES: Shader =
     shader!("splat/splat_ranges.wgsl", [RasterView], f16: false, subgroups: false);
 pub const SPLAT_RENDER: Shader =
@@ -57,30 +69,33 @@ pub const SHADERS: &[Shader] = &[
     SORT_GRIDS,
     RADIX_HISTOGRAM,
     RADIX_SCATTER,
+    RADIX_HISTOGRAM_SERIAL,
+    RADIX_SCATTER_SERIAL,
     SPLAT_RANGES,
     SPLAT_RENDER,
     SPLAT_RENDER_ROWS,
 ];
 
-/// How each tile's pixels blend its splats; both give the same image.
+/// Which kernels sort and blend; both give the same image.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum TileBlend {
-    /// The workgroup loads the tile's splats into shared memory 256 at a time and stops
-    /// when every pixel has (splat_render.wgsl): for GPUs.
-    Shared,
-    /// Each pixel row of a tile blends each splat over only the pixels of the row that
-    /// it can reach, without shared memory or barriers (splat_render_rows.wgsl): for CPU
-    /// drivers.
-    Rows,
+pub enum RasterKernels {
+    /// For GPUs: each radix pass block is a workgroup of 256 (shared-memory counts and
+    /// ranks), and each tile a workgroup of 256 pixels that loads its splats into shared
+    /// memory 256 at a time and stops when every pixel has (splat_render.wgsl).
+    Gpu,
+    /// For CPU drivers, without shared memory or barriers: one invocation a radix block
+    /// (radix_*_serial.wgsl), and one a pixel row of a tile, blending each splat over only
+    /// the pixels of the row that it can reach (splat_render_rows.wgsl).
+    Cpu,
 }
 
-impl TileBlend {
-    /// `Rows` on a CPU driver, `Shared` on anything else.
+impl RasterKernels {
+    /// `Cpu` on a CPU driver, `Gpu` on anything else.
     pub fn for_adapter(gpu: &GpuContext) -> Self {
         if gpu.cpu_driver() {
-            Self::Rows
+            Self::Cpu
         } else {
-            Self::Shared
+            Self::Gpu
         }
     }
 }
@@ -270,8 +285,8 @@ pub struct Rasterizer {
     buffers: Option<Buffers>,
     /// Sort grids over the capacity even where indirect dispatches exist.
     direct: bool,
-    /// The blend asked for, else the adapter's ([`TileBlend::for_adapter`]).
-    blend: Option<TileBlend>,
+    /// The kernels asked for, else the adapter's ([`RasterKernels::for_adapter`]).
+    kernels: Option<RasterKernels>,
 }
 
 const STORAGE: wgpu::BufferUsages = wgpu::BufferUsages::STORAGE
@@ -390,6 +405,17 @@ impl Rasterizer {
             groups(1),
         );
         let grids = self.indirect(gpu).then_some(&b.grids);
+        let kernels = self
+            .kernels
+            .unwrap_or_else(|| RasterKernels::for_adapter(gpu));
+        let (histogram, scatter, blend) = match kernels {
+            RasterKernels::Gpu => (&RADIX_HISTOGRAM, &RADIX_SCATTER, &SPLAT_RENDER),
+            RasterKernels::Cpu => (
+                &RADIX_HISTOGRAM_SERIAL,
+                &RADIX_SCATTER_SERIAL,
+                &SPLAT_RENDER_ROWS,
+            ),
+        };
         for pass in 0..4 {
             let (from, to) = (pass % 2, 1 - pass % 2);
             let params = uniform(
@@ -405,7 +431,7 @@ impl Rasterizer {
             self.run_sized(
                 gpu,
                 encoder,
-                &RADIX_HISTOGRAM,
+                histogram,
                 &bindings,
                 grids.map(|g| (g, 0)),
                 groups(blocks),
@@ -423,7 +449,7 @@ impl Rasterizer {
             self.run_sized(
                 gpu,
                 encoder,
-                &RADIX_SCATTER,
+                scatter,
                 &bindings,
                 grids.map(|g| (g, 0)),
                 groups(blocks),
@@ -439,10 +465,6 @@ impl Rasterizer {
             threads(capacity),
         );
         let bindings = [&frame, &b.projected, &b.values[0], &b.ranges, &b.image];
-        let blend = match self.blend.unwrap_or_else(|| TileBlend::for_adapter(gpu)) {
-            TileBlend::Shared => &SPLAT_RENDER,
-            TileBlend::Rows => &SPLAT_RENDER_ROWS,
-        };
         self.run(
             gpu,
             encoder,
@@ -505,9 +527,9 @@ impl Rasterizer {
                 .contains(wgpu::DownlevelFlags::INDIRECT_EXECUTION)
     }
 
-    /// Blends with `blend` whatever the adapter (tests run both).
-    pub fn with_blend(mut self, blend: TileBlend) -> Self {
-        self.blend = Some(blend);
+    /// Runs `kernels` whatever the adapter (tests run both).
+    pub fn with_kernels(mut self, kernels: RasterKernels) -> Self {
+        self.kernels = Some(kernels);
         self
     }
 
