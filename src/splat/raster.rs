@@ -2,8 +2,8 @@
 //! tiles each splat touches → one (tile, depth) key per covered tile → LSD radix sort, 8
 //! bits a pass, in which no workgroup waits on another, over the entries kept (its grids
 //! are sized on the GPU, indirect dispatches) → each tile's range → per-tile front-to-back
-//! blending with early stop, in shared memory on a GPU and without barriers on a CPU
-//! driver ([`RasterKernels`]). Everything is recorded into one command encoder; only the caller
+//! blending with early stop; the sort's blocks are workgroups on a GPU and single
+//! invocations on a CPU driver ([`RasterKernels`]). Everything is recorded into one command encoder; only the caller
 //! reads the image back.
 
 use crate::wgsl_shader as shader;
@@ -52,13 +52,6 @@ pub const SPLAT_RANGES: Shader =
 pub const SPLAT_RENDER: Shader =
     shader!("splat/splat_render.wgsl", [RasterView, ProjectedSplat], f16: false, subgroups: false)
         .with_uints(&[("TILE", super::project::TILE)]);
-pub const SPLAT_RENDER_ROWS: Shader = shader!(
-    "splat/splat_render_rows.wgsl",
-    [RasterView, ProjectedSplat],
-    f16: false,
-    subgroups: false
-)
-.with_uints(&[("TILE", super::project::TILE)]);
 
 /// Every shader of this file (gathered by `splat::shaders`).
 pub const SHADERS: &[Shader] = &[
@@ -73,7 +66,6 @@ pub const SHADERS: &[Shader] = &[
     RADIX_SCATTER_SERIAL,
     SPLAT_RANGES,
     SPLAT_RENDER,
-    SPLAT_RENDER_ROWS,
 ];
 
 /// Which kernels sort and blend; both give the same image.
@@ -83,9 +75,8 @@ pub enum RasterKernels {
     /// ranks), and each tile a workgroup of 256 pixels that loads its splats into shared
     /// memory 256 at a time and stops when every pixel has (splat_render.wgsl).
     Gpu,
-    /// For CPU drivers, without shared memory or barriers: one invocation a radix block
-    /// (radix_*_serial.wgsl), and one a pixel row of a tile, blending each splat over only
-    /// the pixels of the row that it can reach (splat_render_rows.wgsl).
+    /// For CPU drivers: one invocation a radix block (radix_*_serial.wgsl: no shared
+    /// memory, atomics or barriers); the blend as on a GPU.
     Cpu,
 }
 
@@ -413,7 +404,7 @@ impl Rasterizer {
             RasterKernels::Cpu => (
                 &RADIX_HISTOGRAM_SERIAL,
                 &RADIX_SCATTER_SERIAL,
-                &SPLAT_RENDER_ROWS,
+                &SPLAT_RENDER,
             ),
         };
         for pass in 0..4 {
