@@ -30,17 +30,14 @@ fn camera(width: u32, height: u32) -> SplatCamera {
 
 /// The rasterizer's variants: each kernel set, with the sort's grids sized on the GPU
 /// (indirect dispatches) or over the capacity.
-fn variants() -> Vec<(&'static str, Rasterizer)> {
+fn variants() -> Vec<(String, Rasterizer)> {
     let mut out = Vec::new();
     for (kernels, name) in [(RasterKernels::Gpu, "gpu"), (RasterKernels::Cpu, "cpu")] {
-        out.push((name, Rasterizer::default().with_kernels(kernels)));
+        let rasterizer = || Rasterizer::default().with_kernels(kernels);
+        out.push((name.to_string(), rasterizer()));
         out.push((
-            if kernels == RasterKernels::Gpu {
-                "gpu, grids over the capacity"
-            } else {
-                "cpu, grids over the capacity"
-            },
-            Rasterizer::default().with_kernels(kernels).direct_grids(),
+            format!("{name}, grids over the capacity"),
+            rasterizer().direct_grids(),
         ));
     }
     out

@@ -3,6 +3,8 @@
 // entries kept, info[0]), so one exclusive scan of the first 256 · blocks values of
 // `hist` gives every (digit, block) its first output position.
 
+#import splat/radix_blocks.wgsl
+
 #bind p: uniform RadixParams
 #bind keys, info: read array<u32>
 #bind hist: read_write array<u32>
@@ -20,7 +22,7 @@ fn main(invocation: Invocation) {
         atomicAdd(&counts[(keys[i] >> p.shift) & 255u], 1u);
     }
     workgroupBarrier();
-    let blocks = (info[0] + 255u) / 256u;
+    let blocks = radix_blocks();
     if block < blocks {
         hist[lane * blocks + block] = atomicLoad(&counts[lane]);
     }

@@ -3,6 +3,8 @@
 // atomics and no barriers (a CPU driver runs each barrier as a switch between the
 // workgroup's invocations). Same grid: one workgroup per block of 256 entries.
 
+#import splat/radix_blocks.wgsl
+
 #bind p: uniform RadixParams
 #bind keys, info: read array<u32>
 #bind hist: read_write array<u32>
@@ -10,14 +12,12 @@
 @compute @workgroup_size(1)
 fn main(invocation: Invocation) {
     let block = group_index(invocation);
-    let entries = info[0];
-    let blocks = (entries + 255u) / 256u;
+    let blocks = radix_blocks();
     if block >= blocks {
         return;
     }
     var counts: array<u32, 256>;
-    let end = min(entries, block * 256u + 256u);
-    for (var i = block * 256u; i < end; i++) {
+    for (var i = block * 256u; i < radix_block_end(block); i++) {
         let digit = (keys[i] >> p.shift) & 255u;
         counts[digit] += 1u;
     }

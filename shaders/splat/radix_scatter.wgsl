@@ -2,6 +2,8 @@
 // the earlier keys of its block with the same digit — a stable pass, so passes from the
 // lowest digit up sort by the whole key, equal keys keeping their order.
 
+#import splat/radix_blocks.wgsl
+
 #bind p: uniform RadixParams
 #bind keys, values, info, hist: read array<u32>
 #bind keys_out, values_out: read_write array<u32>
@@ -29,7 +31,7 @@ fn main(invocation: Invocation) {
             rank++;
         }
     }
-    let at = hist[digit * ((info[0] + 255u) / 256u) + block] + rank;
+    let at = hist[digit * radix_blocks() + block] + rank;
     keys_out[at] = keys[i];
     values_out[at] = values[i];
 }

@@ -3,6 +3,8 @@
 // private array: the same stable positions without shared memory or barriers, and 256
 // steps a block instead of every key comparing itself with the keys before it.
 
+#import splat/radix_blocks.wgsl
+
 #bind p: uniform RadixParams
 #bind keys, values, info, hist: read array<u32>
 #bind keys_out, values_out: read_write array<u32>
@@ -10,14 +12,12 @@
 @compute @workgroup_size(1)
 fn main(invocation: Invocation) {
     let block = group_index(invocation);
-    let entries = info[0];
-    let blocks = (entries + 255u) / 256u;
+    let blocks = radix_blocks();
     if block >= blocks {
         return;
     }
     var placed: array<u32, 256>;
-    let end = min(entries, block * 256u + 256u);
-    for (var i = block * 256u; i < end; i++) {
+    for (var i = block * 256u; i < radix_block_end(block); i++) {
         let key = keys[i];
         let digit = (key >> p.shift) & 255u;
         let at = hist[digit * blocks + block] + placed[digit];

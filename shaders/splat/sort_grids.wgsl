@@ -5,6 +5,8 @@
 // blocks), and the length of the histogram's scan (256 digits × those blocks; its
 // `blocks`, the capacity's, were written when the buffers were made).
 
+#import splat/radix_blocks.wgsl
+
 #bind f: uniform RasterView
 #bind info: read array<u32>
 #bind grids: read_write array<u32>
@@ -24,9 +26,8 @@ fn grid(workgroups: u32, at: u32) {
 
 @compute @workgroup_size(1)
 fn main(invocation: Invocation) {
-    let entries = info[0];
-    let blocks = (entries + 255u) / 256u;
+    let blocks = radix_blocks();
     grid(blocks, 0u);
     hist_scan.len = 256u * blocks;
-    grid((entries + WORKGROUP - 1u) / WORKGROUP, 3u);
+    grid((info[0] + WORKGROUP - 1u) / WORKGROUP, 3u);
 }

@@ -136,15 +136,8 @@ pub fn dispatch(
     grid: Grid,
     timestamp_writes: Option<wgpu::ComputePassTimestampWrites<'_>>,
 ) {
-    let bind_group = gpu.bind_buffers(&pipeline.get_bind_group_layout(0), buffers);
-    gpu.counters.dispatches(1);
-    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-        label: None,
-        timestamp_writes,
-    });
-    pass.set_pipeline(pipeline);
-    pass.set_bind_group(0, &bind_group, &[]);
-    pass.dispatch_workgroups(grid.x, grid.y, 1);
+    compute_pass(gpu, encoder, pipeline, buffers, timestamp_writes)
+        .dispatch_workgroups(grid.x, grid.y, 1);
 }
 
 /// [`dispatch`] over the grid the GPU wrote at byte `offset` of `grids` (three u32:
@@ -157,12 +150,26 @@ pub fn dispatch_indirect(
     grids: &wgpu::Buffer,
     offset: u64,
 ) {
+    compute_pass(gpu, encoder, pipeline, buffers, None).dispatch_workgroups_indirect(grids, offset);
+}
+
+/// A compute pass with `pipeline` and `buffers` bound, counted as one dispatch.
+fn compute_pass<'e>(
+    gpu: &GpuContext,
+    encoder: &'e mut wgpu::CommandEncoder,
+    pipeline: &wgpu::ComputePipeline,
+    buffers: &[&wgpu::Buffer],
+    timestamp_writes: Option<wgpu::ComputePassTimestampWrites<'_>>,
+) -> wgpu::ComputePass<'e> {
     let bind_group = gpu.bind_buffers(&pipeline.get_bind_group_layout(0), buffers);
     gpu.counters.dispatches(1);
-    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: None,
+        timestamp_writes,
+    });
     pass.set_pipeline(pipeline);
     pass.set_bind_group(0, &bind_group, &[]);
-    pass.dispatch_workgroups_indirect(grids, offset);
+    pass
 }
 
 /// A uniform buffer holding `value` (kernel parameters).

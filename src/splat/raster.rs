@@ -1,10 +1,10 @@
 //! The WGSL splat rasterizer: project (shaders/splat_project.wgsl) → exclusive scan of the
 //! tiles each splat touches → one (tile, depth) key per covered tile → LSD radix sort, 8
 //! bits a pass, in which no workgroup waits on another, over the entries kept (its grids
-//! are sized on the GPU, indirect dispatches) → each tile's range → per-tile front-to-back
-//! blending with early stop; the sort's blocks are workgroups on a GPU and single
-//! invocations on a CPU driver ([`RasterKernels`]). Everything is recorded into one command encoder; only the caller
-//! reads the image back.
+//! are sized on the GPU, indirect dispatches; its blocks are workgroups on a GPU and single
+//! invocations on a CPU driver, [`RasterKernels`]) → each tile's range → per-tile
+//! front-to-back blending with early stop. Everything is recorded into one command
+//! encoder; only the caller reads the image back.
 
 use crate::wgsl_shader as shader;
 use glam::{Mat4, Vec3};
@@ -68,15 +68,13 @@ pub const SHADERS: &[Shader] = &[
     SPLAT_RENDER,
 ];
 
-/// Which kernels sort and blend; both give the same image.
+/// Which kernels sort; both give the same order.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum RasterKernels {
-    /// For GPUs: each radix pass block is a workgroup of 256 (shared-memory counts and
-    /// ranks), and each tile a workgroup of 256 pixels that loads its splats into shared
-    /// memory 256 at a time and stops when every pixel has (splat_render.wgsl).
+    /// For GPUs: each radix block is a workgroup of 256 (shared-memory counts and ranks).
     Gpu,
     /// For CPU drivers: one invocation a radix block (radix_*_serial.wgsl: no shared
-    /// memory, atomics or barriers); the blend as on a GPU.
+    /// memory, atomics or barriers).
     Cpu,
 }
 
@@ -399,13 +397,9 @@ impl Rasterizer {
         let kernels = self
             .kernels
             .unwrap_or_else(|| RasterKernels::for_adapter(gpu));
-        let (histogram, scatter, blend) = match kernels {
-            RasterKernels::Gpu => (&RADIX_HISTOGRAM, &RADIX_SCATTER, &SPLAT_RENDER),
-            RasterKernels::Cpu => (
-                &RADIX_HISTOGRAM_SERIAL,
-                &RADIX_SCATTER_SERIAL,
-                &SPLAT_RENDER,
-            ),
+        let (histogram, scatter) = match kernels {
+            RasterKernels::Gpu => (&RADIX_HISTOGRAM, &RADIX_SCATTER),
+            RasterKernels::Cpu => (&RADIX_HISTOGRAM_SERIAL, &RADIX_SCATTER_SERIAL),
         };
         for pass in 0..4 {
             let (from, to) = (pass % 2, 1 - pass % 2);
@@ -459,7 +453,7 @@ impl Rasterizer {
         self.run(
             gpu,
             encoder,
-            blend,
+            &SPLAT_RENDER,
             &bindings,
             groups((tiles_x * tiles_y) as usize),
         );
