@@ -81,6 +81,38 @@ impl LinearImage {
         }
     }
 
+    /// The image `factor` times smaller, each pixel the mean of a `factor`² block
+    /// (premultiplied linear RGBA: a box filter over that many samples per pixel).
+    pub fn downsample(&self, factor: usize) -> Self {
+        if factor <= 1 {
+            return Self {
+                width: self.width,
+                height: self.height,
+                rgba: self.rgba.clone(),
+            };
+        }
+        let (width, height) = (self.width / factor, self.height / factor);
+        let weight = 1.0 / (factor * factor) as f32;
+        let mut rgba = vec![[0.0f32; 4]; width * height];
+        for (y, row) in rgba.chunks_exact_mut(width).enumerate() {
+            for (x, out) in row.iter_mut().enumerate() {
+                for sy in 0..factor {
+                    let start = (y * factor + sy) * self.width + x * factor;
+                    for p in &self.rgba[start..start + factor] {
+                        for c in 0..4 {
+                            out[c] += p[c] * weight;
+                        }
+                    }
+                }
+            }
+        }
+        Self {
+            width,
+            height,
+            rgba,
+        }
+    }
+
     /// sRGB-encoded RGB values of this image shown on a grey background given as an sRGB
     /// level (0 black, 0.5 mid-grey, 1 white): premultiplied colour over the background
     /// in linear light, then encoded.
@@ -383,6 +415,27 @@ mod tests {
         near(s.iou, 0.2, 1e-12);
         near(s.halo, 0.5, 1e-12);
         near(s.holes, 0.75, 1e-12);
+    }
+
+    #[test]
+    fn downsampling_averages_premultiplied_blocks() {
+        // 4×2 → 2×1: the left block is one opaque red pixel in four, the right block
+        // half-covered grey.
+        let mut rgba = vec![[0.0f32; 4]; 8];
+        rgba[0] = [1.0, 0.0, 0.0, 1.0];
+        for i in [2, 3] {
+            rgba[i] = [0.5, 0.5, 0.5, 1.0];
+        }
+        let image = LinearImage {
+            width: 4,
+            height: 2,
+            rgba,
+        };
+        let small = image.downsample(2);
+        assert_eq!((small.width, small.height), (2, 1));
+        assert_eq!(small.rgba[0], [0.25, 0.0, 0.0, 0.25]);
+        assert_eq!(small.rgba[1], [0.25, 0.25, 0.25, 0.5]);
+        assert_eq!(image.downsample(1).rgba, image.rgba);
     }
 
     #[test]
