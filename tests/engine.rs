@@ -837,7 +837,7 @@ fn splat_differences(a: &[Splat], b: &[Splat]) -> [f32; 5] {
 fn the_gpu_splats_equal_the_cpu_appearance_on_the_shipped_bundle() {
     // The standing start's and a generated frame's points through the CPU appearance
     // stage (base splats, the refiner fed host orders, upscale, fine splats) and through
-    // the frame plan's splat kernels (`draw_standing` runs them alone), at level 128 and 256, with and without the refiner. Tolerances (f32): the
+    // the frame plan's splat kernels (`draw_standing` runs them alone), at level 128, 256 and 512, with and without the refiner. Tolerances (f32): the
     // two sides differ only in summation order and fused multiply-adds (lengths,
     // logarithms, the refiner's inputs), so positions within 1e-5 m, scales within 1e-3
     // relative, rotations within 1e-4 of |q·q'| = 1, opacity and colour within 1e-3.
@@ -849,6 +849,8 @@ fn the_gpu_splats_equal_the_cpu_appearance_on_the_shipped_bundle() {
         (128, true, Some(unica::nn::Kernels::Gpu)),
         (256, true, None),
         (256, false, None),
+        // Above 256 the drawn splats are widened (base::widen).
+        (512, true, None),
     ];
     for (level, refine, kernels) in cases {
         let mut options = options(Sampling::new(2, 1.0), 11);

@@ -1,6 +1,7 @@
 // The drawn splats: base splats plus, with `residuals` set, the refiner's residuals (14
 // per splat: mean offset tanh-bounded by `bound`, colour, log-scale, rotation, opacity
-// logit), as base.rs's refine; written where the rasterizer reads them.
+// logit), as base.rs's refine; then the in-surface scales times `widen` (base.rs's
+// widen_splats); written where the rasterizer reads them.
 
 #import gpu/for_each.wgsl
 
@@ -32,5 +33,6 @@ fn each(i: u32) {
         s.scale = vec4<f32>(scale, 0.0);
         s.rotation = q * (1.0 / l);
     }
+    s.scale = vec4<f32>(s.scale.xy * p.widen, s.scale.z, 0.0);
     splats[i] = s;
 }

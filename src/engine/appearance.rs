@@ -192,6 +192,7 @@ impl Appearance {
             }
             base::refine(&mut splats, &fine_residuals, bound);
         }
+        base::widen_splats(&mut splats, base::widen(size));
         self.times.upscale = lap() - before_upscale;
         Ok(splats)
     }

@@ -14,6 +14,25 @@ use crate::posmap::table::VIEWS;
 pub const SPREAD: f32 = 0.6;
 pub const THICKNESS: f32 = 0.1;
 pub const OPACITY: f32 = 0.95;
+/// Above level 256 (the level the refiner is trained at), the drawn splats are this much
+/// wider along the surface: there a splat is under half a pixel across at the
+/// evaluation's 512² framing and the rasteriser's 0.3 px² blur sets its size, so at 1.0
+/// the silhouettes lose a rim of pixels (MEASURED_WIDEN: docs/experiments/appearance.md).
+pub const FINE_WIDEN: f32 = 2.0;
+
+/// How much wider than [`SPREAD`] the drawn splats of map size `level` are.
+pub fn widen(level: usize) -> f32 {
+    if level > 256 { FINE_WIDEN } else { 1.0 }
+}
+
+/// Multiplies each splat's two in-surface scales by `factor`.
+pub fn widen_splats(splats: &mut [Splat], factor: f32) {
+    for s in splats {
+        s.scale.x *= factor;
+        s.scale.y *= factor;
+    }
+}
+
 /// Raw refiner outputs per splat: mean 3, colour 3, log-scale 3, rotation 4, opacity 1.
 pub const RESIDUALS: usize = 14;
 
@@ -239,6 +258,21 @@ mod tests {
             }
         }
         (pixels, points)
+    }
+
+    #[test]
+    fn splats_above_level_256_are_widened_along_the_surface_only() {
+        assert_eq!((widen(128), widen(256)), (1.0, 1.0));
+        assert_eq!((widen(512), widen(1024)), (FINE_WIDEN, FINE_WIDEN));
+        let mut splats = vec![Splat {
+            position: Vec3::ZERO,
+            f_dc: Vec3::ZERO,
+            opacity: 0.5,
+            scale: Vec3::new(1.0, 2.0, 0.25),
+            rotation: Quat::IDENTITY,
+        }];
+        widen_splats(&mut splats, 1.5);
+        assert_eq!(splats[0].scale, Vec3::new(1.5, 3.0, 0.25));
     }
 
     #[test]

@@ -61,7 +61,8 @@ gpu_struct! {
         pub features: u32,
         /// Refine: apply the residuals.
         pub residuals: u32,
-        pub reserved0: u32,
+        /// Refine: the drawn splats' in-surface scales times this (`base::widen`).
+        pub widen: f32,
         pub reserved1: u32,
     }
 }
@@ -206,7 +207,7 @@ impl Level {
             bound: 0.0,
             features: 0,
             residuals: 0,
-            reserved0: 0,
+            widen: 1.0,
             reserved1: 0,
         }
     }
@@ -653,6 +654,7 @@ impl SplatFrame {
         let mut p = f.level.params();
         p.residuals = u32::from(rows.is_some());
         p.bound = self.refining.as_ref().map_or(0.0, |r| r.bound);
+        p.widen = super::base::widen(f.level.size);
         b.dispatch(
             &REFINE,
             &p,

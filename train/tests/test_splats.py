@@ -2,6 +2,7 @@
 each on cases with known answers."""
 
 import math
+from pathlib import Path
 
 import torch
 
@@ -122,3 +123,16 @@ def test_a_finer_level_has_more_smaller_splats():
     # Inside the patch a fine step is half a pixel: half the footprint (0.6 × 0.005);
     # at its rim the extrapolated values repeat, so splats there are smaller still.
     assert torch.allclose(splats.scales[:, :2].max(0).values, torch.tensor([0.003, 0.003]), atol=1e-5)
+
+
+def test_splats_above_level_256_are_widened_along_the_surface_only():
+    assert S.widen(128) == 1.0 and S.widen(256) == 1.0
+    assert S.widen(512) == S.FINE_WIDEN and S.widen(1024) == S.FINE_WIDEN
+    # The same constant as the engine's (src/splat/base.rs).
+    rust = (Path(__file__).parents[2] / "src/splat/base.rs").read_text()
+    assert f"pub const FINE_WIDEN: f32 = {S.FINE_WIDEN};" in rust
+    s = S.Splats(torch.zeros(2, 3), torch.zeros(2, 3), torch.tensor([[1.0, 2.0, 0.1], [3.0, 4.0, 0.2]]),
+                 torch.tensor([[0.0, 0.0, 0.0, 1.0]] * 2), torch.ones(2))
+    w = S.widened(s, 1.5)
+    assert torch.equal(w.scales, torch.tensor([[1.5, 3.0, 0.1], [4.5, 6.0, 0.2]]))
+    assert S.widened(s, 1.0) is s

@@ -20,6 +20,9 @@ SH_C0 = 0.28209479177387814
 SPREAD = 0.6
 THICKNESS = 0.1
 OPACITY = 0.95
+# Above level 256 (the refiner's training level) the drawn splats are this much wider
+# along the surface (src/splat/base.rs FINE_WIDEN, with its measurement).
+FINE_WIDEN = 2.0
 # The views of the map (row, col, rows, cols), in the order of src/posmap/table.rs.
 VIEWS = [(0, 0, 96, 48), (0, 48, 96, 48), (0, 96, 96, 32), (96, 0, 32, 96), (96, 96, 16, 32), (112, 96, 16, 32)]
 FOV_Y = 0.8
@@ -169,6 +172,19 @@ def base_splats(points: torch.Tensor, colors: torch.Tensor, nbrs: torch.Tensor) 
     scales = torch.stack([SPREAD * su, SPREAD * sv, THICKNESS * torch.minimum(su, sv)], -1)
     splats = Splats(points, colors, scales, quat_from_matrix(frame), torch.full((points.shape[0],), OPACITY))
     return splats, n
+
+
+def widen(level: int) -> float:
+    """How much wider than SPREAD the drawn splats of map size `level` are."""
+    return FINE_WIDEN if level > 256 else 1.0
+
+
+def widened(s: Splats, factor: float) -> Splats:
+    """`s` with each splat's two in-surface scales times `factor`."""
+    if factor == 1.0:
+        return s
+    scales = s.scales * torch.tensor([factor, factor, 1.0], dtype=s.scales.dtype)
+    return Splats(s.means, s.colors, scales, s.rotations, s.opacities)
 
 
 @dataclass

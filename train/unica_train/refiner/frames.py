@@ -130,11 +130,11 @@ def refined(base: splats.Splats | None, raw: torch.Tensor, bound: float, level: 
             world: torch.Tensor | None = None) -> splats.Splats:
     """The refined splats: residuals `raw` applied to `base` (the map's own level), or,
     with `level`, the points `world` and the residuals upscaled to that level first (as
-    the app draws them)."""
+    the app draws them, widened above level 256)."""
     if level is None:
         return apply(base, raw, bound)
     fine, up = level.splats(world, raw)
-    return apply(fine, up, bound)
+    return splats.widened(apply(fine, up, bound), splats.widen(level.size))
 
 
 def drawn_level(frames: Frames, cfg: RefinerTrainConfig) -> splats.Level | None:
