@@ -19,14 +19,14 @@ use crate::engine::{Engine, EngineOptions};
 use crate::gpu::GpuContext;
 use crate::gpu::kernel::Precision;
 use crate::mesh::Mesh;
-use crate::posmap::GroupNorm;
+use crate::posmap::{GroupNorm, SurfaceTable};
 use crate::render::OrbitCamera;
 use crate::render::camera::FOV_Y;
 use crate::render::offscreen::Offscreen;
 use crate::render::scene::{DrawOptions, character_light};
 use crate::splat::raster::Rasterizer;
 
-use super::motion::facing_deg;
+use super::motion::{FootSample, facing_deg, foot_sample};
 use super::pixels::{self, BACKGROUNDS, LinearImage, Silhouette};
 
 /// Share of the image height the standing teacher fills in the full-body views.
@@ -128,6 +128,10 @@ pub struct LockstepRun {
     /// Facings (degrees) of the same frames, each from its own points.
     pub teacher_facing: Vec<f32>,
     pub engine_facing: Vec<f32>,
+    /// The left and right foot of the same frames (empty where no foot joints were
+    /// found), each from its own points.
+    pub teacher_feet: Vec<Vec<FootSample>>,
+    pub engine_feet: Vec<Vec<FootSample>>,
     pub scores: Vec<FrameScore>,
     /// Fraction of the image height the teacher fills, per full-body view (smallest seen).
     pub fill: f32,
@@ -149,6 +153,49 @@ struct TeacherFrames {
     yaw: Vec<f32>,
     head: Vec<Vec3>,
     hands: Vec<[Vec3; 2]>,
+    feet: Vec<Vec<FootSample>>,
+}
+
+/// The map pixels (indices into the table's foreground list) of the left and right foot:
+/// those whose triangle's three vertices all follow the foot joint or a joint below it
+/// (toes) most. Empty when the character has no foot joints to find.
+fn foot_pixels(teacher: &Teacher, table: &SurfaceTable) -> Vec<Vec<u32>> {
+    let character = &teacher.character;
+    let rig = &character.rig;
+    let find = |name| humanoid::find_loosely(rig, character.vrm.as_ref(), name);
+    let (Some(left), Some(right)) = (find("Foot.L"), find("Foot.R")) else {
+        return Vec::new();
+    };
+    let under = |node: usize, top: usize| {
+        let mut n = Some(node);
+        while let Some(k) = n {
+            if k == top {
+                return true;
+            }
+            n = rig.nodes[k].parent;
+        }
+        false
+    };
+    let indices = &character.skinned.bind.indices;
+    let node_of = |v: u32| rig.bones[character.skinned.dominant_bone(v as usize)].node;
+    [left, right]
+        .iter()
+        .map(|&foot| {
+            (0..table.len() as u32)
+                .filter(|&i| {
+                    let t = 3 * table.triangles[i as usize] as usize;
+                    indices[t..t + 3].iter().all(|&v| under(node_of(v), foot))
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Each foot's sample in one frame's map points (none where the feet were not found).
+fn foot_samples(points: &[Vec3], feet: &[Vec<u32>]) -> Vec<FootSample> {
+    feet.iter()
+        .filter_map(|foot| foot_sample(points, foot))
+        .collect()
 }
 
 /// Where the cameras stand: the standing teacher's height, the height they aim at and
@@ -234,6 +281,7 @@ pub fn run(
     };
     let joints = [find("Head")?, find("Wrist.L")?, find("Wrist.R")?];
     let indices = teacher.character.skinned.bind.indices.clone();
+    let feet = foot_pixels(&teacher, &reference.table);
     let mut frames = TeacherFrames {
         points: Vec::new(),
         roots: Vec::new(),
@@ -242,6 +290,7 @@ pub fn run(
         yaw: Vec::new(),
         head: Vec::new(),
         hands: Vec::new(),
+        feet: Vec::new(),
     };
     let mut rest: Vec<Vec3> = Vec::new();
     for (index, &kept) in needed.iter().enumerate() {
@@ -257,6 +306,7 @@ pub fn run(
         }
         frames.facing.push(facing_deg(&centred, &rest));
         frames.roots.push(root);
+        frames.feet.push(foot_samples(&points, &feet));
         frames.points.push(points);
         frames.yaw.push(teacher.locomotion.yaw);
         let world = teacher.world();
@@ -324,6 +374,7 @@ pub fn run(
     let start = root_of(&standing);
     let mut engine_roots = vec![start];
     let mut engine_facing = vec![facing_of(&standing, start)];
+    let mut engine_feet = vec![foot_samples(&standing, &feet)];
     let mut scores = Vec::new();
     let mut fill = 1.0f32;
     let mut sheet = None;
@@ -335,6 +386,7 @@ pub fn run(
         let root = root_of(&frame.points);
         engine_roots.push(root);
         engine_facing.push(facing_of(&frame.points, root));
+        engine_feet.push(foot_samples(&frame.points, &feet));
         engine_seconds += lap.elapsed().as_secs_f64();
         if scored.contains(&index) {
             let lap = std::time::Instant::now();
@@ -468,6 +520,8 @@ pub fn run(
         progress("engine", index as u64, steps as u64);
     }
     Ok(LockstepRun {
+        teacher_feet: frames.feet,
+        engine_feet,
         teacher_roots: frames.roots,
         engine_roots,
         teacher_facing: frames.facing,

@@ -106,6 +106,8 @@ pub fn strict(
                 "engine_roots": r.run.engine_roots.iter().map(|p| p.to_array()).collect::<Vec<_>>(),
                 "teacher_facing_deg": r.run.teacher_facing,
                 "engine_facing_deg": r.run.engine_facing,
+                "teacher_feet": r.run.teacher_feet,
+                "engine_feet": r.run.engine_feet,
                 "scores": r.run.scores,
             })
         })

@@ -29,6 +29,50 @@ pub const STOP_RATIO: (f64, f64) = (0.75, 1.25);
 pub const IDLE_CREEP_M: f64 = 0.02;
 pub const SPEED_ERROR_PCT: f64 = 5.0;
 
+/// A foot is planted where its lowest point is within this height (m) of its frame's
+/// lowest point: the Witch teacher's stance foot stays within 4 mm of the floor through
+/// her run cycle, and heel strike and toe-off pass through 1-5 cm (quick strict eval,
+/// seed 48048).
+pub const PLANTED_M: f32 = 0.01;
+/// Foot slip against the teacher's (issue #48: within 1.5×).
+pub const FOOT_SLIP_RATIO: f64 = 1.5;
+
+/// One foot in one frame: the horizontal centre of its points and the height of its lowest
+/// point above the frame's lowest point.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct FootSample {
+    pub centre: Vec3,
+    pub lift: f32,
+}
+
+/// The sample of the foot whose points are `points[foot[..]]`; None for no foot points.
+pub fn foot_sample(points: &[Vec3], foot: &[u32]) -> Option<FootSample> {
+    if foot.is_empty() {
+        return None;
+    }
+    let floor = points.iter().map(|p| p.y).fold(f32::INFINITY, f32::min);
+    let lowest = foot
+        .iter()
+        .map(|&i| points[i as usize].y)
+        .fold(f32::INFINITY, f32::min);
+    let centre = foot.iter().map(|&i| points[i as usize]).sum::<Vec3>() / foot.len() as f32;
+    Some(FootSample {
+        centre: flat(centre),
+        lift: lowest - floor,
+    })
+}
+
+/// A foot's slip: (total horizontal travel in m, steps) over the steps between two
+/// frames in which it is planted in both.
+pub fn foot_slip(samples: &[FootSample]) -> (f64, usize) {
+    samples
+        .windows(2)
+        .filter(|w| w[0].lift < PLANTED_M && w[1].lift < PLANTED_M)
+        .fold((0.0, 0), |(total, steps), w| {
+            (total + w[0].centre.distance(w[1].centre) as f64, steps + 1)
+        })
+}
+
 /// Heading of a horizontal displacement in degrees: atan2(dx, dz), so W (+Z) is 0 and A
 /// (+X) is 90.
 pub fn heading_deg(d: Vec3) -> f32 {
@@ -233,6 +277,39 @@ pub fn ratio(generated: Option<f64>, teacher: Option<f64>) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn foot_slip_counts_travel_between_planted_frames_only() {
+        // Points: a floor point, then a two-point foot.
+        let frame = |x: f32, lift: f32| {
+            vec![
+                Vec3::new(5.0, 0.0, 5.0),
+                Vec3::new(x, lift, 1.0),
+                Vec3::new(x + 0.1, lift + 0.05, 1.0),
+            ]
+        };
+        let foot = [1, 2];
+        let s = foot_sample(&frame(2.0, 0.003), &foot).unwrap();
+        assert_eq!(s.centre, Vec3::new(2.05, 0.0, 1.0));
+        assert!((s.lift - 0.003).abs() < 1e-6);
+        assert_eq!(foot_sample(&frame(2.0, 0.0), &[]), None);
+        // Planted at x = 0, 0.004, 0.010, lifted (0.1 m) while it moves 0.5 m, planted
+        // again at 0.51 and 0.512: three planted steps, 0.004 + 0.006 + 0.002 m.
+        let samples: Vec<FootSample> = [
+            (0.0, 0.0),
+            (0.004, 0.004),
+            (0.010, 0.008),
+            (0.26, 0.1),
+            (0.51, 0.0),
+            (0.512, 0.0),
+        ]
+        .iter()
+        .map(|&(x, lift)| foot_sample(&frame(x, lift), &foot).unwrap())
+        .collect();
+        let (total, steps) = foot_slip(&samples);
+        assert_eq!(steps, 3);
+        assert!((total - 0.012).abs() < 1e-6, "{total}");
+    }
 
     fn walk(steps: &[(Vec3, usize)]) -> Vec<Vec3> {
         let mut path = vec![Vec3::ZERO];
