@@ -132,6 +132,10 @@ pub struct LockstepRun {
     /// found), each from its own points.
     pub teacher_feet: Vec<Vec<FootSample>>,
     pub engine_feet: Vec<Vec<FootSample>>,
+    /// Per frame scored at the engine's level: the mean image change to the next frame
+    /// (`pixels::mean_change`, both frames from the scored frame's cameras), generated and
+    /// teacher.
+    pub flicker: Vec<(f64, f64)>,
     pub scores: Vec<FrameScore>,
     /// Fraction of the image height the teacher fills, per full-body view (smallest seen).
     pub fill: f32,
@@ -263,6 +267,10 @@ pub fn run(
         for j in window(i) {
             needed[j] = true;
         }
+        // The frame after, for flicker.
+        if i < steps {
+            needed[i + 1] = true;
+        }
     }
 
     // The teacher, every frame.
@@ -362,9 +370,13 @@ pub fn run(
         ));
     }
     let mut offscreen = Offscreen::new(gpu.clone(), options.size, options.size);
-    let samples = TEACHER_SAMPLES;
-    let mut teacher_offscreen =
-        Offscreen::new(gpu.clone(), options.size * samples, options.size * samples);
+    let mut teacher_offscreen = Offscreen::new(
+        gpu.clone(),
+        options.size * TEACHER_SAMPLES,
+        options.size * TEACHER_SAMPLES,
+    );
+    let mut flicker = Vec::new();
+    let mut flicker_start: Option<FlickerStart> = None;
     let standing = engine.standing_points();
     let root_of = |points: &[Vec3]| GroupNorm::root(points, &waist);
     let facing_of = |points: &[Vec3], root: Vec3| {
@@ -388,6 +400,26 @@ pub fn run(
         engine_facing.push(facing_of(&frame.points, root));
         engine_feet.push(foot_samples(&frame.points, &feet));
         engine_seconds += lap.elapsed().as_secs_f64();
+        if let Some(start) = flicker_start.take().filter(|f| f.index + 1 == index) {
+            // The frame after a scored one, from the scored frame's cameras (both sides).
+            let (buffer, count) = engine
+                .splats()
+                .ok_or_else(|| anyhow::anyhow!("the engine made no splats"))?;
+            let got = draw_splats(&mut offscreen, buffer, count, &start.cameras)?;
+            let mesh = frames.meshes[index]
+                .as_ref()
+                .expect("the frame after a scored one is kept");
+            let want = draw_teacher(
+                &mut teacher_offscreen,
+                mesh,
+                frames.yaw[index],
+                &start.teacher_cameras,
+            )?;
+            flicker.push((
+                pixels::mean_change(&start.generated, &got),
+                pixels::mean_change(&start.teacher, &want),
+            ));
+        }
         if scored.contains(&index) {
             let lap = std::time::Instant::now();
             let facing = frames.facing[index];
@@ -431,18 +463,12 @@ pub fn run(
                 let mesh = frames.meshes[j]
                     .as_ref()
                     .expect("every frame of a window is kept");
-                let light = DrawOptions {
-                    light: Some(character_light(frames.yaw[j])),
-                    ..plain()
-                };
-                let mut images = Vec::new();
-                for camera in teacher_cameras(j) {
-                    images.push(
-                        LinearImage::from_srgb8(&teacher_offscreen.render(mesh, &camera, &light)?)
-                            .downsample(samples as usize),
-                    );
-                }
-                let images = Rc::new(images);
+                let images = Rc::new(draw_teacher(
+                    &mut teacher_offscreen,
+                    mesh,
+                    frames.yaw[j],
+                    &teacher_cameras(j),
+                )?);
                 for (k, (_, got)) in generated.iter().enumerate() {
                     let mean = got
                         .iter()
@@ -463,6 +489,13 @@ pub fn run(
             }
             let same = same.expect("the window holds its own index");
             fill = fill.min(filled(&same, options.size));
+            flicker_start = Some(FlickerStart {
+                index,
+                cameras: cameras.clone(),
+                teacher_cameras: teacher_cameras(index),
+                generated: generated[0].1.clone(),
+                teacher: same.to_vec(),
+            });
             for (k, (level, got)) in generated.iter().enumerate() {
                 let (_, best_index, want) = &best[k];
                 let look = looks
@@ -522,6 +555,7 @@ pub fn run(
     Ok(LockstepRun {
         teacher_feet: frames.feet,
         engine_feet,
+        flicker,
         teacher_roots: frames.roots,
         engine_roots,
         teacher_facing: frames.facing,
@@ -537,6 +571,36 @@ pub fn run(
         ],
         sheet,
     })
+}
+
+/// A scored frame's images and cameras, kept to compare the next frame with (flicker).
+struct FlickerStart {
+    index: usize,
+    cameras: Vec<OrbitCamera>,
+    teacher_cameras: Vec<OrbitCamera>,
+    generated: Vec<LinearImage>,
+    teacher: Vec<LinearImage>,
+}
+
+/// The teacher's `mesh` in its light (the character's at `yaw`) from each camera, drawn
+/// at [`TEACHER_SAMPLES`]² samples a pixel.
+fn draw_teacher(
+    offscreen: &mut Offscreen,
+    mesh: &Mesh,
+    yaw: f32,
+    cameras: &[OrbitCamera],
+) -> anyhow::Result<Vec<LinearImage>> {
+    let light = DrawOptions {
+        light: Some(character_light(yaw)),
+        ..plain()
+    };
+    cameras
+        .iter()
+        .map(|camera| {
+            let image = offscreen.render(mesh, camera, &light)?;
+            Ok(LinearImage::from_srgb8(&image).downsample(TEACHER_SAMPLES as usize))
+        })
+        .collect()
 }
 
 /// `count` splats of `buffer` drawn from each camera.

@@ -108,6 +108,7 @@ pub fn strict(
                 "engine_facing_deg": r.run.engine_facing,
                 "teacher_feet": r.run.teacher_feet,
                 "engine_feet": r.run.engine_feet,
+                "flicker": r.run.flicker,
                 "scores": r.run.scores,
             })
         })

@@ -6,6 +6,7 @@
 use std::sync::OnceLock;
 
 /// A render as premultiplied linear RGBA floats, row-major.
+#[derive(Clone)]
 pub struct LinearImage {
     pub width: usize,
     pub height: usize,
@@ -121,6 +122,33 @@ impl LinearImage {
         let show = |&[r, g, b, a]: &[f32; 4]| [r, g, b].map(|c| to_srgb(c + (1.0 - a) * bg));
         self.rgba.iter().map(show).collect()
     }
+}
+
+/// How much two frames from the same cameras differ: per view, the mean absolute
+/// difference of the shown (sRGB, mid-grey background) values over the pixels touched in
+/// either, then the mean over the views (0 for no touched pixel). Flicker compares this
+/// frame-to-frame change of the generated frames with the teacher's.
+pub fn mean_change(a: &[LinearImage], b: &[LinearImage]) -> f64 {
+    let per_view: Vec<f64> = a
+        .iter()
+        .zip(b)
+        .map(|(a, b)| {
+            same_size(a, b);
+            let (sa, sb) = (a.shown(0.5), b.shown(0.5));
+            let (mut total, mut n) = (0.0f64, 0usize);
+            for i in 0..a.rgba.len() {
+                if a.rgba[i][3] > TOUCHED || b.rgba[i][3] > TOUCHED {
+                    total += (0..3)
+                        .map(|c| (sa[i][c] - sb[i][c]).abs() as f64)
+                        .sum::<f64>()
+                        / 3.0;
+                    n += 1;
+                }
+            }
+            if n == 0 { 0.0 } else { total / n as f64 }
+        })
+        .collect();
+    per_view.iter().sum::<f64>() / per_view.len().max(1) as f64
 }
 
 /// Both images must describe the same frame; anything else is a caller's bug.
@@ -436,6 +464,30 @@ mod tests {
         assert_eq!(small.rgba[0], [0.25, 0.0, 0.0, 0.25]);
         assert_eq!(small.rgba[1], [0.25, 0.25, 0.25, 0.5]);
         assert_eq!(image.downsample(1).rgba, image.rgba);
+    }
+
+    #[test]
+    fn mean_change_averages_touched_pixels_then_views() {
+        // View 0: one of four pixels touched, opaque black against nothing (shown on
+        // mid-grey: |0 - 0.5| in every channel); untouched pixels do not count. View 1:
+        // identical. Mean over the views: 0.25.
+        let image = |first: [f32; 4]| {
+            let mut rgba = vec![[0.0f32; 4]; 4];
+            rgba[0] = first;
+            LinearImage {
+                width: 2,
+                height: 2,
+                rgba,
+            }
+        };
+        let a = vec![image([0.0, 0.0, 0.0, 1.0]), image([0.0, 0.0, 0.0, 1.0])];
+        let b = vec![image([0.0; 4]), image([0.0, 0.0, 0.0, 1.0])];
+        assert!(
+            (mean_change(&a, &b) - 0.25).abs() < 1e-6,
+            "{}",
+            mean_change(&a, &b)
+        );
+        assert_eq!(mean_change(&b[..1], &b[..1]), 0.0);
     }
 
     #[test]
