@@ -108,6 +108,11 @@ pub struct Chain {
 }
 
 impl Chain {
+    /// The rig nodes of this chain's joints, root first.
+    pub fn nodes(&self) -> impl Iterator<Item = usize> + '_ {
+        self.joints.iter().map(|j| j.node)
+    }
+
     /// A chain over rig nodes `nodes` (each the parent of the next), ending in a tail at
     /// `tip` (the last node's rest-frame offset), from the rig's rest pose `world`.
     pub fn new(

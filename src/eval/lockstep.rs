@@ -26,7 +26,7 @@ use crate::render::offscreen::Offscreen;
 use crate::render::scene::{DrawOptions, character_light};
 use crate::splat::raster::Rasterizer;
 
-use super::motion::{FootSample, facing_deg, foot_sample};
+use super::motion::{FootSample, body_offset, facing_deg, foot_sample};
 use super::pixels::{self, BACKGROUNDS, LinearImage, Silhouette};
 
 /// Share of the image height the standing teacher fills in the full-body views.
@@ -136,6 +136,10 @@ pub struct LockstepRun {
     /// (`pixels::mean_change`, both frames from the scored frame's cameras), generated and
     /// teacher.
     pub flicker: Vec<(f64, f64)>,
+    /// The loose parts' (spring-chain pixels') centre on the body of the same frames
+    /// (`motion::body_offset`; empty where the teacher has no spring chains).
+    pub teacher_swing: Vec<Vec3>,
+    pub engine_swing: Vec<Vec3>,
     pub scores: Vec<FrameScore>,
     /// Fraction of the image height the teacher fills, per full-body view (smallest seen).
     pub fill: f32,
@@ -158,6 +162,35 @@ struct TeacherFrames {
     head: Vec<Vec3>,
     hands: Vec<[Vec3; 2]>,
     feet: Vec<Vec<FootSample>>,
+    swing: Vec<Vec3>,
+}
+
+/// The map pixels (indices into the table's foreground list) of the loose parts: those
+/// whose triangle's three vertices all follow a spring joint most.
+fn spring_pixels(teacher: &Teacher, table: &SurfaceTable) -> Vec<u32> {
+    let character = &teacher.character;
+    let springs: Vec<usize> = teacher
+        .springs
+        .chains
+        .iter()
+        .flat_map(|c| c.nodes())
+        .collect();
+    let indices = &character.skinned.bind.indices;
+    let node_of = |v: u32| character.rig.bones[character.skinned.dominant_bone(v as usize)].node;
+    (0..table.len() as u32)
+        .filter(|&i| {
+            let t = 3 * table.triangles[i as usize] as usize;
+            indices[t..t + 3]
+                .iter()
+                .all(|&v| springs.contains(&node_of(v)))
+        })
+        .collect()
+}
+
+/// The mean of `points[pixels[..]]`; None for no pixels.
+fn centre_of(points: &[Vec3], pixels: &[u32]) -> Option<Vec3> {
+    (!pixels.is_empty())
+        .then(|| pixels.iter().map(|&i| points[i as usize]).sum::<Vec3>() / pixels.len() as f32)
 }
 
 /// The map pixels (indices into the table's foreground list) of the left and right foot:
@@ -290,6 +323,7 @@ pub fn run(
     let joints = [find("Head")?, find("Wrist.L")?, find("Wrist.R")?];
     let indices = teacher.character.skinned.bind.indices.clone();
     let feet = foot_pixels(&teacher, &reference.table);
+    let loose = spring_pixels(&teacher, &reference.table);
     let mut frames = TeacherFrames {
         points: Vec::new(),
         roots: Vec::new(),
@@ -299,6 +333,7 @@ pub fn run(
         head: Vec::new(),
         hands: Vec::new(),
         feet: Vec::new(),
+        swing: Vec::new(),
     };
     let mut rest: Vec<Vec3> = Vec::new();
     for (index, &kept) in needed.iter().enumerate() {
@@ -312,7 +347,11 @@ pub fn run(
         if index == 0 {
             rest = centred.clone();
         }
-        frames.facing.push(facing_deg(&centred, &rest));
+        let facing = facing_deg(&centred, &rest);
+        frames
+            .swing
+            .extend(centre_of(&points, &loose).map(|c| body_offset(c, root, facing)));
+        frames.facing.push(facing);
         frames.roots.push(root);
         frames.feet.push(foot_samples(&points, &feet));
         frames.points.push(points);
@@ -387,6 +426,10 @@ pub fn run(
     let mut engine_roots = vec![start];
     let mut engine_facing = vec![facing_of(&standing, start)];
     let mut engine_feet = vec![foot_samples(&standing, &feet)];
+    let mut engine_swing: Vec<Vec3> = centre_of(&standing, &loose)
+        .map(|c| body_offset(c, start, engine_facing[0]))
+        .into_iter()
+        .collect();
     let mut scores = Vec::new();
     let mut fill = 1.0f32;
     let mut sheet = None;
@@ -399,6 +442,8 @@ pub fn run(
         engine_roots.push(root);
         engine_facing.push(facing_of(&frame.points, root));
         engine_feet.push(foot_samples(&frame.points, &feet));
+        let facing = *engine_facing.last().expect("pushed above");
+        engine_swing.extend(centre_of(&frame.points, &loose).map(|c| body_offset(c, root, facing)));
         engine_seconds += lap.elapsed().as_secs_f64();
         if let Some(start) = flicker_start.take().filter(|f| f.index + 1 == index) {
             // The frame after a scored one, from the scored frame's cameras (both sides).
@@ -555,6 +600,8 @@ pub fn run(
     Ok(LockstepRun {
         teacher_feet: frames.feet,
         engine_feet,
+        teacher_swing: frames.swing,
+        engine_swing,
         flicker,
         teacher_roots: frames.roots,
         engine_roots,

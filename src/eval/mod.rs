@@ -86,7 +86,8 @@ pub fn strict(
             )?;
         }
         let actions: Vec<_> = (0..keys.len()).map(|i| keys.action_at(i)).collect();
-        let motion = motion::compare(&run.engine_roots, &run.teacher_roots, &actions);
+        let mut motion = motion::compare(&run.engine_roots, &run.teacher_roots, &actions);
+        motion.swings = motion::swings(&run.engine_swing, &run.teacher_swing, &actions);
         runs.push(report::SeedRun {
             seed,
             script,

@@ -177,6 +177,16 @@ pub struct CreepCompare {
     pub teacher_creep_m: f32,
 }
 
+/// The loose parts' swing after one turn or stop.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct SwingCompare {
+    pub label: String,
+    /// The last frame under the old key.
+    pub frame: usize,
+    pub generated_m: f32,
+    pub teacher_m: f32,
+}
+
 /// Everything compared on one script.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct MotionCompare {
@@ -184,6 +194,51 @@ pub struct MotionCompare {
     pub stops: Vec<StopCompare>,
     pub speeds: Vec<SpeedCompare>,
     pub creep: Vec<CreepCompare>,
+    pub swings: Vec<SwingCompare>,
+}
+
+/// Frames after a key change over which the loose parts' swing is measured (the teacher's
+/// stop takes about 10).
+pub const SWING_FRAMES: usize = 30;
+/// Swing amplitude against the teacher's (issue #48: within ±30 %).
+pub const SWING_RATIO: (f64, f64) = (0.7, 1.3);
+
+/// Where the loose parts' centre sits on the body: `centre` minus the `root`, turned by
+/// minus the body's facing (degrees, `heading_deg`'s convention) about +Y.
+pub fn body_offset(centre: Vec3, root: Vec3, facing_deg: f32) -> Vec3 {
+    glam::Quat::from_rotation_y(-facing_deg.to_radians()) * (centre - root)
+}
+
+/// After each turn and each stop of `actions`: how far the loose parts' body offset
+/// (`offsets[t]` for frame t, as paths are) moves from where it was at the key change,
+/// at most, over the next [`SWING_FRAMES`] frames or until the next change; generated and
+/// teacher. Empty when either side has no offsets.
+pub fn swings(generated: &[Vec3], teacher: &[Vec3], actions: &[Action]) -> Vec<SwingCompare> {
+    if generated.len() != actions.len() + 1 || teacher.len() != actions.len() + 1 {
+        return Vec::new();
+    }
+    let runs = runs(actions);
+    let amplitude = |offsets: &[Vec3], from: usize, to: usize| {
+        offsets[from..=to]
+            .iter()
+            .map(|o| o.distance(offsets[from]))
+            .fold(0.0f32, f32::max)
+    };
+    let mut out = Vec::new();
+    for k in 1..runs.len() {
+        let (before, (action, start, steps)) = (runs[k - 1].0, runs[k]);
+        if key_heading(before).is_none() {
+            continue;
+        }
+        let end = start + steps.min(SWING_FRAMES);
+        out.push(SwingCompare {
+            label: format!("{}→{}", before.letter(), action.letter()),
+            frame: start,
+            generated_m: amplitude(generated, start, end),
+            teacher_m: amplitude(teacher, start, end),
+        });
+    }
+    out
 }
 
 /// Runs of one action: (action, first step, steps).
@@ -277,6 +332,35 @@ pub fn ratio(generated: Option<f64>, teacher: Option<f64>) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn swings_follow_turns_and_stops_over_the_next_frames() {
+        use Action::*;
+        // W 10, A 40, Idle 10: a turn at step 10 and a stop at step 50 (a start at 0 is
+        // not a swing). Offsets: a bump of 0.2 (teacher) and 0.1 (generated) 5 frames
+        // after the turn, one of 0.3 35 frames after it (past SWING_FRAMES: not counted),
+        // and 0.05 / 0.1 after the stop.
+        let mut actions = vec![Forward; 10];
+        actions.extend([Left; 40]);
+        actions.extend([Idle; 10]);
+        let bumps = |turn: f32, stop: f32| {
+            let mut o = vec![Vec3::ZERO; 61];
+            o[15] = Vec3::X * turn;
+            o[45] = Vec3::X * 0.3;
+            o[53] = Vec3::Z * stop;
+            o
+        };
+        let s = swings(&bumps(0.1, 0.1), &bumps(0.2, 0.05), &actions);
+        assert_eq!(s.len(), 2);
+        assert_eq!((s[0].label.as_str(), s[0].frame), ("W→A", 10));
+        assert_eq!((s[0].generated_m, s[0].teacher_m), (0.1, 0.2));
+        assert_eq!((s[1].label.as_str(), s[1].frame), ("A→I", 50));
+        assert_eq!((s[1].generated_m, s[1].teacher_m), (0.1, 0.05));
+        assert!(swings(&[], &bumps(0.2, 0.05), &actions).is_empty());
+        // Facing 90° (toward +X): a centre 1 m along +X is 1 m ahead (+Z) on the body.
+        let o = body_offset(Vec3::new(3.0, 1.0, 0.0), Vec3::new(2.0, 1.0, 0.0), 90.0);
+        assert!(o.distance(Vec3::Z) < 1e-6, "{o}");
+    }
 
     #[test]
     fn foot_slip_counts_travel_between_planted_frames_only() {
