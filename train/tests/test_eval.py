@@ -43,8 +43,10 @@ def test_unica_eval_quick_writes_a_report_with_finite_numbers(tmp_path):
     # on grey) at least as well as the same index.
     assert strict["ceiling_psnr_db"] > strict["free_same_index_psnr_db"], strict
     assert strict["free_psnr_db_grey"] >= strict["free_same_index_psnr_db_grey"], strict
+    # Over time: the Witch has feet and spring chains, the quick scripts turn and stop.
     for key in ("flicker_ratio", "foot_slip_ratio", "swing_ratio_min", "swing_ratio_max"):
-        assert strict[key] is None, key  # not measured yet, and never a made-up number
+        assert math.isfinite(strict[key]) and strict[key] > 0, (key, strict[key])
+    assert strict["swings"] >= 1 and strict["teacher_foot_slip_mm"] > 0, strict
     assert "## Targets" in (out / "report.md").read_text()
     lenient = json.loads((out / "lenient" / "summary.json").read_text())
     assert all(strict[f"lenient_{k}"] == v for k, v in lenient.items() if isinstance(v, (int, str)))
