@@ -160,16 +160,7 @@ fn body_regions(teacher: &Teacher, mesh: &crate::mesh::Mesh) -> Vec<(&'static st
     let rig = &character.rig;
     let found = find_all(rig, character.vrm.as_ref(), &["Head", "Wrist.L", "Wrist.R"]);
     // A node is in the hands when a wrist is it or one of its ancestors.
-    let under = |node: usize, tops: &[usize]| {
-        let mut n = Some(node);
-        while let Some(k) = n {
-            if tops.contains(&k) {
-                return true;
-            }
-            n = rig.nodes[k].parent;
-        }
-        false
-    };
+    let under = |node: usize, tops: &[usize]| tops.iter().any(|&top| rig.is_under(node, top));
     let wrists: Vec<usize> = found[1..].iter().flatten().copied().collect();
     let node_of = |v: u32| rig.bones[character.skinned.dominant_bone(v as usize)].node;
     let triangles: Vec<[u32; 3]> = mesh

@@ -64,6 +64,18 @@ impl Rig {
         self.nodes.iter().position(|n| n.name == name)
     }
 
+    /// Whether node `node` is `top` or below it.
+    pub fn is_under(&self, node: usize, top: usize) -> bool {
+        let mut n = Some(node);
+        while let Some(k) = n {
+            if k == top {
+                return true;
+            }
+            n = self.nodes[k].parent;
+        }
+        false
+    }
+
     /// The rest pose: every node's local rest transform.
     pub fn rest_pose(&self) -> Vec<Transform> {
         self.nodes.iter().map(|n| n.rest).collect()

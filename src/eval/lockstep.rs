@@ -165,26 +165,34 @@ struct TeacherFrames {
     swing: Vec<Vec3>,
 }
 
-/// The map pixels (indices into the table's foreground list) of the loose parts: those
-/// whose triangle's three vertices all follow a spring joint most.
+/// The map pixels (indices into the table's foreground list) whose triangle's three
+/// vertices all follow most a joint that `keep` accepts.
+fn pixels_following(
+    teacher: &Teacher,
+    table: &SurfaceTable,
+    keep: impl Fn(usize) -> bool,
+) -> Vec<u32> {
+    let skinned = &teacher.character.skinned;
+    let node_of = |v: u32| teacher.character.rig.bones[skinned.dominant_bone(v as usize)].node;
+    (0..table.len() as u32)
+        .filter(|&i| {
+            let t = 3 * table.triangles[i as usize] as usize;
+            skinned.bind.indices[t..t + 3]
+                .iter()
+                .all(|&v| keep(node_of(v)))
+        })
+        .collect()
+}
+
+/// The map pixels of the loose parts: those that follow a spring joint.
 fn spring_pixels(teacher: &Teacher, table: &SurfaceTable) -> Vec<u32> {
-    let character = &teacher.character;
     let springs: Vec<usize> = teacher
         .springs
         .chains
         .iter()
         .flat_map(|c| c.nodes())
         .collect();
-    let indices = &character.skinned.bind.indices;
-    let node_of = |v: u32| character.rig.bones[character.skinned.dominant_bone(v as usize)].node;
-    (0..table.len() as u32)
-        .filter(|&i| {
-            let t = 3 * table.triangles[i as usize] as usize;
-            indices[t..t + 3]
-                .iter()
-                .all(|&v| springs.contains(&node_of(v)))
-        })
-        .collect()
+    pixels_following(teacher, table, |node| springs.contains(&node))
 }
 
 /// The mean of `points[pixels[..]]`; None for no pixels.
@@ -193,9 +201,8 @@ fn centre_of(points: &[Vec3], pixels: &[u32]) -> Option<Vec3> {
         .then(|| pixels.iter().map(|&i| points[i as usize]).sum::<Vec3>() / pixels.len() as f32)
 }
 
-/// The map pixels (indices into the table's foreground list) of the left and right foot:
-/// those whose triangle's three vertices all follow the foot joint or a joint below it
-/// (toes) most. Empty when the character has no foot joints to find.
+/// The map pixels of the left and right foot: those that follow the foot joint or a joint
+/// below it (toes). Empty when the character has no foot joints to find.
 fn foot_pixels(teacher: &Teacher, table: &SurfaceTable) -> Vec<Vec<u32>> {
     let character = &teacher.character;
     let rig = &character.rig;
@@ -203,28 +210,9 @@ fn foot_pixels(teacher: &Teacher, table: &SurfaceTable) -> Vec<Vec<u32>> {
     let (Some(left), Some(right)) = (find("Foot.L"), find("Foot.R")) else {
         return Vec::new();
     };
-    let under = |node: usize, top: usize| {
-        let mut n = Some(node);
-        while let Some(k) = n {
-            if k == top {
-                return true;
-            }
-            n = rig.nodes[k].parent;
-        }
-        false
-    };
-    let indices = &character.skinned.bind.indices;
-    let node_of = |v: u32| rig.bones[character.skinned.dominant_bone(v as usize)].node;
     [left, right]
         .iter()
-        .map(|&foot| {
-            (0..table.len() as u32)
-                .filter(|&i| {
-                    let t = 3 * table.triangles[i as usize] as usize;
-                    indices[t..t + 3].iter().all(|&v| under(node_of(v), foot))
-                })
-                .collect()
-        })
+        .map(|&foot| pixels_following(teacher, table, |node| rig.is_under(node, foot)))
         .collect()
 }
 

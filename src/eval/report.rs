@@ -319,29 +319,22 @@ pub fn summary(runs: &[SeedRun], levels: &[usize], script_seed: u64) -> Map<Stri
         "speed_error_pct",
         m.speed_error_pct.map_or(Value::Null, number),
     );
-    let (slip, teacher_slip) = foot_slip_mm(runs);
-    put("foot_slip_mm", slip.map_or(Value::Null, number));
-    put(
-        "teacher_foot_slip_mm",
-        teacher_slip.map_or(Value::Null, number),
-    );
-    put(
-        "foot_slip_ratio",
-        motion::ratio(slip, teacher_slip).map_or(Value::Null, number),
-    );
+    // A measure, the teacher's (`teacher_` before its key) and their ratio.
+    let mut against_teacher = |key: &str, ratio_key: &str, (generated, teacher)| {
+        let optional = |x: Option<f64>| x.map_or(Value::Null, number);
+        put(key, optional(generated));
+        put(&format!("teacher_{key}"), optional(teacher));
+        put(ratio_key, optional(motion::ratio(generated, teacher)));
+    };
+    against_teacher("foot_slip_mm", "foot_slip_ratio", foot_slip_mm(runs));
     let flicker: Vec<(f64, f64)> = runs.iter().flat_map(|r| r.run.flicker.clone()).collect();
     let mean = |f: &dyn Fn(&(f64, f64)) -> f64| {
         (!flicker.is_empty()).then(|| flicker.iter().map(f).sum::<f64>() / flicker.len() as f64)
     };
-    let (change, teacher_change) = (mean(&|f| f.0), mean(&|f| f.1));
-    put("flicker_change", change.map_or(Value::Null, number));
-    put(
-        "teacher_flicker_change",
-        teacher_change.map_or(Value::Null, number),
-    );
-    put(
+    against_teacher(
+        "flicker_change",
         "flicker_ratio",
-        motion::ratio(change, teacher_change).map_or(Value::Null, number),
+        (mean(&|f| f.0), mean(&|f| f.1)),
     );
     // Swings where the teacher's loose parts move at least 1 mm.
     let swings: Vec<f64> = runs
