@@ -442,6 +442,10 @@ fn bundle_manifests_with_impossible_values_are_refused() {
             "unknown variant `sideways`",
         ),
         (|j| j["heading"] = json!("north"), "unknown variant `north`"),
+        (
+            |j| j["stand_speed"] = json!(-0.1),
+            "stand_speed -0.1 is not a positive number",
+        ),
     ];
     for (edit, needle) in cases {
         let err = manifest_error(edit);

@@ -24,10 +24,17 @@ fn witch_bundle() -> PathBuf {
 }
 
 /// A copy of the shipped bundle whose manifest says `root_motion: motion`, `heading:
-/// heading` and `grounded` (the weights linked or copied), in `dir/motion-heading-grounded`.
-fn bundle_with(dir: &Path, motion: &str, heading: &str, grounded: bool) -> PathBuf {
+/// heading`, `grounded` and `stand_speed: stand` (the weights linked or copied), in
+/// `dir/motion-heading-grounded-stand`.
+fn bundle_with(
+    dir: &Path,
+    motion: &str,
+    heading: &str,
+    grounded: bool,
+    stand: Option<f32>,
+) -> PathBuf {
     let from = witch_bundle();
-    let to = dir.join(format!("{motion}-{heading}-{grounded}"));
+    let to = dir.join(format!("{motion}-{heading}-{grounded}-{stand:?}"));
     std::fs::create_dir_all(&to).unwrap();
     let weights = to.join("weights.safetensors");
     if std::fs::hard_link(from.join("weights.safetensors"), &weights).is_err() {
@@ -38,6 +45,7 @@ fn bundle_with(dir: &Path, motion: &str, heading: &str, grounded: bool) -> PathB
     manifest["root_motion"] = motion.into();
     manifest["heading"] = heading.into();
     manifest["grounded"] = grounded.into();
+    manifest["stand_speed"] = stand.into();
     std::fs::write(to.join("manifest.json"), manifest.to_string()).unwrap();
     to
 }
@@ -63,11 +71,12 @@ fn foreground(bundle: &Bundle) -> Vec<bool> {
     out
 }
 
-/// A heading-turns buffer holding `to_model` and `to_world`.
-fn heading_buffer(gpu: &GpuContext, to_model: u32, to_world: u32) -> wgpu::Buffer {
+/// A heading-turns buffer holding `to_model`, `to_world` and whether the key is Idle.
+fn heading_buffer(gpu: &GpuContext, to_model: u32, to_world: u32, idle: bool) -> wgpu::Buffer {
     let turns = HeadingTurns {
         to_model,
         to_world,
+        idle: u32::from(idle),
         ..bytemuck::Zeroable::zeroed()
     };
     gpu.storage_buffer_init(
@@ -113,6 +122,8 @@ struct Reference {
     maps: Vec<f32>,
     root: Vec3,
     clamped: usize,
+    /// Whether the stand latch holds after the frame.
+    standing: bool,
 }
 
 /// A normalised point turned `turns` quarter turns about the vertical through the
@@ -161,6 +172,7 @@ fn reference_frame(
     sampling: Sampling,
     root: Vec3,
     root_motion: RootMotion,
+    (stand, standing): (f32, bool),
 ) -> Reference {
     let mut pipelines = PipelineCache::default();
     let cfg = &bundle.unet.cfg;
@@ -253,6 +265,16 @@ fn reference_frame(
         let lowest = unit.iter().map(|p| p.y).fold(f32::INFINITY, f32::min);
         motion.y = centre.y - lowest - scale * root.y;
     }
+    // The stand latch: under Idle the horizontal motion is 0 once held or below `stand`.
+    let mut standing = standing;
+    if stand > 0.0 {
+        if action != Action::Idle {
+            standing = false;
+        } else if standing || glam::Vec2::new(motion.x, motion.z).length() < stand {
+            standing = true;
+            (motion.x, motion.z) = (0.0, 0.0);
+        }
+    }
     let drawn = pca::project_points(&unit, shift, &bundle.pca_mean, &bundle.pca_basis);
     let points = drawn
         .iter()
@@ -280,6 +302,7 @@ fn reference_frame(
         maps: next,
         root: root + motion / scale,
         clamped,
+        standing,
     }
 }
 
@@ -299,8 +322,9 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
     // scale and beside unguided Idle (two DDIM steps: the plan's structure is the same
     // for any count); then two of them with the root motion measured from the decoded
     // last context latent, two with that and the canonical heading (the window turned
-    // by D's quarter turns from the second frame on, the action with it), and one also
-    // grounded (the root's height puts the lowest point on the floor). Tolerance: 2e-5
+    // by D's quarter turns from the second frame on, the action with it), one also
+    // grounded (the root's height puts the lowest point on the floor), and that one with
+    // the stand latch holding the root through both Idle frames. Tolerance: 2e-5
     // m (0.02 mm) on world points and 2e-5 m on the root; both sides run the same f32
     // kernels (the encoder of the turned maps included) and differ only in summation
     // order and fused multiply-adds of the turns, the PCA, the slide and the world
@@ -329,10 +353,13 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
     // sampler, from the last context latent decoded, with the world's heading and the
     // canonical one (copies of the bundle whose manifests say so).
     let dir = tempfile::tempdir().unwrap();
-    let decoded = bundle_with(dir.path(), "decoded", "world", false);
-    let centred = bundle_with(dir.path(), "centre", "world", false);
-    let canonical = bundle_with(dir.path(), "decoded", "canonical", false);
-    let grounded = bundle_with(dir.path(), "decoded", "canonical", true);
+    let decoded = bundle_with(dir.path(), "decoded", "world", false, None);
+    let centred = bundle_with(dir.path(), "centre", "world", false, None);
+    let canonical = bundle_with(dir.path(), "decoded", "canonical", false, None);
+    let grounded = bundle_with(dir.path(), "decoded", "canonical", true, None);
+    // The stand latch at a speed every Idle frame's motion is under: both Idle frames
+    // hold the world root.
+    let standing = bundle_with(dir.path(), "decoded", "canonical", true, Some(1e3));
     let centre = |s| (s, centred.clone(), RootMotion::Centre, Heading::World);
     for (sampling, bundle, root_motion, heading) in [
         centre(Sampling::new(2, 1.0)),
@@ -371,6 +398,12 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
             RootMotion::Decoded,
             Heading::Canonical,
         ),
+        (
+            braking,
+            standing.clone(),
+            RootMotion::Decoded,
+            Heading::Canonical,
+        ),
     ] {
         let cfg_scale = sampling.cfg_scale;
         let mut engine = Engine::new(&gpu, &bundle, &options(sampling, 7)).unwrap();
@@ -382,6 +415,8 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
         let mut root = engine.root();
         let mut noise = Rng::new(7);
         let mut after_key = None;
+        let stand = engine.bundle.manifest.stand_per_frame();
+        let mut standing = true;
         for action in [Action::Forward, Action::Right, Action::Idle, Action::Idle] {
             let frame = engine.step(action).unwrap();
             after_key = idle_run(after_key, action);
@@ -405,7 +440,16 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
                 sampling.for_frame(action, after_key),
                 root,
                 root_motion,
+                (stand, standing),
             );
+            standing = reference.standing;
+            if stand > 0.0 && action == Action::Idle {
+                let held = (frame.root - root) * Vec3::new(1.0, 0.0, 1.0);
+                assert!(
+                    held.length() < 1e-6,
+                    "the stand latch moved the root by {held}"
+                );
+            }
             let error = worst(&frame.points, &reference.points);
             assert!(
                 error < 2e-5,
@@ -462,22 +506,9 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
     let turned_shift = [0.2 - 0.5, 0.6 - 0.5, 0.7 - 0.5];
     let turned = [0.1, 0.5, 0.8, 0.3, 0.7, 0.6, 1.0, 0.0, 0.5];
     let grounded_y = 0.6 - 0.0 - 0.25;
-    for (to_world, decoded_reference, grounded, want_unit, want_shift, motion) in [
-        (0, 0, 0, kept, shift, shift),
-        (0, 1, 0, kept, shift, [0.3 - 0.35, 0.0, 0.2 - 0.55]),
-        (1, 0, 0, turned, turned_shift, turned_shift),
-        (1, 1, 0, turned, turned_shift, [0.2 - 0.55, 0.0, 0.7 - 0.65]),
-        (0, 0, 1, kept, shift, [shift[0], grounded_y, shift[2]]),
-        (
-            1,
-            1,
-            1,
-            turned,
-            turned_shift,
-            [0.2 - 0.55, grounded_y, 0.7 - 0.65],
-        ),
-    ] {
-        let heading = heading_buffer(&gpu, 7, to_world); // to_model never read here
+    // The kernel on the map from `start` (the world root at height 0.25, 5 clamps before).
+    let run = |params: PostParams, to_world: u32, idle: bool, standing: u32| {
+        let heading = heading_buffer(&gpu, 7, to_world, idle); // to_model never read here
         let mut pipelines = PipelineCache::default();
         let mut r = Recorder::new(&gpu, &mut pipelines, Precision::F32);
         let unit = gpu
@@ -486,19 +517,10 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
         let start = FrameState {
             root: [0.0, 0.25, 0.0, 0.0],
             clamped_total: 5,
+            standing,
             ..bytemuck::Zeroable::zeroed()
         };
         let state = state_buffer(&gpu, &start);
-        let params = PostParams {
-            points: 3,
-            plane: 4,
-            waist: 2,
-            components: 0,
-            scale: 1.0,
-            frames: 1,
-            decoded_reference,
-            grounded,
-        };
         r.dispatch(
             &kernels::FRAME_UNIT,
             &params,
@@ -516,11 +538,46 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
         r.submit();
         let unit: Vec<f32> =
             bytemuck::pod_collect_to_vec(&readback::buffer(&gpu, &unit, "unit").unwrap());
+        let state: FrameState =
+            bytemuck::pod_read_unaligned(&readback::buffer(&gpu, &state, "state").unwrap());
+        (unit, state)
+    };
+    let params = PostParams {
+        points: 3,
+        plane: 4,
+        waist: 2,
+        components: 0,
+        scale: 1.0,
+        frames: 1,
+        decoded_reference: 0,
+        grounded: 0,
+        stand: 0.0,
+        reserved: 0,
+    };
+    for (to_world, decoded_reference, grounded, want_unit, want_shift, motion) in [
+        (0, 0, 0, kept, shift, shift),
+        (0, 1, 0, kept, shift, [0.3 - 0.35, 0.0, 0.2 - 0.55]),
+        (1, 0, 0, turned, turned_shift, turned_shift),
+        (1, 1, 0, turned, turned_shift, [0.2 - 0.55, 0.0, 0.7 - 0.65]),
+        (0, 0, 1, kept, shift, [shift[0], grounded_y, shift[2]]),
+        (
+            1,
+            1,
+            1,
+            turned,
+            turned_shift,
+            [0.2 - 0.55, grounded_y, 0.7 - 0.65],
+        ),
+    ] {
+        let params = PostParams {
+            decoded_reference,
+            grounded,
+            ..params
+        };
+        let (unit, state) = run(params, to_world, false, 0);
         for (got, want) in unit.iter().zip(want_unit) {
             assert!((got - want).abs() < 1e-6, "turns {to_world}: {unit:?}");
         }
-        let state: FrameState =
-            bytemuck::pod_read_unaligned(&readback::buffer(&gpu, &state, "state").unwrap());
         assert_eq!((state.clamped, state.clamped_total), (3, 8));
         for (got, want) in state.shift.iter().zip(want_shift) {
             assert!(
@@ -536,6 +593,31 @@ fn the_frame_state_kernel_clamps_counts_and_finds_the_root() {
                 state.motion
             );
         }
+    }
+    // The stand latch, on the unturned centre motion (-0.2, 0.1, -0.3), horizontally
+    // 0.3606 long: (stand, Idle, held before) -> (horizontal motion zeroed, held after).
+    // Off (stand 0) it never holds and leaves the flag; under Idle it holds below the
+    // threshold or once held; a movement key releases it.
+    for (stand, idle, before, zeroed, after) in [
+        (0.0, true, 1, false, 1),
+        (0.5, true, 0, true, 1),
+        (0.3, true, 0, false, 0),
+        (0.3, true, 1, true, 1),
+        (0.5, false, 1, false, 0),
+    ] {
+        let (_, state) = run(PostParams { stand, ..params }, 0, idle, before);
+        let want = if zeroed { [0.0, shift[1], 0.0] } else { shift };
+        for (got, want) in state.motion.iter().zip(want) {
+            assert!(
+                (got - want).abs() < 1e-6,
+                "stand {stand}, idle {idle}, held {before}: {:?}",
+                state.motion
+            );
+        }
+        assert_eq!(
+            state.standing, after,
+            "stand {stand}, idle {idle}, held {before}"
+        );
     }
 }
 
@@ -579,7 +661,7 @@ fn the_turn_kernel_turns_each_frames_foreground_and_zeroes_the_background() {
         let mut pipelines = PipelineCache::default();
         let mut r = Recorder::new(&gpu, &mut pipelines, Precision::F32);
         let out = Tensor::empty(&gpu, "out", &[2, 3, 2, 2], Precision::F32).unwrap();
-        let heading = heading_buffer(&gpu, to_model, 5); // to_world never read here
+        let heading = heading_buffer(&gpu, to_model, 5, false); // to_world never read here
         let params = PostParams {
             plane: 4,
             frames: 2,
@@ -645,6 +727,8 @@ fn the_slide_kernel_slides_the_maps_recentres_them_and_moves_the_root() {
         frames: 2,
         decoded_reference: 0,
         grounded: 0,
+        stand: 0.0,
+        reserved: 0,
     };
     r.dispatch(
         &kernels::SLIDE,
@@ -902,6 +986,8 @@ fn a_dispatch_with_the_wrong_bindings_is_caught_when_recorded() {
             frames: 1,
             decoded_reference: 0,
             grounded: 0,
+            stand: 0.0,
+            reserved: 0,
         };
         // frame_unit binds seven buffers after its parameters; four are given.
         r.dispatch(

@@ -6,8 +6,10 @@
 // (`heading.to_world` quarter turns, `quarter_turn`): the points, the root and the
 // reference's root. Grounded (`p.grounded`), the motion's height is the one that puts the
 // frame's lowest kept point on the floor (world y = 0): the world root after the frame is
-// (root - lowest) / scale above it. One workgroup; every thread clamps a strided share of
-// the points.
+// (root - lowest) / scale above it. The stand latch (`p.stand` > 0): under Idle
+// (`heading.idle`), once the motion's horizontal part is shorter than `p.stand`, it is 0
+// (the world root holds) until a frame under a movement key. One workgroup; every thread
+// clamps a strided share of the points.
 
 #import engine/quarter_turn.wgsl
 
@@ -96,6 +98,15 @@ fn main(@builtin(local_invocation_index) lane: u32) {
         var motion = root - origin;
         if p.grounded != 0u {
             motion.y = root.y - bitcast<f32>(atomicLoad(&lowest)) - p.scale * state.root.y;
+        }
+        if p.stand > 0.0 {
+            if heading.idle == 0u {
+                state.standing = 0u;
+            } else if state.standing != 0u || length(motion.xz) < p.stand {
+                state.standing = 1u;
+                motion.x = 0.0;
+                motion.z = 0.0;
+            }
         }
         state.motion = vec4<f32>(motion, 0.0);
         let n = atomicLoad(&clamped);

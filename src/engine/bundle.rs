@@ -61,6 +61,24 @@ pub struct Manifest {
     /// nothing to accumulate.
     #[serde(default)]
     pub grounded: bool,
+    /// The stand latch (m/s; older bundles: none): under Idle, once the horizontal root
+    /// motion the loop measures is slower than this, the world root holds still until a
+    /// movement key is pressed, as the teacher's controller brakes to exactly 0 and stays
+    /// there. The frames are still generated and drawn; only their placement holds.
+    /// Without it the Witch drifted 0.16-0.51 m over 300 idle frames (about 0.5-1.7 mm a
+    /// frame, mostly backwards: a bias of the generated waist against the decoded
+    /// context's), where her teacher moves 0.3 mm (docs/experiments/motion.md).
+    #[serde(default)]
+    pub stand_speed: Option<f32>,
+}
+
+impl Manifest {
+    /// The stand latch's speed as a horizontal root motion per frame in normalised
+    /// units (`PostParams::stand`); 0 where the bundle has none.
+    pub fn stand_per_frame(&self) -> f32 {
+        self.stand_speed
+            .map_or(0.0, |s| s * self.normalisation.scale / self.frame_rate)
+    }
 }
 
 /// What the live loop measures a new frame's root motion from. The window puts the last
@@ -407,6 +425,10 @@ pub fn parse_manifest(text: &str, path: &Path) -> Result<Manifest, LoadError> {
             "frame_rate {} is not a positive number",
             manifest.frame_rate
         ))
+    } else if let Some(s) = manifest.stand_speed
+        && !positive(s as f64)
+    {
+        Some(format!("stand_speed {s} is not a positive number"))
     } else if diffusion.schedule != "scaled_linear" || diffusion.prediction != "epsilon" {
         Some(format!(
             "diffusion '{}' with '{}' prediction; this engine runs scaled_linear with epsilon",

@@ -37,6 +37,8 @@ impl Engine {
             frames: (cfg.frames - 1) as u32,
             decoded_reference: u32::from(decoded_reference),
             grounded: u32::from(bundle.manifest.grounded),
+            stand: bundle.manifest.stand_per_frame(),
+            reserved: 0,
         };
         // The context: the window's maps turned to the model's heading, encoded, scaled.
         r.stage("vae-encode");

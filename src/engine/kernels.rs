@@ -35,6 +35,11 @@ gpu_struct! {
         /// 1: the root motion's height puts the frame's lowest point on the floor, y = 0
         /// (`Manifest::grounded`); 0: it is the root's, like x and z.
         pub grounded: u32,
+        /// The stand latch (`Manifest::stand_speed`): under Idle, once a frame's
+        /// horizontal root motion is shorter than this (normalised units), the world
+        /// root holds still until a movement key; 0: it always moves.
+        pub stand: f32,
+        pub reserved: u32,
     }
 }
 
@@ -54,7 +59,9 @@ gpu_struct! {
         pub clamped_total: u32,
         /// Frames generated.
         pub frames: u32,
-        pub reserved: u32,
+        /// 1 while the stand latch holds the world root (`PostParams::stand`); the
+        /// standing start begins held.
+        pub standing: u32,
     }
 }
 
@@ -62,21 +69,25 @@ gpu_struct! {
     /// The quarter turns about the vertical between the world's frame and the model's
     /// (`engine::bundle::Heading`), written by the CPU before each frame: the window is turned
     /// `to_model` before it is encoded, the new frame `to_world` after it is decoded
-    /// (`to_model + to_world` is 0 mod 4).
+    /// (`to_model + to_world` is 0 mod 4); and whether the frame's key is Idle (for the
+    /// stand latch, `PostParams::stand`).
     pub struct HeadingTurns {
         pub to_model: u32,
         pub to_world: u32,
-        pub reserved0: u32,
-        pub reserved1: u32,
+        /// 1: the frame's key is Idle.
+        pub idle: u32,
+        pub reserved: u32,
     }
 }
 
 impl HeadingTurns {
-    /// The turns for a heading of `quarters` quarter turns from +Z.
-    pub fn new(quarters: u32) -> Self {
+    /// The turns for a heading of `quarters` quarter turns from +Z, for a frame whose key
+    /// is Idle or not.
+    pub fn new(quarters: u32, idle: bool) -> Self {
         Self {
             to_model: (4 - quarters % 4) % 4,
             to_world: quarters % 4,
+            idle: u32::from(idle),
             ..bytemuck::Zeroable::zeroed()
         }
     }

@@ -49,6 +49,7 @@ pub(super) struct Live {
 pub(super) fn initial_state(root: Vec3) -> FrameState {
     FrameState {
         root: [root.x, root.y, root.z, 0.0],
+        standing: 1,
         ..bytemuck::Zeroable::zeroed()
     }
 }
@@ -83,7 +84,7 @@ impl Live {
             point_of: u32s("engine.point_of", &start.point_of)?,
             heading: gpu.storage_buffer_init(
                 "engine.heading",
-                bytemuck::bytes_of(&HeadingTurns::new(0)),
+                bytemuck::bytes_of(&HeadingTurns::new(0, true)),
                 wgpu::BufferUsages::empty(),
             )?,
             noise: Tensor::empty(gpu, "engine.noise", &[1, cfg.latent, side, side], precision)?,

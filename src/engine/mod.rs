@@ -566,7 +566,7 @@ impl Engine {
         {
             self.heading = quarters;
         }
-        let turns = HeadingTurns::new(self.heading);
+        let turns = HeadingTurns::new(self.heading, action == Action::Idle);
         self.gpu
             .queue
             .write_buffer(&live.heading, 0, bytemuck::bytes_of(&turns));

@@ -199,3 +199,27 @@ def test_grounded_height_stands_the_lowest_point_on_the_floor(monkeypatch):
     assert torch.allclose(runs[True][1:, 1], height.expand(3), atol=1e-5)
     assert torch.allclose(runs[False][3, 1] - runs[False][0, 1], 3 * (recentre.root(new, waist)[1] - 0.5) / 0.5, atol=1e-5)
     assert torch.allclose(runs[True][:, [0, 2]], runs[False][:, [0, 2]], atol=1e-6)
+
+
+def test_the_stand_latch_holds_the_root_under_idle_until_a_key(monkeypatch):
+    # The same frame every time: every frame's motion is the same bias. With the latch
+    # above the bias's speed, the root moves under W and holds under Idle (the first Idle
+    # frame is slow enough, the next ones are held); a key releases it. Below that speed
+    # the latch never holds, and the path is the one without it. The height is the
+    # integrated one either way.
+    vae, unet, schedule, pixels, waist, context, new = repeating_frame(monkeypatch)
+    bias = recentre.root(new, waist) - 0.5
+    speed = float(torch.hypot(bias[0], bias[2])) / 0.5 * 30.0  # m/s at norm_scale 0.5, 30 fps
+    assert speed > 1e-2
+
+    def path(stand):
+        return torch.tensor(recentre.rollout(vae, unet, schedule, 1.0, context, "2W 3I 1W 1I", 2, 1.0, 0, pixels, waist,
+                                             0.5, "none", stand_speed=stand)["root_path"])
+
+    free, held, loose = path(None), path(2 * speed), path(speed / 2)
+    assert torch.allclose(loose, free, atol=1e-6)
+    step = bias / 0.5
+    moved = [1, 2, 2, 2, 2, 3, 3]  # horizontal steps taken after each of the 7 frames
+    for f, n in enumerate(moved, start=1):
+        assert torch.allclose(held[f, [0, 2]], n * step[[0, 2]], atol=1e-5), f
+        assert torch.allclose(held[f, 1], free[f, 1], atol=1e-6)

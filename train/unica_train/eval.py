@@ -112,6 +112,8 @@ class Avatar:
         self.heading = self.manifest.get("heading", "world")
         # whether the root's height puts each frame's lowest point on the floor (older bundles: no)
         self.grounded = bool(self.manifest.get("grounded", False))
+        # the stand latch's speed, m/s (older bundles: none)
+        self.stand_speed = self.manifest.get("stand_speed")
         self.schedule = Schedule()
         self.pca_mean, self.pca_basis = self.extra["pca.mean"], self.extra["pca.basis"]
         self.colors = self.extra.get("map.colors", self.ds.pixel_colors())
@@ -155,6 +157,7 @@ class Avatar:
             frames=frames, on_frame=keep, guided_steps=setting.get("guided_steps"),
             root_motion=setting.get("root_motion", self.root_motion),
             heading=setting.get("heading", self.heading), grounded=setting.get("grounded", self.grounded),
+            stand_speed=setting.get("stand_speed", self.stand_speed), frame_rate=float(self.manifest["frame_rate"]),
             **{k: setting.get(k, v) for k, v in {**self.sampler_options, **self.brake_options}.items()})
         out["unit"] = torch.stack(drawn)
         out["ms_per_frame"] = (time.time() - started) * 1e3 / max(1, len(drawn))

@@ -175,7 +175,7 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
             on_frame=None, guided_steps: int | None = None, guide_idle: bool = True, noise_scale: float = 1.0,
             idle_cfg_scale: float | None = None, idle_brake_cfg_scale: float | None = None,
             idle_brake_frames: int = 0, root_motion: str = "centre", heading: str = "world",
-            grounded: bool = False) -> dict:
+            grounded: bool = False, stand_speed: float | None = None, frame_rate: float = 30.0) -> dict:
     """The live loop of train.py's `Run.rollout` from the clean context latents [3, C, h, w]
     (scaled), recentring each frame either by re-encoding the translated window
     ("reencode", the reference) or by the latent shift context − Σ δ_k J_k ("latent", no
@@ -204,7 +204,11 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
 
     `grounded` sets each frame's root motion height so that the world root ends (root −
     lowest point) / norm_scale above the floor, y = 0 (the engine's `Manifest::grounded`):
-    the frame's lowest point stands on the floor and the height accumulates nothing."""
+    the frame's lowest point stands on the floor and the height accumulates nothing.
+
+    `stand_speed` (m/s; the engine's `Manifest::stand_speed`) is the stand latch: under
+    Idle, once a frame's horizontal root motion is slower than it (at `frame_rate`), the
+    world root holds still until a movement key; the standing start begins held."""
     if root_motion not in ROOT_MOTIONS:
         raise ValueError(f"root_motion {root_motion!r}: expected one of {ROOT_MOTIONS}")
     if shift_mode not in MODES:
@@ -232,6 +236,8 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
     started = time.time()
     idle_scales = frame_idle_scales(actions, idle_cfg_scale, idle_brake_cfg_scale, idle_brake_frames)
     quarters = 0  # the model's heading: the last movement key's quarter turns from W
+    stand = 0.0 if stand_speed is None else stand_speed * norm_scale / frame_rate  # normalised units a frame
+    standing = True
     for i, a in enumerate(actions):
         if heading == "canonical" and a != 0:
             quarters = action_quarter(a)
@@ -254,6 +260,13 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
         if grounded:
             motion = motion.clone()
             motion[1] = root(new, waist)[1] - new[:, 1].min() - norm_scale * world_root[1]
+        if stand > 0:
+            if a != 0:
+                standing = False
+            elif standing or float(torch.hypot(motion[0], motion[2])) < stand:
+                standing = True
+                motion = motion.clone()
+                motion[0] = motion[2] = 0.0
         if on_frame is not None:
             on_frame(i, new, shift)
         world_root = world_root + motion / norm_scale
