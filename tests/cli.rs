@@ -177,7 +177,7 @@ fn bench_live_counts_the_unet_passes_of_a_frame() {
         (
             &["--steps", "2"][..],
             "unet_passes=4 ",
-            "2 DDIM steps, CFG 3.5",
+            "2 DDIM steps, CFG 2",
         ),
     ] {
         let mut args = vec![
