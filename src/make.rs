@@ -22,9 +22,13 @@ pub const STAGES: [(&str, &str); 5] = [
     ("eval", "eval/report.md"),
 ];
 
-/// The geometry schedule of the shipped Witch (train/configs/witch_cpu.json: 3,000 VAE
-/// steps and 3,800 + 1,200 UNet steps at batch 16) in samples, so that more processes or
-/// larger batches see the same data in fewer steps: about 105 minutes on a 2-core CPU.
+/// The shipped Witch's geometry recipe: her schedule (train/configs/witch_cpu.json: 3,000
+/// VAE steps and 3,800 + 1,200 UNet steps at batch 16) in samples, so that more processes
+/// or larger batches see the same data in fewer steps (about 105 minutes on a 2-core CPU);
+/// her PCA-head VAE and quarter-turned UNet training; and her live settings (sampler,
+/// root motion, heading, grounding, stand latch), which the trainer writes into the
+/// manifest. Made without them, the Knight's VAE reconstructed 61 mm (the Witch's 6.7)
+/// and it ran at 2.4 times its teacher's speed (docs/make.md).
 const FULL_GEOMETRY: &str = include_str!("../train/configs/make_full.json");
 /// The shipped Witch's refiner schedule in frames: 3,000 steps of one frame (about 50
 /// minutes on a 2-core CPU); N processes take 3,000 / N steps.
@@ -62,7 +66,10 @@ const QUICK_DISTIL: [&str; 12] = [
 /// `--quick`: a tiny model and a few steps of each stage on the quick dataset (4 clips;
 /// clip 2 held out), minutes in all: it proves the pipeline, not the avatar.
 const QUICK_GEOMETRY: &str = r#"{
-  "vae": {"channels": [16, 12, 8, 8], "latent": 4, "kl_weight": 1e-6},
+  "vae": {"channels": [16, 12, 8, 8], "latent": 4, "kl_weight": 1e-6, "decoder": "pca", "components": 8},
+  "quarter_turns": true, "cfg_scale": 2.0, "guide_idle": false, "noise_scale": 0.25,
+  "idle_brake_cfg_scale": 0.75, "idle_brake_frames": 10, "root_motion": "decoded",
+  "grounded": true, "stand_speed": 0.1,
   "unet": {"latent": 4, "channels": [16, 32], "embed": 32, "heads": 2, "frames": 4, "actions": 5},
   "vae_samples": 40, "vae_batch": 2, "unet_samples": 40, "stage2_samples": 20, "unet_batch": 2,
   "pca_components": 8, "pca_frames": 20, "held_out_clips": [2], "rollout_frames": 3,

@@ -35,6 +35,11 @@ def test_make_quick_writes_a_bundle_that_loads_and_continues_where_it_stopped(tm
     assert student is not unet and (steps, cfg) == (1, 1.0)
     assert "one_pass" in manifest["metrics"], sorted(manifest["metrics"])
     assert manifest["avatar"] == "Witch" and "refiner" in manifest, sorted(manifest)
+    # The geometry stage wrote the live settings of its config (src/make.rs QUICK_GEOMETRY)
+    # and the PCA-head VAE it asked for.
+    assert manifest["vae"]["decoder"] == "pca" and manifest["heading"] == "canonical", manifest["vae"]
+    assert (manifest["root_motion"], manifest["grounded"], manifest["stand_speed"]) == ("decoded", True, 0.1)
+    assert manifest["sampler"]["guide_idle"] is False and manifest["sampler"]["idle_brake_frames"] == 10
     assert any(name.startswith("refiner.") for name in extra), sorted(extra)[:10]
     # The refiner has its learned residual per map pixel by default (the engine loaded it for the eval).
     assert manifest["refiner"]["pixel_residuals"] == len(extra["map.pixels"]) == extra["refiner.pixel"].shape[0]

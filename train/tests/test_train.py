@@ -23,6 +23,29 @@ def test_keys_parse_like_the_app():
     assert parse_keys("2W 1D", 5) == [1, 1, 4, 0, 0]
 
 
+def test_the_make_config_gives_a_new_avatar_the_shipped_witchs_live_settings():
+    # `unica make` trains from train/configs/make_full.json; the manifest entries the live
+    # loop reads must come out as the shipped Witch's, whose were chosen by measurement
+    # (docs/experiments/motion.md).
+    from pathlib import Path
+
+    from unica_train.train import TrainConfig
+
+    root = Path(__file__).resolve().parents[2]
+    live = TrainConfig(**json.loads((root / "train/configs/make_full.json").read_text())).live()
+    witch = json.loads((root / "assets/witch/bundle/manifest.json").read_text())
+    for key in ("root_motion", "heading", "grounded", "stand_speed"):
+        assert live[key] == witch[key], key
+    for key in ("ddim_steps", "cfg_scale", "guide_idle", "noise_scale", "idle_brake_cfg_scale", "idle_brake_frames"):
+        assert live["sampler"][key] == witch["sampler"][key], key
+    # The defaults are the settings of bundles made before them: no entry changes meaning.
+    assert TrainConfig().live() == {"sampler": {"ddim_steps": 10, "cfg_scale": 1.0, "guide_idle": True, "noise_scale": 1.0},
+                                    "root_motion": "centre", "grounded": False, "heading": "world"}
+    for bad in ({"root_motion": "centred"}, {"stand_speed": -0.1}, {"noise_scale": 0.0}):
+        with pytest.raises(ValueError):
+            TrainConfig(**bad)
+
+
 def test_progress_bar():
     from unica_train.train import bar
 

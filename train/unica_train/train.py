@@ -78,6 +78,37 @@ class TrainConfig:
     # at the pace of its first 30 steps (unet_schedule.json records the steps run).
     unet_minutes: float = 0.0
     seed: int = 0
+    # How the live loop samples and places each frame, written into the bundle's manifest
+    # (src/engine/bundle.rs and src/nn/sampler.rs say what each does; `heading` is
+    # "canonical" where the UNet learnt quarter turns, else "world"). The defaults are
+    # those of bundles made before these settings; `unica make` gives the shipped Witch's
+    # (train/configs/make_full.json).
+    guide_idle: bool = True
+    noise_scale: float = 1.0
+    idle_brake_cfg_scale: float = 0.0  # 0: no brake
+    idle_brake_frames: int = 0
+    root_motion: str = "centre"  # or "decoded"
+    grounded: bool = False
+    stand_speed: float = 0.0  # m/s; 0: no stand latch
+
+    def __post_init__(self):
+        if self.root_motion not in ("centre", "decoded"):
+            raise ValueError(f"root_motion {self.root_motion!r}: expected centre or decoded")
+        if self.noise_scale <= 0 or self.stand_speed < 0 or self.idle_brake_cfg_scale < 0 or self.idle_brake_frames < 0:
+            raise ValueError("noise_scale must be positive; stand_speed, idle_brake_cfg_scale and "
+                             "idle_brake_frames not negative")
+
+    def live(self) -> dict:
+        """The manifest entries the live loop reads, from these settings."""
+        sampler = {"ddim_steps": self.ddim_steps, "cfg_scale": self.cfg_scale,
+                   "guide_idle": self.guide_idle, "noise_scale": self.noise_scale}
+        if self.idle_brake_frames > 0 and self.idle_brake_cfg_scale > 0:
+            sampler.update(idle_brake_cfg_scale=self.idle_brake_cfg_scale, idle_brake_frames=self.idle_brake_frames)
+        out = {"sampler": sampler, "root_motion": self.root_motion, "grounded": self.grounded,
+               "heading": "canonical" if self.quarter_turns else "world"}
+        if self.stand_speed > 0:
+            out["stand_speed"] = self.stand_speed
+        return out
     # > 0: a stage's schedule in samples (training groups seen) instead of steps: each
     # step sees a batch on each data-parallel process, so the steps are
     # samples / (batch x processes), and a larger batch or more processes see the same
@@ -656,7 +687,7 @@ def main(argv=None):
             "normalisation": {"scale": run.ds.scale, "fill": 0.7, "group": 4, "anchor": ANCHOR},
             "latent_scale": scale,
             "diffusion": {"steps": schedule.steps, "beta_start": 0.00085, "beta_end": 0.012, "schedule": "scaled_linear", "prediction": "epsilon"},
-            "sampler": {"ddim_steps": cfg.ddim_steps, "cfg_scale": cfg.cfg_scale},
+            **cfg.live(),
             "pca": {"components": int(basis.shape[0])},
             "metrics": metrics,
             **carried_manifest,
