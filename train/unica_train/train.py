@@ -78,6 +78,13 @@ class TrainConfig:
     # at the pace of its first 30 steps (unet_schedule.json records the steps run).
     unet_minutes: float = 0.0
     seed: int = 0
+    # > 0: a stage's schedule in samples (training groups seen) instead of steps: each
+    # step sees a batch on each data-parallel process, so the steps are
+    # samples / (batch x processes), and a larger batch or more processes see the same
+    # data in fewer steps.
+    vae_samples: int = 0
+    unet_samples: int = 0
+    stage2_samples: int = 0
     # How the live loop samples and places each frame, written into the bundle's manifest
     # (src/engine/bundle.rs and src/nn/sampler.rs say what each does; `heading` is
     # "canonical" where the UNet learnt quarter turns, else "world"). The defaults are
@@ -91,9 +98,18 @@ class TrainConfig:
     grounded: bool = False
     stand_speed: float = 0.0  # m/s; 0: no stand latch
 
+    def resolve_samples(self, processes: int) -> None:
+        """Sets each stage's steps from its samples, where given."""
+        for stage, batch in (("vae", self.vae_batch), ("unet", self.unet_batch), ("stage2", self.unet_batch)):
+            samples = getattr(self, f"{stage}_samples")
+            if samples > 0:
+                setattr(self, f"{stage}_steps", math.ceil(samples / (batch * processes)))
+
     def __post_init__(self):
-        if self.root_motion not in ("centre", "decoded"):
-            raise ValueError(f"root_motion {self.root_motion!r}: expected centre or decoded")
+        from .recentre import ROOT_MOTIONS  # recentre imports this module
+
+        if self.root_motion not in ROOT_MOTIONS:
+            raise ValueError(f"root_motion {self.root_motion!r}: expected one of {ROOT_MOTIONS}")
         if self.noise_scale <= 0 or self.stand_speed < 0 or self.idle_brake_cfg_scale < 0 or self.idle_brake_frames < 0:
             raise ValueError("noise_scale must be positive; stand_speed, idle_brake_cfg_scale and "
                              "idle_brake_frames not negative")
@@ -109,20 +125,6 @@ class TrainConfig:
         if self.stand_speed > 0:
             out["stand_speed"] = self.stand_speed
         return out
-    # > 0: a stage's schedule in samples (training groups seen) instead of steps: each
-    # step sees a batch on each data-parallel process, so the steps are
-    # samples / (batch x processes), and a larger batch or more processes see the same
-    # data in fewer steps.
-    vae_samples: int = 0
-    unet_samples: int = 0
-    stage2_samples: int = 0
-
-    def resolve_samples(self, processes: int) -> None:
-        """Sets each stage's steps from its samples, where given."""
-        for stage, batch in (("vae", self.vae_batch), ("unet", self.unet_batch), ("stage2", self.unet_batch)):
-            samples = getattr(self, f"{stage}_samples")
-            if samples > 0:
-                setattr(self, f"{stage}_steps", math.ceil(samples / (batch * processes)))
 
 
 def bar(step: int, total: int, width: int = 24) -> str:
