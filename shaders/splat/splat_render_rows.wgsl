@@ -1,0 +1,129 @@
+// Front-to-back blending as splat_render.wgsl computes it, for CPU drivers: one
+// workgroup per 16×16 tile and one invocation per pixel row of it. Each row walks its
+// tile's splats (sorted by depth) and blends each only over the pixels of the row where
+// its alpha can reach the 1/255 cut: there opacity · e^power ≥ 1/255, a quadratic in x
+// solved per row and widened by a pixel against rounding; every other pixel would skip
+// it. Each pixel blends its splats in the same order and arithmetic as the per-pixel
+// kernel and stops at the same transmittance cut; the row stops when all of its pixels
+// have. No shared memory and no barriers: a CPU driver runs each barrier as a switch
+// between the workgroup's invocations, and a splat a few pixels wide reaches a few of
+// the tile's 256 pixels (docs/performance.md).
+//
+// Lavapipe (llvmpipe) ends every loop of an invocation once all of its loops together
+// have run 65,535 iterations (LP_MAX_TGSI_LOOP_ITERATIONS, one counter for every loop of
+// a shader), silently. So the row's 16 pixels are written out as 16 calls, not a loop
+// (a loop over each splat's pixels left whole rows unwritten on the Witch's level-1024
+// splats), and the walk over the tile's splats, one iteration a sort entry, is only
+// used for up to raster.rs's ROW_BLEND_MAX_SPLATS splats: a splat enters a tile once.
+
+#bind f: uniform RasterView
+#bind projected: read array<ProjectedSplat>
+#bind values: read array<u32>
+#bind ranges: read array<vec2<u32>>
+#bind image: read_write array<vec4<f32>>
+
+struct Row {
+    color: array<vec3<f32>, TILE>,
+    transmittance: array<f32, TILE>,
+    // Bit i: pixel i has stopped (its transmittance would fall below 1e-4).
+    stopped: u32,
+}
+
+// Splat `p` over pixel `i` of the row at height `py`, if `i` lies in [first, last).
+fn blend(row: ptr<function, Row>, i: u32, first: u32, last: u32, p: ProjectedSplat, px: f32, py: f32) {
+    if i < first || i >= last || ((*row).stopped & (1u << i)) != 0u {
+        return;
+    }
+    let d = p.center_depth.xy - vec2<f32>(px + f32(i), py);
+    let power = -0.5 * (p.conic_opacity.x * d.x * d.x + p.conic_opacity.z * d.y * d.y) - p.conic_opacity.y * d.x * d.y;
+    if power > 0.0 {
+        return;
+    }
+    let alpha = min(p.conic_opacity.w * exp(power), 0.99);
+    if alpha < 1.0 / 255.0 {
+        return;
+    }
+    let t = (*row).transmittance[i];
+    let next = t * (1.0 - alpha);
+    if next < 1e-4 {
+        (*row).stopped |= 1u << i;
+        return;
+    }
+    (*row).color[i] += p.color.xyz * alpha * t;
+    (*row).transmittance[i] = next;
+}
+
+@compute @workgroup_size(TILE)
+fn main(invocation: Invocation) {
+    let tile = group_index(invocation);
+    if tile >= f.tiles_x * f.tiles_y {
+        return;
+    }
+    let x0 = (tile % f.tiles_x) * TILE;
+    let y = (tile / f.tiles_x) * TILE + invocation.lane;
+    if y >= f.height {
+        return;
+    }
+    let width = min(TILE, f.width - x0);
+    let everyone = (1u << width) - 1u;
+    let py = f32(y) + 0.5;
+    let px = f32(x0) + 0.5;
+    var row: Row;
+    for (var i = 0u; i < TILE; i++) {
+        row.color[i] = vec3<f32>(0.0);
+        row.transmittance[i] = 1.0;
+    }
+    row.stopped = 0u;
+    let range = ranges[tile];
+    for (var k = range.x; k < range.y && row.stopped != everyone; k++) {
+        let p = projected[values[k]];
+        let opacity = p.conic_opacity.w;
+        if !(opacity * 255.0 >= 1.0) {
+            continue;
+        }
+        // power(dx) = -½ (a dx² + c dy²) - b dx dy with d = centre - pixel; alpha can
+        // reach 1/255 where power ≥ -ln(255 · opacity).
+        let a = p.conic_opacity.x;
+        let b = p.conic_opacity.y;
+        let c = p.conic_opacity.z;
+        let dy = p.center_depth.y - py;
+        let cut = log(255.0 * opacity);
+        var first = 0u;
+        var last = width;
+        if a > 0.0 {
+            let disc = b * b * dy * dy - a * (c * dy * dy - 2.0 * cut);
+            if disc < 0.0 {
+                continue;
+            }
+            let root = sqrt(disc);
+            // dx = (-b dy ± root) / a, and the pixel centre x + 0.5 = centre.x - dx.
+            let lo = p.center_depth.x - (-b * dy + root) / a - px - 1.0;
+            let hi = p.center_depth.x - (-b * dy - root) / a - px + 1.0;
+            if hi < 0.0 || lo >= f32(width) {
+                continue;
+            }
+            first = u32(max(ceil(lo), 0.0));
+            last = u32(min(floor(hi) + 1.0, f32(width)));
+        }
+        blend(&row, 0u, first, last, p, px, py);
+        blend(&row, 1u, first, last, p, px, py);
+        blend(&row, 2u, first, last, p, px, py);
+        blend(&row, 3u, first, last, p, px, py);
+        blend(&row, 4u, first, last, p, px, py);
+        blend(&row, 5u, first, last, p, px, py);
+        blend(&row, 6u, first, last, p, px, py);
+        blend(&row, 7u, first, last, p, px, py);
+        blend(&row, 8u, first, last, p, px, py);
+        blend(&row, 9u, first, last, p, px, py);
+        blend(&row, 10u, first, last, p, px, py);
+        blend(&row, 11u, first, last, p, px, py);
+        blend(&row, 12u, first, last, p, px, py);
+        blend(&row, 13u, first, last, p, px, py);
+        blend(&row, 14u, first, last, p, px, py);
+        blend(&row, 15u, first, last, p, px, py);
+    }
+    for (var i = 0u; i < width; i++) {
+        let t = row.transmittance[i];
+        image[y * f.width + x0 + i] = vec4<f32>(row.color[i] + f.background.xyz * t, 1.0 - t);
+    }
+}
