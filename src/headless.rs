@@ -240,6 +240,8 @@ pub fn render(
             "idle_cfg_scale": engine.sampling().idle_cfg_scale,
             "idle_brake_cfg_scale": engine.sampling().idle_brake_cfg_scale,
             "idle_brake_frames": engine.sampling().idle_brake_frames,
+            "turn_brake_cfg_scale": engine.sampling().turn_brake_cfg_scale,
+            "turn_brake_frames": engine.sampling().turn_brake_frames,
             "pca": options.pca,
             "splat_level": engine.splat_level(),
             "splats_per_frame": engine.splats().map(|(_, n)| n),

@@ -14,7 +14,7 @@ use unica::engine::kernels::{self, FrameState, HeadingTurns, PostParams};
 use unica::engine::{Engine, EngineOptions, pca};
 use unica::gpu::kernel::{Grid, PipelineCache, Precision};
 use unica::gpu::{GpuContext, GpuOptions, readback};
-use unica::nn::sampler::{Sampling, idle_run};
+use unica::nn::sampler::{Sampling, idle_run, turn_run};
 use unica::nn::{Kernels, Recorder, Tensor};
 use unica::random::Rng;
 use unica::splat::ply::Splat;
@@ -339,9 +339,13 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
         idle_cfg_scale: Some(1.5),
         ..unguided_idle
     };
+    // Braking the first Idle frame after a key, and the first frame of a turn (W then
+    // D below) unguided, as one pass.
     let braking = Sampling {
         idle_brake_cfg_scale: Some(3.0),
         idle_brake_frames: 1,
+        turn_brake_cfg_scale: Some(1.0),
+        turn_brake_frames: 1,
         ..idle_scaled
     };
     // Braking beside unguided Idle: the braking frame pairs Idle with the null action.
@@ -414,12 +418,16 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
         let mut quarters = 0;
         let mut root = engine.root();
         let mut noise = Rng::new(7);
-        let mut after_key = None;
+        let (mut after_key, mut after_turn, mut last_key) = (None, None, Action::Forward);
         let stand = engine.bundle.manifest.stand_per_frame();
         let mut standing = true;
         for action in [Action::Forward, Action::Right, Action::Idle, Action::Idle] {
             let frame = engine.step(action).unwrap();
             after_key = idle_run(after_key, action);
+            after_turn = turn_run(after_turn, last_key, action);
+            if action != Action::Idle {
+                last_key = action;
+            }
             if heading == Heading::Canonical
                 && let Some(q) = action.quarter()
             {
@@ -437,7 +445,7 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
                 quarters,
                 &n,
                 action,
-                sampling.for_frame(action, after_key),
+                sampling.for_frame(action, after_key, after_turn),
                 root,
                 root_motion,
                 (stand, standing),
@@ -1089,4 +1097,40 @@ fn an_unguided_idle_runs_a_one_batch_plan_and_a_guided_idle_the_guided_one() {
     assert_eq!(runs, [None, Some(0), Some(1), Some(2), Some(3)]);
     let c = gpu.counts() - before;
     assert_eq!((c.buffers, c.bind_groups), (0, 0), "{c:?}");
+    // Braking turns at scale 1: a fourth plan, of one batch, run for the first frame
+    // under a key of a new direction (D after W, A after D; not W from rest, nor D
+    // again after Idle), made once.
+    let turning = Sampling {
+        turn_brake_cfg_scale: Some(1.0),
+        turn_brake_frames: 1,
+        ..braking
+    };
+    let mut turns = Engine::new(&gpu, &witch_bundle(), &options(turning, 1)).unwrap();
+    turns.frame(Action::Forward).unwrap();
+    turns.finish();
+    let (keys, keys_flops) = turns.plan_counts(Action::Forward);
+    let (turn, turn_flops) = turns.plan_counts(Action::Right);
+    assert_eq!(turns.turn_plan_counts(), Some((turn, turn_flops)));
+    assert!(
+        turn < keys && 10 * turn_flops < 7 * keys_flops,
+        "{turn_flops} vs {keys_flops}"
+    );
+    let before = gpu.counts();
+    let mut runs = vec![];
+    for action in [
+        Action::Right,
+        Action::Right,
+        Action::Idle,
+        Action::Right,
+        Action::Left,
+    ] {
+        turns.frame(action).unwrap();
+        turns.finish();
+        runs.push(turns.after_turn());
+    }
+    assert_eq!(runs, [Some(1), Some(2), None, None, Some(1)]);
+    let c = gpu.counts() - before;
+    assert_eq!((c.buffers, c.bind_groups), (0, 0), "{c:?}");
+    // Right, Left: turning; Right, Right after Idle: keys; Idle: braking (as keys).
+    assert_eq!(c.dispatches, (2 * turn + 3 * keys) as u64, "{c:?}");
 }

@@ -336,6 +336,18 @@ pub fn live(
             brake_flops as f64 / 1e9
         )?;
     }
+    if let (Some(turn), Some((turn_dispatches, turn_flops))) =
+        (engine.sampling().turn_brake(), engine.turn_plan_counts())
+    {
+        writeln!(
+            out,
+            "turning frames (the first {} under a key of a new direction, CFG {}): \
+             {turn_dispatches} dispatches, {:.2} GFLOP",
+            engine.sampling().turn_brake_frames,
+            turn.cfg_scale,
+            turn_flops as f64 / 1e9
+        )?;
+    }
     let keys = [
         Action::Forward,
         Action::Forward,

@@ -17,7 +17,8 @@
 //! (`Sampling::for_action`) gets a second plan for them: one batch where Idle is unguided
 //! (the conditional prediction alone, half the UNet work), else the guided batch at
 //! Idle's scale; one that brakes (`Sampling::for_frame`: the first Idle frames after a
-//! key at a braking scale) a third, the guided batch at that scale. `appearance` turns a
+//! key at a braking scale) a third, the guided batch at that scale; one that brakes
+//! turns (the first frames under a key of a new direction) a fourth. `appearance` turns a
 //! frame's points into splats.
 
 pub mod appearance;
@@ -40,7 +41,7 @@ use crate::gpu::kernel::{PipelineCache, Precision};
 use crate::gpu::plan::{StageProfile, StepProfile};
 use crate::gpu::{GpuContext, GpuError, readback};
 use crate::nn::ops::{Indices, Plan};
-use crate::nn::sampler::{Sampling, idle_run};
+use crate::nn::sampler::{Sampling, idle_run, turn_run};
 use crate::nn::{LoadError, Recorder};
 use crate::random::Rng;
 use crate::splat::frame::SplatFrame;
@@ -127,6 +128,42 @@ struct Plans {
     /// The plan of the first Idle frames after a key when the sampler brakes
     /// (`Sampling::brake`).
     brake: Option<FramePlan>,
+    /// The plan of the first frames of a turn when the sampler brakes turns
+    /// (`Sampling::turn_brake`).
+    turn: Option<FramePlan>,
+}
+
+/// Where a frame stands in the keys (`sampler::idle_run`, `sampler::turn_run`): Idle
+/// frames since the last key, frames of the turn under way, and the last movement key.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct KeyRun {
+    after_key: Option<u32>,
+    after_turn: Option<u32>,
+    last_key: Action,
+}
+
+impl KeyRun {
+    /// A standing start: no key yet, facing W's way.
+    fn start() -> Self {
+        Self {
+            after_key: None,
+            after_turn: None,
+            last_key: Action::Forward,
+        }
+    }
+
+    /// The run with a frame under `action` added.
+    fn then(self, action: Action) -> Self {
+        Self {
+            after_key: idle_run(self.after_key, action),
+            after_turn: turn_run(self.after_turn, self.last_key, action),
+            last_key: if action == Action::Idle {
+                self.last_key
+            } else {
+                action
+            },
+        }
+    }
 }
 
 /// Which captured plan a frame runs.
@@ -135,20 +172,24 @@ enum Which {
     Keys,
     Idle,
     Brake,
+    Turn,
 }
 
 impl Plans {
-    /// The plan a frame under `action` runs, once prepared, `after_key` being its
-    /// `sampler::idle_run`: the braking plan for the first Idle frames after a key where
-    /// there is one, the Idle plan for other Idle frames where there is one, else the
-    /// frame plan.
-    fn which(&self, action: Action, after_key: Option<u32>) -> Which {
+    /// The plan a frame under `action` runs, once prepared, `run` being where it stands
+    /// in the keys: the braking plan for the first Idle frames after a key where there
+    /// is one, the Idle plan for other Idle frames where there is one, the turning plan
+    /// for the first frames of a turn where there is one, else the frame plan.
+    fn which(&self, action: Action, run: KeyRun) -> Which {
         let keys = self.keys.as_ref().expect("prepared");
         if action != Action::Idle {
-            return Which::Keys;
+            return match &self.turn {
+                Some(_) if keys.sampling.turn_brakes(run.after_turn) => Which::Turn,
+                _ => Which::Keys,
+            };
         }
         match (&self.brake, &self.idle) {
-            (Some(_), _) if keys.sampling.brakes(after_key) => Which::Brake,
+            (Some(_), _) if keys.sampling.brakes(run.after_key) => Which::Brake,
             (_, Some(_)) => Which::Idle,
             _ => Which::Keys,
         }
@@ -159,12 +200,13 @@ impl Plans {
             Which::Keys => &self.keys,
             Which::Idle => &self.idle,
             Which::Brake => &self.brake,
+            Which::Turn => &self.turn,
         };
         plan.as_ref().expect("prepared")
     }
 
-    fn get(&self, action: Action, after_key: Option<u32>) -> &FramePlan {
-        self.plan(self.which(action, after_key))
+    fn get(&self, action: Action, run: KeyRun) -> &FramePlan {
+        self.plan(self.which(action, run))
     }
 }
 
@@ -199,9 +241,8 @@ pub struct Engine {
     /// that its plan stays (dropped when the frame runs another plan, or the plans are
     /// captured again).
     ahead: Option<Ahead>,
-    /// Idle frames since the last key, the latest frame counted (`sampler::idle_run`;
-    /// None before any key).
-    after_key: Option<u32>,
+    /// Where the latest frame stands in the keys.
+    run: KeyRun,
     /// The model's heading: the last movement key's quarter turns from W
     /// (`Action::quarter`) where the bundle's heading is canonical, else 0.
     heading: u32,
@@ -283,7 +324,7 @@ impl Engine {
             live,
             plans: Plans::default(),
             ahead: None,
-            after_key: None,
+            run: KeyRun::start(),
             heading: 0,
             splats: None,
             refine: options.refine,
@@ -463,7 +504,7 @@ impl Engine {
     pub fn profile(&mut self, action: Action) -> Result<Vec<StepProfile>, GpuError> {
         self.frame(action)?;
         self.finish();
-        let plan = self.plans.get(action, self.after_key);
+        let plan = self.plans.get(action, self.run);
         Ok(plan.plan.profile_steps(&self.gpu))
     }
 
@@ -474,7 +515,7 @@ impl Engine {
     pub fn profile_stages(&mut self, action: Action) -> Result<Vec<StageProfile>, GpuError> {
         self.frame(action)?;
         self.finish();
-        let plan = self.plans.get(action, self.after_key);
+        let plan = self.plans.get(action, self.run);
         Ok(plan.plan.profile_stages(&self.gpu))
     }
 
@@ -490,7 +531,7 @@ impl Engine {
         if self.plans.keys.is_none() {
             return (0, 0);
         }
-        let p = self.plans.get(action, idle_run(self.after_key, action));
+        let p = self.plans.get(action, self.run.then(action));
         (p.plan.dispatches(), p.plan.flops())
     }
 
@@ -504,7 +545,19 @@ impl Engine {
     /// Idle frames since the last key, the latest frame counted (`sampler::idle_run`;
     /// None before any key).
     pub fn after_key(&self) -> Option<u32> {
-        self.after_key
+        self.run.after_key
+    }
+
+    /// Frames of the turn under way, the latest frame counted (`sampler::turn_run`).
+    pub fn after_turn(&self) -> Option<u32> {
+        self.run.after_turn
+    }
+
+    /// The dispatches and FLOPs of the turning frames' plan, where the sampler brakes
+    /// turns (and the plans are captured).
+    pub fn turn_plan_counts(&self) -> Option<(usize, u64)> {
+        let p = self.plans.turn.as_ref()?;
+        Some((p.plan.dispatches(), p.plan.flops()))
     }
 
     /// The frame plan's copies (buffer to buffer and buffer to texels; no shader runs).
@@ -540,6 +593,10 @@ impl Engine {
                     Some(brake) => Some(self.capture(brake)?),
                     None => None,
                 },
+                turn: match sampling.turn_brake() {
+                    Some(turn) => Some(self.capture(turn)?),
+                    None => None,
+                },
             };
         }
         Ok(())
@@ -560,7 +617,7 @@ impl Engine {
         let mut bytes = self.precision.encode(&noise);
         bytes.resize(live.noise.buffer.size() as usize, 0);
         self.gpu.queue.write_buffer(&live.noise.buffer, 0, &bytes);
-        self.after_key = idle_run(self.after_key, action);
+        self.run = self.run.then(action);
         if self.bundle.manifest.heading == Heading::Canonical
             && let Some(quarters) = action.quarter()
         {
@@ -572,7 +629,7 @@ impl Engine {
             .write_buffer(&live.heading, 0, bytemuck::bytes_of(&turns));
         // The model sees the action turned with the window.
         let model_action = action.turned(turns.to_model);
-        let which = self.plans.which(action, self.after_key);
+        let which = self.plans.which(action, self.run);
         let plan = self.plans.plan(which);
         let ids = if plan.guided {
             let null = self.bundle.unet.cfg.null_action();
@@ -621,7 +678,7 @@ impl Engine {
             // H200, docs/gpu run 4): done now, it overlaps the GPU's run of this frame
             // instead of delaying the next. The next frame is guessed to run under the
             // same key; a wrong guess records again.
-            let next = self.plans.which(action, idle_run(self.after_key, action));
+            let next = self.plans.which(action, self.run.then(action));
             let commands = self.record(next);
             self.ahead = Some(Ahead {
                 which: next,

@@ -20,15 +20,16 @@ QUICK = ["--held-out-clips", "2", "--frames", "16", "--held-out-frames", "8", "-
 
 @pytest.fixture(scope="module")
 def teacher_bundle(tmp_path_factory):
-    """A tiny trained bundle whose sampler guides, brakes and draws scaled noise as the
-    shipped one does."""
+    """A tiny trained bundle whose sampler guides, brakes (stops and turns) and draws
+    scaled noise as the shipped one does."""
     tmp = tmp_path_factory.mktemp("teacher")
     from conftest import FIXTURES
 
     first, _ = trained_bundle_with_refiner(FIXTURES / "dataset_quick", tmp)
     vae, unet, extra, manifest = bundle.load(first / "bundle")
     manifest["sampler"].update({"ddim_steps": 4, "cfg_scale": 3.5, "idle_cfg_scale": 1.5, "idle_brake_cfg_scale": 5.0,
-                                "idle_brake_frames": 10, "guide_idle": False, "noise_scale": 0.25})
+                                "idle_brake_frames": 10, "turn_brake_cfg_scale": 1.25, "turn_brake_frames": 5,
+                                "guide_idle": False, "noise_scale": 0.25})
     # Two training steps leave the output layer near zero, where every sampler gives the
     # same frame; a random output layer makes the 4-step guided sampler differ from one step.
     with torch.no_grad():
@@ -62,9 +63,9 @@ def test_the_pool_takes_the_live_loops_guidance_for_each_frame(teacher_bundle, q
     t = Teacher(teacher_bundle, quick_dataset_dir, [], [2])
     frames = t.frames(held_out=False)
     assert frames and all(c != 2 and f >= 3 for c, f in frames)
-    # The quick dataset's clips never stop: clip 3 gets W for 12 frames, then Idle (the
-    # scale depends on the keys only).
-    t.ds.clips[3]["actions"] = torch.tensor([1] * 12 + [0] * 14)
+    # The quick dataset's clips never stop: clip 3 gets D for 12 frames (a turn from rest),
+    # then Idle (the scales depend on the keys only).
+    t.ds.clips[3]["actions"] = torch.tensor([4] * 12 + [0] * 14)
     picks = [x for x in frames if x[0] == 3]
     part = t.encode(picks)
     scales = part["idle_scale"].tolist()
@@ -73,7 +74,22 @@ def test_the_pool_takes_the_live_loops_guidance_for_each_frame(teacher_bundle, q
         history = [int(a) for a in t.ds.clips[clip]["actions"][:f]]
         want = frame_idle_scales(history, 1.5, 5.0, 10)[-1]
         assert scale == want  # used only where the action is Idle (diffusion.guided_eps)
+    # The turn's first 5 frames at the turn-braking scale (frames 3-5 have three before
+    # them), every other at the keys'.
+    cfgs = part["cfg_scale"].tolist()
+    for (clip, f), cfg in zip(picks, cfgs):
+        assert cfg == (1.25 if f <= 5 else 3.5), (f, cfg)
     assert part["context"].shape[1:] == (3, 4, 16, 16) and part["truth"].shape[1:] == (4, 16, 16)
+    # The teacher samples each frame at its own scale: as sample_next at that scale alone.
+    rows = [0, 5]  # frames 3 (turning) and 8 (not)
+    noise = 0.25 * torch.randn(2, 4, 16, 16, generator=torch.Generator().manual_seed(1))
+    got = t.sample(part["context"][rows], part["action"][rows], part["idle_scale"][rows], noise,
+                   frame_cfg=part["cfg_scale"][rows])
+    for k, (r, cfg) in enumerate(zip(rows, (1.25, 3.5))):
+        want = sample_next(t.unet, t.schedule, part["context"][[r]], part["action"][[r]], t.steps, cfg, noise=noise[[k]],
+                           **t.options)
+        assert torch.allclose(got[k], want[0], atol=1e-5), k
+    assert not torch.allclose(got, t.sample(part["context"][rows], part["action"][rows], part["idle_scale"][rows], noise))
 
 
 def test_release_share_draws_that_share_from_the_frames_after_a_key_is_released(teacher_bundle, quick_dataset_dir):

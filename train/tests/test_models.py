@@ -2,7 +2,8 @@
 
 import torch
 
-from unica_train.diffusion import (Schedule, brake_options, ddim_step, frame_idle_scales, frame_options, guided_eps, idle_scale,
+from unica_train.diffusion import (Schedule, brake_options, ddim_step, frame_cfg_scales, frame_idle_scales, frame_options,
+                                   guided_eps, idle_scale, turn_brake_options, turn_runs,
                                    sample_next, sampler_options, step_scales)
 from unica_train.unet import UNet, UNetConfig, conv_and_linear_flops, parameter_count
 from unica_train.vae import PositionVae, VaeConfig
@@ -164,6 +165,22 @@ def test_the_first_idle_frames_after_a_key_brake():
     assert frame_options(options, brake, [1, 0]) == dict(options, idle_cfg_scale=2.0)
     assert frame_options(options, brake, [1, 0, 0, 0]) == options
     assert frame_options(options, brake, [0, 0]) == options
+
+
+def test_the_first_frames_of_a_turn_brake():
+    # The engine's the_first_frames_of_a_turn_brake. Ids: Idle 0, W 1, S 2, A 3, D 4. W
+    # from rest (no turn), D (a turn), Idle, D again (no turn), A, Idle, S.
+    actions = [1, 1, 4, 4, 4, 0, 0, 4, 3, 3, 3, 0, 2]
+    assert turn_runs(actions) == [None, None, 1, 2, 3, None, None, None, 1, 2, 3, None, 1]
+    assert frame_cfg_scales(actions, 2.0, 1.25, 2) == [2.0, 2.0, 1.25, 1.25, 2.0, 2.0, 2.0, 2.0, 1.25, 1.25, 2.0, 2.0, 1.25]
+    # No braking without the setting, with no frames, or in an unguided sampler.
+    assert frame_cfg_scales(actions, 2.0) == [2.0] * 13
+    assert frame_cfg_scales(actions, 2.0, 1.25, 0) == [2.0] * 13
+    assert frame_cfg_scales(actions, 1.0, 1.25, 2) == [1.0] * 13
+    # The manifest's settings, and none in an older bundle.
+    assert turn_brake_options({"turn_brake_cfg_scale": 1.25, "turn_brake_frames": 8}) == {
+        "turn_brake_cfg_scale": 1.25, "turn_brake_frames": 8}
+    assert turn_brake_options({}) == {"turn_brake_cfg_scale": None, "turn_brake_frames": 0}
 
 
 def test_vae_loss_falls_on_an_overfit_batch():

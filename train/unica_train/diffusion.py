@@ -22,6 +22,7 @@ from .dataset import ACTIONS
 
 STEPS = 1000
 IDLE = ACTIONS.index("Idle")
+FORWARD = ACTIONS.index("Forward")
 
 
 class Schedule:
@@ -150,6 +151,45 @@ def frame_idle_scales(actions: list[int], idle_cfg_scale: float | None, idle_bra
         braking = a == IDLE and idle_brake_cfg_scale is not None and since is not None and since <= idle_brake_frames
         out.append(idle_brake_cfg_scale if braking else idle_cfg_scale)
     return out
+
+
+def turn_brake_options(sampler: dict) -> dict:
+    """The live loop's turn-braking settings of a bundle manifest's `sampler` entry (none
+    in older bundles): the first `turn_brake_frames` frames of a turn are guided at
+    `turn_brake_cfg_scale`."""
+    turn = sampler.get("turn_brake_cfg_scale")
+    return {"turn_brake_cfg_scale": None if turn is None else float(turn),
+            "turn_brake_frames": int(sampler.get("turn_brake_frames", 0))}
+
+
+def turn_runs(actions: list[int]) -> list[int | None]:
+    """The frames of the turn each frame of a key sequence is in, that frame counted: 1
+    under a movement key of another direction than the last one (W before any key: a
+    standing start faces W's way), one more under the same key, None under Idle and
+    under the same key again after Idle. The engine's `sampler::turn_run`."""
+    out, run, last = [], None, FORWARD
+    for a in actions:
+        if a == IDLE:
+            run = None
+        elif a != last:
+            run, last = 1, a
+        elif run is not None:
+            run += 1
+        out.append(run)
+    return out
+
+
+def frame_cfg_scales(actions: list[int], cfg_scale: float, turn_brake_cfg_scale: float | None = None,
+                     turn_brake_frames: int = 0) -> list[float]:
+    """The guidance scale (`sample_next`'s `cfg_scale`) each frame of a key sequence
+    samples with: `turn_brake_cfg_scale` for the first `turn_brake_frames` frames of a
+    turn (`turn_runs`), else `cfg_scale` (Idle frames take their own scale from
+    `frame_idle_scales`). The engine's `Sampling::for_frame`: no turn braking in an
+    unguided sampler."""
+    if turn_brake_cfg_scale is None or cfg_scale == 1.0:
+        return [cfg_scale] * len(actions)
+    return [turn_brake_cfg_scale if run is not None and run <= turn_brake_frames else cfg_scale
+            for run in turn_runs(actions)]
 
 
 def frame_options(options: dict, brake: dict, history: list[int]) -> dict:

@@ -11,9 +11,10 @@ noise (standard normal times the sampler's `noise_scale`): x0 = (x_T - √(1-ᾱ
 Guidance is folded in: every training frame is one the live loop could meet (three
 ground-truth context frames, turned to the model's heading, the action turned with them),
 and the teacher samples it at the guidance scale the live loop would use there (the
-keys' scale, Idle's own, or the braking scale for the first Idle frames after a key,
-`diffusion.frame_options`). The student therefore learns the braking from the context it
-sees: moving context under Idle.
+keys' scale, Idle's own, the braking scale for the first Idle frames after a key,
+`diffusion.frame_options`, or the turn-braking scale for the first frames of a turn,
+`diffusion.frame_cfg_scales`). The student therefore learns the braking from the context
+it sees: moving context under Idle, or a body not yet facing the key's way.
 
 Methods (`--method`, compared in docs/experiments/distillation.md):
 - `direct`: knowledge distillation (Luhman & Luhman 2021). The teacher samples each pooled
@@ -54,7 +55,8 @@ from . import bundle as bundle_io
 from . import checkpoint as checkpoint_file
 from . import recentre
 from .dataset import ANCHOR, AFTER_SWITCH, BakedDataset, DatasetError, quarter_turn_action
-from .diffusion import Schedule, brake_options, ddim_step, frame_options, guided_eps, sample_next, sampler_options
+from .diffusion import (Schedule, brake_options, ddim_step, frame_cfg_scales, frame_options, guided_eps, sample_next,
+                        sampler_options, turn_brake_options)
 from .plot import curves
 from .train import bar, extra_clips
 
@@ -104,6 +106,7 @@ class Teacher:
         sampler = self.manifest["sampler"]
         self.steps, self.cfg_scale = int(sampler["ddim_steps"]), float(sampler["cfg_scale"])
         self.options, self.brake = sampler_options(sampler), brake_options(sampler)
+        self.turn = turn_brake_options(sampler)
         self.heading = self.manifest.get("heading", "world")
         self.latent_scale = float(self.manifest["latent_scale"])
         self.schedule = Schedule()
@@ -134,9 +137,10 @@ class Teacher:
     def encode(self, picks: list[tuple[int, int]]) -> dict:
         """The live loop's view of frames (clip, f): the three context latents turned to the
         model's heading, the action turned with them, the Idle guidance scale the loop
-        would use after the clip's keys so far (-1: the keys' scale), the true frame's
-        latent turned the same way, and the heading's quarter turns."""
-        maps, actions, idle, quarters = [], [], [], []
+        would use after the clip's keys so far (-1: the keys' scale) and the guidance scale
+        of its keys (turn braking), the true frame's latent turned the same way, and the
+        heading's quarter turns."""
+        maps, actions, idle, cfgs, quarters = [], [], [], [], []
         for clip, f in picks:
             world = self.ds.positions(clip, list(range(f - 3, f + 1)))
             unit, _ = self.ds.normalise(world, anchor=ANCHOR)
@@ -147,37 +151,50 @@ class Teacher:
             actions.append(quarter_turn_action(history[-1], to_model))
             scale = frame_options(self.options, self.brake, history)["idle_cfg_scale"]
             idle.append(-1.0 if scale is None else float(scale))
+            cfgs.append(frame_cfg_scales(history, self.cfg_scale, **self.turn)[-1])
             quarters.append(q)
         maps = torch.stack(maps)  # [B, 4, 3, 128, 128]
         z = self.vae.encoder(maps.flatten(0, 1))[0] * self.latent_scale
         z = z.reshape(maps.shape[0], 4, *z.shape[1:])
         return {"context": z[:, :3], "truth": z[:, 3], "action": torch.tensor(actions),
-                "idle_scale": torch.tensor(idle), "quarters": torch.tensor(quarters)}
+                "idle_scale": torch.tensor(idle), "cfg_scale": torch.tensor(cfgs, dtype=torch.float32),
+                "quarters": torch.tensor(quarters)}
+
+    def frame_cfg(self, idle_scale, cfg_scale=None):
+        """Each frame's keys' guidance scale: `cfg_scale` where given (a pool encoded
+        before turn braking has none: the sampler's own), else the sampler's."""
+        if cfg_scale is None:
+            return torch.full(idle_scale.shape, self.cfg_scale)
+        return cfg_scale
 
     @torch.no_grad()
-    def sample(self, context, action, idle_scale, noise, steps: int | None = None, cfg_scale: float | None = None):
-        """The teacher's frames, each at its own Idle scale (one batch per scale)."""
+    def sample(self, context, action, idle_scale, noise, steps: int | None = None, cfg_scale: float | None = None,
+               frame_cfg=None):
+        """The teacher's frames, each at its own Idle scale and its keys' scale
+        (`frame_cfg`; one batch per pair), or all at `cfg_scale` where given."""
         steps = self.steps if steps is None else steps
-        cfg = self.cfg_scale if cfg_scale is None else cfg_scale
+        cfg = self.frame_cfg(idle_scale, frame_cfg) if cfg_scale is None else torch.full(idle_scale.shape, cfg_scale)
         out = torch.empty_like(noise)
-        for s in idle_scale.unique().tolist():
-            rows = idle_scale == s
+        for s, c in torch.stack([idle_scale.float(), cfg.float()], 1).unique(dim=0).tolist():
+            rows = (idle_scale == s) & (cfg == c)
             opts = dict(self.options, idle_cfg_scale=None if s < 0 else s)
-            out[rows] = sample_next(self.unet, self.schedule, context[rows], action[rows], steps, cfg,
+            out[rows] = sample_next(self.unet, self.schedule, context[rows], action[rows], steps, c,
                                     noise=noise[rows], **opts)
         return out
 
-    def guided(self, x_t, t: int, context, action, idle_scale):
-        """The teacher's guided noise prediction at one time, each sample at its Idle scale."""
+    def guided(self, x_t, t: int, context, action, idle_scale, frame_cfg=None):
+        """The teacher's guided noise prediction at one time, each sample at its Idle
+        scale and its keys' scale."""
         out = torch.empty_like(x_t)
         b = x_t.shape[0]
-        for s in idle_scale.unique().tolist():
-            rows = idle_scale == s
+        cfg = self.frame_cfg(idle_scale, frame_cfg)
+        for s, c in torch.stack([idle_scale.float(), cfg.float()], 1).unique(dim=0).tolist():
+            rows = (idle_scale == s) & (cfg == c)
             n = int(rows.sum())
             latents = torch.cat([context[rows], x_t[rows][:, None]], 1)
             t_frames = torch.tensor([[0, 0, 0, t]] * n)
             opts = dict(self.options, idle_cfg_scale=None if s < 0 else s)
-            out[rows] = guided_eps(self.unet, latents, t_frames, action[rows], self.cfg_scale, opts["guide_idle"],
+            out[rows] = guided_eps(self.unet, latents, t_frames, action[rows], c, opts["guide_idle"],
                                    opts["idle_cfg_scale"])
         assert out.shape[0] == b
         return out
@@ -257,7 +274,9 @@ def teacher_samples(teacher: Teacher, pool: dict, folder: Path, label: str) -> t
         path = folder / f"chunk_{k:04d}.safetensors"
         rows = slice(at, min(at + CHUNK, n))
         if not path.exists():
-            z = teacher.sample(pool["context"][rows], pool["action"][rows], pool["idle_scale"][rows], pool["noise"][rows])
+            cfg = pool["cfg_scale"][rows] if "cfg_scale" in pool else None
+            z = teacher.sample(pool["context"][rows], pool["action"][rows], pool["idle_scale"][rows], pool["noise"][rows],
+                               frame_cfg=cfg)
             checkpoint_file.write_tensors(path, {"sample": z})
             print(f"{label} {bar(rows.stop, n)} {rows.stop}/{n} {time.time() - started:.0f} s", flush=True)
         out.append(load_file(str(path))["sample"])
@@ -303,6 +322,7 @@ def train(teacher: Teacher, pool: dict, targets: torch.Tensor | None, out: Path,
             loss = ((got - targets[idx]) ** 2).mean()
         else:
             x0, scales = pool["truth"][idx], pool["idle_scale"][idx]
+            cfgs = pool["cfg_scale"][idx] if "cfg_scale" in pool else None
             n_at = torch.randint(teacher.steps, (args.batch,), generator=gen)
             eps = torch.randn(x0.shape, generator=gen)
             t_n = torch.tensor([grid[i] for i in n_at])
@@ -314,7 +334,8 @@ def train(teacher: Teacher, pool: dict, targets: torch.Tensor | None, out: Path,
                 x_next = torch.empty_like(x_t)
                 for i in n_at.unique().tolist():
                     rows = n_at == i
-                    e = teacher.guided(x_t[rows], grid[i], context[rows], action[rows], scales[rows])
+                    e = teacher.guided(x_t[rows], grid[i], context[rows], action[rows], scales[rows],
+                                       None if cfgs is None else cfgs[rows])
                     x_next[rows] = ddim_step(teacher.schedule, x_t[rows], e, grid[i], grid[i + 1])
                 target = x0_prediction(ema, teacher.schedule, context, x_next, t_next, action)
             got = x0_prediction(student, teacher.schedule, context, x_t, t_n, action)
@@ -362,7 +383,8 @@ def held_out_errors(teacher: Teacher, student, held: dict, teacher_z: torch.Tens
     rows = {
         "student_one_pass": one_pass(student, teacher.schedule, held["context"], held["action"], noise),
         "teacher_one_pass": one_pass(teacher.unet, teacher.schedule, held["context"], held["action"], noise),
-        "teacher_one_step": teacher.sample(held["context"], held["action"], held["idle_scale"], noise, steps=1),
+        "teacher_one_step": teacher.sample(held["context"], held["action"], held["idle_scale"], noise, steps=1,
+                                           frame_cfg=held.get("cfg_scale")),
         "teacher": teacher_z,
     }
     out = {}

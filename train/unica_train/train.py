@@ -94,6 +94,8 @@ class TrainConfig:
     noise_scale: float = 1.0
     idle_brake_cfg_scale: float = 0.0  # 0: no brake
     idle_brake_frames: int = 0
+    turn_brake_cfg_scale: float = 0.0  # 0: no turn brake
+    turn_brake_frames: int = 0
     root_motion: str = "centre"  # or "decoded"
     grounded: bool = False
     stand_speed: float = 0.0  # m/s; 0: no stand latch
@@ -110,9 +112,10 @@ class TrainConfig:
 
         if self.root_motion not in ROOT_MOTIONS:
             raise ValueError(f"root_motion {self.root_motion!r}: expected one of {ROOT_MOTIONS}")
-        if self.noise_scale <= 0 or self.stand_speed < 0 or self.idle_brake_cfg_scale < 0 or self.idle_brake_frames < 0:
-            raise ValueError("noise_scale must be positive; stand_speed, idle_brake_cfg_scale and "
-                             "idle_brake_frames not negative")
+        if self.noise_scale <= 0 or min(self.stand_speed, self.idle_brake_cfg_scale, self.idle_brake_frames,
+                                        self.turn_brake_cfg_scale, self.turn_brake_frames) < 0:
+            raise ValueError("noise_scale must be positive; stand_speed, idle_brake_cfg_scale, idle_brake_frames, "
+                             "turn_brake_cfg_scale and turn_brake_frames not negative")
 
     def live(self) -> dict:
         """The manifest entries the live loop reads, from these settings."""
@@ -120,6 +123,8 @@ class TrainConfig:
                    "guide_idle": self.guide_idle, "noise_scale": self.noise_scale}
         if self.idle_brake_frames > 0 and self.idle_brake_cfg_scale > 0:
             sampler.update(idle_brake_cfg_scale=self.idle_brake_cfg_scale, idle_brake_frames=self.idle_brake_frames)
+        if self.turn_brake_frames > 0 and self.turn_brake_cfg_scale > 0:
+            sampler.update(turn_brake_cfg_scale=self.turn_brake_cfg_scale, turn_brake_frames=self.turn_brake_frames)
         out = {"sampler": sampler, "root_motion": self.root_motion, "grounded": self.grounded,
                "heading": "canonical" if self.quarter_turns else "world"}
         if self.stand_speed > 0:
