@@ -17,6 +17,8 @@
 #bind ranges: read array<vec2<u32>>
 #bind image: read_write array<vec4<f32>>
 
+#import splat/splat_alpha.wgsl
+
 var<workgroup> batch: array<ProjectedSplat, 256>;
 var<workgroup> finished: atomic<u32>;
 var<workgroup> all_finished: u32;
@@ -35,13 +37,8 @@ fn blend(k: u32, n: u32, at: vec2<f32>, pix: ptr<function, Pixel>) {
         return;
     }
     let p = batch[k];
-    let d = p.center_depth.xy - at;
-    let power = -0.5 * (p.conic_opacity.x * d.x * d.x + p.conic_opacity.z * d.y * d.y) - p.conic_opacity.y * d.x * d.y;
-    if power > 0.0 {
-        return;
-    }
-    let alpha = min(p.conic_opacity.w * exp(power), 0.99);
-    if alpha < 1.0 / 255.0 {
+    let alpha = splat_alpha(p, p.center_depth.xy - at);
+    if alpha == 0.0 {
         return;
     }
     let t = (*pix).transmittance;

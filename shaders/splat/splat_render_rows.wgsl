@@ -22,6 +22,8 @@
 #bind ranges: read array<vec2<u32>>
 #bind image: read_write array<vec4<f32>>
 
+#import splat/splat_alpha.wgsl
+
 struct Row {
     color: array<vec3<f32>, TILE>,
     transmittance: array<f32, TILE>,
@@ -34,13 +36,8 @@ fn blend(row: ptr<function, Row>, i: u32, first: u32, last: u32, p: ProjectedSpl
     if i < first || i >= last || ((*row).stopped & (1u << i)) != 0u {
         return;
     }
-    let d = p.center_depth.xy - vec2<f32>(px + f32(i), py);
-    let power = -0.5 * (p.conic_opacity.x * d.x * d.x + p.conic_opacity.z * d.y * d.y) - p.conic_opacity.y * d.x * d.y;
-    if power > 0.0 {
-        return;
-    }
-    let alpha = min(p.conic_opacity.w * exp(power), 0.99);
-    if alpha < 1.0 / 255.0 {
+    let alpha = splat_alpha(p, p.center_depth.xy - vec2<f32>(px + f32(i), py));
+    if alpha == 0.0 {
         return;
     }
     let t = (*row).transmittance[i];
