@@ -14,7 +14,7 @@ use unica::engine::kernels::{self, FrameState, HeadingTurns, PostParams};
 use unica::engine::{Engine, EngineOptions, pca};
 use unica::gpu::kernel::{Grid, PipelineCache, Precision};
 use unica::gpu::{GpuContext, GpuOptions, readback};
-use unica::nn::sampler::{Sampling, idle_run, turn_run};
+use unica::nn::sampler::{KeyRun, Sampling};
 use unica::nn::{Kernels, Recorder, Tensor};
 use unica::random::Rng;
 use unica::splat::ply::Splat;
@@ -418,16 +418,12 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
         let mut quarters = 0;
         let mut root = engine.root();
         let mut noise = Rng::new(7);
-        let (mut after_key, mut after_turn, mut last_key) = (None, None, Action::Forward);
+        let mut run = KeyRun::default();
         let stand = engine.bundle.manifest.stand_per_frame();
         let mut standing = true;
         for action in [Action::Forward, Action::Right, Action::Idle, Action::Idle] {
             let frame = engine.step(action).unwrap();
-            after_key = idle_run(after_key, action);
-            after_turn = turn_run(after_turn, last_key, action);
-            if action != Action::Idle {
-                last_key = action;
-            }
+            run = run.then(action);
             if heading == Heading::Canonical
                 && let Some(q) = action.quarter()
             {
@@ -445,7 +441,7 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
                 quarters,
                 &n,
                 action,
-                sampling.for_frame(action, after_key, after_turn),
+                sampling.for_frame(action, run),
                 root,
                 root_motion,
                 (stand, standing),
@@ -461,7 +457,7 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
             let error = worst(&frame.points, &reference.points);
             assert!(
                 error < 2e-5,
-                "cfg {cfg_scale} {root_motion:?} {heading:?} {action:?} {after_key:?}: points differ by {error} m"
+                "cfg {cfg_scale} {root_motion:?} {heading:?} {action:?} {run:?}: points differ by {error} m"
             );
             assert!(
                 frame.root.distance(reference.root) < 2e-5,

@@ -41,7 +41,7 @@ use crate::gpu::kernel::{PipelineCache, Precision};
 use crate::gpu::plan::{StageProfile, StepProfile};
 use crate::gpu::{GpuContext, GpuError, readback};
 use crate::nn::ops::{Indices, Plan};
-use crate::nn::sampler::{Sampling, idle_run, turn_run};
+use crate::nn::sampler::{KeyRun, Sampling};
 use crate::nn::{LoadError, Recorder};
 use crate::random::Rng;
 use crate::splat::frame::SplatFrame;
@@ -133,39 +133,6 @@ struct Plans {
     turn: Option<FramePlan>,
 }
 
-/// Where a frame stands in the keys (`sampler::idle_run`, `sampler::turn_run`): Idle
-/// frames since the last key, frames of the turn under way, and the last movement key.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-struct KeyRun {
-    after_key: Option<u32>,
-    after_turn: Option<u32>,
-    last_key: Action,
-}
-
-impl KeyRun {
-    /// A standing start: no key yet, facing W's way.
-    fn start() -> Self {
-        Self {
-            after_key: None,
-            after_turn: None,
-            last_key: Action::Forward,
-        }
-    }
-
-    /// The run with a frame under `action` added.
-    fn then(self, action: Action) -> Self {
-        Self {
-            after_key: idle_run(self.after_key, action),
-            after_turn: turn_run(self.after_turn, self.last_key, action),
-            last_key: if action == Action::Idle {
-                self.last_key
-            } else {
-                action
-            },
-        }
-    }
-}
-
 /// Which captured plan a frame runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Which {
@@ -184,12 +151,12 @@ impl Plans {
         let keys = self.keys.as_ref().expect("prepared");
         if action != Action::Idle {
             return match &self.turn {
-                Some(_) if keys.sampling.turn_brakes(run.after_turn) => Which::Turn,
+                Some(_) if keys.sampling.turn_brakes(run) => Which::Turn,
                 _ => Which::Keys,
             };
         }
         match (&self.brake, &self.idle) {
-            (Some(_), _) if keys.sampling.brakes(run.after_key) => Which::Brake,
+            (Some(_), _) if keys.sampling.brakes(run) => Which::Brake,
             (_, Some(_)) => Which::Idle,
             _ => Which::Keys,
         }
@@ -324,7 +291,7 @@ impl Engine {
             live,
             plans: Plans::default(),
             ahead: None,
-            run: KeyRun::start(),
+            run: KeyRun::default(),
             heading: 0,
             splats: None,
             refine: options.refine,

@@ -224,19 +224,27 @@ impl Sampling {
         (idle.cfg_scale != self.cfg_scale).then_some(idle)
     }
 
+    /// This sampling at guidance `scale` with neither brake: the plan a braking frame
+    /// runs.
+    fn braked_at(&self, scale: f32) -> Sampling {
+        Sampling {
+            cfg_scale: scale,
+            idle_brake_cfg_scale: None,
+            idle_brake_frames: 0,
+            turn_brake_cfg_scale: None,
+            turn_brake_frames: 0,
+            ..*self
+        }
+    }
+
     /// The sampling a braking Idle frame runs (guided at `idle_brake_cfg_scale` against
     /// the null action), where this sampler guides and brakes; else None.
     pub fn brake(&self) -> Option<Sampling> {
         match self.idle_brake_cfg_scale {
             Some(scale) if self.cfg_scale != 1.0 && self.idle_brake_frames > 0 => Some(Sampling {
-                cfg_scale: scale,
                 guide_idle: true,
                 idle_cfg_scale: None,
-                idle_brake_cfg_scale: None,
-                idle_brake_frames: 0,
-                turn_brake_cfg_scale: None,
-                turn_brake_frames: 0,
-                ..*self
+                ..self.braked_at(scale)
             }),
             _ => None,
         }
@@ -246,47 +254,38 @@ impl Sampling {
     /// null action), where this sampler guides and brakes turns; else None.
     pub fn turn_brake(&self) -> Option<Sampling> {
         match self.turn_brake_cfg_scale {
-            Some(scale) if self.cfg_scale != 1.0 && self.turn_brake_frames > 0 => Some(Sampling {
-                cfg_scale: scale,
-                idle_brake_cfg_scale: None,
-                idle_brake_frames: 0,
-                turn_brake_cfg_scale: None,
-                turn_brake_frames: 0,
-                ..*self
-            }),
+            Some(scale) if self.cfg_scale != 1.0 && self.turn_brake_frames > 0 => {
+                Some(self.braked_at(scale))
+            }
             _ => None,
         }
     }
 
-    /// Whether a movement frame `after_turn` frames into a turn ([`turn_run`]) is among
-    /// the first `turn_brake_frames`.
-    pub fn turn_brakes(&self, after_turn: Option<u32>) -> bool {
-        after_turn.is_some_and(|n| n >= 1 && n <= self.turn_brake_frames)
+    /// Whether a movement frame at `run` (its [`turn_run`]) is among the first
+    /// `turn_brake_frames` of a turn.
+    pub fn turn_brakes(&self, run: KeyRun) -> bool {
+        run.after_turn
+            .is_some_and(|n| n >= 1 && n <= self.turn_brake_frames)
     }
 
-    /// The sampling the frame under `action` runs in a live loop, `after_key` and
-    /// `after_turn` being what [`idle_run`] and [`turn_run`] give for it: the first
-    /// `idle_brake_frames` Idle frames after a key brake ([`Sampling::brake`]), the
-    /// first `turn_brake_frames` frames of a turn brake it ([`Sampling::turn_brake`]),
-    /// the others run as [`Sampling::for_action`]. (The trainer's
-    /// `diffusion.frame_idle_scales` and `diffusion.frame_cfg_scales`.)
-    pub fn for_frame(
-        &self,
-        action: Action,
-        after_key: Option<u32>,
-        after_turn: Option<u32>,
-    ) -> Sampling {
+    /// The sampling the frame under `action` at `run` (the run with this frame added)
+    /// runs in a live loop: the first `idle_brake_frames` Idle frames after a key brake
+    /// ([`Sampling::brake`]), the first `turn_brake_frames` frames of a turn brake it
+    /// ([`Sampling::turn_brake`]), the others run as [`Sampling::for_action`]. (The
+    /// trainer's `diffusion.frame_idle_scales` and `diffusion.frame_cfg_scales`.)
+    pub fn for_frame(&self, action: Action, run: KeyRun) -> Sampling {
         match (self.brake(), self.turn_brake()) {
-            (Some(brake), _) if action == Action::Idle && self.brakes(after_key) => brake,
-            (_, Some(turn)) if action != Action::Idle && self.turn_brakes(after_turn) => turn,
+            (Some(brake), _) if action == Action::Idle && self.brakes(run) => brake,
+            (_, Some(turn)) if action != Action::Idle && self.turn_brakes(run) => turn,
             _ => self.for_action(action),
         }
     }
 
-    /// Whether an Idle frame `after_key` Idle frames after a key (this one counted,
-    /// [`idle_run`]) is among the first `idle_brake_frames`.
-    pub fn brakes(&self, after_key: Option<u32>) -> bool {
-        after_key.is_some_and(|n| n >= 1 && n <= self.idle_brake_frames)
+    /// Whether an Idle frame at `run` (its [`idle_run`]: Idle frames after a key, this
+    /// one counted) is among the first `idle_brake_frames`.
+    pub fn brakes(&self, run: KeyRun) -> bool {
+        run.after_key
+            .is_some_and(|n| n >= 1 && n <= self.idle_brake_frames)
     }
 
     /// Whether this sampling fits a schedule of `schedule_steps` steps.
@@ -355,6 +354,41 @@ pub fn turn_run(previous: Option<u32>, last_key: Action, action: Action) -> Opti
         Action::Idle => None,
         key if key != last_key => Some(1),
         _ => previous.map(|n| n.saturating_add(1)),
+    }
+}
+
+/// Where a frame stands in the keys: Idle frames since the last key ([`idle_run`]),
+/// frames of the turn under way ([`turn_run`]) and the last movement key.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct KeyRun {
+    pub after_key: Option<u32>,
+    pub after_turn: Option<u32>,
+    pub last_key: Action,
+}
+
+impl Default for KeyRun {
+    /// A standing start: no key yet, facing W's way.
+    fn default() -> Self {
+        Self {
+            after_key: None,
+            after_turn: None,
+            last_key: Action::Forward,
+        }
+    }
+}
+
+impl KeyRun {
+    /// The run with a frame under `action` added.
+    pub fn then(self, action: Action) -> Self {
+        Self {
+            after_key: idle_run(self.after_key, action),
+            after_turn: turn_run(self.after_turn, self.last_key, action),
+            last_key: if action == Action::Idle {
+                self.last_key
+            } else {
+                action
+            },
+        }
     }
 }
 
@@ -536,12 +570,12 @@ mod tests {
         // The trainer's test_the_first_idle_frames_after_a_key_brake: two Idle frames
         // before any key (not braked), W, three Idle (two braked), S, one Idle.
         use Action::{Backward as S, Forward as W, Idle as I};
-        let mut run = None;
+        let mut run = KeyRun::default();
         let scales: Vec<f32> = [I, I, W, I, I, I, S, I]
             .iter()
             .map(|&a| {
-                run = idle_run(run, a);
-                brakes.for_frame(a, run, None).cfg_scale
+                run = run.then(a);
+                brakes.for_frame(a, run).cfg_scale
             })
             .collect();
         assert_eq!(scales, [1.5, 1.5, 4.7, 2.0, 2.0, 1.5, 4.7, 2.0]);
@@ -565,7 +599,8 @@ mod tests {
             },
         ] {
             assert_eq!(none.brake(), None);
-            assert_eq!(none.for_frame(I, Some(1), None), none.for_action(I));
+            let after_w = KeyRun::default().then(W).then(I);
+            assert_eq!(none.for_frame(I, after_w), none.for_action(I));
         }
         let parsed: Sampling = serde_json::from_str(
             r#"{"ddim_steps": 10, "cfg_scale": 4.7, "idle_brake_cfg_scale": 2.0, "idle_brake_frames": 10}"#,
@@ -595,16 +630,12 @@ mod tests {
         // The trainer's test_the_first_frames_of_a_turn_brake: W from rest (no turn), D
         // (a turn: two braked), Idle (one braked), D again (no turn), A, S after Idle.
         use Action::{Backward as S, Forward as W, Idle as I, Left as A, Right as D};
-        let (mut after_key, mut after_turn, mut last_key) = (None, None, W);
+        let mut run = KeyRun::default();
         let scales: Vec<f32> = [W, W, D, D, D, I, I, D, A, A, A, I, S]
             .iter()
             .map(|&a| {
-                after_key = idle_run(after_key, a);
-                after_turn = turn_run(after_turn, last_key, a);
-                if a != I {
-                    last_key = a;
-                }
-                brakes.for_frame(a, after_key, after_turn).cfg_scale
+                run = run.then(a);
+                brakes.for_frame(a, run).cfg_scale
             })
             .collect();
         assert_eq!(
@@ -633,7 +664,10 @@ mod tests {
             },
         ] {
             assert_eq!(none.turn_brake(), None);
-            assert_eq!(none.for_frame(D, None, Some(1)), none.for_action(D));
+            assert_eq!(
+                none.for_frame(D, KeyRun::default().then(D)),
+                none.for_action(D)
+            );
         }
         let parsed: Sampling = serde_json::from_str(
             r#"{"ddim_steps": 10, "cfg_scale": 2.0, "turn_brake_cfg_scale": 1.25, "turn_brake_frames": 8}"#,
@@ -668,8 +702,10 @@ mod tests {
         assert_eq!(live.idle_plan(), None);
         assert_eq!(live.brake(), None);
         assert_eq!(live.turn_brake(), None);
-        assert_eq!(live.for_frame(Action::Idle, Some(1), None), live);
-        assert_eq!(live.for_frame(Action::Right, None, Some(1)), live);
+        let released = KeyRun::default().then(Action::Forward).then(Action::Idle);
+        assert_eq!(live.for_frame(Action::Idle, released), live);
+        let turning = KeyRun::default().then(Action::Right);
+        assert_eq!(live.for_frame(Action::Right, turning), live);
         // --steps N: the teacher's sampler with its guidance: 2 passes a step.
         let teacher = manifest.ddim(10);
         assert_eq!(teacher.kind, SamplerKind::Ddim);
