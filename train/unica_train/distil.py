@@ -160,12 +160,14 @@ class Teacher:
                 "idle_scale": torch.tensor(idle), "cfg_scale": torch.tensor(cfgs, dtype=torch.float32),
                 "quarters": torch.tensor(quarters)}
 
-    def frame_cfg(self, idle_scale, cfg_scale=None):
-        """Each frame's keys' guidance scale: `cfg_scale` where given (a pool encoded
-        before turn braking has none: the sampler's own), else the sampler's."""
-        if cfg_scale is None:
-            return torch.full(idle_scale.shape, self.cfg_scale)
-        return cfg_scale
+    def groups(self, idle_scale, frame_cfg=None):
+        """The frames that sample alike, one group per pair of Idle scale (-1: the keys')
+        and keys' guidance scale (`frame_cfg`; where not given, as from a pool encoded
+        before turn braking, the sampler's own): (rows, keys' scale, `sample_next`
+        options)."""
+        cfg = torch.full(idle_scale.shape, self.cfg_scale) if frame_cfg is None else frame_cfg
+        for s, c in torch.stack([idle_scale.float(), cfg.float()], 1).unique(dim=0).tolist():
+            yield (idle_scale == s) & (cfg == c), c, dict(self.options, idle_cfg_scale=None if s < 0 else s)
 
     @torch.no_grad()
     def sample(self, context, action, idle_scale, noise, steps: int | None = None, cfg_scale: float | None = None,
@@ -173,11 +175,10 @@ class Teacher:
         """The teacher's frames, each at its own Idle scale and its keys' scale
         (`frame_cfg`; one batch per pair), or all at `cfg_scale` where given."""
         steps = self.steps if steps is None else steps
-        cfg = self.frame_cfg(idle_scale, frame_cfg) if cfg_scale is None else torch.full(idle_scale.shape, cfg_scale)
+        if cfg_scale is not None:
+            frame_cfg = torch.full(idle_scale.shape, cfg_scale)
         out = torch.empty_like(noise)
-        for s, c in torch.stack([idle_scale.float(), cfg.float()], 1).unique(dim=0).tolist():
-            rows = (idle_scale == s) & (cfg == c)
-            opts = dict(self.options, idle_cfg_scale=None if s < 0 else s)
+        for rows, c, opts in self.groups(idle_scale, frame_cfg):
             out[rows] = sample_next(self.unet, self.schedule, context[rows], action[rows], steps, c,
                                     noise=noise[rows], **opts)
         return out
@@ -187,13 +188,10 @@ class Teacher:
         scale and its keys' scale."""
         out = torch.empty_like(x_t)
         b = x_t.shape[0]
-        cfg = self.frame_cfg(idle_scale, frame_cfg)
-        for s, c in torch.stack([idle_scale.float(), cfg.float()], 1).unique(dim=0).tolist():
-            rows = (idle_scale == s) & (cfg == c)
+        for rows, c, opts in self.groups(idle_scale, frame_cfg):
             n = int(rows.sum())
             latents = torch.cat([context[rows], x_t[rows][:, None]], 1)
             t_frames = torch.tensor([[0, 0, 0, t]] * n)
-            opts = dict(self.options, idle_cfg_scale=None if s < 0 else s)
             out[rows] = guided_eps(self.unet, latents, t_frames, action[rows], c, opts["guide_idle"],
                                    opts["idle_cfg_scale"])
         assert out.shape[0] == b
