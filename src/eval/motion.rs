@@ -185,6 +185,9 @@ pub struct SwingCompare {
     pub frame: usize,
     pub generated_m: f32,
     pub teacher_m: f32,
+    /// Frames after the key change until the swing has died down ([`settle_frames`]).
+    pub generated_settle: usize,
+    pub teacher_settle: usize,
 }
 
 /// Everything compared on one script.
@@ -202,6 +205,27 @@ pub struct MotionCompare {
 pub const SWING_FRAMES: usize = 30;
 /// Swing amplitude against the teacher's (issue #48: within ±30 %).
 pub const SWING_RATIO: (f64, f64) = (0.7, 1.3);
+
+/// A swing has died down once the offset stays within this share of its largest
+/// departure from where it ends ([`settle_frames`]).
+pub const SETTLE_SHARE: f32 = 0.25;
+
+/// How fast a swing decays: the frames after `offsets[0]` until the offset stays within
+/// [`SETTLE_SHARE`] of its largest distance from the last offset (where the window ends);
+/// 0 when it never departs more than 1 mm from there.
+pub fn settle_frames(offsets: &[Vec3]) -> usize {
+    let Some(&last) = offsets.last() else {
+        return 0;
+    };
+    let away: Vec<f32> = offsets.iter().map(|o| o.distance(last)).collect();
+    let largest = away.iter().copied().fold(0.0f32, f32::max);
+    if largest < 1e-3 {
+        return 0;
+    }
+    away.iter()
+        .rposition(|&d| d > SETTLE_SHARE * largest)
+        .map_or(0, |t| t + 1)
+}
 
 /// Where the loose parts' centre sits on the body: `centre` minus the `root`, turned by
 /// minus the body's facing (degrees, `heading_deg`'s convention) about +Y.
@@ -236,6 +260,8 @@ pub fn swings(generated: &[Vec3], teacher: &[Vec3], actions: &[Action]) -> Vec<S
             frame: start,
             generated_m: amplitude(generated, start, end),
             teacher_m: amplitude(teacher, start, end),
+            generated_settle: settle_frames(&generated[start..=end]),
+            teacher_settle: settle_frames(&teacher[start..=end]),
         });
     }
     out
@@ -334,6 +360,29 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_swing_settles_when_it_stays_near_where_it_ends() {
+        // A damped swing about a rest 1 m along X: departures 0.4, -0.2, 0.08, -0.05, 0.
+        let at = |x: f32| Vec3::X * (1.0 + x);
+        let offsets = [at(0.0), at(0.4), at(-0.2), at(0.08), at(-0.05), at(0.0)];
+        // Largest departure from the end 0.4; within 0.1 (a quarter) from frame 3 on.
+        assert_eq!(settle_frames(&offsets), 3);
+        // A swing whose decay is twice as slow settles later.
+        let slow = [
+            at(0.0),
+            at(0.4),
+            at(0.3),
+            at(-0.2),
+            at(-0.15),
+            at(0.08),
+            at(0.0),
+        ];
+        assert_eq!(settle_frames(&slow), 5);
+        // One that never moves more than 1 mm, or nothing: 0.
+        assert_eq!(settle_frames(&[at(0.0), at(0.0005), at(0.0)]), 0);
+        assert_eq!(settle_frames(&[]), 0);
+    }
+
+    #[test]
     fn swings_follow_turns_and_stops_over_the_next_frames() {
         use Action::*;
         // W 10, A 40, Idle 10: a turn at step 10 and a stop at step 50 (a start at 0 is
@@ -356,6 +405,8 @@ mod tests {
         assert_eq!((s[0].generated_m, s[0].teacher_m), (0.1, 0.2));
         assert_eq!((s[1].label.as_str(), s[1].frame), ("A→I", 50));
         assert_eq!((s[1].generated_m, s[1].teacher_m), (0.1, 0.05));
+        // The turn's bump at frame 15 and back by 16: settled 6 frames after the change.
+        assert_eq!((s[0].generated_settle, s[0].teacher_settle), (6, 6));
         assert!(swings(&[], &bumps(0.2, 0.05), &actions).is_empty());
         // Facing 90° (toward +X): a centre 1 m along +X is 1 m ahead (+Z) on the body.
         let o = body_offset(Vec3::new(3.0, 1.0, 0.0), Vec3::new(2.0, 1.0, 0.0), 90.0);

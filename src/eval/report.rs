@@ -337,16 +337,26 @@ pub fn summary(runs: &[SeedRun], levels: &[usize], script_seed: u64) -> Map<Stri
         (mean(&|f| f.0), mean(&|f| f.1)),
     );
     // Swings where the teacher's loose parts move at least 1 mm.
-    let swings: Vec<f64> = runs
-        .iter()
-        .flat_map(|r| &r.motion.swings)
-        .filter(|s| s.teacher_m >= 1e-3)
+    let moving = || {
+        runs.iter()
+            .flat_map(|r| &r.motion.swings)
+            .filter(|s| s.teacher_m >= 1e-3)
+    };
+    let swings: Vec<f64> = moving()
         .map(|s| (s.generated_m / s.teacher_m) as f64)
         .collect();
     let (lo, hi) = min_max(&swings);
     put("swing_ratio_min", lo);
     put("swing_ratio_max", hi);
     put("swings", json!(swings.len()));
+    // How fast they die down, where the teacher's takes at least a frame (no target).
+    let settles: Vec<f64> = moving()
+        .filter(|s| s.teacher_settle > 0)
+        .map(|s| s.generated_settle as f64 / s.teacher_settle as f64)
+        .collect();
+    let (lo, hi) = min_max(&settles);
+    put("swing_settle_ratio_min", lo);
+    put("swing_settle_ratio_max", hi);
     put("seeds", json!(runs.len()));
     put(
         "frames",
@@ -590,6 +600,26 @@ pub fn markdown(runs: &[SeedRun], levels: &[usize], summary: &Map<String, Value>
         });
         let _ = writeln!(out);
         table(&mut out, &["key", "from", "speed m/s", "teacher"], speeds);
+        let swings = r.motion.swings.iter().map(|s| {
+            vec![
+                s.label.clone(),
+                s.frame.to_string(),
+                format!("{:.1}", s.generated_m * 1e3),
+                format!("{:.1}", s.teacher_m * 1e3),
+                s.generated_settle.to_string(),
+                s.teacher_settle.to_string(),
+            ]
+        });
+        let _ = writeln!(out);
+        let head = [
+            "swing after",
+            "frame",
+            "mm",
+            "teacher",
+            "settled after (frames)",
+            "teacher",
+        ];
+        table(&mut out, &head, swings);
         for c in &r.motion.creep {
             let _ = writeln!(
                 out,
@@ -692,15 +722,18 @@ mod tests {
             speeds: vec![],
             creep: vec![],
             // Half the teacher's swing; a teacher swing under 1 mm is left out.
-            swings: [(0.05, 0.1), (0.01, 0.0005)]
-                .map(
-                    |(generated_m, teacher_m)| crate::eval::motion::SwingCompare {
+            // Settling in 12 frames against the teacher's 8; the small one left out.
+            swings: [(0.05, 0.1, 12), (0.01, 0.0005, 30)]
+                .map(|(generated_m, teacher_m, generated_settle)| {
+                    crate::eval::motion::SwingCompare {
                         label: "W→I".into(),
                         frame: 1,
                         generated_m,
                         teacher_m,
-                    },
-                )
+                        generated_settle,
+                        teacher_settle: 8,
+                    }
+                })
                 .to_vec(),
         };
         let runs = [SeedRun {
@@ -734,6 +767,8 @@ mod tests {
         assert!(s["idle_creep_m"].is_null());
         assert_eq!((get("swing_ratio_min"), get("swing_ratio_max")), (0.5, 0.5));
         assert_eq!(s["swings"], json!(1));
+        assert_eq!(get("swing_settle_ratio_min"), 1.5);
+        assert_eq!(get("swing_settle_ratio_max"), 1.5);
         assert!((get("flicker_ratio") - 2.0).abs() < 1e-9);
         assert_eq!(meets(&s, "flicker_ratio", "<=", 1.5), Some(false));
         assert!((get("foot_slip_mm") - 2.0).abs() < 1e-6);

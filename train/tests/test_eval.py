@@ -11,7 +11,8 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from unica_train.eval import _turn, held_out_frames, pose_set, settle_frames, teacher_chamfer, teacher_free_matches
+from unica_train.eval import (_turn, held_out_frames, measured_vae_mm, pose_set, settle_frames, teacher_chamfer,
+                              teacher_free_matches)
 
 ROOT = Path(__file__).resolve().parents[2]
 BINARY = ROOT / "target" / "release" / "unica"
@@ -223,3 +224,28 @@ def test_every_release_gets_its_own_stop():
     got = stops(torch.tensor(path), torch.tensor(path), actions)
     assert [(s["after"], s["release_frame"], s["frames"], s["teacher_frames"]) for s in got] == [("W", 3, 2, 2), ("A", 9, None, None)]
     assert got[0]["distance_m"] == pytest.approx(0.06) and got[1]["distance_m"] == pytest.approx(0.3)
+
+
+def test_the_vae_error_is_measured_on_the_held_out_clips():
+    """A VAE that gives its input back is 0 mm off; one that moves every value by d is
+    d·√3 normalised units off, d·√3 / scale metres; only held-out clips (4 and 13) count."""
+    pixels = torch.tensor([0, 5, 7])
+    clips = [{"skin": torch.zeros(10 if c in (4, 13) else 3)} for c in range(14)]
+    seen = []
+
+    def positions(clip, frames):
+        seen.append((clip, frames[0]))
+        return torch.rand(1, 3, 3)
+
+    def to_maps(unit):
+        maps = torch.zeros(1, 3, 3, 3)
+        maps.flatten(2)[:, :, pixels] = unit.movedim(-1, -2)
+        return maps
+
+    ds = SimpleNamespace(clips=clips, positions=positions, normalise=lambda w, anchor: (w, None), to_maps=to_maps)
+    exact = SimpleNamespace(encoder=lambda m: (m, None), decode=lambda z: z)
+    av = SimpleNamespace(ds=ds, vae=exact, pixels=pixels, scale=2.0)
+    assert measured_vae_mm(av, every=5) == 0.0
+    assert seen == [(4, 0), (4, 5), (13, 0), (13, 5)]
+    av.vae = SimpleNamespace(encoder=lambda m: (m, None), decode=lambda z: z + 0.01)
+    assert measured_vae_mm(av, every=5) == pytest.approx(0.01 * math.sqrt(3) / 2.0 * 1000, rel=1e-5)
