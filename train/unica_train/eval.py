@@ -50,7 +50,7 @@ from . import metrics, pca, recentre, splats
 from .dataset import ANCHOR, BakedDataset, quarter_turn_action
 from .diffusion import Schedule, brake_options, frame_options, sample_next, sampler_options
 from .refiner import Frames, frame_inputs, from_bundle, refined
-from .train import parse_keys
+from .train import parse_keys, vae_error_mm
 
 KEYS = "60W 60S 60A 60D 30I"
 POSE_STRIDE = 2  # every 2nd dataset frame is a pose the generated frames are matched against
@@ -182,9 +182,7 @@ def measured_vae_mm(av, every: int = VAE_EVERY) -> float:
     for clip in clips:
         for f in range(0, av.ds.clips[clip]["skin"].shape[0], every):
             unit, _ = av.ds.normalise(av.ds.positions(clip, [f]), anchor=0)
-            maps = av.ds.to_maps(unit)
-            diff = (av.vae.decode(av.vae.encoder(maps)[0]) - maps).flatten(2)[:, :, av.pixels]
-            errors.append(diff.norm(dim=1).mean().item() / av.scale * 1000)
+            errors.append(vae_error_mm(av.vae, av.ds.to_maps(unit), av.pixels, av.scale))
     return sum(errors) / len(errors)
 
 

@@ -199,6 +199,14 @@ def leave_process_group(rank: int, world: int, *modules: torch.nn.Module) -> Non
         os._exit(0)
 
 
+def vae_error_mm(vae, maps: torch.Tensor, pixels: torch.Tensor, scale: float) -> float:
+    """The VAE's reconstruction of normalised maps [B, 3, 128, 128] (the mean latent,
+    decoded): the mean distance of the foreground `pixels` in millimetres at the avatar's
+    `scale` (normalised units per metre)."""
+    diff = (vae.decode(vae.encoder(maps)[0]) - maps).flatten(2)[:, :, pixels]  # [B, 3, N]
+    return diff.norm(dim=1).mean().item() / scale * 1000
+
+
 def extra_clips(main: BakedDataset, more: BakedDataset) -> list[dict]:
     """The clips of `more` (`unica bake --switch-phases`), to train on after `main`'s
     (so the held-out clip numbers keep meaning the same clips; normalised with `main`'s
@@ -493,12 +501,8 @@ class Run:
     def reconstruction_mm(self, vae) -> float:
         """VAE reconstruction of held-out frames (every 7th held-out group's 4 frames): the
         mean point error in millimetres at the avatar's scale."""
-        errors = []
-        for i in self.test_groups[::7]:
-            maps = self.group_maps(i).to(self.device)
-            recon = vae.decode(vae.encoder(maps)[0])
-            diff = (recon - maps).flatten(2)[:, :, self.ds.pixels]  # [4, 3, N]
-            errors.append(diff.norm(dim=1).mean().item() / self.ds.scale * 1000)
+        errors = [vae_error_mm(vae, self.group_maps(i).to(self.device), self.ds.pixels, self.ds.scale)
+                  for i in self.test_groups[::7]]
         return sum(errors) / len(errors)
 
     @torch.no_grad()
