@@ -365,13 +365,14 @@ fn trainer(python: &str, module: &str) -> Command {
 }
 
 /// `trainer`, in `processes` data-parallel processes under torchrun on this machine when
-/// more than one (`torch.distributed.run --standalone`: it picks a free port).
+/// more than one (`torch.distributed.run --standalone`: it picks a free port), started as
+/// `unica_train.torchrun` so that it dies with the make as the trainers do.
 fn trainer_on(python: &str, module: &str, processes: u32) -> Command {
     if processes <= 1 {
         return trainer(python, module);
     }
     let mut command = Command::new(python);
-    command.args(["-u", "-m", "torch.distributed.run", "--standalone"]);
+    command.args(["-u", "-m", "unica_train.torchrun", "--standalone"]);
     command.arg(format!("--nproc-per-node={processes}"));
     command.args(["-m", module]);
     command
@@ -415,7 +416,7 @@ fn run(mut command: Command, what: &str) -> anyhow::Result<()> {
         // their progress lines in order with the make's own.
         .env("PYTHONUNBUFFERED", "1")
         // Each process a stage starts below this one dies with its parent
-        // (unica_train/__init__.py; torchrun's workers with torchrun), so a make killed
+        // (unica_train/__init__.py; torchrun too, as unica_train.torchrun), so a make killed
         // part-way leaves none writing while it is run again. The value is the make's
         // pid, so that a child of a make running as pid 1 (a container's entry point)
         // does not take its parent for dead.

@@ -17,5 +17,9 @@ def test_committed_nn_fixtures_are_current():
         saved = load_file(str(folder / f"{name}.safetensors"))
         assert sorted(saved) == sorted(tensors), name
         for key, value in tensors.items():
-            # The same code on another CPU may round differently in the last bits.
-            torch.testing.assert_close(saved[key], value, atol=1e-5, rtol=1e-5, msg=f"{name}:{key}")
+            # The same code on another CPU or torch build rounds differently, and a whole
+            # UNet pass chains hundreds of those roundings: witch_one_pass_frame's z (|z|
+            # up to 5) differed by 3.5e-5 between two CPUs. A changed trainer moves the
+            # outputs by far more than 1e-4 of their scale.
+            scale = max(1.0, float(saved[key].abs().max())) if saved[key].numel() else 1.0
+            torch.testing.assert_close(saved[key], value, atol=1e-4 * scale, rtol=0, msg=f"{name}:{key}")

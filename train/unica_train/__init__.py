@@ -6,8 +6,8 @@ import os as _os
 
 def _die_with_parent() -> None:
     """Under `unica make` (UNICA_DIE_WITH_PARENT=the make's pid in the environment)
-    every trainer process, torchrun's workers too, dies with the process that started it
-    (Linux PR_SET_PDEATHSIG; the make sets it for torchrun itself), so a make killed with
+    every trainer process, torchrun (started as unica_train.torchrun) and its workers too,
+    dies with the process that started it (Linux PR_SET_PDEATHSIG), so a make killed with
     SIGKILL leaves no trainer writing into its folder while the same make runs again."""
     try:
         make = int(_os.environ.get("UNICA_DIE_WITH_PARENT", ""))
