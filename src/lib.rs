@@ -32,6 +32,7 @@ pub fn shaders() -> Vec<gpu::shaders::Shader> {
         engine::kernels::ALL,
         render::scene::ALL,
         render::composite::SHADERS,
+        render::blit::SHADERS,
     ]
     .concat()
 }

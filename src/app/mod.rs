@@ -550,7 +550,9 @@ impl eframe::App for UnicaApp {
                     light: self.shown.light(),
                     full_size: self.recording.is_some(),
                 };
-                let timings = self.viewport.show(ui, &self.gpu, &state.renderer, scene);
+                let timings = self
+                    .viewport
+                    .show(ui, &self.gpu, state.target_format, scene);
                 if !timings.is_empty() {
                     self.timings = timings;
                 }

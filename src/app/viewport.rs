@@ -1,7 +1,9 @@
-//! The 3D viewport: the scene rendered into an off-screen texture that egui shows, and the
-//! mouse mapped onto the orbit camera (left orbit, right/middle pan, wheel zoom).
-//! Render-to-texture rather than a paint callback: the recorder, screenshots and headless
-//! renders read exactly the same pixels, and our passes can carry timestamp queries.
+//! The 3D viewport: the scene rendered into an off-screen texture, shown in egui's pass by
+//! a paint callback ([`crate::render::blit`]: egui's own image shader cost a CPU driver
+//! about a fifth of a window frame), and the mouse mapped onto the orbit camera (left
+//! orbit, right/middle pan, wheel zoom). Render-to-texture rather than drawing the scene
+//! in the callback: the recorder, screenshots and headless renders read exactly the same
+//! pixels, and our passes can carry timestamp queries.
 
 use eframe::egui;
 
@@ -9,6 +11,7 @@ use crate::gpu::GpuContext;
 use std::time::Instant;
 
 use crate::gpu::timing::StageTiming;
+use crate::render::blit::Blit;
 use crate::render::composite::Compositor;
 use crate::render::scene::{COLOR_FORMAT, DrawOptions};
 use crate::render::{GpuMesh, OrbitCamera, RenderTarget, SceneRenderer};
@@ -32,7 +35,8 @@ pub struct Viewport {
     pub renderer: SceneRenderer,
     pub camera: OrbitCamera,
     target: Option<RenderTarget>,
-    texture: Option<egui::TextureId>,
+    /// The target's image as the window's pass draws it (made with the target).
+    shown: Option<ShownTarget>,
     /// Made when splats are first drawn.
     splatting: Option<(Rasterizer, Compositor)>,
     /// The last splat image and what it was drawn from: redrawn only when the camera,
@@ -86,6 +90,24 @@ struct Cached {
     divisor: u32,
 }
 
+/// The viewport's image drawn in the window's egui pass (a paint callback).
+#[derive(Clone)]
+struct ShownTarget {
+    blit: Blit,
+    bound: wgpu::BindGroup,
+}
+
+impl eframe::egui_wgpu::CallbackTrait for ShownTarget {
+    fn paint(
+        &self,
+        _info: egui::PaintCallbackInfo,
+        pass: &mut wgpu::RenderPass<'static>,
+        _resources: &eframe::egui_wgpu::CallbackResources,
+    ) {
+        self.blit.draw(pass, &self.bound);
+    }
+}
+
 /// While the camera moves, splats are rasterized at 1/DIVISOR of the size along each
 /// axis (a sixteenth of the pixels); the full size follows once it stops.
 const MOVING_DIVISOR: u32 = 4;
@@ -96,7 +118,7 @@ impl Viewport {
             renderer: SceneRenderer::new(gpu),
             camera: OrbitCamera::default(),
             target: None,
-            texture: None,
+            shown: None,
             splatting: None,
             cached: None,
             drawn: None,
@@ -124,7 +146,7 @@ impl Viewport {
         &mut self,
         ui: &mut egui::Ui,
         gpu: &GpuContext,
-        egui_renderer: &egui::mutex::RwLock<eframe::egui_wgpu::Renderer>,
+        window_format: wgpu::TextureFormat,
         scene: Scene,
     ) -> Vec<StageTiming> {
         let Scene {
@@ -148,26 +170,15 @@ impl Viewport {
         );
         if self.target.as_ref().map(RenderTarget::size) != Some((w, h)) {
             let target = RenderTarget::new(gpu, w, h);
-            let mut renderer = egui_renderer.write();
-            let filter = wgpu::FilterMode::Linear;
-            match self.texture {
-                Some(id) => renderer.update_egui_texture_from_wgpu_texture(
-                    &gpu.device,
-                    &target.color_view,
-                    filter,
-                    id,
-                ),
-                None => {
-                    self.texture = Some(renderer.register_native_texture(
-                        &gpu.device,
-                        &target.color_view,
-                        filter,
-                    ))
-                }
-            }
+            let blit = match self.shown.take() {
+                Some(shown) => shown.blit,
+                None => Blit::new(gpu, window_format),
+            };
+            let bound = blit.bind(gpu, &target.color_view);
+            self.shown = Some(ShownTarget { blit, bound });
             self.target = Some(target);
         }
-        let (Some(target), Some(texture)) = (&self.target, self.texture) else {
+        let (Some(target), Some(shown)) = (&self.target, self.shown.clone()) else {
             return Vec::new();
         };
 
@@ -180,7 +191,7 @@ impl Viewport {
         // A splat image drawn small while the camera moved is redrawn at full size.
         let settled = self.cached.as_ref().is_none_or(|c| c.divisor == 1);
         if self.drawn.as_ref() == Some(&key) && settled {
-            return self.respond(ui, texture, size, labels);
+            return self.respond(ui, shown, size, labels);
         }
         self.drawn = Some(key);
         // One encoder and one submission, never waited for: on a CPU driver a wait would
@@ -253,7 +264,7 @@ impl Viewport {
             self.cached = None;
         }
         gpu.submit([encoder.finish()]);
-        self.respond(ui, texture, size, labels);
+        self.respond(ui, shown, size, labels);
         timings
     }
 
@@ -261,15 +272,13 @@ impl Viewport {
     fn respond(
         &mut self,
         ui: &mut egui::Ui,
-        texture: egui::TextureId,
+        shown: ShownTarget,
         size: egui::Vec2,
         labels: &[(glam::Vec3, &str)],
     ) -> Vec<StageTiming> {
-        let response = ui.add(
-            egui::Image::new(egui::load::SizedTexture::new(texture, size))
-                .sense(egui::Sense::click_and_drag()),
-        );
-        let rect = response.rect;
+        let (rect, response) = ui.allocate_exact_size(size, egui::Sense::click_and_drag());
+        ui.painter()
+            .add(eframe::egui_wgpu::Callback::new_paint_callback(rect, shown));
         let view_projection = self.camera.view_projection(rect.width() / rect.height());
         let painter = ui.painter_at(rect);
         for &(point, text) in labels {

@@ -1,6 +1,7 @@
 //! Drawing the scene with wgpu render pipelines: lit meshes and the ground grid, into an
 //! off-screen target that the viewport shows, the recorder saves and headless renders read.
 
+pub mod blit;
 pub mod camera;
 pub mod composite;
 pub mod offscreen;
