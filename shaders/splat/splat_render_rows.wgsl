@@ -11,10 +11,14 @@
 //
 // Lavapipe (llvmpipe) ends every loop of an invocation once all of its loops together
 // have run 65,535 iterations (LP_MAX_TGSI_LOOP_ITERATIONS, one counter for every loop of
-// a shader), silently. So the row's 16 pixels are written out as 16 calls, not a loop
-// (a loop over each splat's pixels left whole rows unwritten on the Witch's level-1024
-// splats), and the walk over the tile's splats, one iteration a sort entry, is only
-// used for up to raster.rs's ROW_BLEND_MAX_SPLATS splats: a splat enters a tile once.
+// a shader), silently. So the walk over the tile's splats, one iteration a sort entry,
+// is only used for up to raster.rs's ROW_BLEND_MAX_SPLATS splats (a splat enters a tile
+// once), and a loop over each splat's pixels only in tiles of up to LOOP_ENTRIES entries,
+// where the limit cannot be reached (such a loop everywhere left whole rows unwritten on
+// the Witch's level-1024 splats); fuller tiles write the row's 16 pixels out as 16
+// calls. Lavapipe runs the calls whole for every lane, with masks, and a loop only while
+// one of its lanes is still in it: the loop drew the Witch's level-256 window 20-25 %
+// faster (docs/performance.md), with the same pixels.
 
 #bind f: uniform RasterView
 #bind projected: read array<ProjectedSplat>
@@ -50,6 +54,42 @@ fn blend(row: ptr<function, Row>, i: u32, first: u32, last: u32, p: ProjectedSpl
     (*row).transmittance[i] = next;
 }
 
+// The pixels [x, y) of the row at height `py` (starting at `px`, `width` wide) where
+// splat `p`'s alpha can reach the 1/255 cut: opacity · e^power ≥ 1/255, with power(dx) =
+// -½ (a dx² + c dy²) - b dx dy and d = centre - pixel, a quadratic in dx solved for the
+// row and widened by a pixel against rounding. (0, 0) where it reaches none.
+fn reach(p: ProjectedSplat, px: f32, py: f32, width: u32) -> vec2<u32> {
+    let opacity = p.conic_opacity.w;
+    if !(opacity * 255.0 >= 1.0) {
+        return vec2<u32>(0u);
+    }
+    let a = p.conic_opacity.x;
+    let b = p.conic_opacity.y;
+    let c = p.conic_opacity.z;
+    if !(a > 0.0) {
+        return vec2<u32>(0u, width);
+    }
+    let dy = p.center_depth.y - py;
+    let cut = log(255.0 * opacity);
+    let disc = b * b * dy * dy - a * (c * dy * dy - 2.0 * cut);
+    if disc < 0.0 {
+        return vec2<u32>(0u);
+    }
+    let root = sqrt(disc);
+    // dx = (-b dy ± root) / a, and the pixel centre x + 0.5 = centre.x - dx.
+    let lo = p.center_depth.x - (-b * dy + root) / a - px - 1.0;
+    let hi = p.center_depth.x - (-b * dy - root) / a - px + 1.0;
+    if hi < 0.0 || lo >= f32(width) {
+        return vec2<u32>(0u);
+    }
+    return vec2<u32>(u32(max(ceil(lo), 0.0)), u32(min(floor(hi) + 1.0, f32(width))));
+}
+
+// Tiles of up to this many sort entries take the loop over each splat's pixels: each
+// entry costs lavapipe's loop limiter at most 1 + 17 iterations (the walk, then up to 16
+// pixels and the exit), 3,600 × 18 + 32 < 65,535.
+const LOOP_ENTRIES: u32 = 3600u;
+
 @compute @workgroup_size(TILE)
 fn main(invocation: Invocation) {
     let tile = group_index(invocation);
@@ -72,52 +112,39 @@ fn main(invocation: Invocation) {
     }
     row.stopped = 0u;
     let range = ranges[tile];
-    for (var k = range.x; k < range.y && row.stopped != everyone; k++) {
-        let p = projected[values[k]];
-        let opacity = p.conic_opacity.w;
-        if !(opacity * 255.0 >= 1.0) {
-            continue;
-        }
-        // power(dx) = -½ (a dx² + c dy²) - b dx dy with d = centre - pixel; alpha can
-        // reach 1/255 where power ≥ -ln(255 · opacity).
-        let a = p.conic_opacity.x;
-        let b = p.conic_opacity.y;
-        let c = p.conic_opacity.z;
-        let dy = p.center_depth.y - py;
-        let cut = log(255.0 * opacity);
-        var first = 0u;
-        var last = width;
-        if a > 0.0 {
-            let disc = b * b * dy * dy - a * (c * dy * dy - 2.0 * cut);
-            if disc < 0.0 {
-                continue;
+    if range.y - range.x <= LOOP_ENTRIES {
+        // A loop over the pixels the splat reaches: lavapipe runs a loop only while one
+        // of the vector's lanes is still in it, where it runs the 16 calls below whole.
+        for (var k = range.x; k < range.y && row.stopped != everyone; k++) {
+            let p = projected[values[k]];
+            let reached = reach(p, px, py, width);
+            for (var i = reached.x; i < reached.y; i++) {
+                blend(&row, i, reached.x, reached.y, p, px, py);
             }
-            let root = sqrt(disc);
-            // dx = (-b dy ± root) / a, and the pixel centre x + 0.5 = centre.x - dx.
-            let lo = p.center_depth.x - (-b * dy + root) / a - px - 1.0;
-            let hi = p.center_depth.x - (-b * dy - root) / a - px + 1.0;
-            if hi < 0.0 || lo >= f32(width) {
-                continue;
-            }
-            first = u32(max(ceil(lo), 0.0));
-            last = u32(min(floor(hi) + 1.0, f32(width)));
         }
-        blend(&row, 0u, first, last, p, px, py);
-        blend(&row, 1u, first, last, p, px, py);
-        blend(&row, 2u, first, last, p, px, py);
-        blend(&row, 3u, first, last, p, px, py);
-        blend(&row, 4u, first, last, p, px, py);
-        blend(&row, 5u, first, last, p, px, py);
-        blend(&row, 6u, first, last, p, px, py);
-        blend(&row, 7u, first, last, p, px, py);
-        blend(&row, 8u, first, last, p, px, py);
-        blend(&row, 9u, first, last, p, px, py);
-        blend(&row, 10u, first, last, p, px, py);
-        blend(&row, 11u, first, last, p, px, py);
-        blend(&row, 12u, first, last, p, px, py);
-        blend(&row, 13u, first, last, p, px, py);
-        blend(&row, 14u, first, last, p, px, py);
-        blend(&row, 15u, first, last, p, px, py);
+    } else {
+        for (var k = range.x; k < range.y && row.stopped != everyone; k++) {
+            let p = projected[values[k]];
+            let reached = reach(p, px, py, width);
+            let first = reached.x;
+            let last = reached.y;
+            blend(&row, 0u, first, last, p, px, py);
+            blend(&row, 1u, first, last, p, px, py);
+            blend(&row, 2u, first, last, p, px, py);
+            blend(&row, 3u, first, last, p, px, py);
+            blend(&row, 4u, first, last, p, px, py);
+            blend(&row, 5u, first, last, p, px, py);
+            blend(&row, 6u, first, last, p, px, py);
+            blend(&row, 7u, first, last, p, px, py);
+            blend(&row, 8u, first, last, p, px, py);
+            blend(&row, 9u, first, last, p, px, py);
+            blend(&row, 10u, first, last, p, px, py);
+            blend(&row, 11u, first, last, p, px, py);
+            blend(&row, 12u, first, last, p, px, py);
+            blend(&row, 13u, first, last, p, px, py);
+            blend(&row, 14u, first, last, p, px, py);
+            blend(&row, 15u, first, last, p, px, py);
+        }
     }
     for (var i = 0u; i < width; i++) {
         let t = row.transmittance[i];
