@@ -112,6 +112,8 @@ fn main(invocation: Invocation) {
     }
     row.stopped = 0u;
     let range = ranges[tile];
+    // The walk is written twice, not once with the choice inside it: lavapipe would run
+    // both sides of that choice for every entry, the 16 calls too.
     if range.y - range.x <= LOOP_ENTRIES {
         // A loop over the pixels the splat reaches: lavapipe runs a loop only while one
         // of the vector's lanes is still in it, where it runs the 16 calls below whole.

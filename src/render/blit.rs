@@ -4,7 +4,6 @@
 //! about a fifth of a window frame for this (docs/performance.md).
 
 use crate::gpu::GpuContext;
-use crate::gpu::kernel::Precision;
 use crate::gpu::shaders::Shader;
 use crate::wgsl_shader as shader;
 
@@ -22,34 +21,7 @@ pub struct Blit {
 impl Blit {
     /// For passes whose colour target has `format` (one target, one sample, no depth).
     pub fn new(gpu: &GpuContext, format: wgpu::TextureFormat) -> Self {
-        let module = BLIT.module(&gpu.device, Precision::F32);
-        let pipeline = gpu
-            .device
-            .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some("blit"),
-                layout: None,
-                vertex: wgpu::VertexState {
-                    module: &module,
-                    entry_point: Some("vs_main"),
-                    buffers: &[],
-                    compilation_options: Default::default(),
-                },
-                fragment: Some(wgpu::FragmentState {
-                    module: &module,
-                    entry_point: Some("fs_main"),
-                    targets: &[Some(wgpu::ColorTargetState {
-                        format,
-                        blend: None,
-                        write_mask: wgpu::ColorWrites::ALL,
-                    })],
-                    compilation_options: Default::default(),
-                }),
-                primitive: wgpu::PrimitiveState::default(),
-                depth_stencil: None,
-                multisample: wgpu::MultisampleState::default(),
-                multiview_mask: None,
-                cache: None,
-            });
+        let pipeline = super::full_screen_pipeline(gpu, &BLIT, "blit", format, None);
         Self { pipeline }
     }
 

@@ -3,7 +3,7 @@
 
 use super::RenderTarget;
 use crate::gpu::GpuContext;
-use crate::gpu::kernel::{Precision, uniform};
+use crate::gpu::kernel::uniform;
 use crate::gpu::shaders::Shader;
 use crate::gpu_struct;
 use crate::wgsl_shader as shader;
@@ -31,42 +31,22 @@ pub struct Compositor {
 
 impl Compositor {
     pub fn new(gpu: &GpuContext, format: wgpu::TextureFormat) -> Self {
-        let module = SPLAT_COMPOSITE.module(&gpu.device, Precision::F32);
         let blend = wgpu::BlendComponent {
             src_factor: wgpu::BlendFactor::One,
             dst_factor: wgpu::BlendFactor::OneMinusSrcAlpha,
             operation: wgpu::BlendOperation::Add,
         };
-        let pipeline = gpu
-            .device
-            .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some("splat composite"),
-                layout: None,
-                vertex: wgpu::VertexState {
-                    module: &module,
-                    entry_point: Some("vs_main"),
-                    buffers: &[],
-                    compilation_options: Default::default(),
-                },
-                fragment: Some(wgpu::FragmentState {
-                    module: &module,
-                    entry_point: Some("fs_main"),
-                    targets: &[Some(wgpu::ColorTargetState {
-                        format,
-                        blend: Some(wgpu::BlendState {
-                            color: blend,
-                            alpha: blend,
-                        }),
-                        write_mask: wgpu::ColorWrites::ALL,
-                    })],
-                    compilation_options: Default::default(),
-                }),
-                primitive: wgpu::PrimitiveState::default(),
-                depth_stencil: None,
-                multisample: wgpu::MultisampleState::default(),
-                multiview_mask: None,
-                cache: None,
-            });
+        let blend = wgpu::BlendState {
+            color: blend,
+            alpha: blend,
+        };
+        let pipeline = super::full_screen_pipeline(
+            gpu,
+            &SPLAT_COMPOSITE,
+            "splat composite",
+            format,
+            Some(blend),
+        );
         Self { pipeline }
     }
 
