@@ -30,12 +30,14 @@ DISPLAY="$display" "$binary" --keys "$keys" --record --record-fps 2 --record-dir
     --exit-after-seconds "$seconds"
 # One picture per generated frame: the viewport's right 70 % (the camera follows the
 # neural avatar, drawn right of her teacher), 560 pixels wide.
-python3 - "$work" <<'PY'
+python3 - "$work" "$keys" <<'PY'
 import json, sys
 from pathlib import Path
 from PIL import Image
 
 work = Path(sys.argv[1])
+# The app goes on generating Idle frames after the script: the clip ends with it.
+script_frames = sum(int(token[:-1]) for token in sys.argv[2].split())
 manifest = json.loads((work / "rec/manifest.json").read_text())
 # The recorded frames in runs of the same avatar root: a run is one generated frame
 # (while the camera follows, the window first draws a run's picture at a quarter of the
@@ -46,6 +48,7 @@ for frame in manifest["frames"]:
         runs[-1][1] = frame["file"]
     else:
         runs.append([frame["root"], frame["file"]])
+runs = runs[:script_frames]
 size = None
 for k, (_, file) in enumerate(runs):
     image = Image.open(work / "rec" / file).convert("RGB")
@@ -53,7 +56,8 @@ for k, (_, file) in enumerate(runs):
     crop = image.crop((int(0.3 * w), int(0.08 * h), w, int(0.92 * h)))
     size = size or (560, round(560 * crop.height / crop.width))
     crop.resize(size, Image.LANCZOS).save(work / f"clip_{k:04d}.png")
-print(f"readme-clip.sh: {len(runs)} pictures (one per avatar root) of {len(manifest['frames'])} recorded")
+print(f"readme-clip.sh: {len(runs)} pictures (one per avatar root, at most the script's {script_frames}) "
+      f"of {len(manifest['frames'])} recorded")
 PY
 frames=("$work"/clip_*.png)
 img2webp -loop 0 -lossy -q 50 -m 6 -d "$((1000 / fps))" "${frames[@]}" -o "$out" >/dev/null
