@@ -122,18 +122,15 @@ fn means(runs: &[&SeedRun], level: usize, kind: Kind, view: Option<usize>) -> Me
     )
 }
 
-/// One seed's free-running pixels (best in window) at the finest level that scored any of
-/// its frames, and that level (None when no frame of it was scored).
+/// One seed's best-in-window pixels at the finest level with scored frames, and the level.
 fn seed_pixels(run: &SeedRun, levels: &[usize]) -> (Option<usize>, Means) {
     let mut finest_first = levels.to_vec();
     finest_first.sort_unstable_by(|a, b| b.cmp(a));
-    for level in finest_first {
-        let m = means(&[run], level, Kind::Best, None);
-        if m.count > 0 {
-            return (Some(level), m);
-        }
-    }
-    (None, Means::default())
+    finest_first
+        .into_iter()
+        .map(|level| (Some(level), means(&[run], level, Kind::Best, None)))
+        .find(|(_, m)| m.count > 0)
+        .unwrap_or((None, Means::default()))
 }
 
 fn median(mut values: Vec<f64>) -> f64 {
@@ -555,8 +552,6 @@ pub fn markdown(runs: &[SeedRun], levels: &[usize], summary: &Map<String, Value>
     }
     let _ = writeln!(out, "\n## Seeds\n");
     for r in runs {
-        // A short script may have no frame scored at the headline level (it is scored
-        // more sparsely); its line then gives the finest level it has, and says so.
         let (level, m) = seed_pixels(r, levels);
         let (facing, roots) = following(&r.run);
         let _ = writeln!(
@@ -781,14 +776,12 @@ mod tests {
             markdown(&runs, &[1024], &s)
                 .contains("| stop_ratio_max | <= 1.25 | ∞ (1 never completed) | ✗ |")
         );
-        // The seed's line names the level its pixels come from; with no frame scored at
-        // the finest level asked for, the next finer one that has frames.
+        // A seed's line names its pixels' level: the finest one with scored frames.
         assert!(
             markdown(&runs, &[1024], &s)
                 .contains("Free PSNR 20.00 dB, SSIM 0.800, IoU 0.850 (worst bg, level 1024)")
         );
         assert_eq!(seed_pixels(&runs[0], &[2048, 1024]).0, Some(1024));
-        assert_eq!(seed_pixels(&runs[0], &[256]).0, None);
         assert!(s["idle_creep_m"].is_null());
         assert_eq!((get("swing_ratio_min"), get("swing_ratio_max")), (0.5, 0.5));
         assert_eq!(s["swings"], json!(1));
