@@ -3,7 +3,8 @@
 # in a 1280x800 window under Xvfb, driven by the key script W, D, S and a stop, recorded
 # (--record) for SECONDS (default 300). The recorder samples the window in wall time;
 # the clip keeps one picture per avatar root the recorder saw, one per generated frame
-# (the recorder writes the root beside each picture), and plays them
+# (the recorder writes the root beside each picture), up to the key script's length
+# (the app goes on generating Idle frames after it), and plays them
 # at FPS (default 15: half the avatar's data rate of 30 frames a second, so the clip runs
 # at half speed whatever the machine's own rate was). Writes an animated WebP.
 # Needs: Xvfb, img2webp (Debian: apt-get install xvfb webp), python3 with Pillow, a
