@@ -77,11 +77,9 @@ pub(super) fn render_with_bar(
     gpu: GpuContext,
     what: &str,
 ) -> anyhow::Result<usize> {
-    let bar = indicatif::ProgressBar::new(0).with_style(
-        indicatif::ProgressStyle::with_template(&format!(
-            "{what} {{bar:40}} {{pos}}/{{len}} frames, {{eta}} left"
-        ))
-        .expect("valid template"),
+    let bar = super::progress::bar(
+        &format!("{what} {{bar:40}} {{pos}}/{{len}} frames, {{eta}} left"),
+        0,
     );
     let frames = crate::headless::render(job, gpu, &|done, total| {
         bar.set_length(total);

@@ -200,11 +200,9 @@ pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         engine_level,
         levels,
     };
-    let bar = indicatif::ProgressBar::new(0).with_style(
-        indicatif::ProgressStyle::with_template(
-            "strict evaluation: {msg} {bar:30} {pos}/{len} frames, {eta} left",
-        )
-        .expect("valid template"),
+    let bar = super::progress::bar(
+        "strict evaluation: {msg} {bar:30} {pos}/{len} frames, {eta} left",
+        0,
     );
     let summary = crate::eval::strict(&context, &options, &|what, done, total| {
         bar.set_message(what.to_string());

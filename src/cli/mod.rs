@@ -14,6 +14,7 @@ use crate::splat::files::{self, Up};
 
 mod defaults;
 mod eval;
+mod progress;
 mod rig;
 
 use defaults::render_with_bar;
@@ -479,10 +480,7 @@ fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
 }
 
 fn bake(args: BakeArgs) -> anyhow::Result<()> {
-    let bar = indicatif::ProgressBar::new(0).with_style(
-        indicatif::ProgressStyle::with_template("baking {bar:40} {pos}/{len} frames, {eta} left")
-            .expect("valid template"),
-    );
+    let bar = progress::bar("baking {bar:40} {pos}/{len} frames, {eta} left", 0);
     let options = crate::dataset::bake::BakeOptions {
         description: args.avatar,
         clips: args.clips,
@@ -618,7 +616,7 @@ fn export(args: ExportArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         ..options
     };
     let mut engine = crate::engine::Engine::new(&gpu, &args.bundle, &options)?;
-    let bar = indicatif::ProgressBar::new(keys.len() as u64);
+    let bar = progress::bar("generating {bar:40} {pos}/{len} frames", keys.len() as u64);
     for i in 0..keys.len() {
         engine.frame(keys.action_at(i))?;
         engine.finish();

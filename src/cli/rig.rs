@@ -176,11 +176,9 @@ pub(super) fn rig_eval(args: RigEvalArgs) -> anyhow::Result<()> {
     }
     let models = Models::load(&models_dir(&args.models))?;
     let character = args.character.or_else(default_character);
-    let bar = indicatif::ProgressBar::new(args.holdout as u64).with_style(
-        indicatif::ProgressStyle::with_template(
-            "held-out characters {bar:40} {pos}/{len}, {eta} left",
-        )
-        .expect("valid template"),
+    let bar = super::progress::bar(
+        "held-out characters {bar:40} {pos}/{len}, {eta} left",
+        args.holdout as u64,
     );
     let report = evaluate(
         &args.data,
@@ -218,9 +216,9 @@ pub(super) fn rig_data(args: RigDataArgs) -> anyhow::Result<()> {
         );
         return Ok(());
     }
-    let bar = indicatif::ProgressBar::new(args.count as u64).with_style(
-        indicatif::ProgressStyle::with_template("characters {bar:40} {pos}/{len}, {eta} left")
-            .expect("valid template"),
+    let bar = super::progress::bar(
+        "characters {bar:40} {pos}/{len}, {eta} left",
+        args.count as u64,
     );
     let start = std::time::Instant::now();
     data::write_synthetic(&args.out, args.count, args.seed, !args.plain, &|done, _| {
