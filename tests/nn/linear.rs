@@ -115,7 +115,8 @@ fn the_linear_layer_over_gathered_normed_rows_equals_the_separate_ops_bit_for_bi
 fn the_linear_layer_with_its_residual_equals_a_separate_add_bit_for_bit() {
     // The refiner's `x + proj(a)` and `x + fc2(silu(h))`: the residual in the linear
     // kernels' epilogue equals linear then add.wgsl, in every variant and precision, for
-    // 7 rows (a partial 4-row tile) and 1 row (the one-output-per-invocation kernel).
+    // 7 rows (a partial tile) and 1 row (one output per invocation in the simple
+    // variant; a mostly clamped 8 × 8 texel tile in the CPU variant).
     for mut v in Variant::all() {
         let weight = v.wave("w", &[12, 8], 0.29);
         let bias = v.wave("b", &[12], 0.5);
@@ -129,6 +130,30 @@ fn the_linear_layer_with_its_residual_equals_a_separate_add_bit_for_bit() {
             r.submit();
             let (a, b) = (v.read(&fused), v.read(&separate));
             assert_same_bits(v.precision, &a, &b, &format!("{} {rows} rows", v.name()));
+        }
+    }
+}
+
+#[test]
+fn the_linear_layer_over_few_rows_equals_the_simple_kernel_bit_for_bit() {
+    // The CPU variant runs 1-3 rows (the embeddings, the PCA head's basis product) in its
+    // 8 × 8 texel tiles, which sum in the simple kernel's order: the same bits. 20
+    // inputs (five texels), 13 outputs (a partial tile), with and without SiLU.
+    for mut v in Variant::all() {
+        let weight = v.wave("w", &[13, 20], 0.31);
+        let bias = v.wave("b", &[13], 0.6);
+        for rows in [1, 2, 3] {
+            let x = v.wave("x", &[rows, 20], 0.17);
+            for silu in [false, true] {
+                let mut r = v.recorder();
+                let tiled = r.linear(&x, &weight, &bias, silu).unwrap();
+                r.set_kernels(Kernels::Simple);
+                let simple = r.linear(&x, &weight, &bias, silu).unwrap();
+                r.submit();
+                let (a, b) = (v.read(&tiled), v.read(&simple));
+                let what = format!("{} {rows} rows, silu {silu}", v.name());
+                assert_same_bits(v.precision, &a, &b, &what);
+            }
         }
     }
 }

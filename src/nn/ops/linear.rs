@@ -117,31 +117,33 @@ impl Recorder<'_> {
         let residual = residual.unwrap_or(x);
         // For GPUs, a workgroup per tile of 4 rows × 4 outputs whatever the rows
         // (linear_split.wgsl: every linear layer sums in the same order, so the action
-        // table equals the cross-attention it replaces bit for bit). Otherwise register
-        // tiles of 4 rows × 4 outputs where there are rows to share a tile, one
-        // invocation per output for fewer rows (the timestep and action embeddings):
-        // both sum in the same order. All are parity-tested (tests/nn/).
+        // table equals the cross-attention it replaces bit for bit). For CPU drivers
+        // texel tiles of 8 rows × 8 outputs whatever the rows: a single row wastes
+        // seven eighths of a tile's sums, yet the PCA head's basis product (1 row, 200
+        // inputs, 13,244 outputs) took 26 ms as one invocation per output, whose
+        // weight loads stride across lanes. Otherwise register tiles of 4 rows × 4
+        // outputs where there are rows to share a tile, one invocation per output for
+        // fewer rows (the timestep and action embeddings). All sum in the same order
+        // and are parity-tested (tests/nn/).
         let rows = x.len() / inputs;
         if self.kernels == Kernels::Gpu {
             self.linear_split(&params, [x, weight, bias, residual], None, &y);
+        } else if self.kernels == Kernels::Cpu && inputs.is_multiple_of(4) {
+            self.check(&[x, weight, bias, residual]);
+            let extras = LinearExtras {
+                residual: &residual.buffer,
+                table: None,
+                norm: None,
+            };
+            self.linear_cpu(&params, x, (weight, bias), extras, &y)?;
         } else if rows >= 4 && self.kernels != Kernels::Simple {
-            if self.kernels == Kernels::Cpu && inputs.is_multiple_of(4) {
-                self.check(&[x, weight, bias, residual]);
-                let extras = LinearExtras {
-                    residual: &residual.buffer,
-                    table: None,
-                    norm: None,
-                };
-                self.linear_cpu(&params, x, (weight, bias), extras, &y)?;
-            } else {
-                let grid = self.grid(rows.div_ceil(4) * outputs.div_ceil(4));
-                self.launch(
-                    &LINEAR_TILED,
-                    &params,
-                    &[x, weight, bias, residual, &y],
-                    grid,
-                );
-            }
+            let grid = self.grid(rows.div_ceil(4) * outputs.div_ceil(4));
+            self.launch(
+                &LINEAR_TILED,
+                &params,
+                &[x, weight, bias, residual, &y],
+                grid,
+            );
         } else {
             let grid = self.grid(y.len());
             self.launch(&LINEAR, &params, &[x, weight, bias, residual, &y], grid);
