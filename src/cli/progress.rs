@@ -1,5 +1,5 @@
-//! Progress bars for the commands that run for minutes (bake, eval, render, rig, the
-//! bench's soak). On a terminal they are indicatif's bars. Where stderr is not a terminal
+//! Progress bars for the commands that run for minutes (bake, render, export, eval,
+//! rig). On a terminal they are indicatif's bars. Where stderr is not a terminal
 //! (a log file, CI, `nohup`), indicatif hides its bars, so a 30-minute `unica eval` said
 //! nothing until it ended; there the bar's line is written as plain text at most once
 //! every [`LOG_EVERY`], so such a run still shows that it is alive and how far it is.

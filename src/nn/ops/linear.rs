@@ -61,6 +61,14 @@ struct LinearExtras<'t> {
 }
 
 impl Recorder<'_> {
+    /// Whether a layer of `inputs` inputs runs in `linear_cpu.wgsl`'s texel tiles: on CPU
+    /// drivers wherever its inputs fill whole texels, whatever its rows (a single row
+    /// wastes seven eighths of a tile, yet beats one invocation per output: see
+    /// [`Recorder::linear_plus`]).
+    fn cpu_tiles(&self, inputs: usize) -> bool {
+        self.kernels == Kernels::Cpu && inputs.is_multiple_of(4)
+    }
+
     /// `y = act(x) Wᵀ + b` over the last axis of `x`, `weight` [outputs, inputs]; act is
     /// SiLU when `input_silu` is set.
     pub fn linear(
@@ -128,7 +136,7 @@ impl Recorder<'_> {
         let rows = x.len() / inputs;
         if self.kernels == Kernels::Gpu {
             self.linear_split(&params, [x, weight, bias, residual], None, &y);
-        } else if self.kernels == Kernels::Cpu && inputs.is_multiple_of(4) {
+        } else if self.cpu_tiles(inputs) {
             self.check(&[x, weight, bias, residual]);
             let extras = LinearExtras {
                 residual: &residual.buffer,
@@ -249,8 +257,7 @@ impl Recorder<'_> {
             assert_eq!(table.shape[1], c, "action bias table {:?}", table.shape);
             assert_eq!(nf, ids.len * per_sample, "{} ids for {nf} images", ids.len);
         }
-        let fused = self.kernels == Kernels::Gpu
-            || (self.kernels == Kernels::Cpu && rows >= 4 && inputs.is_multiple_of(4));
+        let fused = self.kernels == Kernels::Gpu || self.cpu_tiles(inputs);
         if !fused {
             let out = self.linear(x, weight, bias, false)?;
             return self.permute_plus(&out, [n, hw, frames, c], [0, 2, 3, 1], Some(a), None, table);
@@ -321,7 +328,7 @@ impl Recorder<'_> {
                 res.shape
             );
         }
-        let fused = self.kernels == Kernels::Cpu && out_rows >= 4 && inputs.is_multiple_of(4);
+        let fused = self.cpu_tiles(inputs);
         if !fused {
             let mut input = match rows {
                 Some(rows) => self.gather(x, rows)?,
