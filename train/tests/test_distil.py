@@ -9,9 +9,10 @@ import os
 import pytest
 import torch
 
-from unica_train import bundle
-from unica_train.diffusion import Schedule, frame_idle_scales, sample_next
-from unica_train.distil import RELEASE_WINDOW, Teacher, main, one_pass, pick_frames, x0_prediction
+from unica_train import bundle, recentre
+from unica_train.diffusion import Schedule, frame_cfg_scales, frame_idle_scales, sample_next
+from unica_train.distil import (RELEASE_WINDOW, Teacher, main, one_pass, pick_frames, rollout_pool,
+                                x0_prediction)
 
 from test_train import trained_bundle_with_refiner
 
@@ -195,3 +196,57 @@ def test_bad_inputs_end_in_one_line_naming_the_file(teacher_bundle, quick_datase
     with pytest.raises(bundle.BundleError, match="student"):
         bundle.live_sampler(dict(manifest, sampler=dict(manifest["sampler"], kind="one_pass")), unet, extra)
     assert os.path.isdir(teacher_bundle)
+
+
+def test_rollout_frames_are_the_live_loops_own_contexts_under_the_teachers_guidance(teacher_bundle, quick_dataset_dir,
+                                                                                   tmp_path):
+    first = tmp_path / "first"
+    main(["--bundle", str(teacher_bundle), "--data", str(quick_dataset_dir), "--out", str(first), "--steps", "3",
+          "--lr", "1e-3", *QUICK])
+    t = Teacher(first / "bundle", quick_dataset_dir, [], [2])
+    t.ds.clips[3]["actions"] = torch.tensor([4] * 12 + [0] * 14)  # D from rest, then Idle: turns and brakes
+    t.held_out = set(range(len(t.ds.clips))) - {3}  # clip 3 alone is rolled out
+    part = rollout_pool(t, tmp_path / "rolled.safetensors", 7, seed=5, held_out=False, stride=3, label="ro")
+    frames = part["frames"].tolist()
+    offset = frames[0][1]
+    assert [f for _, f in frames] == [offset + 3 * k for k in range(7)] and {c for c, _ in frames} == {3}, frames
+    # The contexts are the loop's own from its standing start, the student's frames fed
+    # back (the same rollout seen from outside), not the teacher UNet's.
+    seen = {}
+    for model, name in ((bundle.live_sampler(t.manifest, t.unet, t.extra)[0], "student"), (t.unet, "teacher")):
+        contexts = {}
+        recentre.rollout(t.vae, model, t.schedule, t.latent_scale, t.extra["context.latents"], [4] * 12 + [0] * 14, 1, 1.0,
+                         5 + 100, t.ds.pixels, t.extra["map.waist"].long(), t.manifest["normalisation"]["scale"],
+                         "reencode", frames=frames[-1][1] + 1, on_context=lambda i, c, a: contexts.__setitem__(i, (c.clone(), a)),
+                         root_motion=t.manifest.get("root_motion", "centre"), heading=t.heading,
+                         grounded=bool(t.manifest.get("grounded", False)), stand_speed=t.manifest.get("stand_speed"),
+                         frame_rate=float(t.manifest["frame_rate"]), **t.options, **t.brake)
+        seen[name] = contexts
+    for k, (_, f) in enumerate(frames):
+        context, action = seen["student"][f]
+        assert torch.equal(part["context"][k], context) and int(part["action"][k]) == action, f
+    assert not torch.allclose(part["context"][-1], seen["teacher"][frames[-1][1]][0]), "the teacher UNet's rollout"
+    # Each frame carries the guidance the teacher's sampler would use after those keys.
+    keys = [4] * 12 + [0] * 14
+    for k, (_, f) in enumerate(frames):
+        assert float(part["idle_scale"][k]) == frame_idle_scales(keys[:f + 1], 1.5, 5.0, 10)[-1]
+        assert float(part["cfg_scale"][k]) == frame_cfg_scales(keys[:f + 1], 3.5, 1.25, 5)[-1]
+    assert part["noise"].shape == (7, 4, 16, 16) and 0.1 < float(part["noise"].std()) < 0.4  # the sampler's 0.25
+    # A run with rollout frames trains on them, scores held-out rollouts, and resumes
+    # without rolling out again.
+    out = tmp_path / "run"
+    args = ["--bundle", str(first / "bundle"), "--data", str(quick_dataset_dir), "--out", str(out), "--from-student",
+            "--rollout-frames", "8", "--rollout-held-out-frames", "4", "--rollout-stride", "2", *QUICK]
+    main([*args, "--steps", "2"])
+    stamp = (out / "rollout" / "pool.safetensors").stat().st_mtime_ns
+    main([*args, "--steps", "3", "--resume"])
+    assert (out / "rollout" / "pool.safetensors").stat().st_mtime_ns == stamp
+    record = json.loads((out / "metrics.json").read_text())
+    assert record["rollout_frames"] == 8 and set(record["held_out_rollouts"]) == {"bundle_student", "student_one_pass"}
+    assert all(v["mm_to_teacher"] > 0 for v in record["held_out_rollouts"].values())
+    with pytest.raises(SystemExit):
+        main([*args[:5], str(tmp_path / "cd"), *args[6:], "--method", "consistency"])
+    with pytest.raises(SystemExit) as e:
+        main(["--bundle", str(teacher_bundle), "--data", str(quick_dataset_dir), "--out", str(tmp_path / "none"),
+              "--rollout-frames", "4", *QUICK])
+    assert str(teacher_bundle) in str(e.value) and "no student" in str(e.value) and "\n" not in str(e.value)

@@ -4,6 +4,7 @@ without the guidance batch:
 
     python -m unica_train.distil --bundle BUNDLE --data DATA --out RUN [--method direct|consistency]
         [--frames 3072] [--steps 1500] [--batch 32] [--resume] [--extra-data MORE]
+        [--from-student] [--rollout-frames N]
 
 The student has the teacher's architecture and starts from its weights. It is run as one
 DDIM step from t = 999 to the clean sample, conditional only, from the teacher's starting
@@ -25,6 +26,12 @@ Methods (`--method`, compared in docs/experiments/distillation.md):
   sampler's noise instead), one guided teacher DDIM step takes it to t_n+1, and the
   student's clean-sample prediction at t_n is pulled to an EMA copy's at t_n+1 (the
   clean latent itself past the last step).
+
+`--rollout-frames N` (direct only) adds N frames whose contexts come from the live loop's
+own rollouts of the bundle's student on the training clips' keys (`rollout/`, its
+teacher samples in `rollout_teacher/`): the student meets its own frames as context live,
+and a teacher-forced pool never shows it them. Held-out rollouts (the held-out clips'
+keys) are scored against the teacher's samples of the same contexts.
 
 Steps: the frame pool (`pool/`, encoded contexts, actions, guidance scales, true next
 latents), the teacher's samples (`direct` only, `teacher/`), then training with a
@@ -262,6 +269,85 @@ def read_chunks(folder: Path, chunks: int) -> dict:
     return {key: torch.cat([p[key] for p in parts]) for key in parts[0]}
 
 
+# Pool keys both kinds of frame carry; the direct method trains on these alone.
+DIRECT_KEYS = ("context", "action", "idle_scale", "cfg_scale", "noise")
+
+
+@torch.no_grad()
+def rollout_pool(teacher: Teacher, path: Path, count: int, seed: int, held_out: bool, stride: int, label: str) -> dict:
+    """`count` frames of the live loop's own rollouts of the bundle's student (where the
+    student's frames are its next context): each training clip's keys (the held-out
+    clips' with `held_out`) from the bundle's standing start, run as `eval.Avatar.rollout`
+    runs the engine's loop, every `stride`-th frame kept: the context latents and action
+    as the model saw them, the Idle and keys' guidance scales the teacher's sampler
+    would use after those keys, and a starting noise. Written whole to `path` (a file
+    already there is read instead: resume)."""
+    if path.exists():
+        return read_pool_file(path)
+    if not any(k.startswith("student.") for k in teacher.extra):
+        raise DistilError(f"{teacher.bundle_dir}: --rollout-frames rolls out the bundle's one-pass student, "
+                          "and it has none (no student.* tensors)")
+    student = bundle_io.live_sampler(dict(teacher.manifest, sampler=dict(teacher.manifest["sampler"], kind="one_pass")),
+                                     teacher.unet, teacher.extra, teacher.bundle_dir / "manifest.json")[0]
+    clips = [c for c in range(len(teacher.ds.clips)) if (c in teacher.held_out) == held_out]
+    if not clips:
+        raise DistilError(f"{teacher.ds.dir}: no {'held-out' if held_out else 'training'} clip to roll out")
+    gen = torch.Generator().manual_seed(seed + 11)
+    order = [clips[int(i)] for i in torch.randperm(len(clips), generator=gen)]
+    manifest, noise_scale = teacher.manifest, teacher.options["noise_scale"]
+    rows = {k: [] for k in DIRECT_KEYS + ("frames",)}
+    started = time.time()
+    run = 0
+    while len(rows["noise"]) < count:
+        clip = order[run % len(order)]
+        actions = [int(a) for a in teacher.ds.clips[clip]["actions"]]
+        offset = int(torch.randint(stride, (1,), generator=gen))
+        wanted = count - len(rows["noise"])
+        frames = min(len(actions), offset + stride * (wanted - 1) + 1)
+
+        def keep(i, context, model_action, clip=clip, actions=actions, offset=offset):
+            if i % stride != offset:
+                return
+            history = actions[:i + 1]
+            scale = frame_options(teacher.options, teacher.brake, history)["idle_cfg_scale"]
+            rows["context"].append(context.clone())
+            rows["action"].append(model_action)
+            rows["idle_scale"].append(-1.0 if scale is None else float(scale))
+            rows["cfg_scale"].append(frame_cfg_scales(history, teacher.cfg_scale, **teacher.turn)[-1])
+            rows["noise"].append(noise_scale * torch.randn(4, 16, 16, generator=gen))
+            rows["frames"].append((clip, i))
+
+        recentre.rollout(
+            teacher.vae, student, teacher.schedule, teacher.latent_scale, teacher.extra["context.latents"], actions,
+            1, 1.0, seed + 100 + run, teacher.ds.pixels, teacher.extra["map.waist"].long(),
+            manifest["normalisation"]["scale"], "reencode", frames=frames, on_context=keep,
+            root_motion=manifest.get("root_motion", "centre"), heading=teacher.heading,
+            grounded=bool(manifest.get("grounded", False)), stand_speed=manifest.get("stand_speed"),
+            frame_rate=float(manifest["frame_rate"]), **teacher.options, **teacher.brake)
+        run += 1
+        done = min(len(rows["noise"]), count)
+        print(f"{label} {bar(done, count)} {done}/{count} {time.time() - started:.0f} s", flush=True)
+    part = {"context": torch.stack(rows["context"][:count]), "action": torch.tensor(rows["action"][:count]),
+            "idle_scale": torch.tensor(rows["idle_scale"][:count]),
+            "cfg_scale": torch.tensor(rows["cfg_scale"][:count], dtype=torch.float32),
+            "noise": torch.stack(rows["noise"][:count]), "frames": torch.tensor(rows["frames"][:count], dtype=torch.int32)}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    checkpoint_file.write_tensors(path, part)
+    return part
+
+
+def read_pool_file(path: Path) -> dict:
+    try:
+        return load_file(str(path))
+    except Exception as e:
+        raise DistilError(f"{path}: {e}") from e
+
+
+def joined(pool: dict, more: dict) -> dict:
+    """The direct method's training frames of two pools, one after the other."""
+    return {k: torch.cat([pool[k], more[k]]) for k in DIRECT_KEYS}
+
+
 def teacher_samples(teacher: Teacher, pool: dict, folder: Path, label: str) -> torch.Tensor:
     """The teacher's sample of every pooled frame from its stored noise, in chunks
     (`folder/chunk_NNNN.safetensors`, kept on resume)."""
@@ -395,6 +481,19 @@ def held_out_errors(teacher: Teacher, student, held: dict, teacher_z: torch.Tens
     return out
 
 
+@torch.no_grad()
+def rollout_errors(teacher: Teacher, students: dict, held: dict, teacher_z: torch.Tensor) -> dict:
+    """Each student's one pass on held-out frames of the live loop's own rollouts
+    (`rollout_pool`): RMS latent error and mean decoded distance (mm) to the teacher's
+    samples of the same contexts (there is no truth for a rollout)."""
+    out = {}
+    for name, model in students.items():
+        z = one_pass(model, teacher.schedule, held["context"], held["action"], held["noise"])
+        out[name] = {"latent_rms_to_teacher": float(((z - teacher_z) ** 2).mean().sqrt()),
+                     "mm_to_teacher": teacher.decode_mm(z, teacher_z)}
+    return out
+
+
 def write_bundle(teacher: Teacher, student, out: Path, record: dict) -> Path:
     """RUN/bundle: the teacher bundle with `student.*` and `sampler.kind = "one_pass"`,
     written beside and renamed into place whole."""
@@ -446,10 +545,21 @@ def main(argv=None):
                              "(default 0: half the pool after any key change, half uniform)")
     parser.add_argument("--from-student", action="store_true",
                         help="start from the bundle's own one-pass student (its student.* tensors), not the teacher")
+    parser.add_argument("--rollout-frames", type=int, default=0,
+                        help="more training frames from the live loop's own rollouts of the bundle's student on the "
+                             "training clips' keys, where its frames are its next context (direct method only; default 0)")
+    parser.add_argument("--rollout-stride", type=int, default=4, help="every this many rollout frames is kept")
+    parser.add_argument("--rollout-held-out-frames", type=int, default=128,
+                        help="held-out rollout frames (the held-out clips' keys) scored at the end")
     args = parser.parse_args(argv)
+    if args.rollout_frames and args.method != "direct":
+        parser.error("--rollout-frames needs --method direct (a rollout frame has no truth to noise)")
     if not 0.0 <= args.release_share <= 1.0:
         parser.error("--release-share must be between 0 and 1")
-    for name in ("frames", "held_out_frames", "steps", "batch", "checkpoint_every"):
+    if args.rollout_frames < 0:
+        parser.error("--rollout-frames must be at least 0")
+    for name in ("frames", "held_out_frames", "steps", "batch", "checkpoint_every", "rollout_stride",
+                 "rollout_held_out_frames"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be at least 1")
     if args.threads:
@@ -465,6 +575,16 @@ def main(argv=None):
         held = build_pool(teacher, args.out / "held_out", args.held_out_frames, args.seed + 1, True, "held-out pool")
         held_z = teacher_samples(teacher, held, args.out / "held_out_teacher", "teacher (held out)")
         targets = teacher_samples(teacher, pool, args.out / "teacher", "teacher") if args.method == "direct" else None
+        if args.rollout_frames:
+            rolled_held = rollout_pool(teacher, args.out / "rollout_held_out" / "pool.safetensors",
+                                       args.rollout_held_out_frames, args.seed + 1, True, args.rollout_stride,
+                                       "student rollouts (held out)")
+            rolled_held_z = teacher_samples(teacher, rolled_held, args.out / "rollout_held_out_teacher",
+                                            "teacher (held-out rollouts)")
+            rolled = rollout_pool(teacher, args.out / "rollout" / "pool.safetensors", args.rollout_frames, args.seed,
+                                  False, args.rollout_stride, "student rollouts")
+            rolled_z = teacher_samples(teacher, rolled, args.out / "rollout_teacher", "teacher (rollouts)")
+            pool, targets = joined(pool, rolled), torch.cat([targets, rolled_z])
     except (bundle_io.BundleError, DatasetError, DistilError) as e:
         raise SystemExit(f"unica_train.distil: {e}") from None
     try:
@@ -484,6 +604,12 @@ def main(argv=None):
         "minutes": (time.time() - started) / 60,
         "held_out": held_out_errors(teacher, student, held, held_z),
     }
+    if args.rollout_frames:
+        start = bundle_io.live_sampler(dict(teacher.manifest, sampler=dict(teacher.manifest["sampler"], kind="one_pass")),
+                                       teacher.unet, teacher.extra)[0]
+        record.update(rollout_frames=args.rollout_frames, rollout_stride=args.rollout_stride,
+                      held_out_rollouts=rollout_errors(teacher, {"bundle_student": start, "student_one_pass": student},
+                                                       rolled_held, rolled_held_z))
     checkpoint_file.write_text(args.out / "metrics.json", json.dumps(record, indent=2) + "\n")
     write_curves(args.out, args.method)
     path = write_bundle(teacher, student, args.out, record)

@@ -175,7 +175,8 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
             on_frame=None, guided_steps: int | None = None, guide_idle: bool = True, noise_scale: float = 1.0,
             idle_cfg_scale: float | None = None, idle_brake_cfg_scale: float | None = None,
             idle_brake_frames: int = 0, root_motion: str = "centre", heading: str = "world",
-            grounded: bool = False, stand_speed: float | None = None, frame_rate: float = 30.0) -> dict:
+            grounded: bool = False, stand_speed: float | None = None, frame_rate: float = 30.0,
+            on_context=None) -> dict:
     """The live loop of train.py's `Run.rollout` from the clean context latents [3, C, h, w]
     (scaled), recentring each frame either by re-encoding the translated window
     ("reencode", the reference) or by the latent shift context − Σ δ_k J_k ("latent", no
@@ -187,7 +188,9 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
     With `diagnose` the window is also tracked in the other modes and every frame records
     the relative RMS gap between the carried context and the re-encoded window (the
     re-encoding is measured, never fed back). `on_frame(i, points, shift)` sees each new
-    frame's normalised points [N, 3] (its root at 0.5 + shift). Idle frames are guided at
+    frame's normalised points [N, 3] (its root at 0.5 + shift); `on_context(i, context,
+    model_action)` each frame's context latents [3, C, h, w] and action as the model is
+    about to see them. Idle frames are guided at
     `idle_cfg_scale`, the first `idle_brake_frames` after a key at `idle_brake_cfg_scale`
     (`diffusion.frame_idle_scales`).
 
@@ -245,6 +248,8 @@ def rollout(vae, unet, schedule, scale, context, keys, steps, cfg_scale, seed, p
         if shift_mode == "reencode":
             context = encode(to_maps(turn_unit(window, to_model), pixels))
         model_action = quarter_turn_action(a, to_model)
+        if on_context is not None:
+            on_context(i, context, model_action)
         z = sample_next(unet, schedule, context[None], torch.tensor([model_action]), steps, cfg_scale, generator=gen,
                         guided_steps=guided_steps, guide_idle=guide_idle, noise_scale=noise_scale,
                         idle_cfg_scale=idle_scales[i])
