@@ -53,7 +53,7 @@ fn hilbert(cell: vec3<u32>) -> u32 {
 @compute @workgroup_size(WORKGROUP)
 fn main(invocation: Invocation) {
     let i = linear_index(invocation);
-    // Each curve's codes fill `stride` slots (points rounded up to 4, so rank.wgsl reads
+    // Each curve's codes fill `stride` slots (points rounded up to 4, so rank_tiled.wgsl reads
     // them as vec4s); the padding holds the largest u32, after every 30-bit code.
     let stride = (p.points + 3u) / 4u * 4u;
     if i >= stride {

@@ -1,7 +1,9 @@
-// rank.wgsl for GPUs: the same ranks, orders and groups, with the codes read from their
-// storage buffer a tile at a time into workgroup memory (each thread loads one vec4 of
-// the tile, then every thread counts against the whole tile). rank.wgsl's every thread
-// fetching every code as a texel took 168 µs a curve on an H200 (docs/gpu).
+// The serialisation ranks for GPUs: a point's rank is the number of points with a smaller
+// code plus those with the same code and a smaller index (a stable sort); sort[rank] = i,
+// unsort[i] = rank, and with `groups` set each point's pooled group rank / stride. The
+// codes are read from their storage buffer a tile at a time into workgroup memory (each
+// thread loads one vec4 of the tile, then every thread counts against the whole tile):
+// every thread fetching every code as a texel took 168 µs a curve on an H200 (docs/gpu).
 
 #bind p: uniform SplatParams
 #bind codes: read array<vec4<u32>>

@@ -3,7 +3,8 @@
 //! the CPU path (`base.rs`, `upscale.rs`, `serialise.rs`; tested equal in tests/splat.rs):
 //! the root and normalised points, the median spacing (an exact two-pass radix select),
 //! base splats and the refiner's features, the refiner's serialisation orders (codes and
-//! a stable rank by counting), then either the refined splats at 128² or the upscale of
+//! a stable rank: counted against a shared tile on GPUs, radix-sorted by one invocation
+//! on CPU drivers), then either the refined splats at 128² or the upscale of
 //! positions and residuals to the splat level and the fine splats. Every buffer is made
 //! in [`SplatFrame::new`]; [`SplatFrame::record_coarse`] and [`SplatFrame::record_finish`]
 //! record kernels into a [`Builder`], so they become part of the engine's frame plan. The
@@ -19,8 +20,7 @@ use super::upscale::UpscaleParams;
 use crate::gpu::kernel::{Grid, Precision};
 use crate::gpu::plan::Builder;
 use crate::gpu::shaders::Shader;
-use crate::gpu::texels::Texels;
-use crate::gpu::{Bound, GpuContext, GpuError, Indices, Permutation};
+use crate::gpu::{GpuContext, GpuError, Indices, Permutation};
 use crate::gpu_struct;
 use crate::wgsl_shader;
 
@@ -88,9 +88,11 @@ pub const BASE: Shader =
     wgsl_shader!("splat/base.wgsl", [SplatParams, GpuSplat], elem).with_constants(CONSTANTS);
 pub const CODES: Shader =
     wgsl_shader!("splat/codes.wgsl", [SplatParams], f16: false, subgroups: false);
-pub const RANK: Shader =
-    wgsl_shader!("splat/rank.wgsl", [SplatParams], f16: false, subgroups: false);
-/// `RANK` for GPUs: the codes read a workgroup-shared tile at a time.
+/// The ranks for CPU drivers: one invocation radix-sorts a curve's codes.
+pub const RANK_SERIAL: Shader =
+    wgsl_shader!("splat/rank_serial.wgsl", [SplatParams], f16: false, subgroups: false);
+/// The ranks for GPUs: every thread counts against the codes a workgroup-shared tile at a
+/// time.
 pub const RANK_TILED: Shader =
     wgsl_shader!("splat/rank_tiled.wgsl", [SplatParams], f16: false, subgroups: false);
 pub const POOLED: Shader =
@@ -113,7 +115,7 @@ pub const ALL: &[Shader] = &[
     SELECT_PICK,
     BASE,
     CODES,
-    RANK,
+    RANK_SERIAL,
     RANK_TILED,
     POOLED,
     ROWS_TO_F32,
@@ -282,46 +284,37 @@ struct Refining {
     stride: usize,
     features: wgpu::Buffer,
     codes: wgpu::Buffer,
-    /// The codes as texels, for the rank kernel of CPU drivers.
-    codes_texels: Texels,
-    /// Whether the ranks are counted by `rank_tiled.wgsl` (GPUs) rather than `rank.wgsl`.
+    /// Whether the ranks are counted by `rank_tiled.wgsl` (GPUs) rather than sorted by
+    /// `rank_serial.wgsl`.
     tiled_rank: bool,
     /// The orders of the points and of the pooled points, and each point's group.
     orders: SerialOrders,
     pooled: wgpu::Buffer,
     pooled_codes: wgpu::Buffer,
-    pooled_codes_texels: Texels,
     residuals: wgpu::Buffer,
 }
 
 impl Refining {
-    /// Records one serialisation order from `codes` (the buffer and its texels) by
-    /// `p.curve`, with each point's group where `p.features` is set; where the rank reads
-    /// texels, the codes are copied into them before curve 0.
+    /// Records one serialisation order from `codes` by `p.curve`, with each point's group
+    /// where `p.features` is set.
     fn record_rank(
         &self,
         b: &mut Builder,
         p: &SplatParams,
-        codes: (&wgpu::Buffer, &Texels),
+        codes: &wgpu::Buffer,
         order: &Permutation,
         grid: Grid,
     ) {
-        let rest = [
-            Bound::Buffer(order.sort.buffer()),
-            Bound::Buffer(order.unsort.buffer()),
-            Bound::Buffer(self.orders.groups.buffer()),
+        let bound = [
+            codes,
+            order.sort.buffer(),
+            order.unsort.buffer(),
+            self.orders.groups.buffer(),
         ];
         if self.tiled_rank {
-            let mut bound = vec![Bound::Buffer(codes.0)];
-            bound.extend(rest);
-            b.dispatch_bound(&RANK_TILED, p, &bound, grid);
+            b.dispatch(&RANK_TILED, p, &bound, grid);
         } else {
-            if p.curve == 0 {
-                b.copy_to_texels(codes.0, codes.1);
-            }
-            let mut bound = vec![Bound::Texels(codes.1)];
-            bound.extend(rest);
-            b.dispatch_bound(&RANK, p, &bound, grid);
+            b.dispatch(&RANK_SERIAL, p, &bound, Grid { x: 1, y: 1 });
         }
     }
 }
@@ -397,7 +390,6 @@ impl SplatFrame {
                         16 * n.max(1).next_multiple_of(4) as u64,
                         wgpu::BufferUsages::COPY_SRC,
                     )?,
-                    codes_texels: Texels::new_u32(gpu, "splat.codes", 4 * n.next_multiple_of(4))?,
                     tiled_rank: for_gpus,
                     orders: SerialOrders {
                         fine: orders("splat.order", n)?,
@@ -409,11 +401,6 @@ impl SplatFrame {
                         "splat.pooled_codes",
                         16 * pooled.max(1).next_multiple_of(4) as u64,
                         wgpu::BufferUsages::COPY_SRC,
-                    )?,
-                    pooled_codes_texels: Texels::new_u32(
-                        gpu,
-                        "splat.pooled_codes",
-                        4 * pooled.next_multiple_of(4),
                     )?,
                     residuals: gpu.storage_buffer(
                         "splat.residuals",
@@ -551,7 +538,7 @@ impl SplatFrame {
         for (curve, order) in r.orders.fine.iter().enumerate() {
             p.curve = curve as u32;
             p.features = u32::from(curve == 0);
-            r.record_rank(b, &p, (&r.codes, &r.codes_texels), order, grid);
+            r.record_rank(b, &p, &r.codes, order, grid);
         }
         let grid = b.grid(pooled);
         b.dispatch(
@@ -564,10 +551,9 @@ impl SplatFrame {
         q.points = pooled as u32;
         q.features = 0;
         b.dispatch(&CODES, &q, &[&r.pooled, &r.pooled_codes], grid);
-        let codes = (&r.pooled_codes, &r.pooled_codes_texels);
         for (curve, order) in r.orders.coarse.iter().enumerate() {
             q.curve = curve as u32;
-            r.record_rank(b, &q, codes, order, grid);
+            r.record_rank(b, &q, &r.pooled_codes, order, grid);
         }
         Some(RefinerInputs {
             features: &r.features,
