@@ -16,7 +16,6 @@ use super::base::{self, OPACITY, RESIDUALS, SPREAD, THICKNESS};
 use super::ply::SH_C0;
 use super::raster::GpuSplat;
 use super::serialise::{ORDERS, SerialOrders};
-use super::upscale::UpscaleParams;
 use crate::gpu::kernel::{Grid, Precision};
 use crate::gpu::plan::Builder;
 use crate::gpu::shaders::Shader;
@@ -63,7 +62,8 @@ gpu_struct! {
         pub residuals: u32,
         /// Refine: the drawn splats' in-surface scales times this (`base::widen`).
         pub widen: f32,
-        pub reserved1: u32,
+        /// Upscale: the fine level's size / 128.
+        pub factor: u32,
     }
 }
 
@@ -98,10 +98,10 @@ pub const RANK_TILED: Shader =
 pub const POOLED: Shader =
     wgsl_shader!("splat/pooled.wgsl", [SplatParams], f16: false, subgroups: false);
 pub const ROWS_TO_F32: Shader = wgsl_shader!("splat/rows_to_f32.wgsl", [SplatParams], elem);
-pub const SCATTER: Shader =
-    wgsl_shader!("splat/scatter.wgsl", [SplatParams], f16: false, subgroups: false);
-pub const GATHER_MAP: Shader =
-    wgsl_shader!("splat/gather_map.wgsl", [SplatParams], f16: false, subgroups: false);
+/// The fine level's rows from the coarse points' rows (the fine level's upscale).
+pub const UPSCALE_POINTS: Shader =
+    wgsl_shader!("splat/upscale_points.wgsl", [SplatParams], f16: false, subgroups: false)
+        .with_uints(&[("COARSE", COARSE as u32)]);
 pub const REFINE: Shader =
     wgsl_shader!("splat/refine.wgsl", [SplatParams, GpuSplat], f16: false, subgroups: false)
         .with_constants(CONSTANTS);
@@ -119,8 +119,7 @@ pub const ALL: &[Shader] = &[
     RANK_TILED,
     POOLED,
     ROWS_TO_F32,
-    SCATTER,
-    GATHER_MAP,
+    UPSCALE_POINTS,
     REFINE,
 ];
 
@@ -210,7 +209,7 @@ impl Level {
             features: 0,
             residuals: 0,
             widen: 1.0,
-            reserved1: 0,
+            factor: 1,
         }
     }
 
@@ -268,12 +267,8 @@ impl Level {
 /// The fine level's extra buffers (splat level above 128).
 struct Fine {
     level: Level,
-    /// [3, 128, 128] scatter target and its foreground mask.
-    map: wgpu::Buffer,
-    mask: wgpu::Buffer,
-    /// [3, size, size] upscaled map and (unused) mask.
-    up_map: wgpu::Buffer,
-    up_mask: wgpu::Buffer,
+    /// The 128² map's point index per pixel, -1 on the background.
+    index: wgpu::Buffer,
     points: wgpu::Buffer,
     residuals: wgpu::Buffer,
 }
@@ -414,8 +409,10 @@ impl SplatFrame {
         let fine = if level > COARSE {
             let plane = COARSE * COARSE;
             let mut mask = vec![0.0f32; plane];
-            for &p in pixels {
+            let mut index = vec![-1i32; plane];
+            for (i, &p) in pixels.iter().enumerate() {
                 mask[p as usize] = 1.0;
+                index[p as usize] = i as i32;
             }
             let mut color_map = vec![0.0f32; 3 * plane];
             for (&p, c) in pixels.iter().zip(colors) {
@@ -454,10 +451,11 @@ impl SplatFrame {
             let level = Level::new(gpu, level, &fine_pixels, &fine_colors)?;
             let count = level.count.max(1) as u64;
             Some(Fine {
-                map: gpu.storage_buffer("splat.map", 12 * plane as u64, none)?,
-                mask: gpu.storage_buffer_init("splat.mask", bytemuck::cast_slice(&mask), none)?,
-                up_map: gpu.storage_buffer("splat.up_map", 12 * fine_plane as u64, none)?,
-                up_mask: gpu.storage_buffer("splat.up_mask", 4 * fine_plane as u64, none)?,
+                index: gpu.storage_buffer_init(
+                    "splat.index",
+                    bytemuck::cast_slice(&index),
+                    none,
+                )?,
                 points: gpu.storage_buffer("splat.fine_points", 12 * count, none)?,
                 residuals: gpu.storage_buffer(
                     "splat.fine_residuals",
@@ -594,47 +592,24 @@ impl SplatFrame {
             );
             return;
         };
-        let factor = f.level.size / COARSE;
-        let upscale = UpscaleParams {
-            width: COARSE as u32,
-            height: COARSE as u32,
-            factor: factor as u32,
-            reserved: 0,
-        };
-        let up_grid = b.grid(f.level.size * f.level.size);
-        let coarse_grid = b.grid(c.count);
-        let fine_grid = b.grid(f.level.count);
+        // Positions, then the residuals, at the fine points' pixels.
         let mut fp = f.level.params();
-        // Positions: scatter, upscale, gather at the fine pixels.
-        let mut up = |b: &mut Builder,
-                      rows: &wgpu::Buffer,
-                      out: &wgpu::Buffer,
-                      channels: usize,
-                      first: usize| {
-            let mut sp = c.params();
-            sp.channels = channels as u32;
-            sp.first = first as u32;
-            b.dispatch(&SCATTER, &sp, &[rows, &c.pixels, &f.map], coarse_grid);
+        fp.factor = (f.level.size / COARSE) as u32;
+        let fine_grid = b.grid(f.level.count);
+        b.dispatch(
+            &UPSCALE_POINTS,
+            &fp,
+            &[points, &f.index, &f.level.pixels, &f.points],
+            fine_grid,
+        );
+        if let Some(rows) = rows {
+            fp.channels = RESIDUALS as u32;
             b.dispatch(
-                &super::upscale::UPSCALE_MAP,
-                &upscale,
-                &[&f.map, &f.mask, &f.up_map, &f.up_mask],
-                up_grid,
-            );
-            fp.channels = channels as u32;
-            fp.first = first as u32;
-            b.dispatch(
-                &GATHER_MAP,
+                &UPSCALE_POINTS,
                 &fp,
-                &[&f.up_map, &f.level.pixels, out],
+                &[rows, &f.index, &f.level.pixels, &f.residuals],
                 fine_grid,
             );
-        };
-        up(b, points, &f.points, 3, 0);
-        if let Some(rows) = rows {
-            for first in (0..RESIDUALS).step_by(3) {
-                up(b, rows, &f.residuals, RESIDUALS, first);
-            }
         }
         f.level.record_base(b, &f.points, &self.unit, None);
         let mut p = f.level.params();
