@@ -49,6 +49,9 @@ pub const RADIX_SCATTER_SERIAL: Shader = shader!(
     f16: false,
     subgroups: false
 );
+/// The digit offsets of a sort pass for CPU drivers (GPUs scan with [`SCAN_BLOCKS`]).
+pub const RADIX_SCAN_SERIAL: Shader =
+    shader!("splat/radix_scan_serial.wgsl", [], f16: false, subgroups: false);
 pub const SPLAT_RANGES: Shader =
     shader!("splat/splat_ranges.wgsl", [RasterView], f16: false, subgroups: false);
 pub const SPLAT_RENDER: Shader =
@@ -73,6 +76,7 @@ pub const SHADERS: &[Shader] = &[
     RADIX_SCATTER,
     RADIX_HISTOGRAM_SERIAL,
     RADIX_SCATTER_SERIAL,
+    RADIX_SCAN_SERIAL,
     SPLAT_RANGES,
     SPLAT_RENDER,
     SPLAT_RENDER_ROWS,
@@ -450,7 +454,17 @@ impl Rasterizer {
                 grids.map(|g| (g, 0)),
                 groups(blocks),
             );
-            self.scan(gpu, encoder, &b.hist, 256 * blocks, Some(&b.hist_scan))?;
+            if kernels == RasterKernels::Cpu {
+                self.run(
+                    gpu,
+                    encoder,
+                    &RADIX_SCAN_SERIAL,
+                    &[&b.info, &b.hist],
+                    groups(1),
+                );
+            } else {
+                self.scan(gpu, encoder, &b.hist, 256 * blocks, Some(&b.hist_scan))?;
+            }
             let bindings = [
                 &params,
                 &b.keys[from],
