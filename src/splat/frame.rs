@@ -88,6 +88,13 @@ pub const BASE: Shader =
     wgsl_shader!("splat/base.wgsl", [SplatParams, GpuSplat], elem).with_constants(CONSTANTS);
 pub const CODES: Shader =
     wgsl_shader!("splat/codes.wgsl", [SplatParams], f16: false, subgroups: false);
+/// The most points whose ranks [`RANK_SERIAL`] sorts; more take [`RANK_TILED`] on any
+/// adapter. Lavapipe silently ends every loop of an invocation once all of them together
+/// have run 65,535 iterations, and the serial sort runs 3 + 6 · 1,024 + 7 · n (three
+/// passes of two 1,024-digit loops and two over the points, then the inverse order). The
+/// Witch's 128² map has 4,414 points, the Knight's 5,014; a map full of points 16,384.
+pub const RANK_SERIAL_MAX_POINTS: usize = 8_000;
+const _: () = assert!(3 + 6 * 1024 + 7 * RANK_SERIAL_MAX_POINTS < 65_535);
 /// The ranks for CPU drivers: one invocation radix-sorts a curve's codes.
 pub const RANK_SERIAL: Shader =
     wgsl_shader!("splat/rank_serial.wgsl", [SplatParams], f16: false, subgroups: false);
@@ -279,8 +286,8 @@ struct Refining {
     stride: usize,
     features: wgpu::Buffer,
     codes: wgpu::Buffer,
-    /// Whether the ranks are counted by `rank_tiled.wgsl` (GPUs) rather than sorted by
-    /// `rank_serial.wgsl`.
+    /// Whether the ranks are counted by `rank_tiled.wgsl` (GPUs, and maps of more than
+    /// [`RANK_SERIAL_MAX_POINTS`] points) rather than sorted by `rank_serial.wgsl`.
     tiled_rank: bool,
     /// The orders of the points and of the pooled points, and each point's group.
     orders: SerialOrders,
@@ -385,7 +392,7 @@ impl SplatFrame {
                         16 * n.max(1).next_multiple_of(4) as u64,
                         wgpu::BufferUsages::COPY_SRC,
                     )?,
-                    tiled_rank: for_gpus,
+                    tiled_rank: for_gpus || n > RANK_SERIAL_MAX_POINTS,
                     orders: SerialOrders {
                         fine: orders("splat.order", n)?,
                         coarse: orders("splat.pooled_order", pooled)?,

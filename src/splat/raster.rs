@@ -89,10 +89,13 @@ pub enum RasterKernels {
     /// and each tile a workgroup of 256 pixels that loads its splats into shared memory
     /// 256 at a time (splat_render.wgsl).
     Gpu,
-    /// For CPU drivers, without shared memory, atomics or barriers: one invocation a radix
-    /// block (radix_*_serial.wgsl), and one a pixel row of a tile, blending each splat
-    /// over only the pixels of the row it can reach (splat_render_rows.wgsl), for up to
-    /// [`ROW_BLEND_MAX_SPLATS`] splats; more are blended as on a GPU.
+    /// For CPU drivers, without atomics: one invocation a radix block counts and places
+    /// its entries (radix_histogram_serial.wgsl, radix_scatter_serial.wgsl), one
+    /// workgroup of 256 lanes with one barrier scans the counts (radix_scan_serial.wgsl,
+    /// up to [`RADIX_SCAN_SERIAL_MAX_BLOCKS`] blocks), and one invocation a pixel row of a
+    /// tile blends each splat over only the pixels of the row it can reach
+    /// (splat_render_rows.wgsl), for up to [`ROW_BLEND_MAX_SPLATS`] splats; more are
+    /// scanned and blended as on a GPU.
     Cpu,
 }
 
@@ -105,6 +108,13 @@ pub enum RasterKernels {
 /// Witch's window 40-70 % slower (1280×800: 117-148 ms against 85-90 ms, level 256), so
 /// the two are kept: at level 256 (18,036 splats) every window takes the row blend.
 pub const ROW_BLEND_MAX_SPLATS: usize = 65_000;
+
+/// The most radix blocks (256 sort entries each, over the capacity) whose digit offsets
+/// `radix_scan_serial.wgsl` computes: each of its lanes loops over the blocks twice and
+/// over up to 255 digit totals, under lavapipe's 65,535 iterations. More blocks (over
+/// half a million splats) are scanned as on a GPU.
+pub const RADIX_SCAN_SERIAL_MAX_BLOCKS: usize = 32_000;
+const _: () = assert!(2 * RADIX_SCAN_SERIAL_MAX_BLOCKS + 256 + 3 < 65_535);
 
 impl RasterKernels {
     /// `Cpu` on a CPU driver, `Gpu` on anything else.
@@ -454,7 +464,7 @@ impl Rasterizer {
                 grids.map(|g| (g, 0)),
                 groups(blocks),
             );
-            if kernels == RasterKernels::Cpu {
+            if kernels == RasterKernels::Cpu && blocks <= RADIX_SCAN_SERIAL_MAX_BLOCKS {
                 self.run(
                     gpu,
                     encoder,

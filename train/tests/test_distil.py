@@ -11,7 +11,7 @@ import torch
 
 from unica_train import bundle, recentre
 from unica_train.diffusion import Schedule, frame_cfg_scales, frame_idle_scales, sample_next
-from unica_train.distil import (RELEASE_WINDOW, Teacher, main, one_pass, pick_frames, rollout_pool,
+from unica_train.distil import (RELEASE_WINDOW, DistilError, Teacher, main, one_pass, pick_frames, rollout_pool,
                                 x0_prediction)
 
 from test_train import trained_bundle_with_refiner
@@ -232,6 +232,13 @@ def test_rollout_frames_are_the_live_loops_own_contexts_under_the_teachers_guida
         assert float(part["idle_scale"][k]) == frame_idle_scales(keys[:f + 1], 1.5, 5.0, 10)[-1]
         assert float(part["cfg_scale"][k]) == frame_cfg_scales(keys[:f + 1], 3.5, 1.25, 5)[-1]
     assert part["noise"].shape == (7, 4, 16, 16) and 0.1 < float(part["noise"].std()) < 0.4  # the sampler's 0.25
+    # The same file asked for with other options is refused, not reused under them.
+    with pytest.raises(DistilError, match="other rollout options"):
+        rollout_pool(t, tmp_path / "rolled.safetensors", 7, seed=5, held_out=False, stride=2, label="ro")
+    # Held out, every frame is kept but the standing start that every rollout shares.
+    t.held_out = {3}
+    held = rollout_pool(t, tmp_path / "held.safetensors", 4, seed=5, held_out=True, stride=1, label="ho")
+    assert [f for _, f in held["frames"].tolist()] == [1, 2, 3, 4]
     # A run with rollout frames trains on them, scores held-out rollouts, and resumes
     # without rolling out again.
     out = tmp_path / "run"

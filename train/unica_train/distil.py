@@ -280,10 +280,17 @@ def rollout_pool(teacher: Teacher, path: Path, count: int, seed: int, held_out: 
     clips' with `held_out`) from the bundle's standing start, run as `eval.Avatar.rollout`
     runs the engine's loop, every `stride`-th frame kept: the context latents and action
     as the model saw them, the Idle and keys' guidance scales the teacher's sampler
-    would use after those keys, and a starting noise. Written whole to `path` (a file
-    already there is read instead: resume)."""
+    would use after those keys, and a starting noise. Held-out runs draw their noise from
+    seeds no training run uses and skip frame 0 (the standing start every rollout shares).
+    Written whole to `path` with the options that made it (a file already there is read
+    instead: resume, refused when its options differ)."""
+    meta = torch.tensor([count, stride, seed, int(held_out)], dtype=torch.int64)
     if path.exists():
-        return read_pool_file(path)
+        part = read_pool_file(path)
+        if "meta" not in part or not torch.equal(part["meta"], meta):
+            raise DistilError(f"{path}: made with other rollout options (count, stride, seed); "
+                              "use the same options or remove the folder")
+        return part
     if not any(k.startswith("student.") for k in teacher.extra):
         raise DistilError(f"{teacher.bundle_dir}: --rollout-frames rolls out the bundle's one-pass student, "
                           "and it has none (no student.* tensors)")
@@ -297,16 +304,21 @@ def rollout_pool(teacher: Teacher, path: Path, count: int, seed: int, held_out: 
     manifest, noise_scale = teacher.manifest, teacher.options["noise_scale"]
     rows = {k: [] for k in DIRECT_KEYS + ("frames",)}
     started = time.time()
-    run = 0
+    run, kept_before = 0, 0
     while len(rows["noise"]) < count:
+        if run and run % len(order) == 0:
+            if len(rows["noise"]) == kept_before:
+                raise DistilError(f"{teacher.ds.dir}: the clips to roll out give no frame at stride {stride}")
+            kept_before = len(rows["noise"])
         clip = order[run % len(order)]
         actions = [int(a) for a in teacher.ds.clips[clip]["actions"]]
         offset = int(torch.randint(stride, (1,), generator=gen))
         wanted = count - len(rows["noise"])
-        frames = min(len(actions), offset + stride * (wanted - 1) + 1)
+        first = stride if held_out and offset == 0 else offset
+        frames = min(len(actions), first + stride * (wanted - 1) + 1)
 
         def keep(i, context, model_action, clip=clip, actions=actions, offset=offset):
-            if i % stride != offset:
+            if i % stride != offset or (held_out and i == 0):
                 return
             history = actions[:i + 1]
             scale = frame_options(teacher.options, teacher.brake, history)["idle_cfg_scale"]
@@ -319,7 +331,7 @@ def rollout_pool(teacher: Teacher, path: Path, count: int, seed: int, held_out: 
 
         recentre.rollout(
             teacher.vae, student, teacher.schedule, teacher.latent_scale, teacher.extra["context.latents"], actions,
-            1, 1.0, seed + 100 + run, teacher.ds.pixels, teacher.extra["map.waist"].long(),
+            1, 1.0, seed + (50_000 if held_out else 100) + run, teacher.ds.pixels, teacher.extra["map.waist"].long(),
             manifest["normalisation"]["scale"], "reencode", frames=frames, on_context=keep,
             root_motion=manifest.get("root_motion", "centre"), heading=teacher.heading,
             grounded=bool(manifest.get("grounded", False)), stand_speed=manifest.get("stand_speed"),
@@ -330,7 +342,8 @@ def rollout_pool(teacher: Teacher, path: Path, count: int, seed: int, held_out: 
     part = {"context": torch.stack(rows["context"][:count]), "action": torch.tensor(rows["action"][:count]),
             "idle_scale": torch.tensor(rows["idle_scale"][:count]),
             "cfg_scale": torch.tensor(rows["cfg_scale"][:count], dtype=torch.float32),
-            "noise": torch.stack(rows["noise"][:count]), "frames": torch.tensor(rows["frames"][:count], dtype=torch.int32)}
+            "noise": torch.stack(rows["noise"][:count]), "frames": torch.tensor(rows["frames"][:count], dtype=torch.int32),
+            "meta": meta}
     path.parent.mkdir(parents=True, exist_ok=True)
     checkpoint_file.write_tensors(path, part)
     return part
@@ -345,6 +358,10 @@ def read_pool_file(path: Path) -> dict:
 
 def joined(pool: dict, more: dict) -> dict:
     """The direct method's training frames of two pools, one after the other."""
+    for k in DIRECT_KEYS:
+        if k not in pool:
+            raise DistilError(f"the training pool has no '{k}' (made before turn guidance): "
+                              "--rollout-frames needs a pool made by this version; remove the run's pool folder")
     return {k: torch.cat([pool[k], more[k]]) for k in DIRECT_KEYS}
 
 
