@@ -4,8 +4,8 @@
 // that one invocation runs serially: three passes of 10 bits over the 30-bit codes, each
 // counting its digits in a private array, then placing the points in their order. `unsort`
 // is the middle pass's buffer before it gets the inverse order. Counting every pair took
-// 4,414² compares, about 11 ms a curve of 4,414 points on lavapipe. Lavapipe's limit on loop iterations
-// bounds the points it can sort: frame.rs's RANK_SERIAL_MAX_POINTS.
+// 4,414² compares, about 11 ms a curve of 4,414 points on lavapipe. Lavapipe's limit on
+// loop iterations bounds the points it can sort: frame.rs's RANK_SERIAL_MAX_POINTS.
 
 #bind p: uniform SplatParams
 #bind codes: read array<u32>

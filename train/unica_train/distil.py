@@ -317,8 +317,8 @@ def rollout_pool(teacher: Teacher, path: Path, count: int, seed: int, held_out: 
         first = stride if held_out and offset == 0 else offset
         frames = min(len(actions), first + stride * (wanted - 1) + 1)
 
-        def keep(i, context, model_action, clip=clip, actions=actions, offset=offset):
-            if i % stride != offset or (held_out and i == 0):
+        def keep(i, context, model_action, clip=clip, actions=actions, first=first):
+            if i < first or (i - first) % stride:
                 return
             history = actions[:i + 1]
             scale = frame_options(teacher.options, teacher.brake, history)["idle_cfg_scale"]
