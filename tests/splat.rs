@@ -349,3 +349,122 @@ fn the_row_blend_matches_the_reference_on_the_witchs_level_256_splats() {
     assert!(most > 3_000, "the fullest tile holds {most} entries");
     compare(&splats, None, &cam);
 }
+
+/// The serialisation ranks of both kernels (`rank_serial.wgsl` for CPU drivers,
+/// `rank_tiled.wgsl` for GPUs) against a stable sort on the host, on codes with many
+/// ties (a point's rank counts the smaller codes and the equal codes of smaller index),
+/// for the second curve of a codes buffer (its offset), with the pooled groups, at the
+/// Witch's point count, a count that is not a multiple of 4, one point, and the serial
+/// kernel's largest count (`RANK_SERIAL_MAX_POINTS`, just under lavapipe's loop limit);
+/// the tiled kernel also past it. Exact: both are integer sorts.
+#[test]
+fn both_rank_kernels_sort_codes_stably_as_the_host_does() {
+    use unica::gpu::kernel::PipelineCache;
+    use unica::gpu::plan::Builder;
+    use unica::gpu::precision::Precision;
+    use unica::splat::frame::{RANK_SERIAL, RANK_SERIAL_MAX_POINTS, RANK_TILED, SplatParams};
+
+    let gpu = GpuContext::headless(&GpuOptions::from_env()).unwrap();
+    let stride = 4u32;
+    let cases = [
+        (4_414, false),
+        (4_414, true),
+        (4_415, false),
+        (1, false),
+        (1, true),
+        (RANK_SERIAL_MAX_POINTS, false),
+        (RANK_SERIAL_MAX_POINTS + 1_001, true),
+    ];
+    for (n, tiled) in cases {
+        // Four curves of n codes each, padded to a multiple of 4 with the largest u32 as
+        // codes.wgsl pads them; the kernel reads curve 1. Codes below 2^30 (three 10-bit
+        // digits); a third of them from 50 values, so ties are common.
+        let padded = n.div_ceil(4) * 4;
+        let mut state = 12_345u64 + n as u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 33) as u32
+        };
+        let mut codes = vec![u32::MAX; 4 * padded];
+        for curve in 0..4 {
+            for i in 0..n {
+                let r = next();
+                codes[curve * padded + i] = if r % 3 == 0 {
+                    (r / 3 % 50) << 17
+                } else {
+                    r & ((1 << 30) - 1)
+                };
+            }
+        }
+        let ours = &codes[padded..padded + n];
+        let mut want: Vec<u32> = (0..n as u32).collect();
+        want.sort_by_key(|&i| ours[i as usize]);
+        assert!(
+            n == 1
+                || want
+                    .windows(2)
+                    .any(|w| ours[w[0] as usize] == ours[w[1] as usize]),
+            "the codes have ties"
+        );
+
+        let codes_buffer = gpu
+            .storage_buffer_init(
+                "codes",
+                bytemuck::cast_slice(&codes),
+                wgpu::BufferUsages::empty(),
+            )
+            .unwrap();
+        let out = |label| {
+            gpu.storage_buffer(label, 4 * n as u64, wgpu::BufferUsages::COPY_SRC)
+                .unwrap()
+        };
+        let (sort_buffer, unsort_buffer, groups_buffer) =
+            (out("sort"), out("unsort"), out("groups"));
+        let mut pipelines = PipelineCache::default();
+        let mut b = Builder::new(&gpu, &mut pipelines, Precision::F32);
+        let mut p: SplatParams = bytemuck::Zeroable::zeroed();
+        p.points = n as u32;
+        p.curve = 1;
+        p.stride = stride;
+        p.features = 1;
+        let bound = [&codes_buffer, &sort_buffer, &unsort_buffer, &groups_buffer];
+        if tiled {
+            let grid = b.grid(n);
+            b.dispatch(&RANK_TILED, &p, &bound, grid);
+        } else {
+            let grid = b.workgroups(1);
+            b.dispatch(&RANK_SERIAL, &p, &bound, grid);
+        }
+        let plan = b.finish(0);
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        for k in 0..plan.parts() {
+            plan.record_part(&mut encoder, k);
+        }
+        gpu.queue.submit([encoder.finish()]);
+        let read = |buffer: &wgpu::Buffer| -> Vec<u32> {
+            let bytes = readback::buffer(&gpu, buffer, "ranks").unwrap();
+            bytemuck::pod_collect_to_vec::<u8, u32>(&bytes)[..n].to_vec()
+        };
+        let kernel = if tiled { "rank_tiled" } else { "rank_serial" };
+        let mut unsort = vec![0u32; n];
+        for (r, &i) in want.iter().enumerate() {
+            unsort[i as usize] = r as u32;
+        }
+        let groups: Vec<u32> = unsort.iter().map(|r| r / stride).collect();
+        for (what, buffer, expected) in [
+            ("sort", &sort_buffer, &want),
+            ("unsort", &unsort_buffer, &unsort),
+            ("groups", &groups_buffer, &groups),
+        ] {
+            let got = read(buffer);
+            let wrong = got.iter().zip(expected).filter(|(a, b)| a != b).count();
+            let first = got.iter().zip(expected).position(|(a, b)| a != b);
+            assert_eq!(
+                wrong, 0,
+                "{kernel}, {n} points: {what} differs at {wrong} entries, first {first:?}"
+            );
+        }
+    }
+}
