@@ -79,9 +79,11 @@ fn gpu_render(
 
 /// Every variant of the rasterizer against the reference.
 fn compare(splats: &[Splat], warm_up: Option<&[Splat]>, cam: &SplatCamera) {
+    let background = Vec3::new(0.1, 0.2, 0.3);
+    let want = render_reference(splats, cam, background);
     for (name, rasterizer) in variants() {
         eprint!("{name}: ");
-        compare_one(rasterizer, splats, warm_up, cam);
+        compare_one(rasterizer, splats, warm_up, cam, background, &want);
     }
 }
 
@@ -90,15 +92,15 @@ fn compare_one(
     splats: &[Splat],
     warm_up: Option<&[Splat]>,
     cam: &SplatCamera,
+    background: Vec3,
+    want: &[[f32; 4]],
 ) {
-    let background = Vec3::new(0.1, 0.2, 0.3);
     let (got, info) = gpu_render(rasterizer, splats, warm_up, cam, background);
     assert_eq!(info[0], info[1], "no sort entry dropped");
     assert!(info[0] > 0, "something is on screen");
-    let want = render_reference(splats, cam, background);
     let diffs: Vec<f32> = got
         .iter()
-        .zip(&want)
+        .zip(want)
         .flat_map(|(a, b)| (0..4).map(move |c| (a[c] - b[c]).abs()))
         .collect();
     let mean = diffs.iter().sum::<f32>() / diffs.len() as f32;

@@ -117,6 +117,9 @@ pub const DONE: f32 = 1e-4;
 
 /// The CPU reference renderer: every pixel blends the splats whose tiles cover it, front
 /// to back in sort-key order (the rasterizer's order), over `background`; linear RGBA.
+/// Each tile's list holds its splats in that order, so a pixel visits only the splats
+/// that can touch it: the same image as scanning every splat for every pixel, which
+/// took about 20 s for the Witch's 306k level-1024 splats at 128².
 pub fn render_reference(splats: &[Splat], cam: &SplatCamera, background: Vec3) -> Vec<[f32; 4]> {
     let mut projected: Vec<(u32, Projected)> = splats
         .iter()
@@ -125,17 +128,23 @@ pub fn render_reference(splats: &[Splat], cam: &SplatCamera, background: Vec3) -
         .collect();
     // A stable sort by key keeps input order among equal keys, as the radix sort does.
     projected.sort_by_key(|(key, _)| *key);
+    let (tiles_x, tiles_y) = cam.tiles();
+    let mut lists: Vec<Vec<&Projected>> = vec![Vec::new(); (tiles_x * tiles_y) as usize];
+    for (_, p) in &projected {
+        let [x0, y0, x1, y1] = p.tiles;
+        for ty in y0..y1.min(tiles_y) {
+            for tx in x0..x1.min(tiles_x) {
+                lists[(ty * tiles_x + tx) as usize].push(p);
+            }
+        }
+    }
     let mut image = Vec::with_capacity((cam.width * cam.height) as usize);
     for y in 0..cam.height {
         for x in 0..cam.width {
-            let (tx, ty) = (x / TILE, y / TILE);
+            let list = &lists[((y / TILE) * tiles_x + x / TILE) as usize];
             let pixel = Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
             let (mut color, mut transmittance) = (Vec3::ZERO, 1.0f32);
-            for (_, p) in &projected {
-                let [x0, y0, x1, y1] = p.tiles;
-                if tx < x0 || tx >= x1 || ty < y0 || ty >= y1 {
-                    continue;
-                }
+            for p in list {
                 let a = alpha(p, pixel);
                 if a == 0.0 {
                     continue;
