@@ -15,23 +15,22 @@ from __future__ import annotations
 import math
 
 import torch
+from scipy.spatial import cKDTree
 
-CHUNK = 1024
 CANDIDATES = 8
 
 
 def chamfer(a: torch.Tensor, b: torch.Tensor) -> float:
     """Symmetric Chamfer distance between clouds a [N, 3] and b [M, 3]: the mean distance
     from each point of a to its nearest point of b, plus the same from b to a, halved.
-    Distances are computed exactly (no matrix-product shortcut, which loses millimetres
-    at metre coordinates in float32), 1024 rows of a at a time."""
-    a_near = []
-    b_near = torch.full((b.shape[0],), math.inf, dtype=b.dtype, device=b.device)
-    for rows in a.split(CHUNK):
-        d = torch.cdist(rows, b, compute_mode="donot_use_mm_for_euclid_dist")
-        a_near.append(d.min(dim=1).values)
-        b_near = torch.minimum(b_near, d.min(dim=0).values)
-    return 0.5 * (torch.cat(a_near).mean().item() + b_near.mean().item())
+    Nearest points come from k-d trees in float64, so distances are exact (a matrix-product
+    shortcut in float32 loses millimetres at metre coordinates); all pairs by `cdist` took
+    0.5 s for two 4,414-point clouds, most of the quick evaluation's time."""
+    a64 = a.detach().to("cpu", torch.float64).numpy()
+    b64 = b.detach().to("cpu", torch.float64).numpy()
+    a_near, _ = cKDTree(b64).query(a64)
+    b_near, _ = cKDTree(a64).query(b64)
+    return 0.5 * (float(a_near.mean()) + float(b_near.mean()))
 
 
 def nearest_pose_chamfer(frame: torch.Tensor, poses: torch.Tensor, centre: bool = True) -> tuple[float, int]:
