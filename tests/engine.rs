@@ -173,14 +173,14 @@ fn reference_frame(
     root: Vec3,
     root_motion: RootMotion,
     (stand, standing): (f32, bool),
+    pipelines: &mut PipelineCache,
 ) -> Reference {
-    let mut pipelines = PipelineCache::default();
     let cfg = &bundle.unet.cfg;
     let side = 16;
     let size = bundle.manifest.map_size;
     let frames = cfg.frames - 1;
     let to_model = (4 - quarters) % 4;
-    let mut r = Recorder::new(gpu, &mut pipelines, Precision::F32);
+    let mut r = Recorder::new(gpu, pipelines, Precision::F32);
     let turned = turn_maps(bundle, maps, to_model);
     let input = r.upload("maps", &[frames, 3, size, size], &turned).unwrap();
     let means = bundle.encoder.forward(&mut r, &input).unwrap();
@@ -191,7 +191,7 @@ fn reference_frame(
         .iter()
         .map(|v| v * bundle.manifest.latent_scale)
         .collect();
-    let mut r = Recorder::new(gpu, &mut pipelines, Precision::F32);
+    let mut r = Recorder::new(gpu, pipelines, Precision::F32);
     let ctx = r
         .upload("ctx", &[1, frames, cfg.latent, side, side], &context)
         .unwrap();
@@ -235,7 +235,7 @@ fn reference_frame(
         RootMotion::Decoded => {
             let len = context.len() / (cfg.frames - 1);
             let last = &context[context.len() - len..];
-            let mut r = Recorder::new(gpu, &mut pipelines, Precision::F32);
+            let mut r = Recorder::new(gpu, pipelines, Precision::F32);
             let z = r
                 .upload("last", &[1, cfg.latent, side, side], last)
                 .unwrap();
@@ -365,6 +365,8 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
     // hold the world root.
     let standing = bundle_with(dir.path(), "decoded", "canonical", true, Some(1e3));
     let centre = |s| (s, centred.clone(), RootMotion::Centre, Heading::World);
+    // One cache for every reference frame: the pipelines are built once, not per frame.
+    let mut pipelines = PipelineCache::default();
     for (sampling, bundle, root_motion, heading) in [
         centre(Sampling::new(2, 1.0)),
         centre(Sampling::new(2, 2.0)),
@@ -445,6 +447,7 @@ fn the_gpu_frame_equals_the_host_loop_on_the_shipped_bundle() {
                 root,
                 root_motion,
                 (stand, standing),
+                &mut pipelines,
             );
             standing = reference.standing;
             if stand > 0.0 && action == Action::Idle {
