@@ -151,6 +151,7 @@ fn main() -> anyhow::Result<()> {
         (&STORAGE, &TEXELS),
         (&TEXELS, &TEXELS),
         (&UNIFORM, &UNIFORM),
+        (&TEXELS, &UNIFORM),
     ];
     for (x_form, w_form) in forms {
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
