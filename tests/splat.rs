@@ -439,12 +439,7 @@ fn both_rank_kernels_sort_codes_stably_as_the_host_does() {
             let grid = b.workgroups(1);
             b.dispatch(&RANK_SERIAL, &p, &bound, grid);
         }
-        let plan = b.finish(0);
-        let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        for k in 0..plan.parts() {
-            plan.record_part(&mut encoder, k);
-        }
-        gpu.queue.submit([encoder.finish()]);
+        b.submit();
         let read = |buffer: &wgpu::Buffer| -> Vec<u32> {
             let bytes = readback::buffer(&gpu, buffer, "ranks").unwrap();
             bytemuck::pod_collect_to_vec::<u8, u32>(&bytes)[..n].to_vec()
