@@ -112,6 +112,59 @@ fn the_linear_layer_over_gathered_normed_rows_equals_the_separate_ops_bit_for_bi
 }
 
 #[test]
+fn the_linear_layer_over_many_outputs_equals_the_simple_kernel_bit_for_bit() {
+    // The CPU variant stores plain rows four outputs at a time where the outputs allow
+    // (linear_rows_cpu.wgsl), one at a time otherwise (linear_cpu.wgsl), and with a
+    // layer norm makes a chunk of output tiles per invocation: both must give the
+    // simple kernel's bits after the same gather and norm. 19 rows (a partial tile),
+    // 12 inputs; 44 outputs (six tiles, the last half full: a full chunk and a partial
+    // one) and 42 (the one-value stores), with and without norm, order and residual.
+    for mut v in Variant::all() {
+        let x = v.wave("x", &[19, 12], 0.37);
+        let gamma = v.wave("gamma", &[12], 0.7);
+        let beta = v.wave("beta", &[12], 0.9);
+        for outputs in [44, 42] {
+            let weight = v.wave("weight", &[outputs, 12], 0.29);
+            let bias = v.wave("bias", &[outputs], 0.61);
+            let residual = v.wave("residual", &[19, outputs], 0.47);
+            let what = format!("{} {outputs} outputs", v.name());
+            let mut r = v.recorder();
+            let order: Vec<u32> = (0..19).map(|i| (i * 7) % 19).collect();
+            let order = r.indices("order", &order).unwrap();
+            let layer = (&weight, &bias);
+            let fused = r
+                .linear_rows(
+                    &x,
+                    layer,
+                    Some((&gamma, &beta)),
+                    Some(&order),
+                    Some(&residual),
+                )
+                .unwrap();
+            let plain = r.linear_plus(&x, &weight, &bias, false, None).unwrap();
+            let gathered = r.gather(&x, &order).unwrap();
+            let normed = r
+                .group_norm(&gathered.reshaped(&[19, 12, 1, 1]), &gamma, &beta, 1, false)
+                .unwrap()
+                .reshaped(&[19, 12]);
+            r.set_kernels(Kernels::Simple);
+            let separate = r
+                .linear_plus(&normed, &weight, &bias, false, Some(&residual))
+                .unwrap();
+            let simple = r.linear_plus(&x, &weight, &bias, false, None).unwrap();
+            r.submit();
+            assert_same_bits(v.precision, &v.read(&fused), &v.read(&separate), &what);
+            assert_same_bits(
+                v.precision,
+                &v.read(&plain),
+                &v.read(&simple),
+                &format!("{what} plain"),
+            );
+        }
+    }
+}
+
+#[test]
 fn the_linear_layer_with_its_residual_equals_a_separate_add_bit_for_bit() {
     // The refiner's `x + proj(a)` and `x + fc2(silu(h))`: the residual in the linear
     // kernels' epilogue equals linear then add.wgsl, in every variant and precision, for

@@ -15,10 +15,27 @@ pub const LINEAR_TILED: Shader = shader!("nn/linear/linear_tiled.wgsl", [LinearP
 /// The linear layer for GPUs: a workgroup per 4 × 4 tile, its threads splitting the inputs.
 pub const LINEAR_SPLIT: Shader = shader!("nn/linear/linear_split.wgsl", [LinearParams], elem);
 /// The tiled linear layer for CPU drivers: vec4 loads along the inputs.
-pub const LINEAR_CPU: Shader = shader!("nn/linear/linear_cpu.wgsl", [LinearParams], elem);
+pub const LINEAR_CPU: Shader = shader!("nn/linear/linear_cpu.wgsl", [LinearParams], elem)
+    .with_uints(&[("NORMED_TILES", NORMED_TILES as u32)]);
+
+/// Output tiles (of 8) one `linear_cpu.wgsl` invocation makes for its 8 rows when it
+/// layer-norms them, so each row's statistics are computed once per this many tiles.
+/// At the refiner's 32-64 inputs the statistics cost about as much as one tile's
+/// product; a larger chunk leaves too few invocations to share among the cores for
+/// the 1,104 pooled rows.
+pub const NORMED_TILES: usize = 4;
 
 /// Every shader of this file (see [`super::shaders`]).
-pub const SHADERS: &[Shader] = &[LINEAR, LINEAR_TILED, LINEAR_SPLIT, LINEAR_CPU];
+pub const LINEAR_ROWS_CPU: Shader = shader!("nn/linear/linear_rows_cpu.wgsl", [LinearParams], elem)
+    .with_uints(&[("NORMED_TILES", NORMED_TILES as u32)]);
+
+pub const SHADERS: &[Shader] = &[
+    LINEAR,
+    LINEAR_TILED,
+    LINEAR_SPLIT,
+    LINEAR_CPU,
+    LINEAR_ROWS_CPU,
+];
 
 gpu_struct! {
     /// A fully connected layer over `rows` rows.
@@ -211,6 +228,29 @@ impl Recorder<'_> {
             ),
             None => (&input, &input),
         };
+        let chunk = if params.norm_rows != 0 {
+            NORMED_TILES
+        } else {
+            1
+        };
+        let chunks = (params.outputs as usize).div_ceil(8).div_ceil(chunk);
+        let grid = self.grid((params.rows as usize).div_ceil(8) * chunks);
+        // Plain rows of whole vec4s store four outputs at a time (linear_rows_cpu.wgsl).
+        if params.images == 0 && params.has_table == 0 && params.outputs.is_multiple_of(4) {
+            let bound = [
+                Bound::Texels(&input),
+                Bound::Texels(weight),
+                Bound::Buffer(&bias.buffer),
+                Bound::Buffer(extras.residual),
+                Bound::Buffer(ids),
+                Bound::Texels(gamma),
+                Bound::Texels(beta),
+                Bound::Buffer(&y.buffer),
+            ];
+            self.steps
+                .dispatch_bound(&LINEAR_ROWS_CPU, params, &bound, grid);
+            return Ok(());
+        }
         let bound = [
             Bound::Texels(&input),
             Bound::Texels(weight),
@@ -222,8 +262,6 @@ impl Recorder<'_> {
             Bound::Texels(beta),
             Bound::Buffer(&y.buffer),
         ];
-        let tiles = (params.rows as usize).div_ceil(8) * (params.outputs as usize).div_ceil(8);
-        let grid = self.grid(tiles);
         self.steps.dispatch_bound(&LINEAR_CPU, params, &bound, grid);
         Ok(())
     }
