@@ -159,3 +159,115 @@ fn the_action_table_gives_the_cross_attention_bit_for_bit() {
         assert_same_bits(precision, &a, &b, &format!("{precision:?} {kernels:?}"));
     }
 }
+
+#[test]
+fn attention_over_odd_runs_and_causal_keys_matches_the_simple_kernel() {
+    // The CPU variant gives two neighbouring queries of a run to one invocation: odd runs
+    // (the pair's second is no query), causal runs (the pair's queries see different
+    // keys), runs cut at `rows` (the refiner's last patch, odd and shorter), a cached
+    // prefix, and heads of 8 and 24 values (the narrow and wide loops) must all match
+    // the simple kernel, in every variant and precision (sums in another order: within
+    // 2e-6, 4e-3 in f16).
+    struct Case {
+        what: &'static str,
+        sequences: u32,
+        queries: u32,
+        keys: u32,
+        prefix: u32,
+        causal: u32,
+        rows: u32,
+    }
+    let cases = [
+        Case {
+            what: "odd run",
+            sequences: 3,
+            queries: 7,
+            keys: 7,
+            prefix: 0,
+            causal: 0,
+            rows: 0,
+        },
+        Case {
+            what: "causal",
+            sequences: 2,
+            queries: 5,
+            keys: 5,
+            prefix: 0,
+            causal: 1,
+            rows: 0,
+        },
+        Case {
+            what: "rows cut",
+            sequences: 3,
+            queries: 6,
+            keys: 6,
+            prefix: 0,
+            causal: 0,
+            rows: 15,
+        },
+        Case {
+            what: "prefix",
+            sequences: 2,
+            queries: 3,
+            keys: 5,
+            prefix: 2,
+            causal: 1,
+            rows: 0,
+        },
+    ];
+    for head in [8u32, 24] {
+        let (heads, c) = (2u32, 2 * head);
+        for case in &cases {
+            for mut v in Variant::all() {
+                let fresh_keys = case.keys - case.prefix;
+                let run = case.queries.max(fresh_keys);
+                let q = v.wave(
+                    "q",
+                    &[(case.sequences * run) as usize, (3 * c) as usize],
+                    0.37,
+                );
+                let cached = v.wave(
+                    "cached",
+                    &[
+                        (case.sequences * case.prefix.max(1)) as usize,
+                        (3 * c) as usize,
+                    ],
+                    0.61,
+                );
+                let params = unica::nn::ops::AttentionParams {
+                    sequences: case.sequences,
+                    heads,
+                    queries: case.queries,
+                    keys: case.keys,
+                    channels: c,
+                    q_stride: 3 * c,
+                    q_offset: 0,
+                    kv_stride: 3 * c,
+                    k_offset: c,
+                    v_offset: 2 * c,
+                    causal: case.causal,
+                    kv_share: 1,
+                    prefix_keys: case.prefix,
+                    rows: case.rows,
+                    reserved1: 0,
+                    reserved2: 0,
+                };
+                let prefix = (case.prefix > 0).then_some(&cached);
+                let mut r = v.recorder();
+                let got = r.attention_after(&q, prefix, &q, params).unwrap();
+                r.set_kernels(Kernels::Simple);
+                let want = r.attention_after(&q, prefix, &q, params).unwrap();
+                r.submit();
+                let (got, want) = (v.read(&got), v.read(&want));
+                let limit = match v.precision {
+                    Precision::F32 => 2e-6,
+                    _ => 4e-3,
+                };
+                let worst = worst_difference(&got, &want);
+                let what = format!("{} {} head {head}: {worst}", v.name(), case.what);
+                assert!(worst <= limit, "{what}");
+                assert!(want.iter().any(|x| x.abs() > 0.1), "{what}: no output");
+            }
+        }
+    }
+}

@@ -254,6 +254,9 @@ impl Recorder<'_> {
                 Bound::Texels(&kv_texels),
                 Bound::Buffer(&y.buffer),
             ];
+            // Two queries of a run per invocation (attention_cpu.wgsl).
+            let pairs = params.queries.div_ceil(2);
+            let grid = self.grid((params.sequences * params.heads * pairs) as usize);
             self.steps
                 .dispatch_bound(&ATTENTION_CPU, &params, &bound, grid);
         } else if self.kernels == Kernels::Gpu
