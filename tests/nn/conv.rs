@@ -67,15 +67,18 @@ fn a_residual_block_over_a_concatenation_equals_the_block_over_the_concatenated_
 fn every_variant_of_the_group_norm_and_the_packed_convolutions_agrees_on_odd_shapes() {
     // Shapes the fixtures do not reach: a 12-channel group norm over 4 groups of 76,800
     // values (near the CPU kernel's SERIAL_NORM_LIMIT; lavapipe's loop limiter once
-    // truncated it silently above 65,535 iterations), and a 3×3 convolution whose rows (13) are not a
-    // multiple of its 8-pixel tiles and whose 12 output channels are not a multiple of 8.
+    // truncated it silently above 65,535 iterations), and 3×3 convolutions whose 12
+    // output channels are not a multiple of 8, with rows of 12 (a half 8-pixel tile,
+    // whole vec4s: the CPU kernel) and of 13 (not whole vec4s: CPU drivers then run the
+    // GPU kernel).
     // The simple kernels are the PyTorch-tested reference here.
     let f = Fixture::open("down", Precision::F32);
     let mut pipelines = PipelineCache::default();
     let x = f.wave("x", &[1, 12, 160, 160], 0.37);
     let gamma = f.wave("g", &[12], 1.3);
     let beta = f.wave("b", &[12], 0.7);
-    let x2 = f.wave("x2", &[2, 5, 11, 13], 0.11);
+    let x2 = f.wave("x2", &[2, 5, 11, 12], 0.11);
+    let x13 = f.wave("x13", &[2, 5, 11, 13], 0.11);
     let weights = packed_wave(&f.gpu, "w", [12, 5, 3], 0.23, Precision::F32);
     // A 1×1 convolution over planes of 12 × 13 = 156 pixels: 39 vec4s, so the last
     // 8-pixel tile is half full.
@@ -91,19 +94,23 @@ fn every_variant_of_the_group_norm_and_the_packed_convolutions_agrees_on_odd_sha
         let conv = r
             .conv3x3(&x2, &weights, Some(&bias), Some(&extra), None)
             .unwrap();
+        let conv13 = r
+            .conv3x3(&x13, &weights, Some(&bias), Some(&extra), None)
+            .unwrap();
         let point = r.conv1x1(&x3, &pointwise, Some(&bias)).unwrap();
         r.submit();
         let read = |t: &Tensor| t.read(&f.gpu).unwrap();
-        (read(&norm), read(&conv), read(&point))
+        (read(&norm), read(&conv), read(&conv13), read(&point))
     };
-    let (norm, conv, point) = run(Kernels::Simple, &mut pipelines);
+    let (norm, conv, conv13, point) = run(Kernels::Simple, &mut pipelines);
     for kernels in [Kernels::Cpu, Kernels::Gpu] {
-        let (n, c, q) = run(kernels, &mut pipelines);
+        let (n, c, c13, q) = run(kernels, &mut pipelines);
         let norm_error = worst_difference(&n, &norm);
         let conv_error = worst_difference(&c, &conv);
+        let conv13_error = worst_difference(&c13, &conv13);
         let point_error = worst_difference(&q, &point);
         println!(
-            "{kernels:?}: group norm {norm_error:.1e}, conv3x3 {conv_error:.1e}, conv1x1 {point_error:.1e}"
+            "{kernels:?}: group norm {norm_error:.1e}, conv3x3 {conv_error:.1e} (rows of 13: {conv13_error:.1e}), conv1x1 {point_error:.1e}"
         );
         // The norm's statistics sum in another order (1e-5 of unit values); the
         // convolutions sum the same terms in the same order, except the GPU 3×3 one,
@@ -111,6 +118,10 @@ fn every_variant_of_the_group_norm_and_the_packed_convolutions_agrees_on_odd_sha
         let conv_bound = if kernels == Kernels::Gpu { 1e-5 } else { 1e-6 };
         assert!(norm_error < 1e-5, "{kernels:?} group norm: {norm_error}");
         assert!(conv_error < conv_bound, "{kernels:?} conv3x3: {conv_error}");
+        assert!(
+            conv13_error < 1e-5,
+            "{kernels:?} conv3x3, rows of 13: {conv13_error}"
+        );
         assert!(point_error < 1e-6, "{kernels:?} conv1x1: {point_error}");
     }
 }
@@ -119,10 +130,11 @@ fn every_variant_of_the_group_norm_and_the_packed_convolutions_agrees_on_odd_sha
 fn the_convolution_with_its_residual_equals_a_separate_add_bit_for_bit() {
     // A ResBlock's `skip + conv2(h)`: the residual fused into conv3x3's epilogue must give
     // exactly what conv3x3 then add.wgsl gives, in every kernel variant and precision
-    // (the ResBlock fixtures then check both against PyTorch).
+    // (the ResBlock fixtures then check both against PyTorch). Rows of 12: a half
+    // 8-pixel tile of the CPU kernel.
     for mut v in Variant::all() {
-        let x = v.wave("x", &[2, 5, 11, 13], 0.11);
-        let skip = v.wave("skip", &[2, 12, 11, 13], 0.17);
+        let x = v.wave("x", &[2, 5, 11, 12], 0.11);
+        let skip = v.wave("skip", &[2, 12, 11, 12], 0.17);
         let bias = v.wave("bias", &[12], 0.5);
         let extra = v.wave("extra", &[2, 12], 0.9);
         let weights = packed_wave(&v.gpu, "w", [12, 5, 3], 0.23, v.precision);

@@ -6,6 +6,8 @@
 // for 192 multiply-adds. The 10 input values a row of 8 outputs needs start anywhere in
 // a texel, so they are picked from four texels by their offset. Optional bias, addend
 // and residual as in conv3x3.wgsl; `upsample` reads the input upsampled ×2 (nearest).
+// Output rows are whole vec4s (host-checked): each channel's 8 pixels are stored (and
+// their residual read) as two vec4s.
 // Built with NORMED set (CONV3X3_NORMED_CPU, with `p.norm_groups` = G > 0), the input
 // is group-normalised as it is loaded: each workgroup first computes the (mean, 1/std)
 // of every (sample, group) with group_norm_serial.wgsl's `texel_stats` (one barrier),
@@ -15,7 +17,6 @@
 #import nn/conv/tile.wgsl
 #import nn/conv/pick.wgsl
 #import nn/conv/conv_bias.wgsl
-#import nn/conv/conv_store.wgsl
 #import nn/norm/texel_stats.wgsl
 
 #bind p: uniform Conv2dParams
@@ -24,8 +25,8 @@
 // With `p.has_extra` set: [N, c_out] added to each image's channels after the sums.
 #bind extra: read array<Elem>
 // With `p.has_residual` set: [N, c_out, H, W] added last.
-#bind residual: read array<Elem>
-#bind y: read_write array<Elem>
+#bind residual: read array<vec4<Elem>>
+#bind y: read_write array<vec4<Elem>>
 // With `p.norm_groups` set: the norm's per-channel affine, [c_in] each.
 #bind norm_gamma, norm_beta: read array<Elem>
 
@@ -37,6 +38,35 @@ var<workgroup> norm_stats: array<vec2<f32>, NORM_STATS>;
 fn normed(v: vec4<f32>, mean: f32, scale: f32, shift: f32) -> vec4<f32> {
     let out = (v - mean) * scale + shift;
     return vec4<f32>(vec4<Elem>(out / (1.0 + exp(-out))));
+}
+
+// Four output pixels of channel `co` at vec4 `at` (image n): the sums plus the addend
+// when there is one, rounded to Elem, plus the residual when there is one (as
+// conv_store.wgsl's `finish`, four at a time).
+fn finish4(at: u32, n: u32, co: u32, v: vec4<f32>) -> vec4<Elem> {
+    var out = v;
+    if p.has_extra != 0u {
+        out += f32(extra[n * p.c_out + co]);
+    }
+    if p.has_residual != 0u {
+        return vec4<Elem>(vec4<f32>(residual[at]) + vec4<f32>(vec4<Elem>(out)));
+    }
+    return vec4<Elem>(out);
+}
+
+// Channel `co` of the tile's 8 pixels (`first` the first four, `last` the next four),
+// stored as two vec4s: w_out is a multiple of 4 (host-checked), so each four is whole
+// or past the row's end. On lavapipe a storage store moves one value per loop over
+// the lanes, so 16 vec4 stores cost far less than 64 one-value stores.
+fn put(tile: Tile, co: u32, first: vec4<f32>, last: vec4<f32>) {
+    if co >= p.c_out {
+        return;
+    }
+    let at = (((tile.n * p.c_out + co) * p.h_out + tile.oy) * p.w_out + tile.ox0) / 4u;
+    y[at] = finish4(at, tile.n, co, first);
+    if tile.ox0 + 4u < p.w_out {
+        y[at + 1u] = finish4(at + 1u, tile.n, co, last);
+    }
 }
 
 @compute @workgroup_size(WORKGROUP)
@@ -200,12 +230,13 @@ fn main(invocation: Invocation) {
             b7 += v9 * wb2;
         }
     }
-    store(tile.n, tile.block, tile.oy, tile.ox0 + 0u, a0, b0);
-    store(tile.n, tile.block, tile.oy, tile.ox0 + 1u, a1, b1);
-    store(tile.n, tile.block, tile.oy, tile.ox0 + 2u, a2, b2);
-    store(tile.n, tile.block, tile.oy, tile.ox0 + 3u, a3, b3);
-    store(tile.n, tile.block, tile.oy, tile.ox0 + 4u, a4, b4);
-    store(tile.n, tile.block, tile.oy, tile.ox0 + 5u, a5, b5);
-    store(tile.n, tile.block, tile.oy, tile.ox0 + 6u, a6, b6);
-    store(tile.n, tile.block, tile.oy, tile.ox0 + 7u, a7, b7);
+    let co = 8u * tile.block;
+    put(tile, co, vec4<f32>(a0.x, a1.x, a2.x, a3.x), vec4<f32>(a4.x, a5.x, a6.x, a7.x));
+    put(tile, co + 1u, vec4<f32>(a0.y, a1.y, a2.y, a3.y), vec4<f32>(a4.y, a5.y, a6.y, a7.y));
+    put(tile, co + 2u, vec4<f32>(a0.z, a1.z, a2.z, a3.z), vec4<f32>(a4.z, a5.z, a6.z, a7.z));
+    put(tile, co + 3u, vec4<f32>(a0.w, a1.w, a2.w, a3.w), vec4<f32>(a4.w, a5.w, a6.w, a7.w));
+    put(tile, co + 4u, vec4<f32>(b0.x, b1.x, b2.x, b3.x), vec4<f32>(b4.x, b5.x, b6.x, b7.x));
+    put(tile, co + 5u, vec4<f32>(b0.y, b1.y, b2.y, b3.y), vec4<f32>(b4.y, b5.y, b6.y, b7.y));
+    put(tile, co + 6u, vec4<f32>(b0.z, b1.z, b2.z, b3.z), vec4<f32>(b4.z, b5.z, b6.z, b7.z));
+    put(tile, co + 7u, vec4<f32>(b0.w, b1.w, b2.w, b3.w), vec4<f32>(b4.w, b5.w, b6.w, b7.w));
 }

@@ -319,7 +319,8 @@ impl Recorder<'_> {
     }
 
     /// Whether [`Recorder::normed_conv3x3`] can fold the norm of `input` [N, C, H, W]
-    /// (in `groups` groups) into the convolution: CPU drivers, rows of 8 pixels or more,
+    /// (in `groups` groups) into the convolution: CPU drivers, rows of 8 pixels or more
+    /// in whole vec4s,
     /// at most [`NORM_STATS`] (sample, group) pairs, and a norm the serial kernel takes
     /// ([`GroupNormParams::serial`]: the fold computes its statistics). Whether it pays
     /// is the caller's choice: on lavapipe the folded norm is recomputed for every tile
@@ -329,6 +330,7 @@ impl Recorder<'_> {
     pub fn can_fold_norm(&self, [n, c, h, w]: [usize; 4], groups: usize) -> bool {
         self.kernels == Kernels::Cpu
             && w >= 8
+            && w.is_multiple_of(4)
             && n * groups <= NORM_STATS
             && GroupNormParams::nchw([n, c, h, w], groups, true).serial()
     }
@@ -406,8 +408,9 @@ impl Recorder<'_> {
         Ok(y)
     }
 
-    /// Records `conv3x3.wgsl` (or, for CPU drivers, `conv3x3_cpu.wgsl`, which reads the
-    /// input and the weights as texels) over `x` and `weights`, then `rest`: bias, addend,
+    /// Records `conv3x3.wgsl` (or, for CPU drivers and output rows of whole vec4s,
+    /// `conv3x3_cpu.wgsl`, which reads the input and the weights as texels and stores
+    /// four pixels at a time) over `x` and `weights`, then `rest`: bias, addend,
     /// residual and output; for CPU drivers then the input norm's gamma and beta (with
     /// `params.norm_groups`).
     fn packed_conv3x3(
@@ -423,7 +426,8 @@ impl Recorder<'_> {
         // stands in, unread.
         let norm = norm.unwrap_or([rest[0], rest[0]]);
         let rest = rest.map(|t| Bound::Buffer(&t.buffer));
-        if self.kernels == Kernels::Cpu {
+        // conv3x3_cpu.wgsl stores four pixels of a row at a time: rows of whole vec4s.
+        if self.kernels == Kernels::Cpu && params.w_out.is_multiple_of(4) {
             let input = self.texels(x)?;
             let packed = weights.packed.constant_texels(self.gpu)?;
             let mut bound = vec![Bound::Texels(&input), Bound::Texels(packed)];
