@@ -21,8 +21,11 @@
 // faster (docs/performance.md), with the same pixels.
 
 #bind f: uniform RasterView
-#bind projected: read array<ProjectedSplat>
-#bind values: read array<u32>
+// The projected splats (4 texels each) and the sorted splat indices (4 a texel) as
+// texels (src/gpu/texels.rs): a vector gather on lavapipe, where a storage load is a
+// loop over the lanes for every value.
+#bind projected: texture_2d<f32>
+#bind values: texture_2d<u32>
 #bind ranges: read array<vec2<u32>>
 #bind image: read_write array<vec4<f32>>
 
@@ -33,6 +36,18 @@ struct Row {
     transmittance: array<f32, TILE>,
     // Bit i: pixel i has stopped (its transmittance would fall below 1e-4).
     stopped: u32,
+}
+
+// The projected splat of sort entry k.
+fn entry(k: u32) -> ProjectedSplat {
+    let s = texel_u32(values, k / 4u)[k % 4u];
+    let t = 4u * s;
+    return ProjectedSplat(
+        texel(projected, t),
+        texel(projected, t + 1u),
+        texel(projected, t + 2u),
+        bitcast<vec4<u32>>(texel(projected, t + 3u)),
+    );
 }
 
 // Splat `p` over pixel `i` of the row at height `py`, if `i` lies in [first, last).
@@ -118,7 +133,7 @@ fn main(invocation: Invocation) {
         // A loop over the pixels the splat reaches: lavapipe runs a loop only while one
         // of the vector's lanes is still in it, where it runs the 16 calls below whole.
         for (var k = range.x; k < range.y && row.stopped != everyone; k++) {
-            let p = projected[values[k]];
+            let p = entry(k);
             let reached = reach(p, px, py, width);
             for (var i = reached.x; i < reached.y; i++) {
                 blend(&row, i, reached.x, reached.y, p, px, py);
@@ -126,7 +141,7 @@ fn main(invocation: Invocation) {
         }
     } else {
         for (var k = range.x; k < range.y && row.stopped != everyone; k++) {
-            let p = projected[values[k]];
+            let p = entry(k);
             let reached = reach(p, px, py, width);
             let first = reached.x;
             let last = reached.y;

@@ -153,6 +153,25 @@ pub fn dispatch_indirect(
     compute_pass(gpu, encoder, pipeline, buffers, None).dispatch_workgroups_indirect(grids, offset);
 }
 
+/// [`dispatch`] with buffers and texels bound in order to group 0.
+pub fn dispatch_bound(
+    gpu: &GpuContext,
+    encoder: &mut wgpu::CommandEncoder,
+    pipeline: &wgpu::ComputePipeline,
+    resources: &[super::Bound],
+    grid: Grid,
+) {
+    let bind_group = gpu.bind(&pipeline.get_bind_group_layout(0), resources);
+    gpu.counters.dispatches(1);
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: None,
+        timestamp_writes: None,
+    });
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, &bind_group, &[]);
+    pass.dispatch_workgroups(grid.x, grid.y, 1);
+}
+
 /// A compute pass with `pipeline` and `buffers` bound, counted as one dispatch.
 fn compute_pass<'e>(
     gpu: &GpuContext,

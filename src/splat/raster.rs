@@ -13,9 +13,12 @@ use glam::{Mat4, Vec3};
 
 use super::ply::Splat;
 use super::project::SplatCamera;
-use crate::gpu::kernel::{Grid, PipelineCache, Precision, dispatch, dispatch_indirect, uniform};
+use crate::gpu::kernel::{
+    Grid, PipelineCache, Precision, dispatch, dispatch_bound, dispatch_indirect, uniform,
+};
 use crate::gpu::shaders::Shader;
-use crate::gpu::{GpuContext, GpuError};
+use crate::gpu::texels::Texels;
+use crate::gpu::{Bound, GpuContext, GpuError};
 use crate::gpu_struct;
 
 pub const SPLAT_PROJECT: Shader = shader!("splat/splat_project.wgsl", [RasterView, GpuSplat, ProjectedSplat], f16: false, subgroups: false);
@@ -240,7 +243,7 @@ pub struct Raster {
 
 /// The working buffers of one (splat count, image size), kept between frames.
 struct Buffers {
-    key: (usize, u32, u32),
+    key: (usize, u32, u32, bool),
     projected: wgpu::Buffer,
     touched: wgpu::Buffer,
     offsets: wgpu::Buffer,
@@ -254,12 +257,34 @@ struct Buffers {
     grids: wgpu::Buffer,
     /// The histogram scan's [`ScanParams`], its length from the entries kept.
     hist_scan: wgpu::Buffer,
+    /// For the row blend: the projected splats and the sorted splat indices as texels
+    /// (copied before it), which lavapipe reads as vector gathers where a storage load
+    /// is a loop over lanes per value.
+    row_texels: Option<(Texels, Texels)>,
 }
 
 impl Buffers {
-    fn new(gpu: &GpuContext, count: usize, camera: &SplatCamera) -> Result<Self, GpuError> {
+    fn new(
+        gpu: &GpuContext,
+        count: usize,
+        camera: &SplatCamera,
+        row_blend: bool,
+    ) -> Result<Self, GpuError> {
         let (tiles_x, tiles_y) = camera.tiles();
         let capacity = capacity(count);
+        let projected_values = count * std::mem::size_of::<ProjectedSplat>() / 4;
+        let row_texels = match row_blend {
+            true => Some((
+                Texels::new(
+                    gpu,
+                    "splat.projected.texels",
+                    projected_values,
+                    Precision::F32,
+                )?,
+                Texels::new_u32(gpu, "splat.values.texels", capacity)?,
+            )),
+            false => None,
+        };
         let buffer =
             |label: &str, bytes: usize| gpu.storage_buffer(label, bytes.max(4) as u64, STORAGE);
         let hist_scan = gpu.storage_buffer(
@@ -277,7 +302,8 @@ impl Buffers {
         gpu.queue
             .write_buffer(&hist_scan, 0, bytemuck::bytes_of(&scan));
         Ok(Self {
-            key: (count, camera.width, camera.height),
+            key: (count, camera.width, camera.height, row_blend),
+            row_texels,
             projected: buffer(
                 "splat.projected",
                 count * std::mem::size_of::<ProjectedSplat>(),
@@ -392,9 +418,13 @@ impl Rasterizer {
             background: background.extend(1.0).to_array(),
         };
         let frame = uniform(gpu, &frame);
-        let key = (count, camera.width, camera.height);
+        let kernels = self
+            .kernels
+            .unwrap_or_else(|| RasterKernels::for_adapter(gpu));
+        let row_blend = kernels == RasterKernels::Cpu && count <= ROW_BLEND_MAX_SPLATS;
+        let key = (count, camera.width, camera.height, row_blend);
         if self.buffers.as_ref().is_none_or(|b| b.key != key) {
-            self.buffers = Some(Buffers::new(gpu, count, camera)?);
+            self.buffers = Some(Buffers::new(gpu, count, camera, row_blend)?);
         }
         let b = self.buffers.take().expect("made above");
         let blocks = capacity / 256;
@@ -432,17 +462,9 @@ impl Rasterizer {
             groups(1),
         );
         let grids = self.indirect(gpu).then_some(&b.grids);
-        let kernels = self
-            .kernels
-            .unwrap_or_else(|| RasterKernels::for_adapter(gpu));
         let (histogram, scatter) = match kernels {
             RasterKernels::Gpu => (&RADIX_HISTOGRAM, &RADIX_SCATTER),
             RasterKernels::Cpu => (&RADIX_HISTOGRAM_SERIAL, &RADIX_SCATTER_SERIAL),
-        };
-        let blend = if kernels == RasterKernels::Cpu && count <= ROW_BLEND_MAX_SPLATS {
-            &SPLAT_RENDER_ROWS
-        } else {
-            &SPLAT_RENDER
         };
         for pass in 0..4 {
             let (from, to) = (pass % 2, 1 - pass % 2);
@@ -502,14 +524,28 @@ impl Rasterizer {
             grids.map(|g| (g, 12)),
             threads(capacity),
         );
-        let bindings = [&frame, &b.projected, &b.values[0], &b.ranges, &b.image];
-        self.run(
-            gpu,
-            encoder,
-            blend,
-            &bindings,
-            groups((tiles_x * tiles_y) as usize),
-        );
+        let tiles = groups((tiles_x * tiles_y) as usize);
+        match &b.row_texels {
+            Some((projected, values)) => {
+                projected.record_copy(encoder, &b.projected);
+                values.record_copy(encoder, &b.values[0]);
+                let pipeline = self
+                    .pipelines
+                    .get(&gpu.device, &SPLAT_RENDER_ROWS, Precision::F32);
+                let bound = [
+                    Bound::Buffer(&frame),
+                    Bound::Texels(projected),
+                    Bound::Texels(values),
+                    Bound::Buffer(&b.ranges),
+                    Bound::Buffer(&b.image),
+                ];
+                dispatch_bound(gpu, encoder, pipeline, &bound, tiles);
+            }
+            None => {
+                let bindings = [&frame, &b.projected, &b.values[0], &b.ranges, &b.image];
+                self.run(gpu, encoder, &SPLAT_RENDER, &bindings, tiles);
+            }
+        }
         let raster = Raster {
             image: b.image.clone(),
             info: b.info.clone(),

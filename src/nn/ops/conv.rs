@@ -318,15 +318,13 @@ impl Recorder<'_> {
         Ok(y)
     }
 
-    /// Whether [`Recorder::normed_conv3x3`] can fold the norm of `input` [N, C, H, W]
-    /// (in `groups` groups) into the convolution: CPU drivers, rows of 8 pixels or more
-    /// in whole vec4s,
-    /// at most [`NORM_STATS`] (sample, group) pairs, and a norm the serial kernel takes
-    /// ([`GroupNormParams::serial`]: the fold computes its statistics). Whether it pays
-    /// is the caller's choice: on lavapipe the folded norm is recomputed for every tile
-    /// that reads a value (3·⌈c_out / 8⌉ times), which costs more than the dispatch it
-    /// saves (about 0.1 ms per million multiply-adds of the convolution; see
-    /// `vae::Decoder::forward`).
+    /// Whether [`Recorder::normed_conv3x3`] can fold the norm of `input` [N, C, H, W] (in
+    /// `groups` groups) into the convolution: CPU drivers, rows of 8 pixels or more in whole
+    /// vec4s, at most [`NORM_STATS`] (sample, group) pairs, and a norm the serial kernel takes
+    /// ([`GroupNormParams::serial`]: the fold computes its statistics). Whether it pays is the
+    /// caller's choice: on lavapipe the folded norm is recomputed for every tile that reads a
+    /// value (3·⌈c_out / 8⌉ times), which costs more than the dispatch it saves (about 0.1 ms
+    /// per million multiply-adds of the convolution; see `vae::Decoder::forward`).
     pub fn can_fold_norm(&self, [n, c, h, w]: [usize; 4], groups: usize) -> bool {
         self.kernels == Kernels::Cpu
             && w >= 8

@@ -25,10 +25,12 @@ pub const LINEAR_CPU: Shader = shader!("nn/linear/linear_cpu.wgsl", [LinearParam
 /// the 1,104 pooled rows.
 pub const NORMED_TILES: usize = 4;
 
-/// Every shader of this file (see [`super::shaders`]).
+/// `LINEAR_CPU` for plain rows whose outputs are a multiple of 4: four outputs a vec4
+/// store (a storage store on lavapipe moves one value per loop over the lanes).
 pub const LINEAR_ROWS_CPU: Shader = shader!("nn/linear/linear_rows_cpu.wgsl", [LinearParams], elem)
     .with_uints(&[("NORMED_TILES", NORMED_TILES as u32)]);
 
+/// Every shader of this file (see [`super::shaders`]).
 pub const SHADERS: &[Shader] = &[
     LINEAR,
     LINEAR_TILED,
