@@ -5,8 +5,9 @@
 //! texel), timed on the adapter the environment selects. Prints one line per form:
 //! `loads x=FORM w=FORM: ms=… gflops=…`.
 
-use std::time::Instant;
+mod common;
 
+use common::time_dispatch;
 use unica::gpu::{GpuContext, GpuOptions};
 use wgpu::util::DeviceExt;
 
@@ -154,53 +155,13 @@ fn main() -> anyhow::Result<()> {
         (&TEXELS, &UNIFORM),
     ];
     for (x_form, w_form) in forms {
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("loads"),
-            source: wgpu::ShaderSource::Wgsl(shader(x_form, w_form).into()),
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("loads"),
-            layout: None,
-            module: &module,
-            entry_point: Some("main"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("loads"),
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: resource(x_form, &x),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: resource(w_form, &w),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: y.as_entire_binding(),
-                },
-            ],
-        });
-        let run = |repeats: usize| {
-            let mut encoder = device.create_command_encoder(&Default::default());
-            {
-                let mut pass = encoder.begin_compute_pass(&Default::default());
-                pass.set_pipeline(&pipeline);
-                pass.set_bind_group(0, &bind_group, &[]);
-                for _ in 0..repeats {
-                    pass.dispatch_workgroups(PIXELS / 64, CHANNELS / 8, 1);
-                }
-            }
-            gpu.queue.submit([encoder.finish()]);
-            gpu.wait_idle();
-        };
-        run(1);
-        let clock = Instant::now();
-        run(REPEATS);
-        let ms = clock.elapsed().as_secs_f64() * 1e3 / REPEATS as f64;
+        let resources = vec![
+            resource(x_form, &x),
+            resource(w_form, &w),
+            y.as_entire_binding(),
+        ];
+        let groups = (PIXELS / 64, CHANNELS / 8);
+        let ms = time_dispatch(&gpu, &shader(x_form, w_form), resources, groups, REPEATS);
         let gflop = 2.0 * f64::from(K * CHANNELS * PIXELS) / 1e9;
         println!(
             "loads x={} w={}: ms={ms:.3} gflops={:.2}",

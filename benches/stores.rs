@@ -6,8 +6,9 @@
 //! texture (the layout of src/gpu/texels.rs). Prints one line per form:
 //! `stores FORM: ms=… per_value_ns=…`.
 
-use std::time::Instant;
+mod common;
 
+use common::time_dispatch;
 use unica::gpu::{GpuContext, GpuOptions};
 
 const CHANNELS: u32 = 64;
@@ -22,74 +23,74 @@ const K: u32 = 8;
 struct Form {
     name: &'static str,
     declare: &'static str,
-    /// Stores channel block sums `lo`/`hi` of pixel j (0..8): `AT` is the flat index of
-    /// channel c0's value, `PLANE` the channel stride.
-    store: &'static str,
+    /// Functions the body calls.
+    helpers: &'static str,
+    /// The body of `put_row(at, plane, l0 … l7, h0 … h7)`, which stores the sums of
+    /// pixels 0 … 7 (channels 0-3 in lj, 4-7 in hj): `at` is the flat index of the
+    /// tile's first value, `plane` the channel stride.
+    body: &'static str,
 }
+
+const PUT_ROW: &str = "fn put_row(at: u32, plane: u32, l0: vec4<f32>, l1: vec4<f32>, l2: vec4<f32>, l3: vec4<f32>, l4: vec4<f32>, l5: vec4<f32>, l6: vec4<f32>, l7: vec4<f32>, h0: vec4<f32>, h1: vec4<f32>, h2: vec4<f32>, h3: vec4<f32>, h4: vec4<f32>, h5: vec4<f32>, h6: vec4<f32>, h7: vec4<f32>)";
+
+/// Four pixels of a channel a call to `put4(vec4 index, values)`.
+const FOURS: &str = "
+    let q = at / 4u;
+    let s = plane / 4u;
+    put4(q, vec4(l0.x, l1.x, l2.x, l3.x)); put4(q + 1u, vec4(l4.x, l5.x, l6.x, l7.x));
+    put4(q + s, vec4(l0.y, l1.y, l2.y, l3.y)); put4(q + s + 1u, vec4(l4.y, l5.y, l6.y, l7.y));
+    put4(q + 2u * s, vec4(l0.z, l1.z, l2.z, l3.z)); put4(q + 2u * s + 1u, vec4(l4.z, l5.z, l6.z, l7.z));
+    put4(q + 3u * s, vec4(l0.w, l1.w, l2.w, l3.w)); put4(q + 3u * s + 1u, vec4(l4.w, l5.w, l6.w, l7.w));
+    put4(q + 4u * s, vec4(h0.x, h1.x, h2.x, h3.x)); put4(q + 4u * s + 1u, vec4(h4.x, h5.x, h6.x, h7.x));
+    put4(q + 5u * s, vec4(h0.y, h1.y, h2.y, h3.y)); put4(q + 5u * s + 1u, vec4(h4.y, h5.y, h6.y, h7.y));
+    put4(q + 6u * s, vec4(h0.z, h1.z, h2.z, h3.z)); put4(q + 6u * s + 1u, vec4(h4.z, h5.z, h6.z, h7.z));
+    put4(q + 7u * s, vec4(h0.w, h1.w, h2.w, h3.w)); put4(q + 7u * s + 1u, vec4(h4.w, h5.w, h6.w, h7.w));
+";
 
 const SCALAR: Form = Form {
     name: "scalar",
     declare: "@group(0) @binding(1) var<storage, read_write> y: array<f32>;",
-    store: "
+    helpers: "
 fn put(at: u32, plane: u32, lo: vec4<f32>, hi: vec4<f32>) {
     for (var c = 0u; c < 4u; c++) {
         y[at + c * plane] = lo[c];
         y[at + (4u + c) * plane] = hi[c];
     }
-}
-fn put_row(at: u32, plane: u32, l0: vec4<f32>, l1: vec4<f32>, l2: vec4<f32>, l3: vec4<f32>, l4: vec4<f32>, l5: vec4<f32>, l6: vec4<f32>, l7: vec4<f32>, h0: vec4<f32>, h1: vec4<f32>, h2: vec4<f32>, h3: vec4<f32>, h4: vec4<f32>, h5: vec4<f32>, h6: vec4<f32>, h7: vec4<f32>) {
+}",
+    body: "
     put(at, plane, l0, h0); put(at + 1u, plane, l1, h1); put(at + 2u, plane, l2, h2); put(at + 3u, plane, l3, h3);
     put(at + 4u, plane, l4, h4); put(at + 5u, plane, l5, h5); put(at + 6u, plane, l6, h6); put(at + 7u, plane, l7, h7);
-}",
+",
 };
 
 const VEC4: Form = Form {
     name: "vec4",
     declare: "@group(0) @binding(1) var<storage, read_write> y: array<vec4<f32>>;",
-    store: "
-fn put_row(at: u32, plane: u32, l0: vec4<f32>, l1: vec4<f32>, l2: vec4<f32>, l3: vec4<f32>, l4: vec4<f32>, l5: vec4<f32>, l6: vec4<f32>, l7: vec4<f32>, h0: vec4<f32>, h1: vec4<f32>, h2: vec4<f32>, h3: vec4<f32>, h4: vec4<f32>, h5: vec4<f32>, h6: vec4<f32>, h7: vec4<f32>) {
-    let q = at / 4u;
-    let s = plane / 4u;
-    y[q] = vec4(l0.x, l1.x, l2.x, l3.x); y[q + 1u] = vec4(l4.x, l5.x, l6.x, l7.x);
-    y[q + s] = vec4(l0.y, l1.y, l2.y, l3.y); y[q + s + 1u] = vec4(l4.y, l5.y, l6.y, l7.y);
-    y[q + 2u * s] = vec4(l0.z, l1.z, l2.z, l3.z); y[q + 2u * s + 1u] = vec4(l4.z, l5.z, l6.z, l7.z);
-    y[q + 3u * s] = vec4(l0.w, l1.w, l2.w, l3.w); y[q + 3u * s + 1u] = vec4(l4.w, l5.w, l6.w, l7.w);
-    y[q + 4u * s] = vec4(h0.x, h1.x, h2.x, h3.x); y[q + 4u * s + 1u] = vec4(h4.x, h5.x, h6.x, h7.x);
-    y[q + 5u * s] = vec4(h0.y, h1.y, h2.y, h3.y); y[q + 5u * s + 1u] = vec4(h4.y, h5.y, h6.y, h7.y);
-    y[q + 6u * s] = vec4(h0.z, h1.z, h2.z, h3.z); y[q + 6u * s + 1u] = vec4(h4.z, h5.z, h6.z, h7.z);
-    y[q + 7u * s] = vec4(h0.w, h1.w, h2.w, h3.w); y[q + 7u * s + 1u] = vec4(h4.w, h5.w, h6.w, h7.w);
+    helpers: "
+fn put4(i: u32, v: vec4<f32>) {
+    y[i] = v;
 }",
+    body: FOURS,
 };
 
 const TEXELS: Form = Form {
     name: "texels",
     declare: "@group(0) @binding(1) var y: texture_storage_2d<rgba32float, write>;",
-    store: "
-fn t(i: u32, v: vec4<f32>) {
+    helpers: "
+fn put4(i: u32, v: vec4<f32>) {
     textureStore(y, vec2<u32>(i % 1024u, i / 1024u), v);
-}
-fn put_row(at: u32, plane: u32, l0: vec4<f32>, l1: vec4<f32>, l2: vec4<f32>, l3: vec4<f32>, l4: vec4<f32>, l5: vec4<f32>, l6: vec4<f32>, l7: vec4<f32>, h0: vec4<f32>, h1: vec4<f32>, h2: vec4<f32>, h3: vec4<f32>, h4: vec4<f32>, h5: vec4<f32>, h6: vec4<f32>, h7: vec4<f32>) {
-    let q = at / 4u;
-    let s = plane / 4u;
-    t(q, vec4(l0.x, l1.x, l2.x, l3.x)); t(q + 1u, vec4(l4.x, l5.x, l6.x, l7.x));
-    t(q + s, vec4(l0.y, l1.y, l2.y, l3.y)); t(q + s + 1u, vec4(l4.y, l5.y, l6.y, l7.y));
-    t(q + 2u * s, vec4(l0.z, l1.z, l2.z, l3.z)); t(q + 2u * s + 1u, vec4(l4.z, l5.z, l6.z, l7.z));
-    t(q + 3u * s, vec4(l0.w, l1.w, l2.w, l3.w)); t(q + 3u * s + 1u, vec4(l4.w, l5.w, l6.w, l7.w));
-    t(q + 4u * s, vec4(h0.x, h1.x, h2.x, h3.x)); t(q + 4u * s + 1u, vec4(h4.x, h5.x, h6.x, h7.x));
-    t(q + 5u * s, vec4(h0.y, h1.y, h2.y, h3.y)); t(q + 5u * s + 1u, vec4(h4.y, h5.y, h6.y, h7.y));
-    t(q + 6u * s, vec4(h0.z, h1.z, h2.z, h3.z)); t(q + 6u * s + 1u, vec4(h4.z, h5.z, h6.z, h7.z));
-    t(q + 7u * s, vec4(h0.w, h1.w, h2.w, h3.w)); t(q + 7u * s + 1u, vec4(h4.w, h5.w, h6.w, h7.w));
 }",
+    body: FOURS,
 };
 
 const NONE: Form = Form {
     name: "none (one value)",
     declare: "@group(0) @binding(1) var<storage, read_write> y: array<f32>;",
-    store: "
-fn put_row(at: u32, plane: u32, l0: vec4<f32>, l1: vec4<f32>, l2: vec4<f32>, l3: vec4<f32>, l4: vec4<f32>, l5: vec4<f32>, l6: vec4<f32>, l7: vec4<f32>, h0: vec4<f32>, h1: vec4<f32>, h2: vec4<f32>, h3: vec4<f32>, h4: vec4<f32>, h5: vec4<f32>, h6: vec4<f32>, h7: vec4<f32>) {
+    helpers: "",
+    body: "
     let s = l0 + l1 + l2 + l3 + l4 + l5 + l6 + l7 + h0 + h1 + h2 + h3 + h4 + h5 + h6 + h7;
     y[at] = s.x + s.y + s.z + s.w;
-}",
+",
 };
 
 fn shader(form: &Form) -> String {
@@ -97,6 +98,7 @@ fn shader(form: &Form) -> String {
         "@group(0) @binding(0) var x: texture_2d<f32>;
 {}
 {}
+{PUT_ROW} {{{}}}
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) id: vec3<u32>) {{
     // Tile id.x: pixel tile fastest, then row, then channel block.
@@ -123,7 +125,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {{
     put_row(block * 8u * plane + oy * {WIDTH}u + ox0, plane, l0, l1, l2, l3, l4, l5, l6, l7, h0, h1, h2, h3, h4, h5, h6, h7);
 }}
 ",
-        form.declare, form.store
+        form.declare, form.helpers, form.body
     )
 }
 
@@ -164,54 +166,13 @@ fn main() -> anyhow::Result<()> {
     let y_texture = texture(&gpu, values, wgpu::TextureUsages::STORAGE_BINDING);
     let y_view = y_texture.create_view(&Default::default());
     for form in [&SCALAR, &VEC4, &TEXELS, &NONE] {
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("stores"),
-            source: wgpu::ShaderSource::Wgsl(shader(form).into()),
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("stores"),
-            layout: None,
-            module: &module,
-            entry_point: Some("main"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
         let y = match form.name {
             "texels" => wgpu::BindingResource::TextureView(&y_view),
             _ => y_buffer.as_entire_binding(),
         };
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("stores"),
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: wgpu::BindingResource::TextureView(&x_view),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: y,
-                },
-            ],
-        });
+        let x = wgpu::BindingResource::TextureView(&x_view);
         let tiles = values / 64;
-        let run = |repeats: usize| {
-            let mut encoder = device.create_command_encoder(&Default::default());
-            {
-                let mut pass = encoder.begin_compute_pass(&Default::default());
-                pass.set_pipeline(&pipeline);
-                pass.set_bind_group(0, &bind_group, &[]);
-                for _ in 0..repeats {
-                    pass.dispatch_workgroups(tiles / 64, 1, 1);
-                }
-            }
-            gpu.queue.submit([encoder.finish()]);
-            gpu.wait_idle();
-        };
-        run(1);
-        let clock = Instant::now();
-        run(REPEATS);
-        let ms = clock.elapsed().as_secs_f64() * 1e3 / REPEATS as f64;
+        let ms = time_dispatch(&gpu, &shader(form), vec![x, y], (tiles / 64, 1), REPEATS);
         println!(
             "stores {}: ms={ms:.3} per_value_ns={:.2}",
             form.name,

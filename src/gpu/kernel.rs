@@ -5,7 +5,7 @@ use std::collections::HashMap;
 
 use super::shaders::Shader;
 use super::timing::PassTimer;
-use super::{GpuContext, GpuError, readback};
+use super::{Bound, GpuContext, GpuError, readback};
 use crate::gpu_struct;
 use crate::wgsl_shader as shader;
 
@@ -136,7 +136,8 @@ pub fn dispatch(
     grid: Grid,
     timestamp_writes: Option<wgpu::ComputePassTimestampWrites<'_>>,
 ) {
-    compute_pass(gpu, encoder, pipeline, buffers, timestamp_writes)
+    let bound = as_bound(buffers);
+    compute_pass(gpu, encoder, pipeline, &bound, timestamp_writes)
         .dispatch_workgroups(grid.x, grid.y, 1);
 }
 
@@ -150,7 +151,8 @@ pub fn dispatch_indirect(
     grids: &wgpu::Buffer,
     offset: u64,
 ) {
-    compute_pass(gpu, encoder, pipeline, buffers, None).dispatch_workgroups_indirect(grids, offset);
+    let bound = as_bound(buffers);
+    compute_pass(gpu, encoder, pipeline, &bound, None).dispatch_workgroups_indirect(grids, offset);
 }
 
 /// [`dispatch`] with buffers and texels bound in order to group 0.
@@ -158,29 +160,25 @@ pub fn dispatch_bound(
     gpu: &GpuContext,
     encoder: &mut wgpu::CommandEncoder,
     pipeline: &wgpu::ComputePipeline,
-    resources: &[super::Bound],
+    resources: &[Bound],
     grid: Grid,
 ) {
-    let bind_group = gpu.bind(&pipeline.get_bind_group_layout(0), resources);
-    gpu.counters.dispatches(1);
-    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-        label: None,
-        timestamp_writes: None,
-    });
-    pass.set_pipeline(pipeline);
-    pass.set_bind_group(0, &bind_group, &[]);
-    pass.dispatch_workgroups(grid.x, grid.y, 1);
+    compute_pass(gpu, encoder, pipeline, resources, None).dispatch_workgroups(grid.x, grid.y, 1);
 }
 
-/// A compute pass with `pipeline` and `buffers` bound, counted as one dispatch.
+fn as_bound<'a>(buffers: &[&'a wgpu::Buffer]) -> Vec<Bound<'a>> {
+    buffers.iter().map(|&b| Bound::Buffer(b)).collect()
+}
+
+/// A compute pass with `pipeline` and `resources` bound, counted as one dispatch.
 fn compute_pass<'e>(
     gpu: &GpuContext,
     encoder: &'e mut wgpu::CommandEncoder,
     pipeline: &wgpu::ComputePipeline,
-    buffers: &[&wgpu::Buffer],
+    resources: &[Bound],
     timestamp_writes: Option<wgpu::ComputePassTimestampWrites<'_>>,
 ) -> wgpu::ComputePass<'e> {
-    let bind_group = gpu.bind_buffers(&pipeline.get_bind_group_layout(0), buffers);
+    let bind_group = gpu.bind(&pipeline.get_bind_group_layout(0), resources);
     gpu.counters.dispatches(1);
     let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
         label: None,

@@ -286,16 +286,6 @@ impl GpuContext {
         self.device.create_bind_group(descriptor)
     }
 
-    /// A bind group of `layout` with `buffers` at bindings 0, 1, … (counted).
-    pub fn bind_buffers(
-        &self,
-        layout: &wgpu::BindGroupLayout,
-        buffers: &[&wgpu::Buffer],
-    ) -> wgpu::BindGroup {
-        let bound: Vec<Bound> = buffers.iter().map(|&b| Bound::Buffer(b)).collect();
-        self.bind(layout, &bound)
-    }
-
     /// A bind group of `layout` with `resources` at bindings 0, 1, … (counted).
     pub fn bind(&self, layout: &wgpu::BindGroupLayout, resources: &[Bound]) -> wgpu::BindGroup {
         let entries: Vec<wgpu::BindGroupEntry> = resources

@@ -58,54 +58,72 @@ fn the_projection_into_images_equals_the_linear_layer_then_the_permute_bit_for_b
     }
 }
 
+/// `linear_rows` of `rows` × 12 values to `outputs` outputs with a layer norm, the row
+/// `order` and a residual (fused), and with none of them (plain), against gather, layer
+/// norm (the group norm with one group per row) and linear plus residual, and a plain
+/// linear layer: the gather and norm by the variant's kernels, the linear layers by
+/// `reference` (the variant's own when None). Asserts the same bits; returns the fused
+/// and plain results.
+fn rows_against_separate_ops(
+    v: &mut Variant,
+    rows: usize,
+    outputs: usize,
+    order: &[u32],
+    reference: Option<Kernels>,
+    what: &str,
+) -> (Vec<f32>, Vec<f32>) {
+    let x = v.wave("x", &[rows, 12], 0.37);
+    let weight = v.wave("weight", &[outputs, 12], 0.29);
+    let bias = v.wave("bias", &[outputs], 0.61);
+    let gamma = v.wave("gamma", &[12], 0.7);
+    let beta = v.wave("beta", &[12], 0.9);
+    let residual = v.wave("residual", &[rows, outputs], 0.47);
+    let mut r = v.recorder();
+    let order = r.indices("order", order).unwrap();
+    let layer = (&weight, &bias);
+    let norm = Some((&gamma, &beta));
+    let fused = r
+        .linear_rows(&x, layer, norm, Some(&order), Some(&residual))
+        .unwrap();
+    let plain = r.linear_rows(&x, layer, None, None, None).unwrap();
+    let gathered = r.gather(&x, &order).unwrap();
+    let normed = r
+        .group_norm(
+            &gathered.reshaped(&[rows, 12, 1, 1]),
+            &gamma,
+            &beta,
+            1,
+            false,
+        )
+        .unwrap()
+        .reshaped(&[rows, 12]);
+    if let Some(kernels) = reference {
+        r.set_kernels(kernels);
+    }
+    let separate = r
+        .linear_plus(&normed, &weight, &bias, false, Some(&residual))
+        .unwrap();
+    let plain_ops = r.linear(&x, &weight, &bias, false).unwrap();
+    r.submit();
+    let (fused, plain) = (v.read(&fused), v.read(&plain));
+    assert_same_bits(v.precision, &fused, &v.read(&separate), what);
+    let what = format!("{what} plain");
+    assert_same_bits(v.precision, &plain, &v.read(&plain_ops), &what);
+    (fused, plain)
+}
+
 #[test]
 fn the_linear_layer_over_gathered_normed_rows_equals_the_separate_ops_bit_for_bit() {
     // The refiner's layer norm, projection and serialisation gather in one dispatch on
-    // CPU drivers must equal gather, layer norm (the group norm with one group per row)
-    // and linear (plus residual) exactly, in every variant and precision: 11 rows of 12
-    // values (a partial 8-row tile) in a scrambled order, 8 outputs.
+    // CPU drivers must equal gather, layer norm and linear (plus residual) exactly, in
+    // every variant and precision: 11 rows of 12 values (a partial 8-row tile) in a
+    // scrambled order, 8 outputs.
     for mut v in Variant::all() {
-        let x = v.wave("x", &[11, 12], 0.37);
-        let weight = v.wave("weight", &[8, 12], 0.29);
-        let bias = v.wave("bias", &[8], 0.61);
-        let gamma = v.wave("gamma", &[12], 0.7);
-        let beta = v.wave("beta", &[12], 0.9);
-        let residual = v.wave("residual", &[11, 8], 0.47);
         let what = v.name();
-        let mut r = v.recorder();
-        let order = r
-            .indices("order", &[3, 7, 0, 10, 1, 9, 2, 8, 4, 6, 5])
-            .unwrap();
-        let layer = (&weight, &bias);
-        let fused = r
-            .linear_rows(
-                &x,
-                layer,
-                Some((&gamma, &beta)),
-                Some(&order),
-                Some(&residual),
-            )
-            .unwrap();
-        let plain = r.linear_rows(&x, layer, None, None, None).unwrap();
-        let gathered = r.gather(&x, &order).unwrap();
-        let normed = r
-            .group_norm(&gathered.reshaped(&[11, 12, 1, 1]), &gamma, &beta, 1, false)
-            .unwrap()
-            .reshaped(&[11, 12]);
-        let separate = r
-            .linear_plus(&normed, &weight, &bias, false, Some(&residual))
-            .unwrap();
-        let plain_ops = r.linear(&x, &weight, &bias, false).unwrap();
-        r.submit();
-        assert_same_bits(v.precision, &v.read(&fused), &v.read(&separate), &what);
-        assert_same_bits(
-            v.precision,
-            &v.read(&plain),
-            &v.read(&plain_ops),
-            &format!("{what} plain"),
-        );
+        let order = [3, 7, 0, 10, 1, 9, 2, 8, 4, 6, 5];
+        let (fused, plain) = rows_against_separate_ops(&mut v, 11, 8, &order, None, &what);
         assert!(
-            worst_difference(&v.read(&fused), &v.read(&plain)) > 0.1,
+            worst_difference(&fused, &plain) > 0.1,
             "{what}: the norm and the order changed the result"
         );
     }
@@ -120,46 +138,11 @@ fn the_linear_layer_over_many_outputs_equals_the_simple_kernel_bit_for_bit() {
     // 12 inputs; 44 outputs (six tiles, the last half full: a full chunk and a partial
     // one) and 42 (the one-value stores), with and without norm, order and residual.
     for mut v in Variant::all() {
-        let x = v.wave("x", &[19, 12], 0.37);
-        let gamma = v.wave("gamma", &[12], 0.7);
-        let beta = v.wave("beta", &[12], 0.9);
+        let order: Vec<u32> = (0..19).map(|i| (i * 7) % 19).collect();
         for outputs in [44, 42] {
-            let weight = v.wave("weight", &[outputs, 12], 0.29);
-            let bias = v.wave("bias", &[outputs], 0.61);
-            let residual = v.wave("residual", &[19, outputs], 0.47);
             let what = format!("{} {outputs} outputs", v.name());
-            let mut r = v.recorder();
-            let order: Vec<u32> = (0..19).map(|i| (i * 7) % 19).collect();
-            let order = r.indices("order", &order).unwrap();
-            let layer = (&weight, &bias);
-            let fused = r
-                .linear_rows(
-                    &x,
-                    layer,
-                    Some((&gamma, &beta)),
-                    Some(&order),
-                    Some(&residual),
-                )
-                .unwrap();
-            let plain = r.linear_plus(&x, &weight, &bias, false, None).unwrap();
-            let gathered = r.gather(&x, &order).unwrap();
-            let normed = r
-                .group_norm(&gathered.reshaped(&[19, 12, 1, 1]), &gamma, &beta, 1, false)
-                .unwrap()
-                .reshaped(&[19, 12]);
-            r.set_kernels(Kernels::Simple);
-            let separate = r
-                .linear_plus(&normed, &weight, &bias, false, Some(&residual))
-                .unwrap();
-            let simple = r.linear_plus(&x, &weight, &bias, false, None).unwrap();
-            r.submit();
-            assert_same_bits(v.precision, &v.read(&fused), &v.read(&separate), &what);
-            assert_same_bits(
-                v.precision,
-                &v.read(&plain),
-                &v.read(&simple),
-                &format!("{what} plain"),
-            );
+            let simple = Some(Kernels::Simple);
+            rows_against_separate_ops(&mut v, 19, outputs, &order, simple, &what);
         }
     }
 }

@@ -21,7 +21,7 @@
 // Two neighbouring queries of a (sequence, head) per invocation: each key and value
 // row is fetched once for both (on lavapipe the fetches cost more than the sums: this
 // kernel's 15 dispatches of a live frame took 66 ms with one query an invocation, 48
-// with two; docs/performance.md, session 52). A
+// with two; docs/performance.md, "Stores and fetches"). A
 // query past the end of its run, or one that sees fewer keys (causal), skips the keys
 // it does not see: its running softmax is kept as it was.
 fn pairs() -> u32 { return (p.queries + 1u) / 2u; }

@@ -3,8 +3,8 @@
 // cpu_tile.wgsl's register tiles: four outputs of a row are one vec4 store, and their
 // residual one vec4 load. On lavapipe a storage access is a loop over the SIMD lanes
 // for every value it moves, so linear_cpu.wgsl's one-value stores took about a third
-// of the refiner's linear layers (docs/performance.md, session 52). The same sums and
-// roundings as linear_cpu.wgsl, so the same bits.
+// of the refiner's linear layers (docs/performance.md, "Stores and fetches"). The same
+// sums and roundings as linear_cpu.wgsl, so the same bits.
 
 #import nn/linear/cpu_tile.wgsl
 

@@ -237,34 +237,26 @@ impl Recorder<'_> {
         };
         let chunks = (params.outputs as usize).div_ceil(8).div_ceil(chunk);
         let grid = self.grid((params.rows as usize).div_ceil(8) * chunks);
-        // Plain rows of whole vec4s store four outputs at a time (linear_rows_cpu.wgsl).
-        if params.images == 0 && params.has_table == 0 && params.outputs.is_multiple_of(4) {
-            let bound = [
-                Bound::Texels(&input),
-                Bound::Texels(weight),
-                Bound::Buffer(&bias.buffer),
-                Bound::Buffer(extras.residual),
-                Bound::Buffer(ids),
-                Bound::Texels(gamma),
-                Bound::Texels(beta),
-                Bound::Buffer(&y.buffer),
-            ];
-            self.steps
-                .dispatch_bound(&LINEAR_ROWS_CPU, params, &bound, grid);
-            return Ok(());
-        }
-        let bound = [
+        // Plain rows of whole vec4s store four outputs at a time (linear_rows_cpu.wgsl,
+        // which has no action table).
+        let rows = params.images == 0 && params.has_table == 0 && params.outputs.is_multiple_of(4);
+        let mut bound = vec![
             Bound::Texels(&input),
             Bound::Texels(weight),
             Bound::Buffer(&bias.buffer),
             Bound::Buffer(extras.residual),
-            Bound::Buffer(table),
+        ];
+        if !rows {
+            bound.push(Bound::Buffer(table));
+        }
+        bound.extend([
             Bound::Buffer(ids),
             Bound::Texels(gamma),
             Bound::Texels(beta),
             Bound::Buffer(&y.buffer),
-        ];
-        self.steps.dispatch_bound(&LINEAR_CPU, params, &bound, grid);
+        ]);
+        let shader = if rows { &LINEAR_ROWS_CPU } else { &LINEAR_CPU };
+        self.steps.dispatch_bound(shader, params, &bound, grid);
         Ok(())
     }
 
