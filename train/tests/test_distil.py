@@ -165,6 +165,28 @@ def test_direct_distillation_moves_the_student_to_the_teachers_samples_and_resum
     assert not any(p.name.endswith(".tmp") for p in out.rglob("*")), "no half-written file is left"
 
 
+def test_truth_weight_one_pulls_the_student_to_the_true_frames_without_teacher_samples(teacher_bundle,
+                                                                                      quick_dataset_dir, tmp_path,
+                                                                                      capsys):
+    out = tmp_path / "truth"
+    main(["--bundle", str(teacher_bundle), "--data", str(quick_dataset_dir), "--out", str(out), "--steps", "40",
+          "--lr", "1e-4", "--truth-weight", "1", *QUICK])
+    log = capsys.readouterr().out
+    # The pool's frames are never sampled by the teacher (only the held-out ones, to score).
+    assert "teacher [" not in log and "teacher (held out) [" in log, log
+    assert not (out / "teacher").exists()
+    metrics = json.loads((out / "metrics.json").read_text())
+    held = metrics["held_out"]
+    assert metrics["truth_weight"] == 1.0
+    # On held-out frames the student is nearer the truth than where it started.
+    start = held["teacher_one_pass"]["latent_rms_to_truth"]
+    assert held["student_one_pass"]["latent_rms_to_truth"] < 0.95 * start, held
+    with pytest.raises(SystemExit):
+        main(["--bundle", str(teacher_bundle), "--data", str(quick_dataset_dir), "--out", str(tmp_path / "bad"),
+              "--truth-weight", "1.5", *QUICK])
+    assert "--truth-weight must be between 0 and 1" in capsys.readouterr().err
+
+
 def test_consistency_distillation_runs_and_writes_a_one_pass_bundle(teacher_bundle, quick_dataset_dir, tmp_path):
     out = tmp_path / "cd"
     main(["--bundle", str(teacher_bundle), "--data", str(quick_dataset_dir), "--out", str(out), "--method", "consistency",

@@ -4,7 +4,7 @@ without the guidance batch:
 
     python -m unica_train.distil --bundle BUNDLE --data DATA --out RUN [--method direct|consistency]
         [--frames 3072] [--steps 1500] [--batch 32] [--resume] [--extra-data MORE]
-        [--from-student] [--rollout-frames N]
+        [--from-student] [--rollout-frames N] [--truth-weight W]
 
 The student has the teacher's architecture and starts from its weights. It is run as one
 DDIM step from t = 999 to the clean sample, conditional only, from the teacher's starting
@@ -26,6 +26,10 @@ Methods (`--method`, compared in docs/experiments/distillation.md):
   sampler's noise instead), one guided teacher DDIM step takes it to t_n+1, and the
   student's clean-sample prediction at t_n is pulled to an EMA copy's at t_n+1 (the
   clean latent itself past the last step).
+
+`--truth-weight W` (direct only) pulls the student toward the true next frame as well:
+the loss is (1 - W) times the squared distance to the teacher's sample plus W times the
+squared distance to the true next latent (W = 1 needs no teacher samples of the pool).
 
 `--rollout-frames N` (direct only) adds N frames whose contexts come from the live loop's
 own rollouts of the bundle's student on the training clips' keys (`rollout/`, its
@@ -420,7 +424,10 @@ def train(teacher: Teacher, pool: dict, targets: torch.Tensor | None, out: Path,
         if args.method == "direct":
             noise = pool["noise"][idx]
             got = x0_prediction(student, teacher.schedule, context, noise, torch.full((args.batch,), grid[0]), action)
-            loss = ((got - targets[idx]) ** 2).mean()
+            w = args.truth_weight
+            loss = w * ((got - pool["truth"][idx]) ** 2).mean()
+            if w < 1:
+                loss = loss + (1 - w) * ((got - targets[idx]) ** 2).mean()
         else:
             x0, scales = pool["truth"][idx], pool["idle_scale"][idx]
             cfgs = pool["cfg_scale"][idx] if "cfg_scale" in pool else None
@@ -492,6 +499,7 @@ def held_out_errors(teacher: Teacher, student, held: dict, teacher_z: torch.Tens
     for name, z in rows.items():
         out[name] = {
             "latent_rms_to_teacher": float(((z - teacher_z) ** 2).mean().sqrt()),
+            "latent_rms_to_truth": float(((z - held["truth"]) ** 2).mean().sqrt()),
             "mm_to_teacher": teacher.decode_mm(z, teacher_z),
             "mm_to_truth": teacher.decode_mm(z, held["truth"]),
         }
@@ -568,7 +576,16 @@ def main(argv=None):
     parser.add_argument("--rollout-stride", type=int, default=4, help="every this many rollout frames is kept")
     parser.add_argument("--rollout-held-out-frames", type=int, default=128,
                         help="held-out rollout frames (the held-out clips' keys) scored at the end")
+    parser.add_argument("--truth-weight", type=float, default=0.0,
+                        help="weight of the true next frame in the direct method's loss, the rest on the teacher's "
+                             "sample (0-1; default 0: the teacher's sample only; 1 needs no teacher samples)")
     args = parser.parse_args(argv)
+    if not 0.0 <= args.truth_weight <= 1.0:
+        parser.error("--truth-weight must be between 0 and 1")
+    if args.truth_weight and args.method != "direct":
+        parser.error("--truth-weight needs --method direct")
+    if args.truth_weight and args.rollout_frames:
+        parser.error("--truth-weight cannot go with --rollout-frames (a rollout frame has no truth)")
     if args.rollout_frames and args.method != "direct":
         parser.error("--rollout-frames needs --method direct (a rollout frame has no truth to noise)")
     if not 0.0 <= args.release_share <= 1.0:
@@ -591,7 +608,8 @@ def main(argv=None):
         pool = build_pool(teacher, args.out / "pool", args.frames, args.seed, False, "pool", args.release_share)
         held = build_pool(teacher, args.out / "held_out", args.held_out_frames, args.seed + 1, True, "held-out pool")
         held_z = teacher_samples(teacher, held, args.out / "held_out_teacher", "teacher (held out)")
-        targets = teacher_samples(teacher, pool, args.out / "teacher", "teacher") if args.method == "direct" else None
+        sampled = args.method == "direct" and args.truth_weight < 1
+        targets = teacher_samples(teacher, pool, args.out / "teacher", "teacher") if sampled else None
         if args.rollout_frames:
             rolled_held = rollout_pool(teacher, args.out / "rollout_held_out" / "pool.safetensors",
                                        args.rollout_held_out_frames, args.seed + 1, True, args.rollout_stride,
@@ -617,6 +635,7 @@ def main(argv=None):
         "batch": args.batch,
         "lr": args.lr,
         "release_share": args.release_share,
+        "truth_weight": args.truth_weight,
         "from_student": args.from_student,
         "minutes": (time.time() - started) / 60,
         "held_out": held_out_errors(teacher, student, held, held_z),
