@@ -424,8 +424,11 @@ def train(teacher: Teacher, pool: dict, targets: torch.Tensor | None, out: Path,
         if args.method == "direct":
             noise = pool["noise"][idx]
             got = x0_prediction(student, teacher.schedule, context, noise, torch.full((args.batch,), grid[0]), action)
-            w = args.truth_weight  # rollout frames have no truth: main() refuses both
-            loss = (1 - w) * ((got - targets[idx]) ** 2).mean() if w < 1 else 0.0
+            # Each term only where it is weighted: at W = 1 there are no teacher samples,
+            # and rollout frames have no truth (main() refuses W > 0 with them).
+            w, loss = args.truth_weight, 0.0
+            if w < 1:
+                loss = loss + (1 - w) * ((got - targets[idx]) ** 2).mean()
             if w > 0:
                 loss = loss + w * ((got - pool["truth"][idx]) ** 2).mean()
         else:
