@@ -98,6 +98,10 @@ pub(super) struct EvalArgs {
     /// summary.json with a `lenient_` prefix)
     #[arg(long)]
     strict_only: bool,
+    /// Go on with an interrupted run into the same OUT: every seed it finished (saved in
+    /// OUT/seeds) with the same bundle files and options is read back, not run again
+    #[arg(long)]
+    resume: bool,
 }
 
 /// The evaluation's key script: every movement key, a 180° (W→S, A→D) and a 90° (S→A)
@@ -199,6 +203,7 @@ pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         window_step: args.window_step.unwrap_or(if quick { 5 } else { 1 }) as usize,
         engine_level,
         levels,
+        resume: args.resume,
     };
     let bar = super::progress::bar(
         "strict evaluation: {msg} {bar:30} {pos}/{len} frames, {eta} left",

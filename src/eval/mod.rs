@@ -41,6 +41,9 @@ pub struct StrictOptions {
     /// The engine's own splat level (the adapter's default), and every level scored.
     pub engine_level: usize,
     pub levels: Vec<usize>,
+    /// Reuse the seeds a former run into the same `out` finished with the same bundle
+    /// and options (`OUT/seeds/seedN.json`).
+    pub resume: bool,
 }
 
 /// Runs every seed's script in lockstep and writes summary.json, report.md and
@@ -61,30 +64,46 @@ pub fn strict(
         let (script, keys) = scripts::script(options.script_seed, k, options.script_frames, idle);
         let seed = options.script_seed + k;
         let what = format!("seed {seed} ({}/{})", k + 1, options.seeds);
-        let run = lockstep::run(
-            gpu,
-            &lockstep::LockstepOptions {
-                bundle: options.bundle.clone(),
-                character: options.character.clone(),
-                clips: options.clips.clone(),
-                seed,
-                keys: keys.clone(),
-                size: options.size,
-                score_every: options.score_every,
-                fine_every: options.fine_every,
-                window: options.window,
-                window_step: options.window_step,
-                engine_level: options.engine_level,
-                levels: options.levels.clone(),
-            },
-            &|stage, done, total| progress(&format!("{what} {stage}"), done, total),
-        )?;
-        if let Some(sheet) = &run.sheet {
-            crate::files::write_png_atomic(
-                &options.out.join(format!("sheet_seed{seed}.png")),
-                sheet,
-            )?;
-        }
+        let lockstep_options = lockstep::LockstepOptions {
+            bundle: options.bundle.clone(),
+            character: options.character.clone(),
+            clips: options.clips.clone(),
+            seed,
+            keys: keys.clone(),
+            size: options.size,
+            score_every: options.score_every,
+            fine_every: options.fine_every,
+            window: options.window,
+            window_step: options.window_step,
+            engine_level: options.engine_level,
+            levels: options.levels.clone(),
+        };
+        let saved = options.out.join("seeds").join(format!("seed{seed}.json"));
+        let key = seed_key(options, &lockstep_options, &script)?;
+        let resumed = if options.resume {
+            load_seed(&saved, &key)
+        } else {
+            None
+        };
+        let run = match resumed {
+            Some(run) => {
+                progress(&format!("{what} resumed from {}", saved.display()), 1, 1);
+                run
+            }
+            None => {
+                let run = lockstep::run(gpu, &lockstep_options, &|stage, done, total| {
+                    progress(&format!("{what} {stage}"), done, total)
+                })?;
+                if let Some(sheet) = &run.sheet {
+                    crate::files::write_png_atomic(
+                        &options.out.join(format!("sheet_seed{seed}.png")),
+                        sheet,
+                    )?;
+                }
+                save_seed(&saved, &key, &run)?;
+                run
+            }
+        };
         let actions: Vec<_> = (0..keys.len()).map(|i| keys.action_at(i)).collect();
         let mut motion = motion::compare(&run.engine_roots, &run.teacher_roots, &actions);
         motion.swings = motion::swings(&run.engine_swing, &run.teacher_swing, &actions);
@@ -132,4 +151,163 @@ pub fn strict(
         serde_json::to_string_pretty(&summary)?.as_bytes(),
     )?;
     Ok(summary)
+}
+
+/// What a saved seed must match to be reused: the seed's own options and script, and the
+/// bundle's manifest and weights (FNV-1a of their bytes).
+fn seed_key(
+    options: &StrictOptions,
+    lockstep: &lockstep::LockstepOptions,
+    script: &str,
+) -> anyhow::Result<Value> {
+    let mut bundle = Map::new();
+    for name in ["manifest.json", "weights.safetensors"] {
+        let path = options.bundle.join(name);
+        let bytes = std::fs::read(&path).with_context(|| path.display().to_string())?;
+        bundle.insert(name.into(), json!(format!("{:016x}", fnv1a(&bytes))));
+    }
+    Ok(json!({
+        "bundle": options.bundle.display().to_string(),
+        "bundle_files": bundle,
+        "character": lockstep.character.display().to_string(),
+        "clips": lockstep.clips.iter().map(|c| c.display().to_string()).collect::<Vec<_>>(),
+        "seed": lockstep.seed,
+        "script": script,
+        "size": lockstep.size,
+        "score_every": lockstep.score_every,
+        "fine_every": lockstep.fine_every,
+        "window": lockstep.window,
+        "window_step": lockstep.window_step,
+        "engine_level": lockstep.engine_level,
+        "levels": lockstep.levels,
+    }))
+}
+
+/// 64-bit FNV-1a.
+fn fnv1a(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |hash, &b| {
+        (hash ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3)
+    })
+}
+
+fn save_seed(
+    path: &std::path::Path,
+    key: &Value,
+    run: &lockstep::LockstepRun,
+) -> anyhow::Result<()> {
+    if let Some(folder) = path.parent() {
+        std::fs::create_dir_all(folder).with_context(|| folder.display().to_string())?;
+    }
+    write_atomic(
+        path,
+        serde_json::to_string(&json!({ "key": key, "run": run }))?.as_bytes(),
+    )?;
+    Ok(())
+}
+
+/// The saved run at `path` if its key is `key`; None (and a line saying why, unless the
+/// file is absent) when it cannot be reused.
+fn load_seed(path: &std::path::Path, key: &Value) -> Option<lockstep::LockstepRun> {
+    let text = std::fs::read_to_string(path).ok()?;
+    let reason = match serde_json::from_str::<Value>(&text) {
+        Err(e) => format!("not a saved seed ({e})"),
+        Ok(saved) if saved.get("key") != Some(key) => {
+            "saved with another bundle or other options".to_string()
+        }
+        Ok(saved) => match serde_json::from_value(saved["run"].clone()) {
+            Ok(run) => return Some(run),
+            Err(e) => format!("unreadable run ({e})"),
+        },
+    };
+    eprintln!(
+        "unica eval: {}: {reason}; running that seed again",
+        path.display()
+    );
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::eval::lockstep::{FrameScore, LockstepRun, ViewScore};
+    use crate::eval::motion::FootSample;
+    use crate::eval::pixels::Silhouette;
+    use glam::Vec3;
+
+    fn run() -> LockstepRun {
+        let view = ViewScore {
+            view: 2,
+            // Values that a fast, inexact float parser reads back 1 ulp off.
+            psnr_db: [9.207795473019093, 21.5, f64::INFINITY],
+            ssim: [0.4496710175205879, 0.625, 0.75],
+            silhouette: Silhouette {
+                iou: 0.9,
+                halo: 0.01,
+                holes: 0.02,
+            },
+            face_psnr_db: Some([15.1, f64::INFINITY, 16.3]),
+            hands_psnr_db: None,
+        };
+        LockstepRun {
+            teacher_roots: vec![Vec3::new(0.1, 1.0, -0.3); 2],
+            engine_roots: vec![Vec3::new(1.0 / 3.0, 0.9, 0.2); 2],
+            teacher_facing: vec![0.0, 1.0 / 7.0],
+            engine_facing: vec![-3.5, 2.25],
+            teacher_feet: vec![vec![FootSample {
+                centre: Vec3::new(0.2, 0.0, 0.1),
+                lift: 0.01,
+            }]],
+            engine_feet: vec![Vec::new()],
+            flicker: vec![(0.1, 0.2)],
+            teacher_swing: vec![Vec3::Y],
+            engine_swing: vec![Vec3::NEG_Y],
+            scores: vec![FrameScore {
+                index: 30,
+                level: 256,
+                best_index: 28,
+                best: vec![view.clone()],
+                same: vec![view.clone()],
+                ceiling: vec![view],
+            }],
+            fill: 0.61,
+            seconds: [1.0, 2.0, 3.0, 4.0, 5.0],
+            sheet: None,
+        }
+    }
+
+    #[test]
+    fn a_saved_seed_reads_back_exactly_and_only_under_its_own_key() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("seeds").join("seed7.json");
+        let key = json!({"seed": 7, "script": "40W 60I"});
+        let saved = run();
+        save_seed(&path, &key, &saved).unwrap();
+        let back = load_seed(&path, &key).expect("the same key reads it back");
+        // Lossless, infinities included: both serialise alike, and the infinite PSNRs
+        // are infinite again.
+        assert_eq!(
+            serde_json::to_string(&back).unwrap(),
+            serde_json::to_string(&saved).unwrap()
+        );
+        assert_eq!(back.scores[0].best[0].psnr_db[2], f64::INFINITY);
+        assert_eq!(
+            back.scores[0].ceiling[0].face_psnr_db.unwrap()[1],
+            f64::INFINITY
+        );
+        assert_eq!(back.engine_roots[0], Vec3::new(1.0 / 3.0, 0.9, 0.2));
+        // Another bundle or options: run again.
+        assert!(load_seed(&path, &json!({"seed": 7, "script": "40W 61I"})).is_none());
+        // A file cut short by an interruption: run again.
+        let text = std::fs::read_to_string(&path).unwrap();
+        std::fs::write(&path, &text[..text.len() / 2]).unwrap();
+        assert!(load_seed(&path, &key).is_none());
+        assert!(load_seed(&dir.path().join("absent.json"), &key).is_none());
+    }
+
+    #[test]
+    fn fnv1a_matches_its_published_values() {
+        // The FNV-1a 64-bit test vectors: "" and "a".
+        assert_eq!(fnv1a(b""), 0xcbf2_9ce4_8422_2325);
+        assert_eq!(fnv1a(b"a"), 0xaf63_dc4c_8601_ec8c);
+    }
 }

@@ -39,7 +39,7 @@ pub const FOOT_SLIP_RATIO: f64 = 1.5;
 
 /// One foot in one frame: the horizontal centre of its points and the height of its lowest
 /// point above the frame's lowest point.
-#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FootSample {
     pub centre: Vec3,
     pub lift: f32,

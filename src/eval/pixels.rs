@@ -162,7 +162,7 @@ fn same_size(got: &LinearImage, want: &LinearImage) {
     );
 }
 
-#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct Silhouette {
     pub iou: f64,
     pub halo: f64,
