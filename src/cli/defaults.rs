@@ -78,7 +78,7 @@ pub(super) fn render_with_bar(
     what: &str,
 ) -> anyhow::Result<usize> {
     let bar = super::progress::bar(
-        &format!("{what} {{bar:40}} {{pos}}/{{len}} frames, {{eta}} left"),
+        &format!("{what} {{bar:40}} {{pos}}/{{len}} frames, {{left}}"),
         0,
     );
     let frames = crate::headless::render(job, gpu, &|done, total| {

@@ -206,10 +206,18 @@ pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
         resume: args.resume,
     };
     let bar = super::progress::bar(
-        "strict evaluation: {msg} {bar:30} {pos}/{len} frames, {eta} left",
+        "strict evaluation: {msg} {bar:30} {pos}/{len} frames, {left}",
         0,
     );
+    // Each stage (a seed's teacher, engine, ...) counts its own frames: the bar starts
+    // again with it, so its time left is that stage's.
+    let stage = std::sync::Mutex::new(String::new());
     let summary = crate::eval::strict(&context, &options, &|what, done, total| {
+        let mut last = stage.lock().unwrap_or_else(|e| e.into_inner());
+        if *last != what {
+            bar.reset();
+            *last = what.to_string();
+        }
         bar.set_message(what.to_string());
         bar.set_length(total);
         bar.set_position(done);

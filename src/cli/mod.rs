@@ -480,7 +480,7 @@ fn bench(args: BenchArgs, gpu_options: &GpuOptions) -> anyhow::Result<()> {
 }
 
 fn bake(args: BakeArgs) -> anyhow::Result<()> {
-    let bar = progress::bar("baking {bar:40} {pos}/{len} frames, {eta} left", 0);
+    let bar = progress::bar("baking {bar:40} {pos}/{len} frames, {left}", 0);
     let options = crate::dataset::bake::BakeOptions {
         description: args.avatar,
         clips: args.clips,

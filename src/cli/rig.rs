@@ -177,7 +177,7 @@ pub(super) fn rig_eval(args: RigEvalArgs) -> anyhow::Result<()> {
     let models = Models::load(&models_dir(&args.models))?;
     let character = args.character.or_else(default_character);
     let bar = super::progress::bar(
-        "held-out characters {bar:40} {pos}/{len}, {eta} left",
+        "held-out characters {bar:40} {pos}/{len}, {left}",
         args.holdout as u64,
     );
     let report = evaluate(
@@ -216,10 +216,7 @@ pub(super) fn rig_data(args: RigDataArgs) -> anyhow::Result<()> {
         );
         return Ok(());
     }
-    let bar = super::progress::bar(
-        "characters {bar:40} {pos}/{len}, {eta} left",
-        args.count as u64,
-    );
+    let bar = super::progress::bar("characters {bar:40} {pos}/{len}, {left}", args.count as u64);
     let start = std::time::Instant::now();
     data::write_synthetic(&args.out, args.count, args.seed, !args.plain, &|done, _| {
         bar.set_position(done as u64)
