@@ -214,13 +214,14 @@ pub(super) fn eval(args: EvalArgs, gpu: &GpuOptions) -> anyhow::Result<()> {
     let stage = std::sync::Mutex::new(String::new());
     let summary = crate::eval::strict(&context, &options, &|what, done, total| {
         let mut last = stage.lock().unwrap_or_else(|e| e.into_inner());
-        if *last != what {
-            bar.reset();
-            *last = what.to_string();
-        }
         bar.set_message(what.to_string());
         bar.set_length(total);
         bar.set_position(done);
+        if *last != what {
+            // Not `reset()`, which draws at once with the old stage's message.
+            bar.reset_elapsed();
+            *last = what.to_string();
+        }
     })?;
     bar.finish_and_clear();
     let summary = if args.strict_only {

@@ -499,6 +499,7 @@ pub fn run(
     let mut sheet = None;
     let (mut engine_seconds, mut draw_seconds, mut appearance_seconds) = (0.0, 0.0, 0.0);
     let mut score_seconds = 0.0;
+    progress("engine", 0, steps as u64);
     for index in 1..=steps {
         let lap = std::time::Instant::now();
         let frame = engine.step(options.keys.action_at(index - 1))?;

@@ -54,6 +54,10 @@ pub fn strict(
     progress: &dyn Fn(&str, u64, u64),
 ) -> anyhow::Result<Map<String, Value>> {
     std::fs::create_dir_all(&options.out).with_context(|| options.out.display().to_string())?;
+    // Made first, so that an OUT where it cannot be made fails before hours of work.
+    let seeds_folder = options.out.join("seeds");
+    std::fs::create_dir_all(&seeds_folder).with_context(|| seeds_folder.display().to_string())?;
+    let inputs = inputs_key(gpu, options)?;
     let mut runs = Vec::new();
     for k in 0..options.seeds as u64 {
         let idle = if k == 0 {
@@ -78,8 +82,8 @@ pub fn strict(
             engine_level: options.engine_level,
             levels: options.levels.clone(),
         };
-        let saved = options.out.join("seeds").join(format!("seed{seed}.json"));
-        let key = seed_key(options, &lockstep_options, &script)?;
+        let saved = seeds_folder.join(format!("seed{seed}.json"));
+        let key = seed_key(&inputs, &lockstep_options, &script);
         let resumed = if options.resume {
             load_seed(&saved, &key)
         } else {
@@ -100,7 +104,10 @@ pub fn strict(
                         sheet,
                     )?;
                 }
-                save_seed(&saved, &key, &run)?;
+                if let Err(e) = save_seed(&saved, &key, &run) {
+                    // The run goes on: only a later --resume loses this seed.
+                    eprintln!("unica eval: {}: not saved ({e:#})", saved.display());
+                }
                 run
             }
         };
@@ -153,24 +160,45 @@ pub fn strict(
     Ok(summary)
 }
 
-/// What a saved seed must match to be reused: the seed's own options and script, and the
-/// bundle's manifest and weights (FNV-1a of their bytes).
-fn seed_key(
-    options: &StrictOptions,
-    lockstep: &lockstep::LockstepOptions,
-    script: &str,
-) -> anyhow::Result<Value> {
-    let mut bundle = Map::new();
-    for name in ["manifest.json", "weights.safetensors"] {
-        let path = options.bundle.join(name);
+/// Bump when what a saved seed holds, or how the lockstep run computes it, changes.
+const SEED_FORMAT: u32 = 1;
+
+/// What every saved seed of this run must match to be reused: this program's version and
+/// seed format, the adapter, and FNV-1a hashes of the files the run reads (the bundle's
+/// manifest and weights, the teacher's character file, the description beside it and
+/// its clips; a glTF's external buffers and images are not hashed).
+fn inputs_key(gpu: &GpuContext, options: &StrictOptions) -> anyhow::Result<Value> {
+    let mut files = vec![
+        options.bundle.join("manifest.json"),
+        options.bundle.join("weights.safetensors"),
+        options.character.clone(),
+    ];
+    let description = options.character.with_extension("avatar.json");
+    if description.is_file() {
+        files.push(description);
+    }
+    files.extend(options.clips.iter().cloned());
+    let mut hashes = Map::new();
+    for path in files {
         let bytes = std::fs::read(&path).with_context(|| path.display().to_string())?;
-        bundle.insert(name.into(), json!(format!("{:016x}", fnv1a(&bytes))));
+        hashes.insert(
+            path.display().to_string(),
+            json!(format!("{:016x}", fnv1a(&bytes))),
+        );
     }
     Ok(json!({
-        "bundle": options.bundle.display().to_string(),
-        "bundle_files": bundle,
-        "character": lockstep.character.display().to_string(),
-        "clips": lockstep.clips.iter().map(|c| c.display().to_string()).collect::<Vec<_>>(),
+        "version": env!("CARGO_PKG_VERSION"),
+        "seed_format": SEED_FORMAT,
+        "adapter": gpu.adapter_label(),
+        "files": hashes,
+    }))
+}
+
+/// The key of one seed: the run's inputs (`inputs_key`), the seed's options and script.
+fn seed_key(inputs: &Value, lockstep: &lockstep::LockstepOptions, script: &str) -> Value {
+    json!({
+        "inputs": inputs,
+        "bundle": lockstep.bundle.display().to_string(),
         "seed": lockstep.seed,
         "script": script,
         "size": lockstep.size,
@@ -180,7 +208,7 @@ fn seed_key(
         "window_step": lockstep.window_step,
         "engine_level": lockstep.engine_level,
         "levels": lockstep.levels,
-    }))
+    })
 }
 
 /// 64-bit FNV-1a.
@@ -208,7 +236,17 @@ fn save_seed(
 /// The saved run at `path` if its key is `key`; None (and a line saying why, unless the
 /// file is absent) when it cannot be reused.
 fn load_seed(path: &std::path::Path, key: &Value) -> Option<lockstep::LockstepRun> {
-    let text = std::fs::read_to_string(path).ok()?;
+    let text = match std::fs::read_to_string(path) {
+        Ok(text) => text,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return None,
+        Err(e) => {
+            eprintln!(
+                "unica eval: {}: {e}; running that seed again",
+                path.display()
+            );
+            return None;
+        }
+    };
     let reason = match serde_json::from_str::<Value>(&text) {
         Err(e) => format!("not a saved seed ({e})"),
         Ok(saved) if saved.get("key") != Some(key) => {
