@@ -101,84 +101,14 @@ pub struct LockstepOptions {
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct ViewScore {
     pub view: usize,
-    #[serde(with = "decibels")]
+    #[serde(with = "super::decibels")]
     pub psnr_db: [f64; 3],
     pub ssim: [f64; 3],
     pub silhouette: Silhouette,
-    #[serde(with = "decibels")]
+    #[serde(with = "super::decibels")]
     pub face_psnr_db: Option<[f64; 3]>,
-    #[serde(with = "decibels")]
+    #[serde(with = "super::decibels")]
     pub hands_psnr_db: Option<[f64; 3]>,
-}
-
-/// PSNRs in JSON: an exact match (or nothing to compare) scores infinity, which JSON has
-/// no number for, so it is written as the text "inf" and read back as infinity.
-mod decibels {
-    use serde::{Deserialize, Deserializer, Serialize, Serializer};
-
-    #[derive(Serialize, Deserialize)]
-    #[serde(untagged)]
-    enum Db {
-        Number(f64),
-        Text(String),
-    }
-
-    impl From<f64> for Db {
-        fn from(v: f64) -> Db {
-            if v.is_finite() {
-                Db::Number(v)
-            } else {
-                Db::Text(v.to_string())
-            }
-        }
-    }
-
-    impl Db {
-        fn value<E: serde::de::Error>(self) -> Result<f64, E> {
-            match self {
-                Db::Number(v) => Ok(v),
-                Db::Text(t) => t
-                    .parse()
-                    .map_err(|_| E::custom(format!("{t:?} is not a number of decibels"))),
-            }
-        }
-    }
-
-    /// `[f64; 3]` and `Option<[f64; 3]>`.
-    pub trait Decibels: Sized {
-        fn put<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error>;
-        fn get<'de, D: Deserializer<'de>>(d: D) -> Result<Self, D::Error>;
-    }
-
-    impl Decibels for [f64; 3] {
-        fn put<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-            self.map(Db::from).serialize(s)
-        }
-        fn get<'de, D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-            let [a, b, c] = <[Db; 3]>::deserialize(d)?;
-            Ok([a.value()?, b.value()?, c.value()?])
-        }
-    }
-
-    impl Decibels for Option<[f64; 3]> {
-        fn put<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-            self.map(|v| v.map(Db::from)).serialize(s)
-        }
-        fn get<'de, D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-            match Option::<[Db; 3]>::deserialize(d)? {
-                None => Ok(None),
-                Some([a, b, c]) => Ok(Some([a.value()?, b.value()?, c.value()?])),
-            }
-        }
-    }
-
-    pub fn serialize<T: Decibels, S: Serializer>(v: &T, s: S) -> Result<S::Ok, S::Error> {
-        v.put(s)
-    }
-
-    pub fn deserialize<'de, T: Decibels, D: Deserializer<'de>>(d: D) -> Result<T, D::Error> {
-        T::get(d)
-    }
 }
 
 /// One scored frame at one level.

@@ -3,6 +3,7 @@
 //! cameras, and scored on foreground pixels over several backgrounds, with two-sided
 //! motion tolerances.
 
+mod decibels;
 pub mod lockstep;
 pub mod motion;
 pub mod pixels;
@@ -218,14 +219,12 @@ fn fnv1a(bytes: &[u8]) -> u64 {
     })
 }
 
+/// Writes the seed's run under `key` to `path` (its folder made by `strict`).
 fn save_seed(
     path: &std::path::Path,
     key: &Value,
     run: &lockstep::LockstepRun,
 ) -> anyhow::Result<()> {
-    if let Some(folder) = path.parent() {
-        std::fs::create_dir_all(folder).with_context(|| folder.display().to_string())?;
-    }
     write_atomic(
         path,
         serde_json::to_string(
@@ -236,63 +235,60 @@ fn save_seed(
     Ok(())
 }
 
+/// `value` with `leaf` applied to every value that is not an array or an object.
+fn map_leaves(value: Value, leaf: &dyn Fn(Value) -> Value) -> Value {
+    match value {
+        Value::Array(items) => {
+            Value::Array(items.into_iter().map(|v| map_leaves(v, leaf)).collect())
+        }
+        Value::Object(map) => Value::Object(
+            map.into_iter()
+                .map(|(k, v)| (k, map_leaves(v, leaf)))
+                .collect(),
+        ),
+        other => leaf(other),
+    }
+}
+
 /// `value` with every fractional number written as its shortest exact text: serde_json's
 /// own float parser (without its `float_roundtrip` feature, which would change how every
 /// JSON file of the program is read) reads some values back 1 ulp off, and a resumed
 /// summary then differed in its last digits; Rust's `str::parse` is exact.
 fn floats_as_text(value: Value) -> Value {
-    match value {
-        Value::Number(n) if n.is_f64() => Value::String(n.as_f64().unwrap_or(f64::NAN).to_string()),
-        Value::Array(items) => Value::Array(items.into_iter().map(floats_as_text).collect()),
-        Value::Object(map) => Value::Object(
-            map.into_iter()
-                .map(|(k, v)| (k, floats_as_text(v)))
-                .collect(),
-        ),
-        other => other,
-    }
+    map_leaves(value, &|leaf| match leaf.as_f64() {
+        Some(v) if leaf.is_f64() => Value::String(v.to_string()),
+        _ => leaf,
+    })
 }
 
 /// The inverse of [`floats_as_text`]: every text that reads as a finite number becomes
 /// that number again (the run holds no other text but the decibels' "inf").
 fn floats_from_text(value: Value) -> Value {
-    match value {
-        Value::String(t) => match t.parse::<f64>().ok().and_then(serde_json::Number::from_f64) {
-            Some(n) => Value::Number(n),
-            None => Value::String(t),
-        },
-        Value::Array(items) => Value::Array(items.into_iter().map(floats_from_text).collect()),
-        Value::Object(map) => Value::Object(
-            map.into_iter()
-                .map(|(k, v)| (k, floats_from_text(v)))
-                .collect(),
-        ),
-        other => other,
-    }
+    map_leaves(value, &|leaf| match leaf
+        .as_str()
+        .and_then(|t| t.parse::<f64>().ok())
+        .and_then(serde_json::Number::from_f64)
+    {
+        Some(n) => Value::Number(n),
+        None => leaf,
+    })
 }
 
 /// The saved run at `path` if its key is `key`; None (and a line saying why, unless the
 /// file is absent) when it cannot be reused.
 fn load_seed(path: &std::path::Path, key: &Value) -> Option<lockstep::LockstepRun> {
-    let text = match std::fs::read_to_string(path) {
-        Ok(text) => text,
+    let reason = match std::fs::read_to_string(path) {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return None,
-        Err(e) => {
-            eprintln!(
-                "unica eval: {}: {e}; running that seed again",
-                path.display()
-            );
-            return None;
-        }
-    };
-    let reason = match serde_json::from_str::<Value>(&text) {
-        Err(e) => format!("not a saved seed ({e})"),
-        Ok(saved) if saved.get("key") != Some(key) => {
-            "saved with another bundle or other options".to_string()
-        }
-        Ok(saved) => match serde_json::from_value(floats_from_text(saved["run"].clone())) {
-            Ok(run) => return Some(run),
-            Err(e) => format!("unreadable run ({e})"),
+        Err(e) => e.to_string(),
+        Ok(text) => match serde_json::from_str::<Value>(&text) {
+            Err(e) => format!("not a saved seed ({e})"),
+            Ok(saved) if saved.get("key") != Some(key) => {
+                "saved with another bundle or other options".to_string()
+            }
+            Ok(saved) => match serde_json::from_value(floats_from_text(saved["run"].clone())) {
+                Ok(run) => return Some(run),
+                Err(e) => format!("unreadable run ({e})"),
+            },
         },
     };
     eprintln!(
@@ -354,7 +350,7 @@ mod tests {
     #[test]
     fn a_saved_seed_reads_back_exactly_and_only_under_its_own_key() {
         let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("seeds").join("seed7.json");
+        let path = dir.path().join("seed7.json");
         let key = json!({"seed": 7, "script": "40W 60I"});
         let saved = run();
         save_seed(&path, &key, &saved).unwrap();
